@@ -1,0 +1,1 @@
+"""The HTTP service over the memory, installed as ``tactus_memory.service``."""

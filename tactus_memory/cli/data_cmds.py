@@ -1,0 +1,3 @@
+"""Commands: data_cmds."""
+
+from tactus_memory.cli.app import app  # noqa: F401

@@ -1,0 +1,51 @@
+"""Typed exceptions. Every bad input raises one of these with a message naming the problem.
+
+They subclass ``ValueError`` / ``LookupError`` so plain ``except ValueError`` still works;
+the service maps each class to one HTTP status in one place.
+"""
+
+from __future__ import annotations
+
+
+class TactusError(Exception):
+    """Base class of every error this package raises on purpose."""
+
+
+class InvalidInputError(TactusError, ValueError):
+    """Input has the wrong shape, dtype, range, or contains NaN/inf (HTTP 422)."""
+
+
+class InvalidIdError(InvalidInputError):
+    """A session id, item id or sense name fails validation (HTTP 422)."""
+
+
+class DimensionMismatchError(InvalidInputError):
+    """A vector's dimension differs from the space or sense dimension (HTTP 422)."""
+
+
+class UnknownSenseError(TactusError, LookupError):
+    """A sense name that is not registered with this memory (HTTP 404)."""
+
+
+class NotFoundError(TactusError, LookupError):
+    """A session or item that does not exist (HTTP 404)."""
+
+
+class SenseConflictError(TactusError, ValueError):
+    """``add_sense`` with a duplicate name, or a sense bound to another space (HTTP 409)."""
+
+
+class SpaceMismatchError(TactusError, ValueError):
+    """A store opened with a space other than the one it was created with (HTTP 409)."""
+
+
+class CapabilityError(TactusError, ValueError):
+    """The space cannot do what was asked, e.g. image embedding without vision (HTTP 400)."""
+
+
+class DataFormatError(TactusError, ValueError):
+    """A STAG file is missing fields or has inconsistent shapes."""
+
+
+class DynamicRangeError(TactusError, ValueError):
+    """Calibrated pressure uses too few intensity levels or looks already normalised."""

@@ -1,0 +1,203 @@
+"""Senses: how one kind of raw input becomes a vector in the memory's space.
+
+Shape of the plug-in (after LanceDB's embedding registry): a name, a modality, ``dim``,
+``embed`` for stored items (source side), ``query_transform`` for text queries compared
+against this sense (query side), input validation, provenance, and lazy model loading.
+The memory never branches on a sense's name; everything sense-specific lives here.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.errors import CapabilityError, InvalidIdError, InvalidInputError, SenseConflictError
+from tactus_memory.spaces.base import Space
+from tactus_memory.vectors import as_unit_rows
+
+SENSE_NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
+MAX_TEXT_CHARS = 8192
+
+
+def validate_sense_name(name: str) -> str:
+    if not isinstance(name, str) or not SENSE_NAME_RE.fullmatch(name):
+        raise InvalidIdError(
+            f"invalid sense name {name!r}: use 1-32 chars of [a-z0-9_], starting with a letter"
+        )
+    return name
+
+
+def array_to_bytes(arr: np.ndarray) -> bytes:
+    """Store a small array losslessly (``.npy`` bytes) so a row can be re-embedded or drawn."""
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(arr), allow_pickle=False)
+    return buf.getvalue()
+
+
+def bytes_to_array(raw: bytes) -> np.ndarray:
+    return np.load(io.BytesIO(raw), allow_pickle=False)
+
+
+class Sense(ABC):
+    """One sense registered in a memory."""
+
+    #: unique name inside a memory, e.g. "text", "touch", "motion"
+    name: str
+    #: what kind of input: "text" | "touch" | "image" | "vector" | ...
+    modality: str
+    #: output dimension D (equals the space's dim)
+    dim: int
+    #: the space this sense maps into; None means "whatever space it is bound to"
+    space_name: str | None = None
+
+    def bind(self, space: Space) -> None:
+        """Called by ``Memory.add_sense``. Raises ``SenseConflictError`` on a space mismatch."""
+        if self.space_name is not None and self.space_name != space.name:
+            raise SenseConflictError(
+                f"sense {self.name!r} maps into space {self.space_name!r}, "
+                f"but this memory's space is {space.name!r}"
+            )
+        if self.dim != space.dim:
+            raise SenseConflictError(
+                f"sense {self.name!r} has dimension {self.dim}, "
+                f"but space {space.name!r} has dimension {space.dim}"
+            )
+
+    @abstractmethod
+    def validate(self, item: Any) -> Any:
+        """Check one raw item and return its canonical form. Raises ``InvalidInputError``."""
+
+    @abstractmethod
+    def embed(self, batch: Sequence[Any]) -> np.ndarray:
+        """batch: N validated items -> (N, D) float32, L2-normalised."""
+
+    def query_transform(self, queries: np.ndarray) -> np.ndarray:
+        """queries: (N, D) text-query vectors -> (N, D) vectors comparable with this sense.
+
+        Identity by default; the touch sense removes its target centroid here.
+        """
+        return queries
+
+    def to_row(self, item: Any) -> dict[str, Any]:
+        """Extra stored columns for one validated item: ``text`` and/or ``raw`` (npy bytes)."""
+        return {}
+
+    def from_row(self, row: dict[str, Any]) -> Any:
+        """Rebuild the raw item from a stored row (for re-embedding and drawing)."""
+        if row.get("raw") is not None:
+            return bytes_to_array(row["raw"])
+        return row.get("text")
+
+    def provenance(self) -> dict[str, Any]:
+        """Encoder name, version, checkpoint hash, calibration: what is needed to trust it."""
+        return {"encoder": type(self).__name__}
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "modality": self.modality,
+            "dim": self.dim,
+            "space": self.space_name,
+            "provenance": self.provenance(),
+        }
+
+
+class TextSense(Sense):
+    """Notes and captions, embedded by the space's text model (document side)."""
+
+    modality = "text"
+
+    def __init__(self, space: Space, name: str = "text") -> None:
+        self.name = validate_sense_name(name)
+        self.space = space
+        self.dim = space.dim
+        self.space_name = space.name
+
+    def validate(self, item: Any) -> str:
+        if not isinstance(item, str):
+            raise InvalidInputError(f"text sense takes a string, got {type(item).__name__}")
+        if not item.strip():
+            raise InvalidInputError("text is empty")
+        if len(item) > MAX_TEXT_CHARS:
+            raise InvalidInputError(f"text has {len(item)} characters, limit {MAX_TEXT_CHARS}")
+        return item
+
+    def embed(self, batch: Sequence[str]) -> np.ndarray:
+        return as_unit_rows(self.space.embed_texts(list(batch), query=False), self.dim)
+
+    def to_row(self, item: str) -> dict[str, Any]:
+        return {"text": item}
+
+    def provenance(self) -> dict[str, Any]:
+        return {"encoder": "space-text", "space": self.space.describe()}
+
+
+class ImageSense(Sense):
+    """Camera frames, embedded by the space's vision tower (only for spaces with vision)."""
+
+    modality = "image"
+
+    def __init__(self, space: Space, name: str = "image") -> None:
+        if not space.has_vision:
+            raise CapabilityError(
+                f"space {space.name!r} has no vision; an image sense needs a vision space "
+                "such as Qwen3VLSpace"
+            )
+        self.name = validate_sense_name(name)
+        self.space = space
+        self.dim = space.dim
+        self.space_name = space.name
+
+    def validate(self, item: Any) -> np.ndarray:
+        arr = np.asarray(item)
+        if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
+            raise InvalidInputError(f"image must be (H, W, 3) uint8, got {arr.shape} {arr.dtype}")
+        return arr
+
+    def embed(self, batch: Sequence[np.ndarray]) -> np.ndarray:
+        return as_unit_rows(self.space.embed_images(list(batch)), self.dim)
+
+    def provenance(self) -> dict[str, Any]:
+        return {"encoder": "space-vision", "space": self.space.describe()}
+
+
+class VectorSense(Sense):
+    """Precomputed embeddings from an encoder that lives elsewhere (e.g. an IMU motion model).
+
+    ``memory.add_sense(VectorSense("motion", dim=384))``; items are (D,) vectors, stored
+    normalised. ``space`` names the space the external encoder targets (None: trust the
+    caller that it is the memory's space).
+    """
+
+    modality = "vector"
+
+    def __init__(
+        self,
+        name: str,
+        dim: int,
+        *,
+        space: str | None = None,
+        encoder: str = "external",
+        version: str = "",
+        checkpoint_sha256: str = "",
+    ) -> None:
+        self.name = validate_sense_name(name)
+        if not isinstance(dim, int) or dim <= 0:
+            raise InvalidInputError(f"dim must be a positive int, got {dim!r}")
+        self.dim = dim
+        self.space_name = space
+        self._provenance = {"encoder": encoder, "version": version, "checkpoint_sha256": checkpoint_sha256}
+
+    def validate(self, item: Any) -> np.ndarray:
+        return as_unit_rows(item, self.dim, what=f"{self.name} vector")[0]
+
+    def embed(self, batch: Sequence[np.ndarray]) -> np.ndarray:
+        return as_unit_rows(np.stack(list(batch)), self.dim, what=f"{self.name} vector")
+
+    def provenance(self) -> dict[str, Any]:
+        return dict(self._provenance)

@@ -1,0 +1,40 @@
+"""The Space protocol: the frozen embedding model that defines the shared vector space."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.errors import CapabilityError
+
+
+class Space(ABC):
+    """A frozen embedding model. A store is bound to exactly one space (``name``, ``dim``).
+
+    Subclasses load lazily: constructing a space is cheap, the model loads on first use.
+    """
+
+    #: registry name recorded in the store, e.g. ``"minilm-l6"``
+    name: str
+    #: embedding dimension D
+    dim: int
+    #: whether ``embed_images`` works
+    has_vision: bool = False
+
+    @abstractmethod
+    def embed_texts(self, texts: Sequence[str], *, query: bool = False) -> np.ndarray:
+        """texts: N strings -> (N, D) float32, L2-normalised.
+
+        ``query=True`` embeds the query side (spaces with instruction prompts use them here);
+        ``query=False`` embeds documents (notes stored in the memory, class phrases).
+        """
+
+    def embed_images(self, images: Sequence[Any]) -> np.ndarray:
+        """images: N PIL images or (H, W, 3) uint8 arrays -> (N, D) float32, L2-normalised."""
+        raise CapabilityError(f"space {self.name!r} has no vision: it cannot embed images")
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name, "dim": self.dim, "has_vision": self.has_vision}

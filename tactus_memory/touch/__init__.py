@@ -1,0 +1,1 @@
+"""Tactus, the touch encoder: STAG data path, models, targets, training, evaluation."""

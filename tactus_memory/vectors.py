@@ -1,0 +1,34 @@
+"""The one readout: every vector that enters or leaves the memory passes through here."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tactus_memory.errors import DimensionMismatchError, InvalidInputError
+
+EPS = 1e-12
+
+
+def as_unit_rows(x: np.ndarray | list, dim: int | None = None, *, what: str = "vector") -> np.ndarray:
+    """Validate and L2-normalise vectors.
+
+    x: (D,) or (N, D) numbers  ->  (N, D) float32, each row of unit norm.
+    Raises ``DimensionMismatchError`` when D != dim and ``InvalidInputError`` on NaN/inf,
+    ragged input or all-zero rows.
+    """
+    try:
+        arr = np.asarray(x, dtype=np.float32)
+    except (ValueError, TypeError) as exc:
+        raise InvalidInputError(f"{what} is not a numeric array (ragged or non-numeric): {exc}")
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2:
+        raise InvalidInputError(f"{what} must have shape (D,) or (N, D), got {arr.shape}")
+    if dim is not None and arr.shape[1] != dim:
+        raise DimensionMismatchError(f"{what} has dimension {arr.shape[1]}, expected {dim}")
+    if not np.isfinite(arr).all():
+        raise InvalidInputError(f"{what} contains NaN or inf")
+    norms = np.linalg.norm(arr, axis=1, keepdims=True)
+    if (norms < EPS).any():
+        raise InvalidInputError(f"{what} has an all-zero row; it has no direction")
+    return (arr / norms).astype(np.float32)
