@@ -1,0 +1,50 @@
+"""The package installs as one namespace: adapters/ and service/ live under tactus_memory."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_wheel_maps_adapters_and_service_under_tactus_memory(tmp_path: Path) -> None:
+    """A non-editable build (what `pip install .` installs) has the mapped layout and data."""
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            str(tmp_path),
+            str(ROOT),
+        ],
+        check=True,
+        cwd=tmp_path,
+    )
+    (wheel,) = tmp_path.glob("tactus_memory-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "tactus_memory/adapters/__init__.py" in names
+    assert "tactus_memory/service/__init__.py" in names
+    assert "tactus_memory/service/routers/__init__.py" in names
+    assert not any(n.startswith(("adapters/", "service/")) for n in names), names
+    entry_points = next(n for n in names if n.endswith("entry_points.txt"))
+    assert "tactus = tactus_memory.cli:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
+
+
+def test_top_level_adapters_and_service_are_not_importable(tmp_path: Path) -> None:
+    code = (
+        "import importlib.util as u, tactus_memory.adapters as a, tactus_memory.service as s;"
+        "assert u.find_spec('adapters') is None and u.find_spec('service') is None;"
+        "print(a.__name__, s.__name__)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.split() == ["tactus_memory.adapters", "tactus_memory.service"]
