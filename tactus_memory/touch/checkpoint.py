@@ -1,0 +1,153 @@
+"""Checkpoints: safetensors weights + JSON metadata (embedded, and mirrored in a sidecar).
+
+One ``.safetensors`` file holds everything needed to use the encoder without the data:
+
+    tensors   model.*               the TactusModel state dict (float32, or float16 if ``half``)
+              targets.raw           (C, D) template-averaged class-phrase embeddings
+              targets.centred       (C, D) normalize(raw - centroid): what logits use
+              targets.centroid      (D,)   removed from text queries (query_transform)
+    metadata  "tactus"              JSON: format, model config, space name/dim, classes,
+                                    phrases, calibration profile, data fingerprint, seed, code
+                                    version, steps, validation metrics, target geometry
+
+``<stem>.json`` beside the weights repeats the metadata for humans and tools; the embedded
+copy is authoritative. The file's sha256 is the provenance handle (``file_sha256``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors import safe_open
+from safetensors.torch import load_file, save_file
+
+from tactus_memory import __version__
+from tactus_memory.touch.model import TactusConfig, TactusModel
+from tactus_memory.touch.targets import Targets
+
+FORMAT = "tactus-touch/1"
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint. ``model`` is in eval mode, float32, on ``device``."""
+
+    model: TactusModel
+    meta: dict[str, Any]
+    targets: Targets
+    sha256: str
+    path: Path
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def space_name(self) -> str:
+        return str(self.meta["space"]["name"])
+
+    @property
+    def dim(self) -> int:
+        return int(self.meta["space"]["dim"])
+
+    @property
+    def classes(self) -> list[str]:
+        return list(self.meta["classes"])
+
+
+def save_checkpoint(
+    path: str | os.PathLike[str],
+    model: TactusModel,
+    targets: Targets,
+    *,
+    space_dim: int,
+    calibration: dict[str, Any] | None = None,
+    fingerprint: str = "",
+    seed: int | None = None,
+    steps: int = 0,
+    metrics: dict[str, Any] | None = None,
+    train_args: dict[str, Any] | None = None,
+    target_geometry: dict[str, Any] | None = None,
+    half: bool = False,
+) -> str:
+    """Write weights + metadata atomically; returns the file's sha256."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    dtype = torch.float16 if half else torch.float32
+    tensors: dict[str, torch.Tensor] = {}
+    for k, v in model.state_dict().items():
+        v = v.detach().cpu()
+        tensors[f"model.{k}"] = (v.to(dtype) if v.is_floating_point() else v).contiguous()
+    tensors["targets.raw"] = torch.from_numpy(np.ascontiguousarray(targets.raw, np.float32))
+    tensors["targets.centred"] = torch.from_numpy(np.ascontiguousarray(targets.centred, np.float32))
+    tensors["targets.centroid"] = torch.from_numpy(
+        np.ascontiguousarray(targets.centroid, np.float32)
+    )
+    meta = {
+        "format": FORMAT,
+        "model": model.cfg.to_dict(),
+        "space": {"name": targets.space_name, "dim": int(space_dim)},
+        "classes": list(targets.classes),
+        "phrases": list(targets.phrases),
+        "calibration": calibration or {},
+        "data_fingerprint": fingerprint,
+        "seed": seed,
+        "code_version": __version__,
+        "steps": int(steps),
+        "metrics": metrics or {},
+        "train_args": train_args or {},
+        "target_geometry": target_geometry or {},
+        "weights_dtype": str(dtype).replace("torch.", ""),
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    save_file(tensors, str(tmp), metadata={"tactus": json.dumps(meta, sort_keys=True)})
+    os.replace(tmp, path)
+    sha = file_sha256(path)
+    sidecar = dict(meta, sha256=sha)
+    path.with_suffix(".json").write_text(json.dumps(sidecar, indent=2, sort_keys=True) + "\n")
+    return sha
+
+
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The embedded metadata only (no weights loaded)."""
+    with safe_open(str(path), framework="pt") as f:
+        md = f.metadata() or {}
+    if "tactus" not in md:
+        raise ValueError(f"{path} is not a Tactus checkpoint (no 'tactus' metadata)")
+    meta = json.loads(md["tactus"])
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{path}: unsupported checkpoint format {meta.get('format')!r}")
+    return meta
+
+
+def load_checkpoint(path: str | os.PathLike[str], device: str = "cpu") -> Checkpoint:
+    """Rebuild the model (float32, eval mode) and its targets from a ``.safetensors`` file."""
+    path = Path(path)
+    meta = read_metadata(path)
+    tensors = load_file(str(path), device="cpu")
+    model = TactusModel(TactusConfig.from_dict(meta["model"]))
+    state = {k[len("model.") :]: v for k, v in tensors.items() if k.startswith("model.")}
+    state = {k: (v.float() if v.is_floating_point() else v) for k, v in state.items()}
+    model.load_state_dict(state, strict=True)
+    model.to(device).eval()
+    targets = Targets(
+        classes=list(meta["classes"]),
+        phrases=list(meta["phrases"]),
+        raw=tensors["targets.raw"].numpy().astype(np.float32),
+        centroid=tensors["targets.centroid"].numpy().astype(np.float32),
+        centred=tensors["targets.centred"].numpy().astype(np.float32),
+        space_name=str(meta["space"]["name"]),
+    )
+    return Checkpoint(model=model, meta=meta, targets=targets, sha256=file_sha256(path), path=path)
