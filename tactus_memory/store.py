@@ -242,6 +242,29 @@ class IndexConfig:
     )
 
 
+def vector_index_config(cfg: IndexConfig, partitions: int, dim: int) -> Any:
+    """The LanceDB index config for ``cfg.index_type`` (cosine metric)."""
+    from lancedb import index as ix
+
+    kind = cfg.index_type.upper()
+    common: dict[str, Any] = {"distance_type": "cosine", "num_partitions": partitions}
+    if kind == "IVF_PQ":
+        return ix.IvfPq(num_sub_vectors=max(1, dim // 8), **common)
+    if kind == "IVF_SQ":
+        return ix.IvfSq(**common)
+    if kind == "IVF_HNSW_SQ":
+        return ix.IvfHnswSq(**common)
+    if kind == "IVF_FLAT":
+        return ix.IvfFlat(**common)
+    raise InvalidInputError(f"unsupported vector index type {cfg.index_type!r}")
+
+
+def scalar_index_config(kind: str) -> Any:
+    from lancedb import index as ix
+
+    return {"BTREE": ix.BTree, "BITMAP": ix.Bitmap}[kind.upper()]()
+
+
 def is_remote_uri(uri: str) -> bool:
     return uri.startswith(REMOTE_SCHEMES)
 
@@ -431,18 +454,9 @@ class Store:
         n = self.count()
         parts = max(1, n // cfg.rows_per_partition)
         t0 = time.perf_counter()
-        kwargs: dict[str, Any] = {
-            "metric": "cosine",
-            "vector_column_name": "vector",
-            "index_type": cfg.index_type,
-            "num_partitions": parts,
-            "replace": True,
-        }
-        if cfg.index_type == "IVF_PQ":
-            kwargs["num_sub_vectors"] = max(1, self.dim() // 8)
-        self.items.create_index(**kwargs)
+        self.items.create_index("vector", config=vector_index_config(cfg, parts, self.dim()))
         for column, kind in cfg.scalar.items():
-            self.items.create_scalar_index(column, index_type=kind, replace=True)
+            self.items.create_index(column, config=scalar_index_config(kind), replace=True)
         self._indexed = True
         self.set_meta("index", json.dumps({"rows": n, "type": cfg.index_type, "partitions": parts}))
         log.info("built %s index on %d rows in %.1fs", cfg.index_type, n, time.perf_counter() - t0)
