@@ -323,8 +323,10 @@ def _h5_class(obj: h5py.Dataset) -> str:
 def _h5_string(f: h5py.File, ds: h5py.Dataset) -> str:
     if ds.attrs.get("MATLAB_empty", 0) or ds.size == 0:
         return ""
-    codes = np.asarray(ds[()]).T  # MATLAB (rows, len) -> rows of chars
-    return "\n".join("".join(chr(c) for c in row).rstrip("\x00") for row in np.atleast_2d(codes))
+    codes = np.atleast_2d(np.asarray(ds[()]).T)  # h5 (len, rows) -> MATLAB (rows, len)
+    # MATLAB_int_decode = 2: the codes are UTF-16 code units
+    rows = [row.astype("<u2").tobytes().decode("utf-16-le", errors="replace") for row in codes]
+    return "\n".join(r.rstrip("\x00") for r in rows)
 
 
 def _read_v73(path: Path) -> dict[str, Any]:
