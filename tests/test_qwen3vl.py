@@ -61,7 +61,6 @@ def build_tiny_qwen3vl(folder: Path) -> Path:
     from tokenizers import Tokenizer, decoders, models, pre_tokenizers, trainers
     from transformers import (
         PreTrainedTokenizerFast,
-        Qwen2VLImageProcessorPil,
         Qwen3VLConfig,
         Qwen3VLForConditionalGeneration,
     )
@@ -122,9 +121,18 @@ def build_tiny_qwen3vl(folder: Path) -> Path:
     model = Qwen3VLForConditionalGeneration(config).eval()
     model.save_pretrained(folder)
     tokenizer.save_pretrained(folder)
-    Qwen2VLImageProcessorPil(
-        patch_size=16, merge_size=2, temporal_patch_size=2, min_pixels=64 * 64, max_pixels=128 * 128
-    ).save_pretrained(folder)
+    # the released model's preprocessor_config.json, with a small pixel band
+    preprocessor = {
+        "size": {"longest_edge": 128 * 128, "shortest_edge": 64 * 64},
+        "patch_size": 16,
+        "temporal_patch_size": 2,
+        "merge_size": 2,
+        "image_mean": [0.5, 0.5, 0.5],
+        "image_std": [0.5, 0.5, 0.5],
+        "processor_class": "Qwen3VLProcessor",
+        "image_processor_type": "Qwen2VLImageProcessorFast",
+    }
+    (folder / "preprocessor_config.json").write_text(json.dumps(preprocessor))
     return folder
 
 
@@ -244,6 +252,20 @@ def test_batching_and_padding_do_not_change_vectors(tiny_dir: Path) -> None:
     np.testing.assert_allclose(batch[0], alone[0], atol=1e-4)
 
 
+def test_long_text_is_truncated_keeping_the_scaffold(tiny_dir: Path) -> None:
+    space = Qwen3VLSpace(tiny_dir, max_length=48)
+    long_text = "holding a mug " * 200
+    out = space.embed_texts([long_text, "a mug"])
+    assert out.shape == (2, HIDDEN)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-5)
+    prompt = build_prompt(DOCUMENT_INSTRUCTION, long_text)
+    ids, mask = space._tokenize([prompt], [long_text])
+    assert ids.shape[1] == 48 and int(mask.sum()) == 48
+    suffix = space._tokenizer("<|im_end|>\n<|im_start|>assistant\n", add_special_tokens=False)
+    tail = suffix["input_ids"]
+    assert ids[0, -len(tail) :].tolist() == tail
+
+
 def test_query_and_document_instructions_differ(tiny_space: Qwen3VLSpace) -> None:
     q = tiny_space.embed_texts(["holding a mug"], query=True)
     d = tiny_space.embed_texts(["holding a mug"], query=False)
@@ -270,6 +292,11 @@ def test_image_embeddings(tiny_space: Qwen3VLSpace) -> None:
     assert out.shape == (2, HIDDEN) and out.dtype == np.float32
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-5)
     assert not np.allclose(out[0], out[1], atol=1e-4)
+    same_size = tiny_space.embed_images([arr, 255 - arr])  # same grid, other pixels
+    assert not np.allclose(same_size[0], same_size[1], atol=1e-4)
+    # the folder's preprocessor config is honoured (0.5 mean/std, patch 16, merge 2)
+    assert list(tiny_space._image_processor.image_mean) == [0.5, 0.5, 0.5]
+    assert tiny_space._image_processor.patch_size == 16
     again = tiny_space.embed_images([Image.fromarray(arr)])
     np.testing.assert_allclose(again[0], out[0], atol=1e-4)
     text = tiny_space.embed_texts(["holding a mug"])

@@ -253,23 +253,26 @@ class Qwen3VLSpace(Space):
 
     # -- encoding ----------------------------------------------------------------------------
 
-    def _tokenize(self, prompts: list[str], text_budget: list[str | None]) -> tuple[Any, Any]:
+    def _tokenize(self, prompts: list[str], texts: list[str | None]) -> tuple[Any, Any]:
         """prompts: B strings -> input_ids (B, L) long, attention_mask (B, L) long, right-padded.
 
-        A prompt longer than ``max_length`` is rebuilt with its user text cut (the chat
-        scaffold and its closing tokens are kept, so the last token stays ``assistant\\n``).
+        ``texts[i]`` is the user text inside ``prompts[i]`` (None for images). A prompt longer
+        than ``max_length`` tokens keeps its chat scaffold and loses the tail of its user text,
+        so it still ends with ``<|im_end|>\n<|im_start|>assistant\n`` (the pooled token).
         """
         import torch
 
         tok = self._tokenizer
         rows: list[list[int]] = []
-        for prompt, text in zip(prompts, text_budget, strict=True):
+        for prompt, text in zip(prompts, texts, strict=True):
             ids = tok(prompt, add_special_tokens=False)["input_ids"]
             if len(ids) > self.max_length and text:
-                text_ids = tok(text, add_special_tokens=False)["input_ids"]
-                over = len(ids) - self.max_length
-                cut = tok.decode(text_ids[: max(len(text_ids) - over - 8, 0)])
-                ids = tok(prompt.replace(text, cut), add_special_tokens=False)["input_ids"]
+                head, _, tail = prompt.rpartition(text)
+                head_ids = tok(head, add_special_tokens=False)["input_ids"]
+                tail_ids = tok(tail, add_special_tokens=False)["input_ids"]
+                budget = max(self.max_length - len(head_ids) - len(tail_ids), 0)
+                text_ids = tok(text, add_special_tokens=False)["input_ids"][:budget]
+                ids = head_ids + text_ids + tail_ids
             rows.append(ids)
         pad_id = tok.pad_token_id
         if pad_id is None:
