@@ -1,0 +1,87 @@
+"""Turning request payloads into arrays: JSON without NaN, ``.npy`` bodies, touch frames.
+
+Every failure raises ``InvalidInputError`` with a message naming the problem, so it becomes a
+422 problem in the one mapping (``problems.ERROR_STATUS``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.errors import InvalidInputError
+
+FRAME_SHAPE = (32, 32)
+NPY_TYPES = ("application/x-npy", "application/octet-stream")
+
+
+def _reject_constant(name: str) -> Any:
+    raise InvalidInputError(f"JSON contains {name}; NaN and Infinity are not valid numbers here")
+
+
+def loads_strict(raw: bytes | str) -> Any:
+    """``json.loads`` that rejects the NaN/Infinity literals Python's json would accept."""
+    try:
+        return json.loads(raw, parse_constant=_reject_constant)
+    except InvalidInputError:
+        raise
+    except (ValueError, RecursionError) as exc:
+        raise InvalidInputError(f"body is not valid JSON: {exc}") from None
+
+
+def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
+    """``.npy`` bytes -> a finite float32 array (no pickles, numeric dtypes only)."""
+    if not raw:
+        raise InvalidInputError(f"{what} is empty")
+    try:
+        arr = np.load(io.BytesIO(raw), allow_pickle=False)
+    except Exception as exc:  # noqa: BLE001  (numpy raises many kinds on garbage)
+        raise InvalidInputError(f"{what} is not a valid .npy array: {exc}") from None
+    if not isinstance(arr, np.ndarray):
+        raise InvalidInputError(f"{what} must hold one array, not an archive")
+    if arr.dtype.kind not in "biuf":
+        raise InvalidInputError(f"{what} has dtype {arr.dtype}; use a numeric dtype")
+    out = arr.astype(np.float32, copy=False)
+    if not np.isfinite(out).all():
+        raise InvalidInputError(f"{what} contains NaN or inf")
+    return out
+
+
+def as_float_array(value: Any, what: str) -> np.ndarray:
+    """Nested lists -> a finite float32 array; ragged or non-numeric input is named."""
+    try:
+        arr = np.asarray(value, dtype=np.float32)
+    except (ValueError, TypeError):
+        raise InvalidInputError(
+            f"{what} is ragged or not numeric: every frame must be 32 rows of 32 numbers"
+        ) from None
+    if not np.isfinite(arr).all():
+        raise InvalidInputError(f"{what} contains NaN or inf")
+    return arr
+
+
+def as_window(value: Any, what: str = "touch window") -> np.ndarray:
+    """One window (K, 32, 32)."""
+    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
+    if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE or arr.shape[0] < 1:
+        raise InvalidInputError(f"{what} has shape {arr.shape}, expected (K, 32, 32)")
+    return arr
+
+
+def as_windows(value: Any, what: str = "touch windows") -> np.ndarray:
+    """A batch of windows (B, K, 32, 32)."""
+    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
+    if arr.ndim != 4 or arr.shape[2:] != FRAME_SHAPE or 0 in arr.shape[:2]:
+        raise InvalidInputError(f"{what} has shape {arr.shape}, expected (B, K, 32, 32)")
+    return arr
+
+
+def as_frame(value: Any, what: str = "frame") -> np.ndarray:
+    """One frame (32, 32)."""
+    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
+    if arr.shape != FRAME_SHAPE:
+        raise InvalidInputError(f"{what} has shape {arr.shape}, expected (32, 32)")
+    return arr

@@ -1,0 +1,85 @@
+"""Pure ASGI middleware: the request body size limit (413).
+
+The limit is enforced twice: up front on ``Content-Length`` (the body is never read), and
+while the body streams in for requests without it (chunked transfer): the wrapped ``receive``
+counts bytes and raises a 413 ``HTTPException`` as soon as the limit is passed, which the
+problem handlers turn into ``application/problem+json``. Should the exception reach this
+middleware unhandled (no response started yet), it answers the 413 itself.
+"""
+
+from __future__ import annotations
+
+import json
+
+from starlette.exceptions import HTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from tactus_memory.service.problems import PROBLEM_JSON, problem_body
+
+
+class BodyTooLarge(HTTPException):
+    def __init__(self, limit: int, seen: int | None = None) -> None:
+        what = f"{seen} bytes" if seen is not None else f"more than {limit} bytes"
+        super().__init__(413, f"request body is {what}; the limit is {limit} bytes")
+
+
+class BodyLimitMiddleware:
+    def __init__(self, app: ASGIApp, max_body_bytes: int) -> None:
+        self.app = app
+        self.limit = int(max_body_bytes)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit = self.limit
+        for name, value in scope.get("headers", ()):
+            if name == b"content-length":
+                try:
+                    declared = int(value)
+                except ValueError:
+                    await self._reply(send, 400, "Content-Length header is not an integer")
+                    return
+                if declared > limit:
+                    await self._reply(send, 413, str(BodyTooLarge(limit, declared).detail))
+                    return
+        received = 0
+        started = False
+
+        async def limited_receive() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    raise BodyTooLarge(limit)
+            return message
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, limited_receive, tracking_send)
+        except BodyTooLarge as exc:
+            if started:
+                raise
+            await self._reply(send, 413, str(exc.detail))
+
+    @staticmethod
+    async def _reply(send: Send, status: int, detail: str) -> None:
+        title = "Content too large" if status == 413 else "Bad request"
+        body = json.dumps(problem_body(status, detail, title=title)).encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": status,
+                "headers": [
+                    (b"content-type", PROBLEM_JSON.encode()),
+                    (b"content-length", str(len(body)).encode()),
+                    (b"connection", b"close"),
+                ],
+            }
+        )
+        await send({"type": "http.response.body", "body": body})

@@ -1,0 +1,226 @@
+"""Problem details (RFC 9457) and THE one place where exceptions become HTTP statuses.
+
+Every error response of the service is ``application/problem+json``::
+
+    {"type": "https://tactus.dev/problems/invalid-input", "title": "Invalid input",
+     "status": 422, "detail": "touch window contains NaN or inf", "instance": "/sessions/s1/touch"}
+
+Library errors (``tactus_memory.errors``) map to statuses in :data:`ERROR_STATUS`; request
+validation errors (FastAPI/pydantic) become 422 with every failing field named in ``detail``;
+anything unexpected is logged and answered with a 500 problem (never a bare traceback).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from tactus_memory import errors
+
+log = logging.getLogger("tactus_memory.service")
+
+PROBLEM_JSON = "application/problem+json"
+TYPE_BASE = "https://tactus.dev/problems/"
+
+#: exception class -> (status, slug, title). The most specific class wins (MRO order).
+ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {
+    errors.InvalidIdError: (422, "invalid-id", "Invalid identifier"),
+    errors.DimensionMismatchError: (422, "dimension-mismatch", "Dimension mismatch"),
+    errors.InvalidInputError: (422, "invalid-input", "Invalid input"),
+    errors.UnknownSenseError: (404, "unknown-sense", "Unknown sense"),
+    errors.NotFoundError: (404, "not-found", "Not found"),
+    errors.SenseConflictError: (409, "sense-conflict", "Sense conflict"),
+    errors.SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
+    errors.CapabilityError: (400, "capability", "Not supported by this memory"),
+    errors.DataFormatError: (422, "data-format", "Invalid data format"),
+    errors.DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
+}
+
+HTTP_TITLES = {
+    400: "Bad request",
+    401: "Unauthorized",
+    403: "Forbidden",
+    404: "Not found",
+    405: "Method not allowed",
+    406: "Not acceptable",
+    409: "Conflict",
+    413: "Content too large",
+    415: "Unsupported media type",
+    422: "Invalid input",
+    429: "Too many requests",
+    500: "Internal server error",
+    503: "Service unavailable",
+}
+
+
+class Problem(BaseModel):
+    """An RFC 9457 problem details object."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "type": TYPE_BASE + "invalid-input",
+                    "title": "Invalid input",
+                    "status": 422,
+                    "detail": "touch window has shape (8, 32, 31), expected (K, 32, 32)",
+                    "instance": "/sessions/s1/touch",
+                }
+            ]
+        }
+    )
+
+    type: str = Field(TYPE_BASE + "about", description="URI naming the kind of problem.")
+    title: str
+    status: int
+    detail: str = Field(description="What exactly is wrong, naming the field or value.")
+    instance: str | None = None
+
+
+class ServiceUnavailable(Exception):
+    """A feature is not available in this server (e.g. no touch encoder): 503."""
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(detail)
+        self.detail = detail
+
+
+def error_status(exc: BaseException) -> tuple[int, str, str] | None:
+    for cls in type(exc).__mro__:
+        if cls in ERROR_STATUS:
+            return ERROR_STATUS[cls]
+    return None
+
+
+def problem_body(
+    status: int,
+    detail: str,
+    *,
+    slug: str | None = None,
+    title: str | None = None,
+    instance: str | None = None,
+) -> dict[str, Any]:
+    body: dict[str, Any] = {
+        "type": TYPE_BASE + (slug or f"http-{status}"),
+        "title": title or HTTP_TITLES.get(status, "Error"),
+        "status": status,
+        "detail": detail,
+    }
+    if instance is not None:
+        body["instance"] = instance
+    return body
+
+
+def problem_response(
+    status: int,
+    detail: str,
+    *,
+    slug: str | None = None,
+    title: str | None = None,
+    instance: str | None = None,
+    headers: dict[str, str] | None = None,
+) -> JSONResponse:
+    return JSONResponse(
+        problem_body(status, detail, slug=slug, title=title, instance=instance),
+        status_code=status,
+        media_type=PROBLEM_JSON,
+        headers=headers,
+    )
+
+
+def problem_for_exception(exc: BaseException) -> dict[str, Any]:
+    """Library error -> problem body (used by the WebSocket route for error messages)."""
+    mapped = error_status(exc)
+    if mapped is None:
+        return problem_body(500, "internal error", slug="internal")
+    status, slug, title = mapped
+    return problem_body(status, str(exc), slug=slug, title=title)
+
+
+def _loc(loc: tuple[Any, ...] | list[Any]) -> str:
+    parts = [str(p) for p in loc]
+    if parts and parts[0] in ("body", "query", "path", "header") and len(parts) > 1:
+        return f"{parts[0]} field '{'.'.join(parts[1:])}'"
+    return ".".join(parts) or "request"
+
+
+def validation_detail(exc: RequestValidationError) -> str:
+    msgs = []
+    for err in exc.errors()[:10]:
+        msg = str(err.get("msg", "invalid"))
+        if err.get("type") == "json_invalid":
+            ctx = err.get("ctx") or {}
+            msg = f"body is not valid JSON: {ctx.get('error', msg)}"
+            msgs.append(msg)
+            continue
+        msgs.append(f"{_loc(err.get('loc', ()))}: {msg}")
+    more = len(exc.errors()) - 10
+    if more > 0:
+        msgs.append(f"and {more} more")
+    return "; ".join(msgs) or "request validation failed"
+
+
+def install_problem_handlers(app: FastAPI) -> None:
+    """Register the handlers: library errors, HTTP errors, validation errors, the catch-all."""
+
+    async def tactus_error(request: Request, exc: errors.TactusError) -> JSONResponse:
+        status, slug, title = error_status(exc) or (422, "invalid-input", "Invalid input")
+        return problem_response(status, str(exc), slug=slug, title=title, instance=request.url.path)
+
+    async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        detail = exc.detail if isinstance(exc.detail, str) else json.dumps(exc.detail)
+        return problem_response(
+            exc.status_code, detail, instance=request.url.path, headers=exc.headers
+        )
+
+    async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        return problem_response(
+            422,
+            validation_detail(exc),
+            slug="invalid-input",
+            title="Invalid input",
+            instance=request.url.path,
+        )
+
+    async def unavailable(request: Request, exc: ServiceUnavailable) -> JSONResponse:
+        return problem_response(
+            503,
+            exc.detail,
+            slug="unavailable",
+            title="Service unavailable",
+            instance=request.url.path,
+        )
+
+    async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return problem_response(
+            500,
+            f"internal error ({type(exc).__name__}); see the server log",
+            slug="internal",
+            instance=request.url.path,
+        )
+
+    app.add_exception_handler(errors.TactusError, tactus_error)  # type: ignore[arg-type]
+    app.add_exception_handler(StarletteHTTPException, http_error)  # type: ignore[arg-type]
+    app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
+    app.add_exception_handler(ServiceUnavailable, unavailable)  # type: ignore[arg-type]
+    app.add_exception_handler(Exception, unexpected)
+
+
+#: ``responses=`` for routes: the problem model documented for the error statuses.
+def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    return {
+        s: {
+            "model": Problem,
+            "description": HTTP_TITLES.get(s, "Error"),
+            "content": {PROBLEM_JSON: {}},
+        }
+        for s in statuses
+    }

@@ -1,0 +1,112 @@
+"""Writes of text, images and precomputed vectors into a session.
+
+The write path (all routes): the body is parsed and validated on the event loop, then the
+blocking library call runs in the threadpool (``def`` endpoints). ``Memory.add_many``
+validates and embeds everything first, then writes ONE LanceDB commit under the memory's
+write lock; the 201 is sent only after that commit returned, so an acknowledged write
+survives a crash of the server.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, UploadFile
+from tactus_memory.service.arrays import loads_strict
+from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId
+from tactus_memory.service.problems import problem_responses
+from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
+
+from tactus_memory.errors import CapabilityError, InvalidInputError
+
+router = APIRouter(prefix="/sessions/{session}", tags=["items"])
+
+MAX_IMAGE_PIXELS = 64_000_000
+
+
+@router.post(
+    "/text",
+    status_code=201,
+    summary="Store a note or caption",
+    response_model=StoredOut,
+    responses=problem_responses(404, 413, 422),
+)
+def add_text(session: SessionId, body: TextIn, memory: MemoryDep) -> StoredOut:
+    item_id = memory.add(
+        session, "text", body.text, t=body.t, t_end=body.t_end, meta=body.meta, id=body.id
+    )
+    return StoredOut(ids=[item_id], count=1)
+
+
+@router.post(
+    "/vectors",
+    status_code=201,
+    summary="Store precomputed vectors of a registered sense",
+    description="For senses whose encoder runs elsewhere (register one with `POST /senses`). "
+    "Each vector must have the space's dimension; it is stored normalised.",
+    response_model=StoredOut,
+    responses=problem_responses(404, 413, 422),
+)
+def add_vectors(session: SessionId, body: VectorsIn, memory: MemoryDep) -> StoredOut:
+    n = len(body.vectors)
+    if len(body.t) != n:
+        raise InvalidInputError(f"t has {len(body.t)} entries for {n} vectors")
+    ids = memory.add_many(
+        session,
+        body.sense,
+        body.vectors,
+        t=body.t,
+        t_end=body.t_end,
+        meta=body.meta,
+        ids=body.ids,
+    )
+    return StoredOut(ids=ids, count=len(ids))
+
+
+def _decode_image(raw: bytes) -> object:
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - pillow ships with the vision extra
+        raise CapabilityError("image upload needs Pillow (pip install pillow)") from None
+    import numpy as np
+
+    Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS
+    try:
+        with Image.open(io.BytesIO(raw)) as img:
+            return np.asarray(img.convert("RGB"), dtype=np.uint8)
+    except Exception as exc:  # noqa: BLE001  (PIL raises many kinds on garbage)
+        raise InvalidInputError(f"file is not a readable image: {exc}") from None
+
+
+@router.post(
+    "/image",
+    status_code=201,
+    summary="Store a camera image (spaces with vision only)",
+    description="Multipart upload (`file`, optional `t`, `t_end`, `meta` as a JSON string). "
+    "Answers 400 when the memory's space has no vision (e.g. the default MiniLM space).",
+    response_model=StoredOut,
+    responses=problem_responses(400, 404, 413, 422),
+)
+def add_image(
+    session: SessionId,
+    memory: MemoryDep,
+    file: Annotated[UploadFile, File(description="PNG/JPEG/... image.")],
+    t: Annotated[float, Form(allow_inf_nan=False)],
+    t_end: Annotated[float | None, Form(allow_inf_nan=False)] = None,
+    meta: Annotated[str | None, Form(description="JSON object.", max_length=65536)] = None,
+    id: Annotated[str | None, Form(pattern=ID_PATTERN)] = None,  # noqa: A002
+) -> StoredOut:
+    if "image" not in memory.senses and not memory.space.has_vision:
+        raise CapabilityError(
+            f"space {memory.space.name!r} has no vision, so this memory cannot store images; "
+            "open the memory with a vision space such as Qwen3VLSpace"
+        )
+    meta_obj = None
+    if meta is not None:
+        meta_obj = loads_strict(meta)
+        if not isinstance(meta_obj, dict):
+            raise InvalidInputError("meta must be a JSON object")
+    image = _decode_image(file.file.read())
+    item_id = memory.add(session, "image", image, t=t, t_end=t_end, meta=meta_obj, id=id)
+    return StoredOut(ids=[item_id], count=1)

@@ -1,0 +1,40 @@
+"""Sessions: list, summarise, delete."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from tactus_memory.service.deps import MemoryDep, SessionId
+from tactus_memory.service.problems import problem_responses
+from tactus_memory.service.schemas import DeletedOut, SessionOut, SessionsOut
+
+router = APIRouter(prefix="/sessions", tags=["sessions"])
+
+
+def _out(summary: object) -> SessionOut:
+    return SessionOut.model_validate(summary, from_attributes=True)
+
+
+@router.get("", summary="List sessions with counts per sense", response_model=SessionsOut)
+def list_sessions(memory: MemoryDep) -> SessionsOut:
+    return SessionsOut(sessions=[_out(s) for s in memory.sessions()])
+
+
+@router.get(
+    "/{session}",
+    summary="One session: counts per sense and time span",
+    response_model=SessionOut,
+    responses=problem_responses(404, 422),
+)
+def get_session(session: SessionId, memory: MemoryDep) -> SessionOut:
+    return _out(memory.session(session))
+
+
+@router.delete(
+    "/{session}",
+    summary="Delete a session and everything in it",
+    response_model=DeletedOut,
+    responses=problem_responses(404, 422),
+)
+def delete_session(session: SessionId, memory: MemoryDep) -> DeletedOut:
+    memory.session(session)  # 404 when it does not exist
+    return DeletedOut(id=session, deleted=memory.delete_session(session))

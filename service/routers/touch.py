@@ -1,0 +1,159 @@
+"""Touch writes over HTTP: one window, a batch of windows, or a binary ``.npy`` body.
+
+Frames are RAW sensor units by default (what the glove's ADC reports, e.g. ~500-700 on the
+STAG glove); the touch sense calibrates them. Send ``calibrated: true`` for frames already
+calibrated to 0-1. Write path: see ``routers/items.py`` (threadpool, one commit, 201 after it).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
+from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
+from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable
+from tactus_memory.service.problems import problem_responses
+from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
+from tactus_memory.service.touch_items import touch_item
+
+from tactus_memory.errors import InvalidInputError
+
+router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
+
+NPY_DOC = (
+    "Binary form: `Content-Type: application/x-npy`, the body an `.npy` array of shape "
+    "(K, 32, 32) or (B, K, 32, 32) (any numeric dtype; `np.save` output), times in the "
+    "query: `t` (once, or B times), optional `t_end` likewise, `calibrated`."
+)
+
+REQUEST_BODY: dict[str, Any] = {
+    "required": True,
+    "content": {
+        "application/json": {
+            "schema": {
+                "oneOf": [
+                    TouchWindowIn.model_json_schema(),
+                    TouchBatchIn.model_json_schema(),
+                ]
+            }
+        },
+        "application/x-npy": {"schema": {"type": "string", "format": "binary"}},
+    },
+}
+
+
+def _validate(model: type, obj: Any) -> Any:
+    try:
+        return model.model_validate(obj)
+    except ValidationError as exc:
+        errs = [{**e, "loc": ("body", *e.get("loc", ()))} for e in exc.errors(include_url=False)]
+        raise RequestValidationError(errs) from None
+
+
+def _store(
+    memory: Any,
+    session: str,
+    windows: list[np.ndarray],
+    t: list[float],
+    t_end: list[float] | None,
+    meta: Any,
+    ids: list[str] | None,
+    calibrated: bool,
+) -> list[str]:
+    items = [touch_item(memory, "touch", w, calibrated) for w in windows]
+    return memory.add_many(session, "touch", items, t=t, t_end=t_end, meta=meta, ids=ids)
+
+
+def _times(values: list[float] | None, n: int, what: str) -> list[float] | None:
+    if values is None:
+        return None
+    if len(values) != n:
+        raise InvalidInputError(f"{what} has {len(values)} entries for {n} windows")
+    return values
+
+
+@router.post(
+    "/touch",
+    status_code=201,
+    summary="Store touch windows (raw sensor units by default)",
+    description=(
+        'JSON, one window: `{"frames": (K,32,32), "t": 12.5, "t_end": 13.6, "meta": '
+        '{...}, "calibrated": false}`. JSON batch: `{"windows": (B,K,32,32), "t": [B '
+        "times], ...}`. Frames are RAW sensor units unless `calibrated` is true. " + NPY_DOC
+    ),
+    response_model=StoredOut,
+    responses=problem_responses(404, 413, 415, 422, 503),
+    openapi_extra={"requestBody": REQUEST_BODY},
+    dependencies=[TouchAvailable],
+)
+async def add_touch(
+    session: SessionId,
+    request: Request,
+    memory: MemoryDep,
+    t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
+    t_end: Annotated[list[float] | None, Query(description="npy body only: end time(s).")] = None,
+    calibrated: Annotated[bool, Query(description="npy body only.")] = False,
+) -> StoredOut:
+    ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
+    raw = await request.body()
+    if ctype in NPY_TYPES:
+        arr = load_npy(raw, "npy body")
+        if arr.ndim == 3:
+            arr = arr[None]
+        windows = list(as_windows(arr, "npy body"))
+        if not t:
+            raise InvalidInputError("query parameter 't' is required with an npy body")
+        n = len(windows)
+        ids = await run_in_threadpool(
+            _store,
+            memory,
+            session,
+            windows,
+            _times(t, n, "t"),
+            _times(t_end, n, "t_end"),
+            None,
+            None,
+            calibrated,
+        )
+        return StoredOut(ids=ids, count=len(ids))
+    if ctype not in ("application/json", "") and not ctype.endswith("+json"):
+        raise HTTPException(
+            415, f"unsupported content type {ctype!r}: use application/json or application/x-npy"
+        )
+    obj = loads_strict(raw)
+    if not isinstance(obj, dict):
+        raise InvalidInputError("body must be a JSON object with 'frames' or 'windows'")
+    if "windows" in obj:
+        batch: TouchBatchIn = _validate(TouchBatchIn, obj)
+        windows = list(as_windows(batch.windows, "windows"))
+        n = len(windows)
+        ids = await run_in_threadpool(
+            _store,
+            memory,
+            session,
+            windows,
+            _times(batch.t, n, "t"),
+            _times(batch.t_end, n, "t_end"),
+            batch.meta,
+            batch.ids,
+            batch.calibrated,
+        )
+    else:
+        one: TouchWindowIn = _validate(TouchWindowIn, obj)
+        window = as_window(one.frames, "frames")
+        ids = await run_in_threadpool(
+            _store,
+            memory,
+            session,
+            [window],
+            [one.t],
+            None if one.t_end is None else [one.t_end],
+            one.meta,
+            None if one.id is None else [one.id],
+            one.calibrated,
+        )
+    return StoredOut(ids=ids, count=len(ids))

@@ -1,0 +1,326 @@
+"""Live touch: WebSocket ``/sessions/{session}/touch/stream``, frames in, stored windows out.
+
+Protocol (all server messages are JSON objects with a ``type``):
+
+* connect with optional query parameters ``window`` (K, frames per window), ``stride``
+  (frames between window starts; ``stride > window`` skips frames), ``calibrated``
+  (frames already calibrated; default false = raw sensor units), ``hz`` and ``t0`` (times
+  for binary frames: frame i gets ``t0 + i / hz``; without ``hz`` the server clock), and
+  ``token`` (or an ``Authorization: Bearer`` header) when the server has a token.
+* the server answers ``{"type": "ready", "window": K, "stride": S, ...}``.
+* send frames one by one: text ``{"frame": [[...32] x 32], "t": 12.5}``, or binary ``.npy``
+  bytes of a (32, 32) frame, or of (N, 32, 32) frames.
+* every full window is stored (``t`` = first frame's t, ``t_end`` = last frame's t, source =
+  this stream's id) and acknowledged after its commit:
+  ``{"type": "stored", "id": "...", "seq": n, "t": ..., "t_end": ...}``.
+* a bad frame gets ``{"type": "error", "error": {problem details}, "frame": i}`` and is
+  skipped; the connection stays open (a failed store names its ``windows`` instead).
+  A partial window left at disconnect is not stored.
+
+Windows wait in a per-connection queue; a writer task stores whatever has piled up in one
+``add_many`` call (one commit) in the threadpool, so the receive loop keeps reading frames
+at glove rate while the previous windows commit.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import re
+import time
+import uuid
+from collections import deque
+from typing import Any
+
+import numpy as np
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from starlette.concurrency import run_in_threadpool
+from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
+from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
+from tactus_memory.service.problems import problem_body, problem_for_exception
+from tactus_memory.service.touch_items import touch_item
+
+from tactus_memory.errors import InvalidInputError, TactusError
+
+log = logging.getLogger("tactus_memory.service")
+
+router = APIRouter(tags=["touch"])
+
+ID_RE = re.compile(ID_PATTERN)
+MAX_WINDOW = 512
+QUEUE_WINDOWS = 256
+BATCH_WINDOWS = 64
+POLICY_VIOLATION = 1008
+TRY_AGAIN_LATER = 1013
+
+
+class StreamParams:
+    """The connection's query parameters, validated (InvalidInputError names the bad one)."""
+
+    def __init__(self, query: Any, default_window: int, default_stride: int) -> None:
+        self.window = self._int(query, "window", default_window)
+        self.stride = self._int(query, "stride", default_stride)
+        self.calibrated = self._bool(query, "calibrated")
+        hz = query.get("hz")
+        self.hz = None if hz is None else self._float(hz, "hz")
+        if self.hz is not None and self.hz <= 0:
+            raise InvalidInputError(f"hz must be positive, got {hz!r}")
+        self.t0 = self._float(query.get("t0", "0"), "t0")
+
+    @staticmethod
+    def _int(query: Any, name: str, default: int) -> int:
+        raw = query.get(name)
+        if raw is None:
+            return default
+        try:
+            value = int(raw)
+        except ValueError:
+            raise InvalidInputError(f"{name} must be an integer, got {raw!r}") from None
+        if not 1 <= value <= MAX_WINDOW:
+            raise InvalidInputError(f"{name} must be in [1, {MAX_WINDOW}], got {value}")
+        return value
+
+    @staticmethod
+    def _bool(query: Any, name: str) -> bool:
+        raw = str(query.get(name, "false")).lower()
+        if raw not in ("true", "false", "1", "0", "yes", "no"):
+            raise InvalidInputError(f"{name} must be true or false, got {raw!r}")
+        return raw in ("true", "1", "yes")
+
+    @staticmethod
+    def _float(raw: str, name: str) -> float:
+        try:
+            value = float(raw)
+        except ValueError:
+            raise InvalidInputError(f"{name} must be a number, got {raw!r}") from None
+        if not math.isfinite(value):
+            raise InvalidInputError(f"{name} must be finite, got {raw!r}")
+        return value
+
+
+class Windower:
+    """Frames in, (window, t, t_end) out: K frames per window, a new window every S frames."""
+
+    def __init__(self, window: int, stride: int) -> None:
+        self.k = window
+        self.stride = stride
+        self.frames: deque[np.ndarray] = deque()
+        self.times: deque[float] = deque()
+        self.skip = 0
+
+    def push(self, frame: np.ndarray, t: float) -> tuple[np.ndarray, float, float] | None:
+        if self.skip:
+            self.skip -= 1
+            return None
+        self.frames.append(frame)
+        self.times.append(t)
+        if len(self.frames) < self.k:
+            return None
+        out = (np.stack(self.frames), self.times[0], self.times[-1])
+        drop = min(self.stride, self.k)
+        for _ in range(drop):
+            self.frames.popleft()
+            self.times.popleft()
+        self.skip = self.stride - drop
+        return out
+
+
+def _frame_time(obj: Any, index: int) -> float:
+    if "t" not in obj:
+        raise InvalidInputError(f"frame message {index} has no 't'")
+    t = obj["t"]
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+        raise InvalidInputError(f"frame message {index}: 't' must be a finite number, got {t!r}")
+    return float(t)
+
+
+@router.websocket("/sessions/{session}/touch/stream", name="touch_stream")
+async def touch_stream(websocket: WebSocket, session: str) -> None:
+    state = websocket.app.state.tactus
+    settings = state.settings
+    memory = state.memory
+    send_lock = asyncio.Lock()
+
+    async def send(message: dict[str, Any]) -> None:
+        async with send_lock:
+            await websocket.send_text(json.dumps(message))
+
+    async def refuse(status: int, detail: str, code: int) -> None:
+        await send({"type": "error", "error": problem_body(status, detail)})
+        await websocket.close(code=code, reason=detail[:120])
+
+    await websocket.accept()
+    presented = bearer(websocket.headers.get("authorization")) or websocket.query_params.get(
+        "token"
+    )
+    if not token_ok(settings, presented):
+        await refuse(
+            401,
+            "missing or wrong token: send 'Authorization: Bearer <token>' or ?token=",
+            POLICY_VIOLATION,
+        )
+        return
+    if not ID_RE.fullmatch(session):
+        await refuse(
+            422,
+            f"invalid session id {session[:60]!r}: use 1-128 characters of "
+            "[A-Za-z0-9._:-], starting with a letter or digit",
+            POLICY_VIOLATION,
+        )
+        return
+    if "touch" not in memory.senses:
+        why = state.touch_unavailable or "no sense named 'touch' is registered in this memory"
+        await refuse(503, f"touch is not available on this server: {why}", TRY_AGAIN_LATER)
+        return
+    try:
+        params = StreamParams(websocket.query_params, settings.window, settings.stride)
+    except InvalidInputError as exc:
+        await refuse(422, str(exc), POLICY_VIOLATION)
+        return
+
+    stream_id = "ws-" + uuid.uuid4().hex[:16]
+    windower = Windower(params.window, params.stride)
+    queue: asyncio.Queue[tuple[int, np.ndarray, float, float] | None] = asyncio.Queue(QUEUE_WINDOWS)
+    await send(
+        {
+            "type": "ready",
+            "session": session,
+            "stream": stream_id,
+            "window": params.window,
+            "stride": params.stride,
+            "calibrated": params.calibrated,
+        }
+    )
+
+    def store(batch: list[tuple[int, np.ndarray, float, float]]) -> list[str]:
+        items = [touch_item(memory, "touch", w, params.calibrated) for _, w, _, _ in batch]
+        return memory.add_many(
+            session,
+            "touch",
+            items,
+            t=[b[2] for b in batch],
+            t_end=[b[3] for b in batch],
+            source=stream_id,
+        )
+
+    async def writer() -> None:
+        done = False
+        while not done:
+            first = await queue.get()
+            if first is None:
+                return
+            batch = [first]
+            while len(batch) < BATCH_WINDOWS and not queue.empty():
+                nxt = queue.get_nowait()
+                if nxt is None:
+                    done = True
+                    break
+                batch.append(nxt)
+            try:
+                ids = await run_in_threadpool(store, batch)
+            except TactusError as exc:
+                await _try_send(
+                    send,
+                    {
+                        "type": "error",
+                        "error": problem_for_exception(exc),
+                        "windows": [b[0] for b in batch],
+                    },
+                )
+                continue
+            except Exception as exc:  # noqa: BLE001  (report, keep the stream alive)
+                log.exception("storing touch windows failed on stream %s", stream_id)
+                await _try_send(
+                    send,
+                    {
+                        "type": "error",
+                        "error": problem_body(
+                            500, f"storing failed ({type(exc).__name__}); see the server log"
+                        ),
+                        "windows": [b[0] for b in batch],
+                    },
+                )
+                continue
+            for (seq, _, t, t_end), item_id in zip(batch, ids, strict=True):
+                await _try_send(
+                    send, {"type": "stored", "id": item_id, "seq": seq, "t": t, "t_end": t_end}
+                )
+
+    writer_task = asyncio.create_task(writer())
+    frame_index = 0
+    seq = 0
+    try:
+        while True:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            try:
+                frames = _parse(message, frame_index, params, settings.max_ws_message_bytes)
+            except TactusError as exc:
+                await send(
+                    {"type": "error", "error": problem_for_exception(exc), "frame": frame_index}
+                )
+                frame_index += 1
+                continue
+            for frame, t in frames:
+                frame_index += 1
+                out = windower.push(frame, t)
+                if out is not None:
+                    await queue.put((seq, *out))
+                    seq += 1
+            if writer_task.done():
+                break
+    except WebSocketDisconnect:
+        pass
+    finally:
+        try:
+            queue.put_nowait(None)
+        except asyncio.QueueFull:
+            await queue.put(None)
+        with contextlib.suppress(Exception):
+            await writer_task
+    with contextlib.suppress(Exception):
+        await websocket.close()
+
+
+async def _try_send(send: Any, message: dict[str, Any]) -> None:
+    """Acks after the client left are dropped (the windows are stored all the same)."""
+    with contextlib.suppress(Exception):
+        await send(message)
+
+
+def _parse(
+    message: dict[str, Any], index: int, params: StreamParams, max_bytes: int
+) -> list[tuple[np.ndarray, float]]:
+    """One WebSocket message -> [(frame (32, 32) float32, t)]."""
+    data = message.get("bytes")
+    if data is not None:
+        if len(data) > max_bytes:
+            raise InvalidInputError(f"message is {len(data)} bytes; the limit is {max_bytes}")
+        arr = load_npy(data, f"binary frame {index}")
+        if arr.ndim == 2:
+            arr = arr[None]
+        if arr.ndim != 3 or arr.shape[1:] != (32, 32):
+            raise InvalidInputError(
+                f"binary frame {index} has shape {arr.shape}, expected (32, 32) or (N, 32, 32)"
+            )
+        out = []
+        for j, frame in enumerate(arr):
+            t = params.t0 + (index + j) / params.hz if params.hz is not None else time.time()
+            out.append((frame, t))
+        return out
+    text = message.get("text")
+    if text is None:
+        raise InvalidInputError(f"message {index} is empty")
+    if len(text) > max_bytes:
+        raise InvalidInputError(f"message is {len(text)} characters; the limit is {max_bytes}")
+    obj = loads_strict(text)
+    if not isinstance(obj, dict) or "frame" not in obj:
+        raise InvalidInputError(
+            f'message {index} must be a JSON object {{"frame": [[...32] x 32], "t": ...}}'
+        )
+    frame = as_frame(obj["frame"], f"frame {index}")
+    return [(frame, _frame_time(obj, index))]

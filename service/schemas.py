@@ -1,0 +1,260 @@
+"""Request and response models (pydantic). Numbers must be finite: NaN/inf are rejected."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN
+
+SENSE_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
+MAX_BATCH = 4096
+
+_FRAME_EXAMPLE = [[0.0] * 32 for _ in range(32)]
+
+
+class Strict(BaseModel):
+    """Base: unknown fields are errors, NaN/inf are errors."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+Meta = dict[str, Any]
+Frame = list[list[float]]
+Window = list[Frame]
+
+T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
+T_END_DESC = "End time in seconds (>= t); defaults to t."
+
+
+# ----------------------------------------------------------------------------- writes
+class TouchWindowIn(Strict):
+    """One touch window: K frames of 32x32 pressure, raw sensor units by default."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "frames": [_FRAME_EXAMPLE] * 2,
+                    "t": 12.5,
+                    "t_end": 13.6,
+                    "meta": {"object": "mug"},
+                    "calibrated": False,
+                }
+            ]
+        }
+    )
+
+    frames: Window = Field(
+        description="(K, 32, 32) pressure frames, RAW sensor units (e.g. 500-700 for the STAG "
+        "glove) unless calibrated=true.",
+        min_length=1,
+        max_length=512,
+    )
+    t: float = Field(description=T_DESC)
+    t_end: float | None = Field(None, description=T_END_DESC)
+    meta: Meta | None = Field(None, description="Free JSON metadata stored with the window.")
+    calibrated: bool = Field(
+        False, description="true when frames are already calibrated (0-1); default raw units."
+    )
+    id: str | None = Field(None, pattern=ID_PATTERN, description="Item id. " + ID_DESCRIPTION)
+
+
+class TouchBatchIn(Strict):
+    """Several touch windows of one session, stored in one commit."""
+
+    windows: list[Window] = Field(
+        description="(B, K, 32, 32) windows, raw sensor units unless calibrated=true.",
+        min_length=1,
+        max_length=MAX_BATCH,
+    )
+    t: list[float] = Field(description="B start times.", min_length=1, max_length=MAX_BATCH)
+    t_end: list[float] | None = Field(None, description="B end times (default: t).")
+    meta: Meta | list[Meta] | None = Field(
+        None, description="One metadata object for all, or one per window."
+    )
+    calibrated: bool = False
+    ids: list[str] | None = Field(None, description="B item ids (default: generated).")
+
+
+class TextIn(Strict):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {"text": "the mug was hot and slippery", "t": 12.5, "meta": {"speaker": "operator"}}
+            ]
+        }
+    )
+
+    text: str = Field(min_length=1, max_length=8192, description="A note or caption.")
+    t: float = Field(description=T_DESC)
+    t_end: float | None = Field(None, description=T_END_DESC)
+    meta: Meta | None = None
+    id: str | None = Field(None, pattern=ID_PATTERN, description="Item id. " + ID_DESCRIPTION)
+
+
+class VectorsIn(Strict):
+    """Precomputed embeddings of a registered sense (e.g. an IMU motion encoder's output)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {"sense": "motion", "vectors": [[0.1, 0.2, 0.3]], "t": [4.0], "t_end": [5.0]}
+            ]
+        }
+    )
+
+    sense: str = Field(pattern=SENSE_PATTERN, description="A registered sense name.")
+    vectors: list[list[float]] = Field(min_length=1, max_length=MAX_BATCH)
+    t: list[float] = Field(min_length=1, max_length=MAX_BATCH)
+    t_end: list[float] | None = None
+    meta: Meta | list[Meta] | None = None
+    ids: list[str] | None = None
+
+
+class SenseIn(Strict):
+    """Register a VectorSense: precomputed vectors from an external encoder."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [{"name": "motion", "dim": 384, "encoder": "imu-tcn", "version": "1.2"}]
+        }
+    )
+
+    name: str = Field(pattern=SENSE_PATTERN, description="1-32 chars of [a-z0-9_].")
+    dim: int = Field(ge=1, le=65536, description="Vector dimension; must equal the space's.")
+    space: str | None = Field(None, max_length=128, description="Space the encoder targets.")
+    encoder: str = Field("external", max_length=256)
+    version: str = Field("", max_length=128)
+    checkpoint_sha256: str = Field("", max_length=128)
+
+
+class StoredOut(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"ids": ["a1b2c3"], "count": 1}]})
+
+    ids: list[str] = Field(description="Ids of the stored items, in input order.")
+    count: int
+
+
+# ----------------------------------------------------------------------------- reads
+class HitOut(BaseModel):
+    id: str
+    session: str
+    sense: str
+    t: float
+    t_end: float
+    score: float = Field(description="Calibrated score (comparable across senses).")
+    cosine: float | None = Field(None, description="Raw cosine similarity.")
+    meta: Meta = Field(default_factory=dict)
+    text: str | None = Field(None, description="The stored text, for text items.")
+    source: str = Field("", description="The stream the item came from, if any.")
+    episode: int | None = None
+
+
+class SearchOut(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "hits": [
+                        {
+                            "id": "a1b2c3",
+                            "session": "kitchen",
+                            "sense": "touch",
+                            "t": 12.5,
+                            "t_end": 13.6,
+                            "score": 2.1,
+                            "cosine": 0.41,
+                            "meta": {},
+                        }
+                    ]
+                }
+            ]
+        }
+    )
+
+    hits: list[HitOut]
+
+
+class SearchLikeIn(Strict):
+    """Find moments similar to an example: a touch window, a vector, or a text."""
+
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"sense": "touch", "frames": [_FRAME_EXAMPLE] * 2, "k": 5}]}
+    )
+
+    sense: str = Field(pattern=SENSE_PATTERN, description="The sense of the example.")
+    frames: Window | None = Field(None, description="A (K, 32, 32) touch window.")
+    vector: list[float] | None = Field(None, description="A vector of that sense (dim D).")
+    text: str | None = Field(None, min_length=1, max_length=8192)
+    calibrated: bool = False
+    k: int = Field(10, ge=1, le=1000)
+    senses: list[str] | None = Field(None, description="Search these senses (default: sense).")
+    session: str | None = Field(None, pattern=ID_PATTERN)
+    after: float | None = None
+    before: float | None = None
+
+    @model_validator(mode="after")
+    def _one_example(self) -> SearchLikeIn:
+        given = [n for n in ("frames", "vector", "text") if getattr(self, n) is not None]
+        if len(given) != 1:
+            raise ValueError(
+                "give exactly one example: 'frames', 'vector' or 'text' "
+                f"(got {', '.join(given) or 'none'})"
+            )
+        return self
+
+
+class SenseOut(BaseModel):
+    name: str
+    modality: str
+    dim: int
+    provenance: dict[str, Any] = Field(default_factory=dict)
+    live: bool = Field(description="Can embed new items now (false: known from the store only).")
+    rows: int = Field(description="Items of this sense in the store.")
+    mu: float | None = Field(None, description="Score calibration: null cosine mean.")
+    sigma: float | None = Field(None, description="Score calibration: null cosine spread.")
+
+
+class SensesOut(BaseModel):
+    senses: list[SenseOut]
+
+
+class SessionOut(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "id": "kitchen",
+                    "n": 42,
+                    "counts": {"touch": 40, "text": 2},
+                    "t_min": 0.0,
+                    "t_max": 61.2,
+                }
+            ]
+        }
+    )
+
+    id: str
+    n: int = Field(description="Items stored in the session.")
+    counts: dict[str, int] = Field(default_factory=dict, description="Items per sense.")
+    t_min: float = Field(description="Earliest t.")
+    t_max: float = Field(description="Latest t_end.")
+
+
+class SessionsOut(BaseModel):
+    sessions: list[SessionOut]
+
+
+class DeletedOut(BaseModel):
+    id: str
+    deleted: int = Field(description="Items removed.")
+
+
+class HealthOut(BaseModel):
+    status: str = "ok"
+    version: str
+    space: dict[str, Any]
+    senses: list[str]
+    touch: bool
+    touch_unavailable: str | None = None
