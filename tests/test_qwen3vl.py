@@ -330,3 +330,25 @@ def test_no_preprocessor_means_no_image_path(tiny_dir: Path, tmp_path: Path) -> 
 def test_saved_config_is_qwen3_vl(tiny_dir: Path) -> None:
     cfg = json.loads((tiny_dir / "config.json").read_text())
     assert cfg["model_type"] == "qwen3_vl"
+
+
+def test_concurrent_first_use_and_custom_instruction(tiny_dir: Path) -> None:
+    import threading
+
+    space = Qwen3VLSpace(tiny_dir, instruction="Find the touch that matches")
+    results: list[np.ndarray] = []
+
+    def work() -> None:
+        results.append(space.embed_texts(["holding a mug"], query=True))
+
+    threads = [threading.Thread(target=work) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(results) == 3
+    for r in results[1:]:
+        np.testing.assert_allclose(r, results[0], atol=1e-5)
+    default = Qwen3VLSpace(tiny_dir).embed_texts(["holding a mug"], query=True)
+    assert not np.allclose(default, results[0], atol=1e-4)
+    assert space.describe()["query_instruction"] == "Find the touch that matches."

@@ -203,6 +203,8 @@ class Qwen3VLSpace(Space):
         self._image_processor: Any = None
         self._passes_mm_types = False
         self._lock = threading.Lock()
+        # one encode at a time: fast tokenizers are not safe under concurrent calls
+        self._encode_lock = threading.Lock()
 
     # -- loading -----------------------------------------------------------------------------
 
@@ -319,8 +321,9 @@ class Qwen3VLSpace(Space):
         for start in range(0, len(items), self.batch_size):
             batch = items[start : start + self.batch_size]
             prompts = [build_prompt(instruction, t) for t in batch]
-            input_ids, mask = self._tokenize(prompts, list(batch))
-            chunks.append(self._forward(input_ids, mask))
+            with self._encode_lock:
+                input_ids, mask = self._tokenize(prompts, list(batch))
+                chunks.append(self._forward(input_ids, mask))
         return truncate_and_normalize(np.concatenate(chunks, axis=0), self.dim)
 
     def embed_images(self, images: Sequence[Any]) -> np.ndarray:
@@ -341,17 +344,15 @@ class Qwen3VLSpace(Space):
             batch = pil_images[start : start + self.batch_size]
             vision = self._image_processor(images=batch, size=size, return_tensors="pt")
             grid = vision["image_grid_thw"]  # (B, 3) long: t, h, w in patches
+            # pixel_values: (sum_i t*h*w, 3*temporal_patch*patch*patch) float32
             prompt = build_prompt(self.document_instruction, image=True)
             prompts = [expand_image_tokens(prompt, int(g.prod()) // merge**2) for g in grid]
-            input_ids, mask = self._tokenize(prompts, [None] * len(prompts))
-            chunks.append(
-                self._forward(
-                    input_ids,
-                    mask,
-                    pixel_values=vision["pixel_values"],
-                    image_grid_thw=grid,
+            with self._encode_lock:
+                input_ids, mask = self._tokenize(prompts, [None] * len(prompts))
+                pooled = self._forward(
+                    input_ids, mask, pixel_values=vision["pixel_values"], image_grid_thw=grid
                 )
-            )
+            chunks.append(pooled)
         return truncate_and_normalize(np.concatenate(chunks, axis=0), self.dim)
 
     def describe(self) -> dict[str, Any]:
