@@ -246,13 +246,10 @@ class Memory:
         """Open (or create) a memory at ``path``: a local directory, ``file://``, or an
         object-storage URI (``s3://``, ``gs://``, ``az://``) with ``storage_options``.
 
-        ``space`` defaults to MiniLM (``get_space("minilm")``); a store created with another
-        space raises :class:`~tactus_memory.errors.SpaceMismatchError` naming both.
+        ``space`` defaults to the space the store records (MiniLM, ``get_space("minilm")``, for
+        a new store); a store created with another space raises
+        :class:`~tactus_memory.errors.SpaceMismatchError` naming both.
         """
-        if space is None:
-            from tactus_memory.spaces import get_space
-
-            space = get_space("minilm")
         cfg = index or IndexConfig()
         if index_threshold is not None:
             cfg.threshold = int(index_threshold)
@@ -262,6 +259,11 @@ class Memory:
             read_consistency_interval=read_consistency_interval,
             index=cfg,
         )
+        if space is None:
+            from tactus_memory.spaces import get_space
+
+            recorded = store.get_meta("space")
+            space = get_space(json.loads(recorded)["name"] if recorded else "minilm")
         return cls(store, space, background=background)
 
     def _load_registry(self) -> None:

@@ -359,3 +359,33 @@ def test_object_storage_uri_is_accepted(tmp_path) -> None:
     mem = Memory.open(f"file://{tmp_path}/m", space=HashingSpace())
     mem.add("s1", "text", "hello world")
     assert (tmp_path / "m").is_dir() and len(mem) == 1
+
+
+def test_cli_search_and_sessions(tmp_path, monkeypatch) -> None:
+    import json
+
+    from typer.testing import CliRunner
+
+    import tactus_memory.spaces as spaces
+    from tactus_memory.cli import app
+
+    monkeypatch.setattr(spaces, "get_space", lambda name="minilm", path=None: HashingSpace())
+    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace())
+    _fill(mem)
+    runner = CliRunner()
+    res = runner.invoke(app, ["search", "mug coffee", "--data", str(tmp_path / "m"), "--json"])
+    assert res.exit_code == 0, res.output
+    hits = json.loads(res.output)
+    assert hits[0]["text"] == "mug of coffee" and len(hits) == 5
+    res = runner.invoke(
+        app, ["search", "mug", "--data", str(tmp_path / "m"), "--session", "s1", "--k", "2"]
+    )
+    assert res.exit_code == 0 and "put the mug" in res.output and "coffee" not in res.output
+    monkeypatch.setenv("TACTUS_DATA", str(tmp_path / "m"))
+    res = runner.invoke(app, ["sessions", "--json"])
+    assert res.exit_code == 0
+    assert [s["id"] for s in json.loads(res.output)] == ["s1", "s2"]
+    res = runner.invoke(app, ["search", "mug", "--session", "s1' OR 1=1 --"])
+    assert res.exit_code == 2 and "invalid session id" in res.output
+    res = runner.invoke(app, ["sessions", "--data", str(tmp_path / "absent")])
+    assert res.exit_code == 2 and "no memory" in res.output

@@ -100,3 +100,20 @@ def test_real_vector_sense_round_trip(real_mem: Memory, minilm_space) -> None:
     with pytest.raises(InvalidInputError):
         real_mem.add("s1", "motion", bad)
     assert real_mem.session("s1").counts == {"motion": 3, "text": 10}
+
+
+def test_real_cli_search(tmp_path, minilm_space, monkeypatch) -> None:
+    import json
+
+    from typer.testing import CliRunner
+
+    import tactus_memory.spaces as spaces
+    from tactus_memory.cli import app
+
+    monkeypatch.setattr(spaces, "get_space", lambda name="minilm", path=None: minilm_space)
+    Memory.open(str(tmp_path / "m"), space=minilm_space).add_many("s1", "text", NOTES)
+    res = CliRunner().invoke(
+        app, ["search", "watering flowers", "--data", str(tmp_path / "m"), "--k", "1", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)[0]["text"] == NOTES[8]
