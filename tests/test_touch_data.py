@@ -335,6 +335,28 @@ def test_taxel_mask_from_data_and_report(tmp_path: Path) -> None:
     assert r2["taxel_mask_matches_spec"] is False and r2["taxels_spec_not_data"] == 1
 
 
+def test_report_histograms_match_direct_numpy(tmp_path: Path, monkeypatch) -> None:
+    import tactus_memory.touch.data as data_mod
+
+    d = load_stag(write_v5(tmp_path / "c.mat", make_fields(seed=2)))
+    mask = taxel_mask_from_spec()
+    taxels = d.pressure[:, mask].reshape(-1)
+    q = np.rint(calibrate(d.pressure)[:, mask] * 255).astype(int).reshape(-1)
+    expected = {
+        "raw_p50": int(np.percentile(taxels, 50, method="nearest")),
+        "raw_p99": int(np.percentile(taxels, 99, method="nearest")),
+        "level_p1": int(np.percentile(q, 1, method="nearest")),
+        "level_p999": int(np.percentile(q, 99.9, method="nearest")),
+        "levels_distinct": int(np.unique(q).size),
+        "frac_saturated": float(np.mean(q == 255)),
+    }
+    monkeypatch.setattr(data_mod, "_CHUNK_FRAMES", 7)  # many chunks: same answer
+    r = dynamic_range_report(d.pressure)
+    for key, value in expected.items():
+        assert r[key] == pytest.approx(value, rel=1e-9), key
+    assert r["levels_used"] == r["level_p999"] - r["level_p1"] + 1
+
+
 def test_gate_rejects_max_scaled_data(tmp_path: Path) -> None:
     d = load_stag(write_v5(tmp_path / "w.mat", make_fields("weights", [40, 40], peak=654)))
     raw = d.pressure

@@ -610,18 +610,40 @@ def taxel_mask_from_data(raw: np.ndarray) -> np.ndarray:
     return flat.max(axis=0) != flat.min(axis=0)
 
 
-def _levels(calibrated: np.ndarray) -> dict[str, Any]:
-    q = np.round(np.asarray(calibrated, dtype=np.float64) * LEVELS).astype(np.int64)
-    if q.size == 0:
-        return {"levels_used": 0, "levels_distinct": 0, "level_p1": None, "level_p999": None}
-    lo, hi = np.percentile(q, [LEVEL_LOW_PCT, LEVEL_HIGH_PCT], method="nearest")
+_CHUNK_FRAMES = 8192  # frames per pass: statistics are histograms, memory stays ~32 MB
+
+
+def _frames(arr: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    a = np.asarray(arr)
+    if a.ndim < 2 or tuple(a.shape[-2:]) != tuple(shape):
+        raise InvalidInputError(f"expected (..., {shape[0]}, {shape[1]}) frames, got {a.shape}")
+    return a.reshape((-1, *a.shape[-2:]))
+
+
+def _hist_pct(counts: np.ndarray, pct: float) -> int:
+    """Nearest-rank percentile of the values whose histogram is ``counts`` (bin = value)."""
+    cum = np.cumsum(counts)
+    rank = int(round(pct / 100.0 * (int(cum[-1]) - 1)))
+    return int(np.searchsorted(cum, rank, side="right"))
+
+
+def _level_counts(calibrated_taxels: np.ndarray) -> np.ndarray:
+    q = np.rint(np.asarray(calibrated_taxels, dtype=np.float32) * LEVELS).astype(np.int64)
+    return np.bincount(np.clip(q, 0, LEVELS).reshape(-1), minlength=LEVELS + 1)
+
+
+def _level_stats(counts: np.ndarray) -> dict[str, Any]:
+    """Level statistics from a (256,) histogram of calibrated values on the 1/255 grid."""
+    if counts.sum() == 0:
+        return {"levels_used": 0, "levels_distinct": 0}
+    lo, hi = _hist_pct(counts, LEVEL_LOW_PCT), _hist_pct(counts, LEVEL_HIGH_PCT)
     return {
-        "levels_used": int(hi - lo + 1),
-        "levels_distinct": int(np.unique(q).size),
-        "level_p1": int(lo),
-        "level_p50": int(np.percentile(q, 50, method="nearest")),
-        "level_p95": int(np.percentile(q, 95, method="nearest")),
-        "level_p999": int(hi),
+        "levels_used": hi - lo + 1,
+        "levels_distinct": int(np.count_nonzero(counts)),
+        "level_p1": lo,
+        "level_p50": _hist_pct(counts, 50),
+        "level_p95": _hist_pct(counts, 95),
+        "level_p999": hi,
     }
 
 
@@ -633,33 +655,51 @@ def dynamic_range_report(
     ``mask`` (32, 32) bool selects the taxels the statistics use; by default the pixels that
     vary in ``raw`` (falling back to the spec's 548-taxel layout when nothing varies). Level
     counts are on the 1/255 grid: ``levels_used`` is the span of levels between the 1st and
-    99.9th taxel percentiles (the paper's "usable intensity levels").
+    99.9th taxel percentiles (the paper's "usable intensity levels"), ``levels_distinct``
+    the number of levels that occur at all. Percentiles are nearest-rank, computed from
+    histograms in chunks (memory stays small on the 135k-frame classification subset).
     """
-    arr = np.asarray(raw)
-    frames = arr.reshape((-1, *arr.shape[-2:])) if arr.ndim >= 2 else arr
-    if frames.ndim != 3 or tuple(frames.shape[1:]) != tuple(profile.shape):
-        raise InvalidInputError(f"expected (..., {profile.shape}) frames, got {arr.shape}")
+    frames = _frames(raw, profile.shape)
     spec = taxel_mask_from_spec() if tuple(profile.shape) == FRAME_SHAPE else None
     data_mask = taxel_mask_from_data(frames)
     if mask is None:
-        mask = data_mask if data_mask.any() else spec if spec is not None else data_mask
+        mask = data_mask if data_mask.any() or spec is None else spec
     mask = np.asarray(mask, dtype=bool)
-    taxels = frames[:, mask].astype(np.float64).reshape(-1)
-    cal = profile.calibrate(frames)[:, mask].reshape(-1)
+    if mask.shape != tuple(profile.shape):
+        raise InvalidInputError(f"taxel mask must have shape {profile.shape}, got {mask.shape}")
     report: dict[str, Any] = {
         "profile": profile.name,
         "frames": int(frames.shape[0]),
-        "raw_min": float(frames.min()) if frames.size else None,
-        "raw_max": float(frames.max()) if frames.size else None,
+        "raw_min": None,
+        "raw_max": None,
         "taxels_used": int(mask.sum()),
     }
-    if taxels.size:
-        pct = np.percentile(taxels, [1, 5, 50, 95, 99])
-        report.update({f"raw_p{p}": float(v) for p, v in zip((1, 5, 50, 95, 99), pct, strict=True)})
-        report["calibrated_median"] = float(np.median(cal))
-        report["frac_saturated"] = float(np.mean(cal >= 1.0))
-        report["frac_zero"] = float(np.mean(cal <= 0.0))
-    report.update(_levels(cal))
+    n_values = frames.shape[0] * int(mask.sum())
+    if n_values:
+        raw_min, raw_max = frames.min(), frames.max()
+        integral = np.issubdtype(frames.dtype, np.integer)
+        report["raw_min"] = int(raw_min) if integral else float(raw_min)
+        report["raw_max"] = int(raw_max) if integral else float(raw_max)
+        levels = np.zeros(LEVELS + 1, np.int64)
+        raw_counts = np.zeros(int(raw_max) - int(raw_min) + 1, np.int64) if integral else None
+        for s in range(0, frames.shape[0], _CHUNK_FRAMES):
+            chunk = frames[s : s + _CHUNK_FRAMES]
+            levels += _level_counts(profile.calibrate(chunk)[:, mask])
+            if raw_counts is not None:
+                shifted = chunk[:, mask].astype(np.int64).reshape(-1) - int(raw_min)
+                raw_counts += np.bincount(shifted, minlength=raw_counts.size)
+        for p in (1, 5, 50, 95, 99):
+            if raw_counts is not None:
+                report[f"raw_p{p}"] = _hist_pct(raw_counts, p) + int(raw_min)
+            else:  # float readings: a strided sample of at most ~2M taxel values
+                step = max(1, frames.shape[0] * int(mask.sum()) // 2_000_000)
+                report[f"raw_p{p}"] = float(np.percentile(frames[::step][:, mask], p))
+        report["frac_saturated"] = float(levels[LEVELS] / n_values)
+        report["frac_zero"] = float(levels[0] / n_values)
+        report.update(_level_stats(levels))
+        report["calibrated_median"] = report["level_p50"] / LEVELS
+    else:
+        report.update(_level_stats(np.zeros(LEVELS + 1, np.int64)))
     report["taxels_data"] = int(data_mask.sum())
     if spec is not None:
         report["taxels_spec"] = int(spec.sum())
@@ -693,14 +733,16 @@ def check_dynamic_range(
             raise DynamicRangeError(
                 f"calibrated pressure must lie in [0, 1], got {arr.min()}..{arr.max()}"
             )
-        frames = arr.reshape((-1, *arr.shape[-2:]))
+        frames = _frames(arr, profile.shape)
         mask = taxel_mask_from_data(frames)
         if not mask.any():
             mask = np.ones(frames.shape[1:], bool)
-        cal = frames[:, mask]
+        counts = np.zeros(LEVELS + 1, np.int64)
+        for s in range(0, frames.shape[0], _CHUNK_FRAMES):
+            counts += _level_counts(frames[s : s + _CHUNK_FRAMES][:, mask])
         report: dict[str, Any] = {"profile": profile.name, "frames": int(frames.shape[0])}
-        report.update(_levels(cal))
-        median = float(np.median(cal))
+        report.update(_level_stats(counts))
+        median = report["level_p50"] / LEVELS
         report["calibrated_median"] = median
         if median > MAX_CALIBRATED_MEDIAN:
             raise DynamicRangeError(
