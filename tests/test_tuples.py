@@ -63,6 +63,8 @@ def test_cluster_labels_small_and_degenerate_inputs() -> None:
     labels = cluster_labels(same, K, 0)
     assert sorted(np.unique(labels).tolist()) == [0, 1]  # dense ids, no empty cluster ids
     assert len(set(zip(labels.tolist(), [0] * 10 + [1] * 10, strict=True))) == 2
+    flat = np.repeat(frames[:1], 12, axis=0)  # 12 identical frames: one cluster
+    np.testing.assert_array_equal(cluster_labels(flat, K, 0), np.zeros(12))
     with pytest.raises(InvalidInputError):
         cluster_labels(frames, 0, 0)
 
@@ -158,6 +160,8 @@ def test_bad_arguments() -> None:
         TupleSampler(frames[:-1], rec, valid)
     with pytest.raises(InvalidInputError):
         TupleSampler(frames, rec, valid[:-1])
+    with pytest.raises(InvalidInputError, match="calibrated"):
+        TupleSampler(frames * 600, rec, valid)  # raw readings, not calibrated
 
 
 def test_resample_period() -> None:
@@ -169,6 +173,20 @@ def test_real_weights_tuples(stag_dir: Path) -> None:
     d = load_stag(stag_dir / "weights_lite")
     s = TupleSampler(calibrate(d.pressure), d.recording_id, d.valid, d.anchor_mask(), k=K)
     t = s.fixed(0)
+    np.testing.assert_array_equal(t, TupleSampler.from_stag(d, k=K).fixed(0))
     assert t.shape == (2301, K)
     check_invariants(t, s, d.recording_id, d.valid)
     assert all(len(s.clusters(r)) == K for r in s.recordings)
+
+
+def test_from_stag_applies_split_valid_and_balanced(tmp_path: Path) -> None:
+    from tests.stag_synth import make_fields, write_v73
+
+    fields = make_fields("classification", [30, 25, 12, 3], seed=6)
+    d = load_stag(write_v73(tmp_path / "m.mat", fields))
+    for split in ("train", "test"):
+        s = TupleSampler.from_stag(d, split, k=K)
+        t = s.fixed(0)
+        np.testing.assert_array_equal(s.anchors, np.flatnonzero(d.anchor_mask(split)))
+        assert d.valid_mask(split)[t].all() and d.balanced[t[:, 0]].all()
+        assert (d.recording_id[t] == d.recording_id[t[:, :1]]).all()

@@ -158,7 +158,7 @@ class UnknownSplitError(DataFormatError, LookupError):
     """A split name the data does not have."""
 
 
-@dataclass
+@dataclass(eq=False)  # arrays: compare with fingerprint(), not ==
 class StagData:
     """One STAG subset (or several, combined). Per-frame arrays all have length N."""
 

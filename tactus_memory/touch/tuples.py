@@ -19,6 +19,7 @@ Edge cases the reference code does not handle (documented behaviour here):
 from __future__ import annotations
 
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sklearn.cluster import KMeans
@@ -26,6 +27,9 @@ from sklearn.decomposition import PCA
 from threadpoolctl import threadpool_limits
 
 from tactus_memory.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    from tactus_memory.touch.data import SensorProfile, StagData
 
 PCA_COMPONENTS = 8  # STAG ObjectClusterDataset: PCA to 8 components before k-means
 KMEANS_N_INIT = 10  # "many restarts" (stag-format.md); k-means++ init
@@ -108,6 +112,11 @@ class TupleSampler:
             raise InvalidInputError(
                 f"calibrated has {frames.shape[0]} frames but recording_id has {n}"
             )
+        if frames.size and (float(frames.min()) < 0.0 or float(frames.max()) > 1.0):
+            raise InvalidInputError(
+                "TupleSampler expects calibrated frames in [0, 1] (tactus_memory.touch.data."
+                f"calibrate), got values {frames.min()}..{frames.max()}"
+            )
         if mode not in MODES:
             raise InvalidInputError(f"mode must be one of {MODES}, got {mode!r}")
         if k < 1:
@@ -131,6 +140,31 @@ class TupleSampler:
                 self._clusters[int(r)] = [members[labels == c] for c in range(labels.max() + 1)]
         self.anchors: np.ndarray = anchor_idx  # (T,) int64 frame indices
         self._anchor_rec = rec[anchor_idx]
+
+    @classmethod
+    def from_stag(
+        cls,
+        data: StagData,
+        split: str | None = None,
+        *,
+        k: int = DEFAULT_K,
+        mode: str = "cluster",
+        seed: int = 0,
+        profile: SensorProfile | None = None,
+    ) -> TupleSampler:
+        """The reference protocol on a loaded subset: members from ``data.valid_mask(split)``,
+        anchors ``data.anchor_mask(split)`` (valid, in the split, isBalanced)."""
+        from tactus_memory.touch.data import STAG_GLOVE
+
+        return cls(
+            data.calibrated(profile or STAG_GLOVE),
+            data.recording_id,
+            data.valid_mask(split),
+            data.anchor_mask(split),
+            k=k,
+            mode=mode,
+            seed=seed,
+        )
 
     def __len__(self) -> int:
         return int(self.anchors.size)
