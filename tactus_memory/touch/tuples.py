@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from tactus_memory.touch.data import SensorProfile, StagData
 
 PCA_COMPONENTS = 8  # STAG ObjectClusterDataset: PCA to 8 components before k-means
-KMEANS_N_INIT = 10  # "many restarts" (stag-format.md); k-means++ init
+KMEANS_N_INIT = 50  # STAG ObjectClusterDataset: KMeans(k-means++, n_init=50)
 DEFAULT_K = 8  # tuple length K = 8 (paper Sec. Method)
 RESAMPLE_EVERY = 500  # train tuples are redrawn every 500 steps (paper Sec. Method)
 MODES = ("cluster", "random")
@@ -43,7 +43,7 @@ def cluster_labels(frames: np.ndarray, k: int, seed: int) -> np.ndarray:
     """``frames``: (n, 32, 32) calibrated -> (n,) int64 cluster ids in ``0..m-1``, m <= k.
 
     Flatten to 1024, PCA to min(8, n) components, ONE global min-max rescale (not per
-    dimension), KMeans(k, k-means++, n_init=10, random_state=seed). With n <= k each frame
+    dimension), KMeans(k, k-means++, n_init=50, random_state=seed). With n <= k each frame
     is its own cluster; empty clusters are dropped and the ids renumbered densely.
     """
     x = np.asarray(frames)
