@@ -1,0 +1,147 @@
+"""The real thing: ``tactus serve`` in a subprocess (uvicorn on 127.0.0.1, a random free port,
+the real MiniLM space, a real LanceDB store in tmp_path), spoken to over real HTTP (httpx) and
+a real WebSocket; then SIGKILLed after acknowledged writes and restarted: nothing is lost."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.test_service_helpers import window
+
+pytestmark = pytest.mark.slow
+
+STARTUP_S = 180
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    def __init__(self, data: Path, log: Path, *extra: str) -> None:
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.log = log
+        cmd = [
+            sys.executable,
+            "-c",
+            "from tactus_memory.cli import main; main()",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--data",
+            str(data),
+            *extra,
+        ]
+        env = {**os.environ, "TACTUS_LOG_LEVEL": "warning", "OMP_NUM_THREADS": "1"}
+        self.proc = subprocess.Popen(cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT, env=env)
+        deadline = time.monotonic() + STARTUP_S
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                pytest.fail(f"server exited ({self.proc.returncode}):\n{log.read_text()[-3000:]}")
+            try:
+                if httpx.get(self.base + "/health", timeout=2).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.3)
+        self.kill()
+        pytest.fail(f"server did not start in {STARTUP_S}s:\n{log.read_text()[-3000:]}")
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
+
+@pytest.fixture
+def data_dir(tmp_path):
+    return tmp_path / "memory"
+
+
+def test_real_server_search_stream_crash_and_restart(data_dir, tmp_path):
+    log = tmp_path / "server.log"
+    server = Server(data_dir, log, "--token", "t0k")
+    auth = {"Authorization": "Bearer t0k"}
+    try:
+        with httpx.Client(base_url=server.base, headers=auth, timeout=60) as c:
+            health = httpx.get(server.base + "/health").json()
+            assert health["space"]["name"] == "minilm-l6" and health["space"]["dim"] == 384
+            assert httpx.get(server.base + "/sessions").status_code == 401
+
+            notes = ["the mug was hot", "a soft sponge", "a cold metal spoon", "a rough brick"]
+            acked = []
+            for i, note in enumerate(notes):
+                r = c.post("/sessions/kitchen/text", json={"text": note, "t": float(i)})
+                assert r.status_code == 201, r.text
+                acked += r.json()["ids"]
+            hits = c.get("/search", params={"q": "something squishy", "k": 2}).json()["hits"]
+            assert hits[0]["text"] == "a soft sponge"
+
+            r = c.get("/search", params={"q": "x", "k": 0})
+            assert r.status_code == 422
+            assert r.headers["content-type"].startswith("application/problem+json")
+
+            touch_rows = 0
+            if health["touch"]:
+                r = c.post("/sessions/glove/touch", json={"frames": window().tolist(), "t": 1.0})
+                assert r.status_code == 201, r.text
+                touch_rows += 1
+                touch_rows += _stream(server.port, "glove", n_frames=16)
+            else:
+                r = c.post("/sessions/glove/touch", json={"frames": window().tolist(), "t": 1.0})
+                assert r.status_code == 503 and health["touch_unavailable"] in r.json()["detail"]
+    finally:
+        server.kill()  # SIGKILL: no shutdown hooks, no flush
+    assert server.proc.returncode == -signal.SIGKILL
+
+    server = Server(data_dir, log, "--token", "t0k")
+    try:
+        with httpx.Client(base_url=server.base, headers=auth, timeout=60) as c:
+            sessions = {s["id"]: s for s in c.get("/sessions").json()["sessions"]}
+            assert sessions["kitchen"]["counts"] == {"text": len(notes)}
+            if touch_rows:
+                assert sessions["glove"]["counts"] == {"touch": touch_rows}
+            hits = c.get("/search", params={"q": "hot mug", "k": 10}).json()["hits"]
+            assert {h["id"] for h in hits} >= set(acked)
+    finally:
+        server.stop()
+
+
+def _stream(port: int, session: str, n_frames: int) -> int:
+    from websockets.sync.client import connect
+
+    url = f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream?window=4&stride=4&token=t0k"
+    frames = window(k=n_frames)
+    with connect(url, open_timeout=30) as ws:
+        assert json.loads(ws.recv(timeout=30))["type"] == "ready"
+        ws.send(json.dumps({"frame": [[1.0] * 3], "t": 0.0}))
+        for i, f in enumerate(frames):
+            ws.send(json.dumps({"frame": f.tolist(), "t": i / 30}))
+        msgs = [json.loads(ws.recv(timeout=60)) for _ in range(1 + n_frames // 4)]
+    assert [m["type"] for m in msgs].count("error") == 1
+    stored = [m for m in msgs if m["type"] == "stored"]
+    assert len(stored) == n_frames // 4
+    return len(stored)
