@@ -11,7 +11,14 @@ Mask semantics (spec, "Reference sampling"):
   ``hasValidLabel``; its ``graspValid`` is its valid mask. ``isTransition`` / ``isGrasp`` are
   sparse analysis markers, never the grasp filter; they stay in ``StagData.extra``.
 - training/test frames: ``valid & split_mask(name)`` (:meth:`StagData.valid_mask`);
-  anchors: that and ``isBalanced`` (:meth:`StagData.anchor_mask`).
+  anchors: that and ``isBalanced`` (:meth:`StagData.anchor_mask`). A file without splits
+  (``weights``) has ``split_id == -1``: its frames are in neither 'train' nor 'test'.
+
+Formats: MATLAB 5 files (as shipped) through ``scipy.io.loadmat``; MATLAB v7.3 (HDF5) through
+h5py, whose arrays come back with MATLAB's axes reversed (``pressure`` is (32, 32, N) there)
+and are transposed back, and whose cell arrays of strings are object references to uint16
+``char`` datasets. Per-frame ids are cast to int64 whatever their stored type (uint8 in the
+shipped files, float64 when written by ``savemat``).
 """
 
 from __future__ import annotations
@@ -33,14 +40,13 @@ RAW_SPAN = 150  # same source: the informative band ends near raw 650
 REST_RAW = 512.0  # stag-format.md "The sensor": resting pedestal about 510-516 raw
 SATURATION_RAW = 1000.0  # stag-format.md "The sensor": saturation near 1000 raw
 FRAME_SHAPE = (32, 32)  # stag-format.md: 548 taxels rasterised into 32x32
-N_SPEC_TAXELS = 548  # stag-format.md "The sensor"
 
 LEVELS = 255  # intensity levels of an 8-bit cache; the paper's forensics counts 1/255 steps
 LEVEL_LOW_PCT = 1.0  # "levels used" = span of 1/255 levels between these taxel percentiles
 LEVEL_HIGH_PCT = 99.9  # (real files: weights 64, blindfolded 39; the max-scaling defect 6-15)
-MIN_LEVELS = (
-    20  # gate: calibrated data must span at least this many levels (paper: 30-60 ok, ~8 bad)
-)
+# gate: calibrated data must span at least this many levels (paper: 30-60 after the fix, ~8
+# under the defect)
+MIN_LEVELS = 20
 MAX_CALIBRATED_MEDIAN = 0.35  # gate: calibrated rest sits near 0.07-0.10 (spec); a median above
 # this means the pedestal was kept, i.e. the data was max-scaled rather than calibrated
 
@@ -160,7 +166,13 @@ class UnknownSplitError(DataFormatError, LookupError):
 
 @dataclass(eq=False)  # arrays: compare with fingerprint(), not ==
 class StagData:
-    """One STAG subset (or several, combined). Per-frame arrays all have length N."""
+    """One STAG subset (or several, combined). Per-frame arrays all have length N.
+
+    ``extra`` holds every other variable of the file (``graspIndex``, ``weights``,
+    ``actionStartTS``, ``isTransition``, ...), (K, 1) vectors flattened to (K,), cell arrays
+    as object arrays of str; ``frame_extra`` names the per-frame ones (sliced by
+    :meth:`select`, carried by :func:`combine`).
+    """
 
     pressure: np.ndarray  # (N, 32, 32) int16 raw, C order as loaded
     object_id: np.ndarray  # (N,) int64
@@ -201,8 +213,7 @@ class StagData:
         Frames of a file without splits (``weights``; ``split_id == -1``) belong to no split:
         they are False for ``'train'`` and ``'test'`` alike; select them with
         ``data.split_id == -1``, or use :meth:`valid_mask` with ``split=None``. An unknown
-        name raises
-        :class:`UnknownSplitError` (a ``LookupError``), except the standard names
+        name raises :class:`UnknownSplitError` (a ``LookupError``), except the standard names
         ``'train'``/``'test'``, which give an all-False mask when no file here has them.
         """
         if name in self.splits:
