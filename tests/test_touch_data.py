@@ -453,3 +453,12 @@ def test_cli_inspect_synthetic_v73(tmp_path: Path) -> None:
     assert out["splits"]["train"]["frames"] == 20  # recordings 0 and 2
     bad = runner.invoke(_cli(), ["data", "inspect", str(tmp_path / "missing")])
     assert bad.exit_code == 2 and "no STAG metadata" in bad.output
+
+
+def test_v5_char_matrix_lists(tmp_path: Path) -> None:
+    """Lists saved as MATLAB char matrices (padded rows) instead of cell arrays."""
+    fields = make_fields(seed=1)
+    fields["splits"] = np.array(["train", "test"])  # savemat writes a 2 x 5 char matrix
+    d = load_stag(write_v5(tmp_path / "m.mat", fields))
+    assert d.splits == ["train", "test"]
+    np.testing.assert_array_equal(d.split_mask("train"), d.recording_id % 2 == 0)
