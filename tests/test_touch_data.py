@@ -462,3 +462,16 @@ def test_v5_char_matrix_lists(tmp_path: Path) -> None:
     d = load_stag(write_v5(tmp_path / "m.mat", fields))
     assert d.splits == ["train", "test"]
     np.testing.assert_array_equal(d.split_mask("train"), d.recording_id % 2 == 0)
+
+
+def test_per_subset_gate_catches_a_mis_scaled_subset_in_a_pool(tmp_path: Path) -> None:
+    good = load_stag(write_v5(tmp_path / "a.mat", make_fields("classification", seed=1)))
+    fields = make_fields("weights", [40, 40], seed=2, peak=654)
+    p = fields["pressure"].astype(np.float64)
+    fields["pressure"] = np.round(p / p.max() * 255).astype(np.int16)  # an 8-bit max-scaled cache
+    bad = load_stag(write_v5(tmp_path / "b.mat", fields))
+    pool = combine([good, bad])
+    check_dynamic_range(pool.pressure)  # the pooled gate is fooled by the good subset ...
+    assert list(good.check_dynamic_range()) == good.sources
+    with pytest.raises(DynamicRangeError, match="b.mat"):  # ... the per-subset gate is not
+        pool.check_dynamic_range()

@@ -262,6 +262,25 @@ class StagData:
         """(N, 32, 32) float32 calibrated pressure."""
         return profile.calibrate(self.pressure)
 
+    def check_dynamic_range(
+        self, profile: SensorProfile = STAG_GLOVE, *, min_levels: int | None = None
+    ) -> dict[str, dict[str, Any]]:
+        """The dynamic-range gate run on EACH source subset separately (a pooled check can
+        be passed by a mis-scaled subset hiding among good ones). Returns reports by source;
+        raises :class:`DynamicRangeError` naming the first failing source."""
+        reports: dict[str, dict[str, Any]] = {}
+        for i, source in enumerate(self.sources):
+            frames = self.pressure[self.subset == i]
+            if frames.shape[0] == 0:
+                continue
+            try:
+                reports[source] = check_dynamic_range(
+                    frames, profile, min_levels=MIN_LEVELS if min_levels is None else min_levels
+                )
+            except DynamicRangeError as exc:
+                raise DynamicRangeError(f"{source}: {exc}") from exc
+        return reports
+
     def fingerprint(self) -> str:
         """sha256 over pressure, labels, masks and the class list (for checkpoint metadata)."""
         h = hashlib.sha256()
