@@ -171,6 +171,12 @@ class StoredSense(Sense):
 
 
 # --------------------------------------------------------------------------- helpers
+def _same_vector(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return a.shape == b.shape and bool(np.allclose(a, b))
+
+
 def _check_k(k: Any) -> int:
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= MAX_K:
         raise InvalidInputError(f"k must be an int in [1, {MAX_K}], got {k!r}")
@@ -309,24 +315,31 @@ class Memory:
             centroid = getattr(sense, "query_centroid", None)
             if centroid is not None:
                 centroid = np.asarray(centroid, dtype=np.float32).reshape(-1)
-            provenance = sense.provenance()
-            calib = self._calib.get(name)
-            self.store.put_sense_row(
-                {
-                    "name": name,
-                    "modality": sense.modality,
-                    "dim": int(sense.dim),
-                    "provenance": json.dumps(provenance, sort_keys=True, default=str),
-                    "query_centroid": None if centroid is None else array_to_bytes(centroid),
-                    "mu": calib.mu if calib else None,
-                    "sigma": calib.sigma if calib else None,
-                    "calib_n": calib.n if calib else None,
-                    "updated": time.time(),
-                }
+            prov_json = json.dumps(sense.provenance(), sort_keys=True, default=str)
+            provenance = json.loads(prov_json)
+            unchanged = (
+                stored is not None
+                and stored.provenance() == provenance
+                and _same_vector(stored.query_centroid, centroid)
             )
-            if stored is not None and stored.provenance() != provenance:
-                log.warning("sense %r re-registered with different provenance", name)
+            if stored is not None and not unchanged:
+                log.warning("sense %r re-registered with a different encoder", name)
                 self._calib.pop(name, None)  # a new encoder: re-estimate the null
+            calib = self._calib.get(name)
+            if not unchanged:  # reopening with the same sense writes nothing
+                self.store.put_sense_row(
+                    {
+                        "name": name,
+                        "modality": sense.modality,
+                        "dim": int(sense.dim),
+                        "provenance": prov_json,
+                        "query_centroid": None if centroid is None else array_to_bytes(centroid),
+                        "mu": calib.mu if calib else None,
+                        "sigma": calib.sigma if calib else None,
+                        "calib_n": calib.n if calib else None,
+                        "updated": time.time(),
+                    }
+                )
             self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
             self._live[name] = sense
 
@@ -463,10 +476,13 @@ class Memory:
             schema=self.store.items.schema,
         )
         with self._lock:
+            existing = 0
+            if upsert and self._counts is not None:
+                existing = self.store.count(Where().ids(id_list).sql())
             self.store.write(data, upsert=upsert)
             if self._counts is not None:
-                if upsert:
-                    self._counts = None  # some ids may have existed: recount lazily
+                if existing:
+                    self._counts = None  # replaced rows may change senses: recount lazily
                 else:
                     self._counts[s.name] = self._counts.get(s.name, 0) + n
         self._schedule_maintenance()

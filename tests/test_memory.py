@@ -389,3 +389,43 @@ def test_cli_search_and_sessions(tmp_path, monkeypatch) -> None:
     assert res.exit_code == 2 and "invalid session id" in res.output
     res = runner.invoke(app, ["sessions", "--data", str(tmp_path / "absent")])
     assert res.exit_code == 2 and "no memory" in res.output
+
+
+class CentroidSense(VectorSense):
+    """A touch-like sense: text queries are compared after removing a target centroid."""
+
+    def __init__(self, centroid: np.ndarray) -> None:
+        super().__init__("touchy", dim=len(centroid))
+        self.query_centroid = centroid
+
+    def query_transform(self, queries: np.ndarray) -> np.ndarray:
+        x = queries - self.query_centroid[None, :]
+        return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def test_query_centroid_survives_reopen(tmp_path) -> None:
+    path = str(tmp_path / "m")
+    rng = np.random.default_rng(3)
+    centroid = rng.standard_normal(64).astype(np.float32) * 0.2
+    mem = Memory.open(path, space=HashingSpace())
+    mem.add_sense(CentroidSense(centroid))
+    mem.add_many("s1", "touchy", list(rng.standard_normal((30, 64))), t=list(range(30)))
+    live = mem.search("mug shelf", k=5, senses=["touchy"])
+    versions = mem.store._senses.version
+    again = Memory.open(path, space=HashingSpace())
+    assert again.store._senses.version == versions  # reopening writes no registry rows
+    stored = again.search("mug shelf", k=5, senses=["touchy"])
+    assert [h.id for h in stored] == [h.id for h in live]
+    assert [h.score for h in stored] == pytest.approx([h.score for h in live], abs=1e-5)
+    # without the centroid the ranking would differ: the transform really is applied
+    plain = again.search_vector(again.space.embed_texts(["mug shelf"])[0], k=5, senses=["touchy"])
+    assert [h.id for h in plain] != [h.id for h in live]
+
+
+def test_upsert_keeps_sense_counts_exact(mem: Memory) -> None:
+    mem.add_many("s1", "text", ["a b", "c d"], ids=["x1", "x2"])
+    mem.search("a", k=1)  # counts are cached from here on
+    mem.add_many("s1", "text", ["e f", "g h"], ids=["x3", "x4"])
+    assert mem._sense_counts() == {"text": 4}
+    mem.add_many("s1", "text", ["a b c", "i j"], ids=["x1", "x5"])  # one replaces, one is new
+    assert mem._sense_counts() == {"text": 5} == {"text": len(mem)}
