@@ -1,0 +1,223 @@
+"""``TactusEncoder``: the touch sense. Grasp windows of 32x32 pressure frames -> text space.
+
+    from tactus_memory.adapters import TactusEncoder
+    memory.add_sense(TactusEncoder())            # the shipped default, no network
+    memory.add("s1", "touch", window, t=12.5)    # window: (K, 32, 32) raw or calibrated
+    memory.search("holding a screwdriver", senses=["touch"])
+
+Input rules (``validate``), in this order:
+
+1. shape ``(K, 32, 32)`` with 1 <= K <= the model's K (8 for the shipped model); a shorter
+   window is padded by repeating its last frame, a longer one is rejected (pass the K most
+   informative frames yourself);
+2. numeric, finite (no NaN/inf);
+3. ``calibrated=None`` (auto): integer arrays are raw sensor readings; float arrays whose
+   values all lie in [0, 1] are calibrated; other float arrays are raw;
+   ``calibrated=True``: values must lie in [0, 1];
+   ``calibrated=False`` (raw): values already in [0, 1] raise ``DynamicRangeError`` (the
+   max-scaling defect of the paper: raw readings sit around 500-1000), and so does a window
+   with no reading above the sensor offset;
+4. raw windows are calibrated with the checkpoint's sensor profile,
+   ``clip((raw - 500) / 150, 0, 1)`` for the STAG glove.
+
+Vectors live in the checkpoint's space (``space_name``/``dim``), so ``Memory.add_sense``
+rejects a memory built on another space. Text queries compared with touch vectors go through
+``query_transform`` = normalize(q - centroid), the same centring the training targets had.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactus_memory import __version__
+from tactus_memory.errors import DynamicRangeError, InvalidInputError
+from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
+from tactus_memory.vectors import as_unit_rows
+
+DEFAULT_CHECKPOINT = "tactus-lite-minilm.safetensors"  # in tactus_memory/touch/checkpoints/
+FRAME = 32
+
+
+def default_checkpoint_path() -> Path:
+    """The shipped default checkpoint (package data)."""
+    ref = resources.files("tactus_memory.touch") / "checkpoints" / DEFAULT_CHECKPOINT
+    path = Path(str(ref))
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"the shipped touch checkpoint {DEFAULT_CHECKPOINT} is missing from {path.parent}; "
+            "train one with `tactus train` and use TactusEncoder.from_pretrained(path)"
+        )
+    return path
+
+
+class TactusEncoder(Sense):
+    """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``)."""
+
+    modality = "touch"
+
+    def __init__(
+        self,
+        checkpoint: str | os.PathLike[str] | None = None,
+        *,
+        name: str = "touch",
+        device: str = "cpu",
+        batch_size: int = 64,
+    ) -> None:
+        from tactus_memory.touch.checkpoint import load_checkpoint
+        from tactus_memory.touch.data import SensorProfile
+
+        self.name = validate_sense_name(name)
+        path = Path(checkpoint) if checkpoint is not None else default_checkpoint_path()
+        self.ckpt = load_checkpoint(path, device=device)
+        self.model = self.ckpt.model
+        self.device = device
+        self.batch_size = int(batch_size)
+        self.dim = self.ckpt.dim
+        self.space_name = self.ckpt.space_name
+        self.frames = int(self.model.cfg.frames)
+        self.profile = SensorProfile.from_dict(self.ckpt.meta["calibration"])
+        self.classes = self.ckpt.classes
+        self.phrases = list(self.ckpt.targets.phrases)
+        #: (D,) removed from text queries; Memory stores it with the sense registration
+        self.query_centroid = self.ckpt.targets.centroid.astype(np.float32)
+        self._targets = self.ckpt.targets.centred.astype(np.float32)  # (C, D) unit rows
+
+    @classmethod
+    def from_pretrained(cls, path: str | os.PathLike[str], **kw: Any) -> TactusEncoder:
+        return cls(path, **kw)
+
+    # -- input ------------------------------------------------------------------------------
+
+    def validate(self, item: Any, *, calibrated: bool | None = None) -> np.ndarray:
+        """One window (K, 32, 32), raw or calibrated -> calibrated float32 (K, 32, 32)."""
+        try:
+            arr = np.asarray(item)
+        except (ValueError, TypeError) as exc:
+            raise InvalidInputError(f"touch window is not an array: {exc}") from exc
+        if arr.dtype == object or not (
+            np.issubdtype(arr.dtype, np.integer)
+            or np.issubdtype(arr.dtype, np.floating)
+            or arr.dtype == bool
+        ):
+            raise InvalidInputError(f"touch window must be numeric, got dtype {arr.dtype}")
+        if arr.ndim != 3 or arr.shape[1:] != (FRAME, FRAME):
+            raise InvalidInputError(f"touch window must have shape (K, 32, 32), got {arr.shape}")
+        k = arr.shape[0]
+        if not 1 <= k <= self.frames:
+            raise InvalidInputError(
+                f"touch window has {k} frames; this model fuses 1..{self.frames} "
+                f"(pass at most {self.frames} frames, e.g. window[:{self.frames}])"
+            )
+        if arr.dtype == bool:
+            raise InvalidInputError("touch window must be pressure values, got a bool mask")
+        if not np.isfinite(arr).all():
+            raise InvalidInputError("touch window contains NaN or inf")
+        lo, hi = float(arr.min()), float(arr.max())
+        is_float = np.issubdtype(arr.dtype, np.floating)
+        if calibrated is None:
+            calibrated = is_float and lo >= 0.0 and hi <= 1.0
+        if calibrated:
+            if lo < 0.0 or hi > 1.0:
+                raise InvalidInputError(
+                    f"calibrated touch window must lie in [0, 1], got {lo:.4g}..{hi:.4g}"
+                )
+            return np.ascontiguousarray(arr, dtype=np.float32)
+        if lo >= 0.0 and hi <= 1.0:
+            raise DynamicRangeError(
+                f"window passed as raw but its values lie in [0, 1] (max {hi:.4g}): it looks "
+                "already normalised; pass calibrated=True, or the raw sensor readings "
+                f"(the {self.profile.name} sensor reads ~{self.profile.offset:g}-1000 raw)"
+            )
+        if hi <= self.profile.offset:
+            raise DynamicRangeError(
+                f"no raw reading above the sensor offset {self.profile.offset:g} (max {hi:.4g}): "
+                f"this is not raw {self.profile.name} data"
+            )
+        return self.profile.calibrate(arr)
+
+    def _pad(self, w: np.ndarray) -> np.ndarray:
+        if w.shape[0] == self.frames:
+            return w
+        rep = np.repeat(w[-1:], self.frames - w.shape[0], axis=0)
+        return np.concatenate([w, rep], axis=0)
+
+    def _windows(self, batch: Any, calibrated: bool | None) -> np.ndarray:
+        if isinstance(batch, np.ndarray) and batch.ndim == 4:
+            items: Sequence[Any] = list(batch)
+        elif isinstance(batch, np.ndarray) and batch.ndim == 3:
+            items = [batch]
+        else:
+            items = list(batch)
+        if not items:
+            return np.zeros((0, self.frames, FRAME, FRAME), np.float32)
+        return np.stack([self._pad(self.validate(w, calibrated=calibrated)) for w in items])
+
+    # -- output -----------------------------------------------------------------------------
+
+    def embed(
+        self, batch: Sequence[Any] | np.ndarray, *, calibrated: bool | None = None
+    ) -> np.ndarray:
+        """N windows ((B, K, 32, 32) array or a list of (K, 32, 32)) -> (N, D) float32 unit rows."""
+        import torch
+
+        wins = self._windows(batch, calibrated)
+        if len(wins) == 0:
+            return np.zeros((0, self.dim), np.float32)
+        outs = []
+        with torch.inference_mode():
+            for s in range(0, len(wins), self.batch_size):
+                x = torch.from_numpy(wins[s : s + self.batch_size]).to(self.device)
+                outs.append(self.model(x).float().cpu().numpy())
+        return as_unit_rows(np.concatenate(outs), self.dim, what="touch embedding")
+
+    def query_transform(self, queries: np.ndarray) -> np.ndarray:
+        """(N, D) text-query vectors -> normalize(q - centroid), comparable with touch vectors."""
+        q = np.asarray(queries, dtype=np.float32)
+        return as_unit_rows(q - self.query_centroid, self.dim, what="query")
+
+    def classify(
+        self, windows: Any, k: int = 3, *, calibrated: bool | None = None, scores: bool = False
+    ) -> list[Any]:
+        """Rank the checkpoint's classes for each window (cosine to the centred targets).
+
+        One window (K, 32, 32) -> a list of k class names; a batch -> a list of such lists.
+        ``scores=True`` gives (name, cosine) pairs instead of names.
+        """
+        single = isinstance(windows, np.ndarray) and windows.ndim == 3
+        z = self.embed(windows, calibrated=calibrated)
+        sim = z @ self._targets.T
+        order = np.argsort(-sim, axis=1)[:, :k]
+        out = [
+            [(self.classes[j], float(sim[i, j])) if scores else self.classes[j] for j in row]
+            for i, row in enumerate(order)
+        ]
+        return out[0] if single else out
+
+    def to_row(self, item: np.ndarray) -> dict[str, Any]:
+        """Store the calibrated window (float16 .npy bytes; 1/150 raw steps survive float16)."""
+        return {"raw": array_to_bytes(np.asarray(item, dtype=np.float16))}
+
+    def from_row(self, row: dict[str, Any]) -> Any:
+        arr = super().from_row(row)
+        return None if arr is None else np.asarray(arr, dtype=np.float32)
+
+    def provenance(self) -> dict[str, Any]:
+        m = self.ckpt.meta
+        return {
+            "encoder": "tactus",
+            "version": __version__,
+            "model": m["model"]["name"],
+            "checkpoint": self.ckpt.path.name,
+            "checkpoint_sha256": self.ckpt.sha256,
+            "space": m["space"],
+            "calibration": self.profile.to_dict(),
+            "classes": list(self.classes),
+            "frames": self.frames,
+            "steps": m.get("steps"),
+        }
