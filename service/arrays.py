@@ -32,16 +32,50 @@ def loads_strict(raw: bytes | str) -> Any:
         raise InvalidInputError(f"body is not valid JSON: {exc}") from None
 
 
+#: header bytes -> (dtype, shape, fortran_order, data offset) of headers already parsed once;
+#: a glove streams thousands of frames with the same header, and numpy parses each header
+#: with ``ast.literal_eval`` (~50 us), so a seen header is looked up instead.
+_HEADERS: dict[bytes, tuple[np.dtype, tuple[int, ...], bool, int]] = {}
+_MAX_HEADERS = 256
+
+
+def _npy_fast(raw: bytes) -> np.ndarray | None:
+    if len(raw) < 10 or raw[:6] != b"\x93NUMPY" or raw[6] != 1:
+        return None
+    offset = 10 + int.from_bytes(raw[8:10], "little")
+    known = _HEADERS.get(raw[:offset])
+    if known is None:
+        return None
+    dtype, shape, fortran, offset = known
+    count = int(np.prod(shape, dtype=np.int64))
+    if len(raw) - offset != count * dtype.itemsize:
+        return None
+    arr = np.frombuffer(raw, dtype=dtype, count=count, offset=offset)
+    return arr.reshape(shape, order="F" if fortran else "C")
+
+
+def _remember_header(raw: bytes, arr: np.ndarray) -> None:
+    if raw[:6] != b"\x93NUMPY" or raw[6] != 1 or len(_HEADERS) >= _MAX_HEADERS:
+        return
+    offset = 10 + int.from_bytes(raw[8:10], "little")
+    fortran = arr.flags.f_contiguous and not arr.flags.c_contiguous
+    _HEADERS[raw[:offset]] = (arr.dtype, arr.shape, fortran, offset)
+
+
 def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
     """``.npy`` bytes -> a finite float32 array (no pickles, numeric dtypes only)."""
     if not raw:
         raise InvalidInputError(f"{what} is empty")
-    try:
-        arr = np.load(io.BytesIO(raw), allow_pickle=False)
-    except Exception as exc:  # noqa: BLE001  (numpy raises many kinds on garbage)
-        raise InvalidInputError(f"{what} is not a valid .npy array: {exc}") from None
-    if not isinstance(arr, np.ndarray):
-        raise InvalidInputError(f"{what} must hold one array, not an archive")
+    arr = _npy_fast(raw)
+    if arr is None:
+        try:
+            arr = np.load(io.BytesIO(raw), allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001  (numpy raises many kinds on garbage)
+            raise InvalidInputError(f"{what} is not a valid .npy array: {exc}") from None
+        if not isinstance(arr, np.ndarray):
+            raise InvalidInputError(f"{what} must hold one array, not an archive")
+        if arr.dtype.kind in "biuf" and arr.nbytes <= 1 << 20:
+            _remember_header(raw, arr)
     if arr.dtype.kind not in "biuf":
         raise InvalidInputError(f"{what} has dtype {arr.dtype}; use a numeric dtype")
     out = arr.astype(np.float32, copy=False)

@@ -10,6 +10,7 @@ from fastapi import Depends, HTTPException, Path, Request
 from starlette.requests import HTTPConnection
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.settings import Settings
+from tactus_memory.service.writes import Writer
 
 #: session and item ids: the store's rule (tactus_memory.store.ID_RE), checked at the edge
 ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$"
@@ -23,6 +24,11 @@ class ServiceState:
     settings: Settings
     memory: Any
     touch_unavailable: str | None = None
+    writer: Writer | None = None
+
+    def __post_init__(self) -> None:
+        if self.writer is None:
+            self.writer = Writer(self.settings.write_threads)
 
 
 def get_state(conn: HTTPConnection) -> ServiceState:
@@ -37,7 +43,12 @@ def get_memory(state: Annotated[ServiceState, Depends(get_state)]) -> Any:
     return state.memory
 
 
+def get_writer(state: Annotated[ServiceState, Depends(get_state)]) -> Writer:
+    return state.writer
+
+
 StateDep = Annotated[ServiceState, Depends(get_state)]
+WriterDep = Annotated[Writer, Depends(get_writer)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 #: the ``tactus_memory.memory.Memory`` behind the app
 MemoryDep = Annotated[Any, Depends(get_memory)]

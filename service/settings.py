@@ -33,6 +33,9 @@ class Settings(BaseSettings):
     )
     window: int = Field(8, ge=1, le=512, description="Default frames per window on touch streams.")
     stride: int = Field(8, ge=1, le=512, description="Default frames between window starts.")
+    write_threads: int = Field(
+        2, ge=1, le=64, description="Worker threads for writes (commits are serialised)."
+    )
     touch: bool = Field(
         True, description="Register the shipped touch encoder on startup when it is available."
     )

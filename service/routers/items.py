@@ -1,10 +1,11 @@
 """Writes of text, images and precomputed vectors into a session.
 
-The write path (all routes): the body is parsed and validated on the event loop, then the
-blocking library call runs in the threadpool (``def`` endpoints). ``Memory.add_many``
-validates and embeds everything first, then writes ONE LanceDB commit under the memory's
-write lock; the 201 is sent only after that commit returned, so an acknowledged write
-survives a crash of the server.
+The write path (every write route, touch included): the body is parsed and validated on the
+event loop, then the blocking library call runs in a worker thread of the service's writer
+(``service/writes.py``, a few threads of its own so reads never wait behind writes).
+``Memory.add_many`` validates and embeds everything first, then writes ONE LanceDB commit
+under the memory's write lock; the 201 is sent only after that commit returned, so an
+acknowledged write survives a crash of the server.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, File, Form, UploadFile
 from tactus_memory.service.arrays import loads_strict
-from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId
+from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId, WriterDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
 
@@ -32,9 +33,18 @@ MAX_IMAGE_PIXELS = 64_000_000
     response_model=StoredOut,
     responses=problem_responses(404, 413, 422),
 )
-def add_text(session: SessionId, body: TextIn, memory: MemoryDep) -> StoredOut:
-    item_id = memory.add(
-        session, "text", body.text, t=body.t, t_end=body.t_end, meta=body.meta, id=body.id
+async def add_text(
+    session: SessionId, body: TextIn, memory: MemoryDep, writer: WriterDep
+) -> StoredOut:
+    item_id = await writer.run(
+        memory.add,
+        session,
+        "text",
+        body.text,
+        t=body.t,
+        t_end=body.t_end,
+        meta=body.meta,
+        id=body.id,
     )
     return StoredOut(ids=[item_id], count=1)
 
@@ -48,11 +58,14 @@ def add_text(session: SessionId, body: TextIn, memory: MemoryDep) -> StoredOut:
     response_model=StoredOut,
     responses=problem_responses(404, 413, 422),
 )
-def add_vectors(session: SessionId, body: VectorsIn, memory: MemoryDep) -> StoredOut:
+async def add_vectors(
+    session: SessionId, body: VectorsIn, memory: MemoryDep, writer: WriterDep
+) -> StoredOut:
     n = len(body.vectors)
     if len(body.t) != n:
         raise InvalidInputError(f"t has {len(body.t)} entries for {n} vectors")
-    ids = memory.add_many(
+    ids = await writer.run(
+        memory.add_many,
         session,
         body.sense,
         body.vectors,
@@ -88,9 +101,10 @@ def _decode_image(raw: bytes) -> object:
     response_model=StoredOut,
     responses=problem_responses(400, 404, 413, 422),
 )
-def add_image(
+async def add_image(
     session: SessionId,
     memory: MemoryDep,
+    writer: WriterDep,
     file: Annotated[UploadFile, File(description="PNG/JPEG/... image.")],
     t: Annotated[float, Form(allow_inf_nan=False)],
     t_end: Annotated[float | None, Form(allow_inf_nan=False)] = None,
@@ -107,6 +121,8 @@ def add_image(
         meta_obj = loads_strict(meta)
         if not isinstance(meta_obj, dict):
             raise InvalidInputError("meta must be a JSON object")
-    image = _decode_image(file.file.read())
-    item_id = memory.add(session, "image", image, t=t, t_end=t_end, meta=meta_obj, id=id)
+    image = await writer.run(_decode_image, await file.read())
+    item_id = await writer.run(
+        memory.add, session, "image", image, t=t, t_end=t_end, meta=meta_obj, id=id
+    )
     return StoredOut(ids=[item_id], count=1)

@@ -13,9 +13,8 @@ import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
-from starlette.concurrency import run_in_threadpool
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
-from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable
+from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable, WriterDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
 from tactus_memory.service.touch_items import touch_item
@@ -94,6 +93,7 @@ async def add_touch(
     session: SessionId,
     request: Request,
     memory: MemoryDep,
+    writer: WriterDep,
     t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
     t_end: Annotated[list[float] | None, Query(description="npy body only: end time(s).")] = None,
     calibrated: Annotated[bool, Query(description="npy body only.")] = False,
@@ -108,7 +108,7 @@ async def add_touch(
         if not t:
             raise InvalidInputError("query parameter 't' is required with an npy body")
         n = len(windows)
-        ids = await run_in_threadpool(
+        ids = await writer.run(
             _store,
             memory,
             session,
@@ -131,7 +131,7 @@ async def add_touch(
         batch: TouchBatchIn = _validate(TouchBatchIn, obj)
         windows = list(as_windows(batch.windows, "windows"))
         n = len(windows)
-        ids = await run_in_threadpool(
+        ids = await writer.run(
             _store,
             memory,
             session,
@@ -145,7 +145,7 @@ async def add_touch(
     else:
         one: TouchWindowIn = _validate(TouchWindowIn, obj)
         window = as_window(one.frames, "frames")
-        ids = await run_in_threadpool(
+        ids = await writer.run(
             _store,
             memory,
             session,

@@ -37,7 +37,6 @@ from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
-from starlette.concurrency import run_in_threadpool
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
@@ -220,7 +219,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
                     break
                 batch.append(nxt)
             try:
-                ids = await run_in_threadpool(store, batch)
+                ids = await state.writer.run(store, batch)
             except TactusError as exc:
                 await _try_send(
                     send,

@@ -80,5 +80,6 @@ def serve(
         port=settings.port,
         log_level=settings.log_level,
         ws_max_size=settings.max_ws_message_bytes,
+        ws_per_message_deflate=False,  # noisy sensor frames hardly compress; save the CPU
         timeout_graceful_shutdown=5,
     )

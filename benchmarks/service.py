@@ -1,0 +1,510 @@
+"""Service benchmark: /search latency end to end vs the library, and live touch ingest.
+
+1. Search. A store of ``--rows`` synthetic 384-d "text" rows (a mixture around MiniLM
+   embeddings of everyday phrases, plus noise) is bulk-loaded through the store's write path
+   and indexed (``Memory.optimize``). Then the same unique natural-language queries (so the
+   MiniLM query cache never hits: the text embedding is in every measurement) are run
+   (a) directly on the library, ``Memory.search(q, k=10)``, in this process, and
+   (b) over real HTTP, ``GET /search?q=...&k=10``, against ``tactus serve`` (uvicorn) in a
+   subprocess; overhead = p50(b) / p50(a).
+2. Ingest. ``--clients`` WebSocket clients stream binary ``.npy`` frames (uint16, raw units)
+   at ``--hz`` for ``--seconds`` into their own sessions (window 8, stride 8) while one client
+   searches continuously; reports stored windows/s, errors, ack lag, search latency under load.
+
+    python benchmarks/service.py --rows 10000 --seconds 5            # quick (dev)
+    nice python benchmarks/service.py --rows 100000 1000000          # full
+
+Writes ``benchmarks/results/service.json`` (``--out``). Stores live in ``--workdir`` and are
+reused across runs when their row count matches.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import io
+import json
+import os
+import platform
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DIM = 384
+K = 10
+PHRASES = [
+    "a hot mug of coffee",
+    "a soft sponge",
+    "a cold metal spoon",
+    "a rough brick",
+    "holding a glass bottle",
+    "a squishy stress ball",
+    "a sharp knife edge",
+    "a wet towel",
+    "a smooth ceramic plate",
+    "pressing a button",
+    "a heavy book",
+    "a light paper cup",
+    "a furry toy",
+    "a plastic bag",
+    "a wooden block",
+    "a rubber glove",
+    "a tennis ball",
+    "a computer mouse",
+    "a bunch of keys",
+    "a pen in the hand",
+    "an apple",
+    "a banana",
+    "the robot dropped the cup",
+    "the operator said careful",
+    "the box was heavy",
+    "grasping firmly",
+    "a gentle touch",
+    "the table surface",
+    "opening a door handle",
+    "a slippery soap bar",
+    "a crumpled sheet of paper",
+    "a warm laptop",
+    "a cold can of soda",
+]
+ADJ = [
+    "soft",
+    "hard",
+    "warm",
+    "cold",
+    "smooth",
+    "rough",
+    "heavy",
+    "light",
+    "wet",
+    "dry",
+    "squishy",
+    "sharp",
+    "round",
+    "flat",
+    "sticky",
+    "slippery",
+    "fragile",
+    "solid",
+]
+NOUN = [
+    "mug",
+    "ball",
+    "sponge",
+    "spoon",
+    "bottle",
+    "cup",
+    "towel",
+    "brick",
+    "plate",
+    "toy",
+    "glove",
+    "box",
+    "book",
+    "can",
+    "knife",
+    "apple",
+    "handle",
+    "bag",
+    "block",
+    "pen",
+]
+
+
+# ----------------------------------------------------------------------------- helpers
+def pct(xs: list[float], p: float) -> float:
+    return float(np.percentile(np.asarray(xs), p)) if xs else float("nan")
+
+
+def summary_ms(xs: list[float]) -> dict[str, float]:
+    return {
+        "n": len(xs),
+        "p50_ms": round(pct(xs, 50) * 1e3, 2),
+        "p95_ms": round(pct(xs, 95) * 1e3, 2),
+        "mean_ms": round(float(np.mean(xs)) * 1e3, 2) if xs else float("nan"),
+    }
+
+
+def queries(n: int, seed: int) -> list[str]:
+    """n unique natural-language queries (unique so no cache can answer them)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        a, b = rng.choice(ADJ, 2, replace=False)
+        out.append(f"something {a} and {b} like a {rng.choice(NOUN)} #{seed}-{i}")
+    return out
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def npy(arr: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    return buf.getvalue()
+
+
+# ----------------------------------------------------------------------------- store
+def build_store(path: Path, rows: int, seed: int = 0) -> dict[str, Any]:
+    """Bulk-load ``rows`` synthetic text-sense rows (384-d) and build the index."""
+    import pyarrow as pa
+
+    from tactus_memory.memory import Memory
+    from tactus_memory.spaces.minilm import MiniLMSpace
+
+    space = MiniLMSpace()
+    mem = Memory.open(str(path), space=space, background=False)
+    have = len(mem)
+    if have == rows:
+        return {"rows": rows, "reused": True}
+    if have:
+        raise SystemExit(f"{path} holds {have} rows, not {rows}; remove it or use --workdir")
+    rng = np.random.default_rng(seed)
+    cents = space.embed_texts(PHRASES, query=False)
+    t0 = time.perf_counter()
+    chunk = 100_000
+    schema = mem.store.items.schema
+    for a in range(0, rows, chunk):
+        n = min(chunk, rows - a)
+        c = cents[rng.integers(0, len(cents), n)]
+        x = c + 0.8 * rng.standard_normal((n, DIM)).astype(np.float32) / np.sqrt(DIM)
+        x /= np.linalg.norm(x, axis=1, keepdims=True)
+        t = np.sort(rng.uniform(0, 86_400, n))
+        data = pa.table(
+            {
+                "id": [f"r{a + i}" for i in range(n)],
+                "session": [f"s{(a + i) % 100}" for i in range(n)],
+                "sense": ["text"] * n,
+                "t": t,
+                "t_end": t + 1.0,
+                "vector": pa.FixedSizeListArray.from_arrays(pa.array(x.reshape(-1)), DIM),
+                "meta": ["{}"] * n,
+                "text": [f"note {a + i}" for i in range(n)],
+                "raw": pa.nulls(n, pa.binary()),
+                "source": [""] * n,
+                "episode": pa.nulls(n, pa.int64()),
+                "created": [time.time()] * n,
+            },
+            schema=schema,
+        )
+        mem.store.write(data, upsert=False)  # the store's bulk path: one commit per chunk
+    load_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    mem.optimize()
+    return {
+        "rows": rows,
+        "reused": False,
+        "load_s": round(load_s, 1),
+        "index_s": round(time.perf_counter() - t1, 1),
+    }
+
+
+# ----------------------------------------------------------------------------- server
+class Child:
+    """``tactus serve`` equivalent in a subprocess (a stand-in touch sense if none loads)."""
+
+    def __init__(self, data: Path, log: Path) -> None:
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        cmd = [sys.executable, __file__, "--child", "--data", str(data), "--port", str(self.port)]
+        self.proc = subprocess.Popen(cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT)
+        import httpx
+
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise SystemExit(f"server died:\n{log.read_text()[-3000:]}")
+            try:
+                if httpx.get(self.base + "/health", timeout=2).status_code == 200:
+                    self.health = httpx.get(self.base + "/health").json()
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.3)
+        self.stop()
+        raise SystemExit("server did not start")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+
+
+def child_main(data: str, port: int) -> None:
+    import uvicorn
+    from tactus_memory.service.app import create_app
+    from tactus_memory.service.settings import Settings
+
+    settings = Settings(data=data, port=port, log_level="warning")
+    app = create_app(settings)
+    state = app.state.tactus
+    if "touch" not in state.memory.senses:
+        state.memory.add_sense(ProjectionTouch(DIM))
+        state.touch_unavailable = None
+        print(f"touch: stand-in projection sense ({state.touch_unavailable})", flush=True)
+    uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", ws_per_message_deflate=False)
+
+
+def ProjectionTouch(dim: int) -> Any:  # noqa: N802  (a factory; keeps imports lazy)
+    from tactus_memory.senses import Sense
+    from tactus_memory.vectors import as_unit_rows
+
+    class _Projection(Sense):
+        name = "touch"
+        modality = "touch"
+
+        def __init__(self) -> None:
+            self.dim = dim
+            self.proj = np.random.default_rng(0).standard_normal((1024, dim)).astype(np.float32)
+
+        def validate(self, item: Any) -> np.ndarray:
+            return np.asarray(item, dtype=np.float32)
+
+        def embed(self, batch: Any) -> np.ndarray:
+            x = np.stack([w.mean(axis=0).reshape(-1) for w in batch])
+            return as_unit_rows((x - x.mean(axis=1, keepdims=True) + 1e-3) @ self.proj, dim)
+
+        def provenance(self) -> dict[str, Any]:
+            return {"encoder": "benchmark-projection-stand-in"}
+
+    return _Projection()
+
+
+# ----------------------------------------------------------------------------- search
+def library_latency(path: Path, qs: list[str]) -> list[float]:
+    from tactus_memory.memory import Memory
+    from tactus_memory.spaces.minilm import MiniLMSpace
+
+    mem = Memory.open(str(path), space=MiniLMSpace(), background=False)
+    for q in ("warm up the model", "and the index"):
+        mem.search(q, k=K)
+    lat = []
+    for q in qs:
+        t0 = time.perf_counter()
+        mem.search(q, k=K)
+        lat.append(time.perf_counter() - t0)
+    return lat
+
+
+def http_latency(base: str, qs: list[str]) -> list[float]:
+    import httpx
+
+    lat = []
+    with httpx.Client(base_url=base, timeout=60) as c:
+        for q in ("warm up the model", "and the index"):
+            c.get("/search", params={"q": q, "k": K}).raise_for_status()
+        for q in qs:
+            t0 = time.perf_counter()
+            r = c.get("/search", params={"q": q, "k": K})
+            lat.append(time.perf_counter() - t0)
+            r.raise_for_status()
+    return lat
+
+
+# ----------------------------------------------------------------------------- ingest
+async def ingest(port: int, clients: int, hz: float, seconds: float, window: int) -> dict:
+    import httpx
+    from websockets.asyncio.client import connect
+
+    rng = np.random.default_rng(1)
+    frames = [npy((500 + 200 * rng.random((32, 32))).astype(np.uint16)) for _ in range(16)]
+    stats = {"sent_frames": 0, "stored": 0, "errors": 0, "lag": [], "error_samples": []}
+    run_id = f"{int(time.time())}"
+    stop_at = time.monotonic() + seconds
+
+    async def glove(i: int) -> None:
+        session = f"bench-glove-{run_id}-{i}"
+        url = (
+            f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream"
+            f"?window={window}&stride={window}&hz={hz}&t0=0"
+        )
+        sent_at: dict[int, float] = {}
+        async with connect(url, max_size=2**22, open_timeout=60) as ws:
+            assert json.loads(await ws.recv())["type"] == "ready"
+
+            async def receiver() -> None:
+                async for raw in ws:
+                    msg = json.loads(raw)
+                    if msg["type"] == "stored":
+                        stats["stored"] += 1
+                        t_sent = sent_at.pop(msg["seq"], None)
+                        if t_sent is not None:
+                            stats["lag"].append(time.monotonic() - t_sent)
+                    elif msg["type"] == "error":
+                        stats["errors"] += 1
+                        if len(stats["error_samples"]) < 5:
+                            stats["error_samples"].append(msg)
+
+            recv_task = asyncio.create_task(receiver())
+            await asyncio.sleep(i / clients / hz)  # spread the gloves over one frame period
+            n = 0
+            nxt = time.monotonic()
+            while time.monotonic() < stop_at:
+                await ws.send(frames[n % len(frames)])
+                n += 1
+                stats["sent_frames"] += 1
+                if n % window == 0:
+                    sent_at[n // window - 1] = time.monotonic()
+                nxt += 1 / hz
+                delay = nxt - time.monotonic()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+            expected = n // window
+            deadline = time.monotonic() + 60
+            while sent_at and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+            stats.setdefault("late_windows", 0)
+            stats["late_windows"] += len(sent_at)
+            stats.setdefault("expected", 0)
+            stats["expected"] += expected
+            await ws.close()
+            recv_task.cancel()
+
+    search_lat: list[float] = []
+
+    async def searcher() -> None:
+        qs = queries(100_000, seed=7)
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", timeout=60) as c:
+            i = 0
+            while time.monotonic() < stop_at:
+                t0 = time.perf_counter()
+                r = await c.get("/search", params={"q": qs[i], "k": K})
+                search_lat.append(time.perf_counter() - t0)
+                r.raise_for_status()
+                i += 1
+                await asyncio.sleep(0.1)
+
+    t0 = time.monotonic()
+    await asyncio.gather(*(glove(i) for i in range(clients)), searcher())
+    wall = time.monotonic() - t0
+    return {
+        "clients": clients,
+        "hz": hz,
+        "window": window,
+        "stride": window,
+        "seconds": seconds,
+        "frame_format": "binary .npy (32, 32) uint16, raw units",
+        "sent_frames": stats["sent_frames"],
+        "frames_per_s": round(stats["sent_frames"] / seconds, 1),
+        "target_frames_per_s": clients * hz,
+        "windows_expected": stats.get("expected", 0),
+        "windows_stored": stats["stored"],
+        "windows_per_s": round(stats["stored"] / seconds, 1),
+        "errors": stats["errors"],
+        "error_samples": stats["error_samples"],
+        "windows_unacked_after_60s": stats.get("late_windows", 0),
+        "ack_lag": summary_ms(stats["lag"]),
+        "search_while_ingesting": summary_ms(search_lat),
+        "wall_s": round(wall, 1),
+    }
+
+
+async def cleanup_bench_sessions(base: str) -> None:
+    import httpx
+
+    async with httpx.AsyncClient(base_url=base, timeout=120) as c:
+        for s in (await c.get("/sessions")).json()["sessions"]:
+            if s["id"].startswith("bench-glove-"):
+                await c.delete(f"/sessions/{s['id']}")
+
+
+# ----------------------------------------------------------------------------- main
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rows", type=int, nargs="+", default=[100_000, 1_000_000])
+    ap.add_argument("--queries", type=int, default=200)
+    ap.add_argument("--clients", type=int, default=64)
+    ap.add_argument("--hz", type=float, default=30.0)
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--window", type=int, default=8)
+    ap.add_argument("--workdir", default="/tmp/tactus-bench-service")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "service.json"))
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--data", help=argparse.SUPPRESS)
+    ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child_main(args.data, args.port)
+        return
+    sys.path.insert(0, str(ROOT))
+    work = Path(args.workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    log = work / "server.log"
+    result: dict[str, Any] = {
+        "benchmark": "service",
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+        },
+        "command": " ".join([Path(sys.executable).name, *sys.argv]),
+        "search": [],
+    }
+    for rows in args.rows:
+        path = work / f"rows-{rows}"
+        print(f"[{rows}] building/reusing store at {path}", flush=True)
+        build = build_store(path, rows)
+        qs = queries(args.queries, seed=rows)
+        print(f"[{rows}] library search x{len(qs)}", flush=True)
+        lib = library_latency(path, qs)
+        server = Child(path, log)
+        try:
+            print(f"[{rows}] HTTP search x{len(qs)}", flush=True)
+            http = http_latency(server.base, qs)
+        finally:
+            server.stop()
+        entry = {
+            "rows": rows,
+            "store": build,
+            "k": K,
+            "library": summary_ms(lib),
+            "http": summary_ms(http),
+            "overhead_ratio_p50": round(pct(http, 50) / pct(lib, 50), 3),
+            "overhead_ms_p50": round((pct(http, 50) - pct(lib, 50)) * 1e3, 2),
+            "target_p50_ms": 25.0,
+            "target_ratio": 1.3,
+        }
+        print(json.dumps(entry), flush=True)
+        result["search"].append(entry)
+    path = work / f"rows-{args.rows[-1]}"
+    server = Child(path, log)
+    try:
+        result["touch_encoder"] = next(
+            (s["provenance"] for s in httpx_senses(server.base) if s["name"] == "touch"), None
+        )
+        print(f"ingest: {args.clients} clients x {args.hz} Hz x {args.seconds}s", flush=True)
+        result["ingest"] = asyncio.run(
+            ingest(server.port, args.clients, args.hz, args.seconds, args.window)
+        )
+        result["ingest"]["store_rows"] = args.rows[-1]
+        print(json.dumps(result["ingest"]), flush=True)
+        asyncio.run(cleanup_bench_sessions(server.base))
+    finally:
+        server.stop()
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {out}")
+
+
+def httpx_senses(base: str) -> list[dict[str, Any]]:
+    import httpx
+
+    return httpx.get(base + "/senses", timeout=30).json()["senses"]
+
+
+if __name__ == "__main__":
+    main()
