@@ -585,3 +585,63 @@ def test_concurrent_streams_lose_nothing(client):
     assert counts == [4] * n_streams
     sessions = client.get("/sessions").json()["sessions"]
     assert sum(s["n"] for s in sessions) == n_streams * n_frames // 4
+
+
+def test_stream_oversized_message_is_an_error_not_a_drop(memory):
+    app = create_app(Settings(max_ws_message_bytes=4096), memory=memory)
+    with TestClient(app) as c, c.websocket_connect("/sessions/x/touch/stream?window=1") as ws:
+        ws.receive_json()
+        ws.send_bytes(npy_bytes(np.zeros((4, 32, 32), np.float32)))  # 16 KiB
+        err = ws.receive_json()
+        assert err["error"]["status"] == 422 and "limit" in err["error"]["detail"]
+        ws.send_bytes(npy_bytes(np.zeros((32, 32), np.float16)))
+        assert ws.receive_json()["type"] == "stored"
+
+
+# ----------------------------------------------------------------------------- settings & CLI
+def test_settings_from_environment(monkeypatch):
+    monkeypatch.setenv("TACTUS_DATA", "/srv/mem")
+    monkeypatch.setenv("TACTUS_TOKEN", "abc")
+    monkeypatch.setenv("TACTUS_MAX_BODY_BYTES", "5000")
+    monkeypatch.setenv("TACTUS_WINDOW", "16")
+    monkeypatch.setenv("TACTUS_STRIDE", "4")
+    s = Settings()
+    assert (s.data, s.max_body_bytes, s.window, s.stride) == ("/srv/mem", 5000, 16, 4)
+    assert s.token is not None and s.token.get_secret_value() == "abc"
+    assert "abc" not in repr(s)
+
+
+def test_serve_command_builds_settings_and_runs_uvicorn(monkeypatch, tmp_path):
+    import tactus_memory.service.app as app_module
+    import uvicorn
+    from typer.testing import CliRunner
+
+    from tactus_memory.cli import app as cli_app
+
+    seen: dict[str, Any] = {}
+    monkeypatch.setenv("TACTUS_STRIDE", "2")
+    monkeypatch.setattr(
+        app_module, "create_app", lambda settings: seen.setdefault("settings", settings)
+    )
+    monkeypatch.setattr(uvicorn, "run", lambda app, **kw: seen.update(kw))
+    args = ["serve", "--port", "8123", "--data", str(tmp_path), "--token", "T", "--no-touch"]
+    result = CliRunner().invoke(cli_app, args)
+    assert result.exit_code == 0, result.output
+    s = seen["settings"]
+    assert (s.port, s.data, s.stride, s.touch) == (8123, str(tmp_path), 2, False)
+    assert s.token.get_secret_value() == "T"
+    assert (seen["host"], seen["port"]) == ("127.0.0.1", 8123)
+
+
+def test_fresh_store_registers_default_senses_and_explains_missing_touch(tmp_path, monkeypatch):
+    import tactus_memory.service.app as app_module
+
+    from tests.fakes import HashingSpace
+
+    monkeypatch.setattr("tactus_memory.spaces.get_space", lambda name: HashingSpace(dim=32))
+    app = app_module.create_app(Settings(data=str(tmp_path / "fresh"), touch=False))
+    with TestClient(app) as c:
+        h = c.get("/health").json()
+        assert "text" in h["senses"] and h["touch"] is False
+        assert "TACTUS_TOUCH" in h["touch_unavailable"]
+        assert_problem(c.post("/sessions/s/touch", json=touch_json()), 503, "TACTUS_TOUCH")
