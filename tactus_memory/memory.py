@@ -64,6 +64,7 @@ from tactus_memory.store import (
     validate_id,
     validate_source,
 )
+from tactus_memory.temporal import TemporalMixin
 from tactus_memory.vectors import as_unit_rows
 
 log = logging.getLogger(__name__)
@@ -215,7 +216,7 @@ def _check_query_text(query: Any) -> str:
 
 
 # --------------------------------------------------------------------------- memory
-class Memory:
+class Memory(TemporalMixin):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -594,8 +595,15 @@ class Memory:
         after: float | None = None,
         before: float | None = None,
         source: str | None = None,
+        group: str | None = None,
+        gap: float | None = None,
     ) -> list[Hit]:
-        """Natural-language search over the chosen senses (default: every sense with rows)."""
+        """Natural-language search over the chosen senses (default: every sense with rows).
+
+        ``group="moment"`` returns Moments instead (see ``TemporalMixin.search_moments``)."""
+        if group is not None:
+            filters = {"senses": senses, "session": session, "after": after, "before": before}
+            return self.search_grouped(query, k, group=group, gap=gap, source=source, **filters)
         query = _check_query_text(query)
         k = _check_k(k)
         base = self._filter(session=session, after=after, before=before, source=source)
