@@ -181,6 +181,7 @@ def baseline_train_cmd(
     lr: float = typer.Option(1e-3, "--lr"),
     seed: int = typer.Option(0, "--seed"),
     sampling: str = typer.Option("cluster", "--sampling", help="cluster | random"),
+    k: int = typer.Option(8, "--k", help="frames per tuple (reference: 8)"),
     threads: int = typer.Option(1, "--threads", help="torch CPU threads (0: torch default)"),
 ) -> None:
     """Train the STAG reference CNN on the non-held-out frames; the last epoch is saved (no
@@ -200,7 +201,13 @@ def baseline_train_cmd(
     d, fps = load_eval_data(data)
     td = prepare_data(d, holdout_recordings(d, holdout))
     cfg = BaselineConfig(
-        epochs=epochs, batch=batch, lr=lr, seed=seed, sampling=sampling, max_steps=max_steps
+        epochs=epochs,
+        batch=batch,
+        lr=lr,
+        seed=seed,
+        sampling=sampling,
+        max_steps=max_steps,
+        k=k,
     )
     net, summary = train_baseline(td, cfg)
     meta = baseline_meta(td, cfg, summary, holdout)
