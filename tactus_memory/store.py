@@ -230,6 +230,10 @@ class IndexConfig:
     nprobes: int = 20
     refine_factor: int | None = 5
     ef: int | None = None
+    #: filtered searches allowing at most this many rows scan them exactly (no ANN)
+    flat_max: int = 10_000
+    #: filtered ANN searches probe enough partitions to score about this many allowed rows
+    min_candidates: int = 4096
     #: rebuild (retrain) the ANN index when the table has grown this many times since
     retrain_growth: float = 4.0
     #: run ``optimize`` (compaction + incremental index update) after this many appends
@@ -315,6 +319,7 @@ class Store:
         self._maintenance = threading.Lock()
         self._appends = 0
         self._indexed = False
+        self._partitions: int | None = None
         self._open_existing()
 
     # ----------------------------------------------------------- tables
@@ -422,19 +427,42 @@ class Store:
         k: int,
         where: str | None,
         *,
+        allowed: int | None = None,
+        total: int | None = None,
         columns: Sequence[str] = HIT_COLUMNS,
     ) -> pa.Table:
-        """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine."""
+        """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
+
+        ``allowed``: how many rows pass ``where`` (``total``: rows in the table). A selective
+        filter (allowed <= ``flat_max``) is answered by an exact flat scan of the allowed
+        rows; otherwise the ANN index is probed, with more partitions the more selective the
+        filter, so that about ``min_candidates`` allowed rows are scored.
+        """
         cfg = self.index
         q = self.items.search(vector, vector_column_name="vector").distance_type("cosine")
         if where:
             q = q.where(where, prefilter=True)
-        q = q.nprobes(cfg.nprobes)
-        if cfg.refine_factor:
-            q = q.refine_factor(cfg.refine_factor)
-        if cfg.ef:
-            q = q.ef(cfg.ef)
+        indexed = self.has_vector_index()
+        if indexed and where and allowed is not None and allowed <= cfg.flat_max:
+            q = q.bypass_vector_index()
+        elif indexed:
+            nprobes = cfg.nprobes
+            if allowed and total and allowed < total:
+                per_part = cfg.rows_per_partition * allowed / total
+                nprobes = max(nprobes, math.ceil(cfg.min_candidates / max(per_part, 1e-9)))
+            q = q.nprobes(min(nprobes, self.partitions()))
+            if cfg.refine_factor:
+                q = q.refine_factor(cfg.refine_factor)
+            if cfg.ef:
+                q = q.ef(cfg.ef)
         return q.select([*columns, "_distance"]).limit(k).to_arrow()
+
+    def partitions(self) -> int:
+        """IVF partitions of the current vector index (from the store's bookkeeping)."""
+        if self._partitions is None:
+            info = json.loads(self.get_meta("index") or "{}")
+            self._partitions = int(info.get("partitions", 1))
+        return self._partitions
 
     def scan(self, where: str | None, columns: Sequence[str], limit: int | None = None) -> pa.Table:
         q = self.items.search()
@@ -459,6 +487,7 @@ class Store:
             self.items.create_index(column, config=scalar_index_config(kind), replace=True)
         self._indexed = True
         self.set_meta("index", json.dumps({"rows": n, "type": cfg.index_type, "partitions": parts}))
+        self._partitions = parts
         log.info("built %s index on %d rows in %.1fs", cfg.index_type, n, time.perf_counter() - t0)
 
     def dim(self) -> int:

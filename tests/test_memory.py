@@ -429,3 +429,49 @@ def test_upsert_keeps_sense_counts_exact(mem: Memory) -> None:
     assert mem._sense_counts() == {"text": 4}
     mem.add_many("s1", "text", ["a b c", "i j"], ids=["x1", "x5"])  # one replaces, one is new
     assert mem._sense_counts() == {"text": 5} == {"text": len(mem)}
+
+
+def _reference(mem: Memory, q: np.ndarray, k: int, where: str | None = None) -> list[str]:
+    """Brute force: cosine to every allowed row, per-sense z-score, merged top k."""
+    tbl = mem.store.scan(where, ["id", "sense", "vector"])
+    vecs = np.asarray(tbl.column("vector").to_pylist(), dtype=np.float32)
+    senses = tbl.column("sense").to_pylist()
+    cos = vecs @ (q / np.linalg.norm(q))
+    z = [mem.calibration(s).score(c) for s, c in zip(senses, cos, strict=True)]
+    order = np.argsort(-np.asarray(z), kind="stable")[:k]
+    return [tbl.column("id")[int(i)].as_py() for i in order]
+
+
+@pytest.mark.parametrize("k", [1, 5, 12])
+def test_grouped_search_equals_per_sense_reference(tmp_path, k: int) -> None:
+    """Senses sharing a query vector share one LanceDB query; the pruned merge must equal
+    the brute-force per-sense calibrated merge (flat search, so exactness is expected).
+    Sense "b" sits in a gap region with a low null mean, so it sometimes needs its own query."""
+    dim = 32
+    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(dim=dim))
+    rng = np.random.default_rng(k)
+    gap = -mem._probe_vectors().mean(axis=0)
+    gap /= np.linalg.norm(gap)
+    for name, n, shift in (("a", 200, 0.0), ("b", 150, 4.0), ("c", 4, 0.0)):
+        mem.add_sense(VectorSense(name, dim=dim))
+        vecs = rng.standard_normal((n, dim)) + shift * gap
+        mem.add_many(f"s{n % 3}", name, list(vecs), t=list(range(n)))
+    calls: list[int] = []
+    search = mem.store.vector_search
+
+    def counting(*args, **kwargs):
+        calls[-1] += 1
+        return search(*args, **kwargs)
+
+    mem.store.vector_search = counting  # type: ignore[method-assign]
+    for _ in range(15):
+        qv = rng.standard_normal(dim)
+        calls.append(0)
+        got = [h.id for h in mem.search_vector(qv, k=k)]
+        assert got == _reference(mem, qv, k)
+        unfiltered_calls = calls[-1]
+        got = [h.id for h in mem.search_vector(qv, k=k, senses=["a", "c"], session="s2")]
+        assert got == _reference(mem, qv, k, "sense IN ('a', 'c') AND session = 's2'")
+        calls[-1] = unfiltered_calls
+    assert 1 in calls  # the shared query sufficed (pruned or complete)...
+    assert max(calls) >= 2  # ...and sometimes a sense needed its own query
