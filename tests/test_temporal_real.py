@@ -1,0 +1,185 @@
+"""Temporal operators on the real path: real MiniLM, real LanceDB files, and touch either as a
+VectorSense stand-in (MiniLM embeddings of what each grasp feels like) or, when the shipped
+checkpoint is present, the real ``TactusEncoder`` on real STAG windows (never copied here).
+
+Ground truth as in tests/test_temporal.py: mug grasps at 10, 40, 70 s, a screwdriver at 55 s,
+an empty hand in between; notes "picked up the mug" just after each mug grasp, "picked up the
+screwdriver" at 57.5 s, "dropped the can" at 90 s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactus_memory.memory import Memory
+from tactus_memory.senses import VectorSense
+from tactus_memory.temporal import MATCH_Z
+
+pytestmark = pytest.mark.slow
+
+S = "kitchen"
+MUG = [10.0, 40.0, 70.0]
+SCREW = 55.0
+IDLE = [0.0, 5.0, 20.0, 25.0, 30.0, 50.0, 60.0, 80.0, 85.0, 95.0]
+NOTES = [
+    ("the operator said hello", 2.0),
+    ("picked up the mug", 11.5),
+    ("wiped the table with a sponge", 30.0),
+    ("picked up the mug", 41.5),
+    ("picked up the screwdriver", 56.5),
+    ("picked up the mug", 71.5),
+    ("dropped the can", 90.0),
+    ("charging the battery", 100.0),
+    ("folded a towel", 110.0),
+]
+FEEL = {
+    "mug": "grasping a ceramic coffee mug",
+    "screwdriver": "grasping a screwdriver handle",
+    "empty": "an empty open hand",
+}
+IRRELEVANT = [
+    "a giraffe in the savanna",
+    "quantum chromodynamics lecture",
+    "the weather in paris",
+    "stock market prices fell",
+]
+#: one touch window lasts this long (8 STAG frames at ~7.3 Hz)
+WINDOW_S = 1.1
+
+
+def stand_in(space, kind: str, n: int, seed: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    base = space.embed_texts([FEEL[kind]])[0]
+    out = []
+    for _ in range(n):
+        g = rng.standard_normal(space.dim)
+        v = base + 0.05 * g / np.linalg.norm(g)
+        out.append((v / np.linalg.norm(v)).astype(np.float32))
+    return out
+
+
+def add_notes(mem: Memory) -> list[str]:
+    return mem.add_many(S, "text", [n for n, _ in NOTES], t=[t for _, t in NOTES])
+
+
+def add_touch(mem: Memory, windows: dict[str, list]) -> dict[str, list[str]]:
+    """windows: kind -> items (mug: 3, screwdriver: 1, empty: len(IDLE))."""
+    ids = {}
+    for kind, times in (("mug", MUG), ("screwdriver", [SCREW]), ("empty", IDLE)):
+        ids[kind] = mem.add_many(
+            S, "touch", windows[kind], t=times, t_end=[t + WINDOW_S for t in times]
+        )
+    return ids
+
+
+@pytest.fixture(scope="module")
+def real(tmp_path_factory, minilm_space) -> tuple[Memory, dict[str, list[str]]]:
+    mem = Memory.open(str(tmp_path_factory.mktemp("tr") / "m"), space=minilm_space)
+    mem.add_sense(VectorSense("touch", dim=384))
+    add_notes(mem)
+    ids = add_touch(
+        mem,
+        {
+            "mug": stand_in(minilm_space, "mug", 3, 0),
+            "screwdriver": stand_in(minilm_space, "screwdriver", 1, 1),
+            "empty": stand_in(minilm_space, "empty", len(IDLE), 2),
+        },
+    )
+    return mem, ids
+
+
+def test_real_count_last_first(real) -> None:
+    mem, ids = real
+    occ = mem.occurrences("picked up the mug", session=S)
+    assert occ.count == 3
+    assert [m.t for m in occ.moments] == MUG
+    assert all(m.senses == ["text", "touch"] for m in occ.moments)
+    assert mem.count("picked up the mug", senses=["text"]) == 3
+    assert mem.count("picked up the mug", senses=["touch"]) == 3
+    assert mem.count("the screwdriver") == 1
+    assert mem.count("dropped the can") == 1
+    assert mem.last("picked up the mug").t == 70.0
+    assert mem.first("picked up the mug").t == 10.0
+    assert mem.last("holding a coffee cup", senses=["touch"]).hits[0].id == ids["mug"][2]
+
+
+def test_real_threshold_means_something_for_text_and_touch(real) -> None:
+    mem, ids = real
+    for q in IRRELEVANT:
+        for sense in ("text", "touch"):
+            assert mem.count(q, senses=[sense]) == 0, (q, sense)
+        assert mem.last(q) is None and mem.before(q) is None
+    # a paraphrase still matches the notes (and only them)
+    para = mem.matches("holding a coffee cup", senses=["text"])
+    assert [e.text for e in para] == ["picked up the mug"] * 3
+    # the relative gate drops the near miss that shares words with the query ...
+    text = mem.matches("picked up the mug", senses=["text"])
+    assert "picked up the screwdriver" not in [e.text for e in text]
+    # ... which the absolute bar alone does not (its score clears MATCH_Z["text"])
+    loose = mem.matches("picked up the mug", senses=["text"], relative=0.0, threshold=2.0)
+    assert "picked up the screwdriver" in [e.text for e in loose]
+    touch = mem.matches("picked up the mug", senses=["touch"])
+    assert {e.id for e in touch} == set(ids["mug"])
+    assert all(e.score >= MATCH_Z["touch"] for e in touch)
+
+
+def test_real_before_after_moments_episodes(real) -> None:
+    mem, ids = real
+    ctx = mem.before("dropped the can", window=25.0, senses=["text"])
+    assert ctx.anchor.t == 90.0 and [i.text for i in ctx.items] == ["picked up the mug"]
+    ctx = mem.after("tightening with a screwdriver", window=20.0, anchor_senses=["touch"])
+    assert ctx.anchor.id == ids["screwdriver"][0]
+    assert [i.t for i in ctx.items] == [56.5, 60.0, 70.0, 71.5]
+    moments = mem.search("picked up the mug", k=3, group="moment")
+    assert sorted(m.t for m in moments) == MUG
+    assert all(m.senses == ["text", "touch"] for m in moments)
+    eps = mem.timeline(S, senses=["touch"], episodes=True)
+    assert [e.t for e in eps] == [0.0, 10.0, 20.0, 40.0, 50.0, 55.0, 60.0, 70.0, 80.0, 95.0]
+
+
+def _stag_windows(stag_dir, k: int) -> dict[str, list[np.ndarray]]:
+    """Real raw STAG windows: k frames of distinct valid grasps (weights subset)."""
+    from tactus_memory.touch.data import load_stag
+
+    d = load_stag(stag_dir / "weights_lite" / "metadata.mat")
+
+    def grasps(obj: str, n: int) -> list[np.ndarray]:
+        idx = np.flatnonzero((d.object_id == d.objects.index(obj)) & d.valid)
+        g = d.extra["graspIndex"][idx]
+        out = [d.pressure[idx[g == gi][:k]] for gi in np.unique(g) if (g == gi).sum() >= k]
+        assert len(out) >= n, (obj, len(out))
+        return out[:n]
+
+    empty = np.flatnonzero(d.object_id == d.objects.index("empty_hand"))
+    step = len(empty) // len(IDLE)
+    return {
+        "mug": grasps("mug", 3),
+        "screwdriver": grasps("screw_driver", 1),
+        "empty": [d.pressure[empty[i * step : i * step + k]] for i in range(len(IDLE))],
+    }
+
+
+def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) -> None:
+    from tactus_memory.adapters import TactusEncoder
+
+    try:
+        enc = TactusEncoder()
+    except FileNotFoundError as exc:
+        pytest.skip(f"the shipped touch checkpoint is not there yet: {exc}")
+    mem = Memory.open(str(tmp_path / "m"), space=minilm_space)
+    mem.add_sense(enc)
+    add_notes(mem)
+    ids = add_touch(mem, _stag_windows(stag_dir, enc.frames))
+    # touch alone: the three mug grasps match "a mug", as three occurrences
+    touch = mem.matches("a mug", senses=["touch"])
+    assert set(ids["mug"]) <= {e.id for e in touch}
+    assert mem.count("a mug", senses=["touch"]) == 3
+    # irrelevant queries match no touch window
+    for q in IRRELEVANT:
+        assert mem.count(q, senses=["touch"]) == 0, q
+    # a real touch window and the note written about it form one moment
+    moments = mem.search("picked up the mug", k=3, group="moment")
+    assert sorted(m.t for m in moments) == MUG
+    assert all(m.senses == ["text", "touch"] for m in moments)
+    assert mem.count("picked up the mug") == 3
