@@ -209,9 +209,15 @@ def baseline_train_cmd(
         max_steps=max_steps,
         k=k,
     )
-    net, summary = train_baseline(td, cfg)
+
+    def snapshot(net: Any, summary: dict[str, Any]) -> None:  # latest epoch, never selected
+        meta = baseline_meta(td, cfg, summary, holdout)
+        save_baseline(out, net, dict(meta, data=fps, complete=False))
+
+    net, summary = train_baseline(td, cfg, on_epoch=snapshot)
     meta = baseline_meta(td, cfg, summary, holdout)
     meta["data"] = fps
+    meta["complete"] = True
     if holdout != "none":
         es = select_eval_frames(d, holdout=holdout, calibrated=td.calibrated, fingerprints=fps)
         res = evaluate_scorer(BaselineScorer(net, td.classes), es)

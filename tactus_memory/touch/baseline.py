@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -155,10 +156,13 @@ def train_baseline(
     *,
     device: str = "cpu",
     progress: bool = True,
+    on_epoch: Callable[[StagCNN, dict[str, Any]], None] | None = None,
 ) -> tuple[StagCNN, dict[str, Any]]:
     """Train on ``data.train_valid`` (anchors ``data.train_anchors``); returns (model, summary).
 
     No validation, no early stopping, no model selection: the last epoch's weights.
+    ``on_epoch(net, summary_so_far)`` runs after every epoch (e.g. to write a snapshot that
+    survives an interrupted run; it is always the latest epoch, never a selected one).
     """
     torch.manual_seed(cfg.seed)
     net = StagCNN(len(data.classes), cfg.k, cfg.dropout).to(device)
@@ -217,19 +221,27 @@ def train_baseline(
                 "acc": correct / max(seen, 1),
             }
         )
+        if on_epoch is not None:
+            net.eval()
+            on_epoch(net, _summary(step, history, len(sampler), t0, net))
+            net.train()
     bar.close()
-    wall = time.perf_counter() - t0
     net.eval()
-    summary = {
+    return net, _summary(step, history, len(sampler), t0, net)
+
+
+def _summary(
+    step: int, history: list[dict[str, Any]], n_tuples: int, t0: float, net: StagCNN
+) -> dict[str, Any]:
+    return {
         "steps": step,
         "epochs_run": len(history),
-        "train_tuples_per_epoch": len(sampler),
-        "wall_s": round(wall, 1),
+        "train_tuples_per_epoch": n_tuples,
+        "wall_s": round(time.perf_counter() - t0, 1),
         "params": sum(p.numel() for p in net.parameters()),
-        "history": history,
+        "history": list(history),
         "selection": "last epoch (no model selection on test or held-out data)",
     }
-    return net, summary
 
 
 def save_baseline(path: str | os.PathLike[str], net: StagCNN, meta: dict[str, Any]) -> str:
