@@ -763,7 +763,9 @@ class TemporalMixin:
         where = Where().session(session)
         if self.store.count(where.sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
-        if self.store.count(Where().session(session).sql() + " AND (episode IS NULL)") > 0:
+        unsegmented = Where().session(session)
+        unsegmented.parts.append("episode IS NULL")
+        if self.store.count(unsegmented.sql()) > 0:
             self.segment_episodes(session)
         names = None if senses is None else self._senses_to_search(senses)  # type: ignore[attr-defined]
         if names is not None:
