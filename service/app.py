@@ -28,6 +28,7 @@ from tactus_memory.service.routers import (
     sessions,
     touch,
     touch_stream,
+    ui,
 )
 from tactus_memory.service.settings import Settings
 
@@ -113,7 +114,8 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, search, items, touch):
+    for module in (sessions, senses, search, items, touch, ui):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)
+    app.include_router(ui.page_router)  # the browser page: static, no data, no token
     return app

@@ -1,0 +1,161 @@
+"""The memory browser: the page at ``/`` and the heat-map PNGs it shows.
+
+``page_router`` (no token: it is static HTML/JS/CSS and holds no data; the page sends the
+token the user types on every API call) serves ``/`` and ``/static/<file>`` from
+``service/static``. ``router`` (behind the token like every data route) draws touch windows:
+``GET /items/{id}/touch.png`` for a stored window and ``POST /render/touch.png`` for a window
+the user is about to search with. Both use :func:`tactus_memory.touch.render.draw_window_png`,
+the same renderer as the evaluation report.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path as FsPath
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, HTTPException, Path, Query
+from fastapi.responses import FileResponse, HTMLResponse, Response
+from pydantic import Field
+from starlette.concurrency import run_in_threadpool
+from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN, MemoryDep
+from tactus_memory.service.problems import problem_responses
+from tactus_memory.service.schemas import Strict, Window
+
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.touch.data import STAG_GLOVE, SensorProfile
+from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png
+
+STATIC = FsPath(__file__).resolve().parent.parent / "static"
+STATIC_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".svg": "image/svg+xml",
+    ".png": "image/png",
+    ".ico": "image/x-icon",
+}
+PNG = "image/png"
+PNG_RESPONSE: dict[int | str, dict[str, Any]] = {
+    200: {"content": {PNG: {"schema": {"type": "string", "format": "binary"}}}}
+}
+
+page_router = APIRouter(include_in_schema=False)
+router = APIRouter(tags=["browser"])
+
+Scale = Annotated[int, Query(ge=1, le=16, description="Pixels per taxel.")]
+MaxFrames = Annotated[int, Query(ge=1, le=64, description="Most frames drawn (evenly spread).")]
+
+
+# ----------------------------------------------------------------------------- the page
+@page_router.get("/", response_class=HTMLResponse)
+def index() -> Response:
+    return _static_file("index.html")
+
+
+@page_router.get("/static/{name}")
+def static_file(name: str) -> Response:
+    return _static_file(name)
+
+
+def _static_file(name: str) -> Response:
+    path = (STATIC / name).resolve()
+    if path.parent != STATIC or path.suffix not in STATIC_TYPES or not path.is_file():
+        raise HTTPException(404, f"no static file {name!r}")
+    # no-cache: browsers revalidate (ETag), so a new release is never served stale
+    return FileResponse(
+        path, media_type=STATIC_TYPES[path.suffix], headers={"Cache-Control": "no-cache"}
+    )
+
+
+# ----------------------------------------------------------------------------- heat maps
+def _window_of(raw: Any) -> tuple[np.ndarray | None, bool | None]:
+    """The (K, 32, 32) frames inside a stored touch item, and whether they are calibrated
+    (None: unknown, decided from the values)."""
+    calibrated = getattr(raw, "calibrated", None)
+    if isinstance(raw, dict):
+        calibrated = raw.get("calibrated")
+        raw = raw.get("frames", raw.get("window"))
+    elif not isinstance(raw, np.ndarray):
+        raw = getattr(raw, "frames", getattr(raw, "window", raw))
+    if raw is None or isinstance(raw, (str, bytes)):
+        return None, None
+    arr = np.asarray(raw)
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[1:] != (32, 32) or arr.dtype == object:
+        return None, None
+    return arr, None if calibrated is None else bool(calibrated)
+
+
+def _profile(memory: Any, sense: str) -> SensorProfile:
+    p = getattr(memory.senses.get(sense), "profile", None)
+    return p if isinstance(p, SensorProfile) else STAG_GLOVE
+
+
+def _png(body: bytes) -> Response:
+    return Response(body, media_type=PNG, headers={"Cache-Control": "private, max-age=300"})
+
+
+def _item_png(memory: Any, item_id: str, scale: int, max_frames: int) -> bytes:
+    item = memory.get_item(item_id)  # NotFoundError -> 404
+    window, calibrated = _window_of(item.raw)
+    if window is None:
+        raise InvalidInputError(
+            f"item {item_id!r} (sense {item.sense!r}) holds no touch window to draw"
+        )
+    return draw_window_png(
+        window,
+        calibrated=calibrated,
+        profile=_profile(memory, item.sense),
+        scale=scale,
+        max_frames=max_frames,
+    )
+
+
+@router.get(
+    "/items/{item_id}/touch.png",
+    summary="A stored touch window as a pressure heat map (PNG)",
+    description=(
+        "One image per frame, side by side: calibrated pressure 0..1 (inferno colour map) on "
+        "the glove's 548 taxels; pixels of the 32x32 raster that are not taxels are "
+        "transparent. 422 when the item holds no touch window (e.g. a text note)."
+    ),
+    response_class=Response,
+    responses={**PNG_RESPONSE, **problem_responses(404, 422)},
+)
+async def touch_png(
+    item_id: Annotated[
+        str, Path(pattern=ID_PATTERN, max_length=128, description="Item id. " + ID_DESCRIPTION)
+    ],
+    memory: MemoryDep,
+    scale: Scale = SCALE,
+    max_frames: MaxFrames = MAX_FRAMES,
+) -> Response:
+    return _png(await run_in_threadpool(_item_png, memory, item_id, scale, max_frames))
+
+
+class RenderIn(Strict):
+    """A touch window to draw (e.g. the example the user is about to search with)."""
+
+    frames: Window = Field(description="(K, 32, 32) pressure frames.", min_length=1, max_length=512)
+    calibrated: bool | None = Field(
+        None, description="true: 0..1; false: raw sensor units; null: decided from the values."
+    )
+
+
+@router.post(
+    "/render/touch.png",
+    summary="Draw a touch window as a pressure heat map (PNG)",
+    description="The same picture as `GET /items/{id}/touch.png`, for a window in the body.",
+    response_class=Response,
+    responses={**PNG_RESPONSE, **problem_responses(413, 422)},
+)
+async def render_touch_png(
+    body: RenderIn, scale: Scale = SCALE, max_frames: MaxFrames = MAX_FRAMES
+) -> Response:
+    window = np.asarray(body.frames, dtype=np.float32)
+    png = await run_in_threadpool(
+        draw_window_png, window, calibrated=body.calibrated, scale=scale, max_frames=max_frames
+    )
+    return _png(png)

@@ -1,0 +1,222 @@
+"""Helpers for the browser tests (no tests here): a real uvicorn server, Debian's Chromium
+through Python Playwright, real STAG touch windows.
+
+The server runs in a subprocess (``python -m tests.browser_util serve ...``): uvicorn on
+127.0.0.1 at a free port, the real MiniLM space, a LanceDB store under the test's tmp dir,
+and the shipped ``TactusEncoder`` when it imports and loads, otherwise the stand-in touch
+sense of the service tests (``StandInTouch``, a fixed random projection). It writes which one
+it used to ``touch.json`` beside the store.
+
+Chromium is Debian's package (``apt-get install -y chromium``: /usr/bin/chromium), driven by
+the ``playwright`` PyPI package's driver with ``executable_path``; Playwright's own browser
+download (``playwright install``) is never used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = os.environ.get("TACTUS_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+INSTALL_HINT = (
+    "install Debian's Chromium: `apt-get update && apt-get install -y chromium` "
+    "(or point TACTUS_CHROMIUM at a Chromium binary), and the Python driver: "
+    "`pip install playwright` (never `playwright install`)"
+)
+STARTUP_S = 180
+VIEWPORT = {"width": 1366, "height": 768}
+
+
+# ----------------------------------------------------------------------------- chromium
+def chromium_path() -> str:
+    """The Chromium binary, or FAIL (not skip): CI installs it, so absence is a broken setup."""
+    path = CHROMIUM if os.path.isabs(CHROMIUM) else shutil.which(CHROMIUM)
+    if not path or not os.access(path, os.X_OK):
+        pytest.fail(f"Chromium not found at {CHROMIUM!r}: {INSTALL_HINT}", pytrace=False)
+    return path
+
+
+def sync_playwright() -> Any:
+    try:
+        from playwright.sync_api import sync_playwright as sp
+    except ImportError:
+        pytest.fail(f"the playwright package is missing: {INSTALL_HINT}", pytrace=False)
+    return sp()
+
+
+def launch(pw: Any, profile_dir: Path) -> Any:
+    """A persistent context on a fresh, empty user-data dir, laptop-sized viewport."""
+    profile_dir.mkdir(parents=True, exist_ok=True)
+    return pw.chromium.launch_persistent_context(
+        str(profile_dir),
+        executable_path=chromium_path(),
+        headless=True,
+        args=[a for a in CHROMIUM_ARGS if a != "--headless"],  # headless=True adds it
+        viewport=VIEWPORT,
+        reduced_motion="reduce",
+    )
+
+
+# ----------------------------------------------------------------------------- server
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """``python -m tests.browser_util serve`` in a subprocess; ``base`` is its URL."""
+
+    def __init__(self, data: Path, log: Path, *, token: str | None = None) -> None:
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.data = data
+        self.log = log
+        cmd = [sys.executable, "-m", "tests.browser_util", "serve", "--data", str(data)]
+        cmd += ["--port", str(self.port)] + (["--token", token] if token else [])
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "TOKENIZERS_PARALLELISM": "false"}
+        self.proc = subprocess.Popen(
+            cmd, cwd=ROOT, stdout=log.open("ab"), stderr=subprocess.STDOUT, env=env
+        )
+        deadline = time.monotonic() + STARTUP_S
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                pytest.fail(f"server exited ({self.proc.returncode}):\n{self.tail()}")
+            try:
+                if httpx.get(self.base + "/health", timeout=2).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.3)
+        self.stop()
+        pytest.fail(f"server did not start in {STARTUP_S}s:\n{self.tail()}")
+
+    @property
+    def touch_encoder(self) -> str:
+        return json.loads((self.data.parent / "touch.json").read_text())["touch"]
+
+    def tail(self) -> str:
+        return self.log.read_text(errors="replace")[-3000:]
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(10)
+
+
+def _touch_sense(dim: int) -> tuple[Any, str]:
+    """The shipped TactusEncoder when it loads, else the service tests' stand-in."""
+    try:
+        from tactus_memory.adapters import TactusEncoder
+
+        enc = TactusEncoder()
+        if int(enc.dim) == dim:
+            return enc, "TactusEncoder (shipped checkpoint)"
+        why = f"TactusEncoder dim {enc.dim} != space dim {dim}"
+    except Exception as exc:  # noqa: BLE001  (any failure: fall back, say why)
+        why = f"{type(exc).__name__}: {exc}"
+    from tests.test_service_helpers import StandInTouch
+
+    return StandInTouch(dim), f"StandInTouch (TactusEncoder unavailable: {why})"
+
+
+def serve(data: str, port: int, token: str | None) -> None:
+    import uvicorn
+    from tactus_memory.service.app import create_app
+    from tactus_memory.service.settings import Settings
+
+    from tactus_memory.memory import Memory
+    from tactus_memory.spaces.minilm import MiniLMSpace
+
+    memory = Memory.open(data, space=MiniLMSpace())
+    sense, which = _touch_sense(memory.space.dim)
+    memory.add_sense(sense)
+    (Path(data).parent / "touch.json").write_text(json.dumps({"touch": which}))
+    settings = Settings(data=data, host="127.0.0.1", port=port, token=token)
+    uvicorn.run(
+        create_app(settings, memory=memory), host="127.0.0.1", port=port, log_level="warning"
+    )
+
+
+# ----------------------------------------------------------------------------- touch data
+def stag_windows(stag_dir: Path, n: int, k: int = 8) -> list[tuple[np.ndarray, str]]:
+    """``n`` windows of ``k`` consecutive raw frames from a real STAG file (``weights_lite``
+    when present), each from a different object, the firmest grasp of each (the mean of the
+    30 strongest taxels): [(window int16, object name)]."""
+    from tactus_memory.touch.data import calibrate, load_stag
+
+    subs = sorted(p for p in stag_dir.iterdir() if (p / "metadata.mat").exists())
+    sub = next((p for p in subs if p.name.startswith("weights")), subs[0] if subs else None)
+    if sub is None:
+        pytest.fail(f"no STAG metadata.mat under {stag_dir}")
+    d = load_stag(sub / "metadata.mat")
+    flat = calibrate(d.pressure).reshape(d.n_frames, -1)
+    pressure = np.sort(flat, axis=1)[:, -30:].mean(axis=1)
+    out: list[tuple[np.ndarray, str]] = []
+    for obj in np.unique(d.object_id):
+        name = d.objects[int(obj)]
+        if name == "empty_hand":
+            continue
+        idx = np.flatnonzero(d.object_id == obj)
+        idx = idx[idx + k <= d.n_frames]
+        idx = idx[[np.all(d.object_id[i : i + k] == obj) for i in idx]]
+        if idx.size == 0:
+            continue
+        best = int(idx[np.argmax(pressure[idx])])
+        out.append((d.pressure[best : best + k].copy(), name))
+        if len(out) == n:
+            break
+    if len(out) < n:
+        pytest.fail(f"only {len(out)} objects with {k}-frame windows in {sub}")
+    return out
+
+
+def npy_bytes(arr: np.ndarray) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    return buf.getvalue()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(prog="python -m tests.browser_util")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("serve", help="uvicorn + MiniLM + a touch sense on a store")
+    s.add_argument("--data", required=True)
+    s.add_argument("--port", type=int, required=True)
+    s.add_argument("--token", default=None)
+    args = ap.parse_args()
+    serve(args.data, args.port, args.token)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,399 @@
+"""The memory browser (``/``) end to end in a real headless Chromium (Debian's package, driven by
+Python Playwright) against a real uvicorn server (MiniLM space, LanceDB in tmp, the shipped
+touch encoder or the stand-in: see ``tests/browser_util.py``), plus the heat-map renderer.
+
+Screenshots go to pytest's tmp dir and are copied to ``runs/screenshots/`` (git-ignored).
+Chromium missing is a FAILURE naming the install command, not a skip: CI installs it.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.touch.data import taxel_mask_from_spec
+from tactus_memory.touch.render import draw_window_png, pick_frames, window_rgba
+from tests.browser_util import ROOT, Server, launch, npy_bytes, stag_windows, sync_playwright
+
+SCREENSHOTS = ROOT / "runs" / "screenshots"
+STATIC = ROOT / "service" / "static"
+TIMEOUT_MS = 60_000
+
+# notes beside the touch windows (t = 1.5, 5.5, 9.5, 13.5: allen key set, ball, battery, eraser)
+NOTES = [
+    (1.0, "tightened a bolt with the allen key"),
+    (5.0, "wiped the table with a soft wet sponge"),
+    (9.0, "put the battery into the drawer"),
+    (13.0, "picked up the blue mug by its handle"),
+]
+
+
+def png_size(data: bytes) -> tuple[int, int, str]:
+    from PIL import Image
+
+    with Image.open(io.BytesIO(data)) as img:
+        return img.width, img.height, img.mode
+
+
+# ============================================================================ the renderer
+def test_render_masks_non_taxels_and_lays_frames_side_by_side():
+    window = np.full((3, 32, 32), 500.0, np.float32)  # raw units: rest
+    window[1] = 650.0  # full scale
+    rgba = window_rgba(window, scale=2, gap=1)
+    assert rgba.shape == (64, 3 * 64 + 2 * 2, 4)
+    mask = taxel_mask_from_spec()
+    assert int(mask.sum()) == 548
+    alpha = rgba[::2, :64:2, 3]
+    assert np.array_equal(alpha > 0, mask)  # non-taxel pixels transparent
+    assert (rgba[:, 64:66, 3] == 0).all()  # the gap
+    r, c = np.argwhere(mask)[0]
+    rest = rgba[2 * r, 2 * c, :3].astype(int)
+    full = rgba[2 * r, 66 + 2 * c, :3].astype(int)
+    assert full.sum() > rest.sum() + 300  # bright at full pressure, dark at rest
+    png = draw_window_png(window)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert png_size(png) == (3 * 128 + 2 * 4, 128, "RGBA")
+
+
+def test_render_calibration_frames_and_errors():
+    cal = np.full((2, 32, 32), 1.0, np.float32)
+    raw = np.full((2, 32, 32), 650.0, np.float32)
+    assert np.array_equal(window_rgba(cal), window_rgba(raw))  # 0..1 taken as calibrated
+    assert np.array_equal(window_rgba(raw), window_rgba(raw, calibrated=False))
+    assert png_size(draw_window_png(np.zeros((32, 32))))[:2] == (128, 128)  # one frame
+    assert list(pick_frames(5)) == [0, 1, 2, 3, 4]
+    picked = pick_frames(100, 16)
+    assert len(picked) == 16 and picked[0] == 0 and picked[-1] == 99
+    assert png_size(draw_window_png(np.zeros((100, 32, 32)), scale=1))[:2] == (16 * 33 - 1, 32)
+    for bad in (np.zeros((2, 32, 31)), np.full((1, 32, 32), np.nan), np.zeros((0, 32, 32))):
+        with pytest.raises(InvalidInputError):
+            draw_window_png(bad)
+    with pytest.raises(InvalidInputError):
+        draw_window_png(np.zeros((1, 32, 32)), scale=0)
+
+
+# ============================================================================ server + data
+@pytest.fixture(scope="module")
+def served(tmp_path_factory, stag_dir):
+    """A real server with two sessions: notes, real STAG touch windows, motion vectors."""
+    tmp = tmp_path_factory.mktemp("browser")
+    server = Server(tmp / "memory", tmp / "server.log")
+    windows = stag_windows(stag_dir, 6)
+    ids: dict[str, str] = {}
+    try:
+        with httpx.Client(base_url=server.base, timeout=120) as c:
+            for t, note in NOTES:
+                r = c.post("/sessions/kitchen-demo/text", json={"text": note, "t": t})
+                assert r.status_code == 201, r.text
+                ids[note] = r.json()["ids"][0]
+            for i, (w, name) in enumerate(windows[:4]):
+                t = 1.5 + 4 * i
+                body = {"frames": w.tolist(), "t": t, "t_end": t + 8 / 30, "meta": {"object": name}}
+                r = c.post("/sessions/kitchen-demo/touch", json=body)
+                assert r.status_code == 201, r.text
+                ids[name] = r.json()["ids"][0]
+            r = c.post("/senses", json={"name": "motion", "dim": 384, "encoder": "imu-demo"})
+            assert r.status_code == 201, r.text
+            vecs = np.random.default_rng(0).standard_normal((3, 384)).round(4).tolist()
+            r = c.post(
+                "/sessions/kitchen-demo/vectors",
+                json={"sense": "motion", "vectors": vecs, "t": [0.5, 6.0, 12.0]},
+            )
+            assert r.status_code == 201, r.text
+            for i, (w, name) in enumerate(windows[4:]):  # the .npy write path
+                r = c.post(
+                    "/sessions/glove-bench/touch",
+                    content=npy_bytes(w),
+                    params={"t": 100.0 + i},
+                    headers={"content-type": "application/x-npy"},
+                )
+                assert r.status_code == 201, r.text
+                ids[name] = r.json()["ids"][0]
+            r = c.post("/sessions/glove-bench/text", json={"text": "bench check", "t": 100.0})
+            assert r.status_code == 201, r.text
+        yield {"server": server, "ids": ids, "windows": windows, "tmp": tmp}
+    finally:
+        server.stop()
+
+
+@pytest.fixture(scope="module")
+def browser_context(served):
+    with sync_playwright() as pw:
+        context = launch(pw, served["tmp"] / "chromium-profile")
+        try:
+            yield context
+        finally:
+            context.close()
+
+
+@pytest.fixture
+def page(browser_context, served):
+    """A fresh tab on the page; every request it makes is recorded."""
+    page = browser_context.new_page()
+    page.set_default_timeout(TIMEOUT_MS)
+    requests: list[str] = []
+    errors: list[str] = []
+    page.on("request", lambda r: requests.append(r.url))
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(served["server"].base + "/")
+    page.wait_for_selector("body[data-ready=true]")
+    page.requests = requests  # type: ignore[attr-defined]
+    page.js_errors = errors  # type: ignore[attr-defined]
+    yield page
+    assert not errors, f"JavaScript errors on the page: {errors}"
+    own = served["server"].base + "/"
+    foreign = [u for u in requests if not u.startswith((own, "data:", "blob:"))]
+    assert not foreign, f"the page asked another origin: {foreign}"
+    page.close()
+
+
+def shot(page, tmp_path: Path, name: str) -> Path:
+    path = tmp_path / f"{name}.png"
+    page.screenshot(path=str(path), full_page=False)
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    shutil.copy(path, SCREENSHOTS / path.name)
+    return path
+
+
+def wait_heatmaps_loaded(page, selector: str) -> None:
+    """The first image matching ``selector`` has loaded (images load lazily, on screen)."""
+    page.locator(selector).first.scroll_into_view_if_needed()
+    page.wait_for_function(
+        """sel => { const i = document.querySelector(sel);
+                    return i !== null && i.complete && i.naturalWidth > 0; }""",
+        arg=selector,
+    )
+
+
+#: plain hits, and the hits inside moments (the page groups into moments when the server can)
+HIT = "#results li.hit:not(.moment)"
+
+
+def first_hit(page) -> dict:
+    return page.eval_on_selector(
+        "#results > li.hit",
+        """li => ({id: li.dataset.id, sense: li.dataset.sense,
+                  text: li.querySelector('.hit-text')?.textContent ?? null})""",
+    )
+
+
+def top_result(page) -> dict:
+    """The first result: a hit, or a moment with its member hits."""
+    return page.eval_on_selector(
+        "#results > li.hit",
+        """li => { const hits = li.classList.contains('moment')
+                       ? [...li.querySelectorAll('li.hit')] : [li];
+                   return {moment: li.classList.contains('moment'),
+                           ids: hits.map(h => h.dataset.id),
+                           texts: hits.map(h => h.querySelector('.hit-text')?.textContent)}; }""",
+    )
+
+
+# ============================================================================ browser tests
+
+
+@pytest.mark.slow
+def test_keyboard_search_finds_the_note_first(page, served, tmp_path):
+    # keyboard only: Tab to the query box, type, Enter
+    for _ in range(20):
+        if page.evaluate("document.activeElement?.id") == "q":
+            break
+        page.keyboard.press("Tab")
+    assert page.evaluate("document.activeElement?.id") == "q", "query box not reachable by Tab"
+    page.keyboard.type("cleaning with something squishy")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#results > li.hit")
+    top = top_result(page)
+    sponge = "wiped the table with a soft wet sponge"
+    assert served["ids"][sponge] in top["ids"], top
+    if not top["moment"]:
+        assert top["texts"][0] == sponge
+    status = page.text_content("#search-status")
+    assert re.search(r"\d+ (hits?|moments?) for", status), status
+    assert page.get_attribute("#search-status", "aria-live") == "polite"
+    # every hit shows rank, sense badge, score, session and time
+    head = page.text_content(f"{HIT} .hit-head")
+    assert "#1" in head and "score" in head and "session kitchen-demo" in head and " s" in head
+    shot(page, tmp_path, "browser-search-text")
+
+
+@pytest.mark.slow
+def test_touch_hits_show_heat_maps(page, served, tmp_path):
+    for sense in ("text", "motion"):
+        page.uncheck(f"#sense-{sense}")
+    page.fill("#q", "gripping a small metal tool")
+    page.click("#search-form button[type=submit]")
+    page.wait_for_selector(HIT)
+    senses = page.eval_on_selector_all(HIT, "els => els.map(e => e.dataset.sense)")
+    assert senses and set(senses) == {"touch"}, senses
+    wait_heatmaps_loaded(page, "#results img.heatmap")
+    width = page.eval_on_selector("#results img.heatmap", "i => i.naturalWidth")
+    assert width == 8 * 96 + 7 * 3  # 8 frames at scale 3, 3 px gaps
+    alt = page.get_attribute("#results img.heatmap", "alt")
+    assert alt.startswith("Pressure heat map of the touch window")
+    assert "object" in page.text_content(f"{HIT} .meta")
+    # the same sense boxes again: all checked -> search every sense
+    for sense in ("text", "motion"):
+        page.check(f"#sense-{sense}")
+    path = shot(page, tmp_path, "browser-search-touch")
+    shutil.copy(path, SCREENSHOTS / "browser.png")  # the one for the report
+
+
+@pytest.mark.slow
+def test_session_timeline_and_evidence(page, served, tmp_path):
+    page.click("#tab-sessions")
+    page.click(".session-button[data-session=kitchen-demo]")
+    page.wait_for_selector("#timeline .lane")
+    lanes = page.eval_on_selector_all(
+        "#timeline .lane .track .point", "ps => [...new Set(ps.map(p => p.dataset.sense))].sort()"
+    )
+    assert lanes == ["motion", "text", "touch"], lanes
+    n_points = page.eval_on_selector_all("#timeline .point", "ps => ps.length")
+    assert n_points == len(NOTES) + 4 + 3
+    status = page.text_content("#timeline-status")
+    assert f"{n_points} items, from" in status, status
+    # a touch point: heat map + its meta
+    touch_id = served["ids"]["ball"]
+    page.click(f'#timeline .point[data-id="{touch_id}"]')
+    page.wait_for_selector("#evidence:not([hidden])")
+    wait_heatmaps_loaded(page, "#evidence img.heatmap")
+    evidence = page.text_content("#evidence")
+    assert "ball" in evidence and touch_id in evidence and "touch" in evidence
+    assert "null" not in evidence
+    if "session-filtered search" in status:  # fallback: the filler query's scores are hidden
+        assert page.query_selector("#evidence .score") is None
+    shot(page, tmp_path, "browser-timeline-touch")
+    # keyboard: arrows move along the lane, Enter opens the evidence
+    page.focus(f'#timeline .point[data-id="{touch_id}"]')
+    page.keyboard.press("ArrowRight")
+    focused = page.evaluate("document.activeElement.dataset.id")
+    assert focused == served["ids"]["battery"]
+    page.keyboard.press("ArrowUp")  # the lane above: text, nearest in time
+    assert page.evaluate("document.activeElement.dataset.sense") == "text"
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#evidence blockquote.hit-text")
+    assert page.text_content("#evidence blockquote.hit-text") in {n for _, n in NOTES}
+    # a hit's session link opens the timeline on that item
+    page.click("#tab-search")
+    page.fill("#q", "bench check")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#results > li.hit")
+    page.click(f"{HIT} .session-link")
+    page.wait_for_selector("#timeline .point.selected")
+    assert page.text_content("#timeline-title") == "Timeline of glove-bench"
+
+
+@pytest.mark.slow
+def test_grouped_moments_or_graceful_fallback(page, served, tmp_path):
+    paths = httpx.get(served["server"].base + "/openapi.json").json()["paths"]
+    search_params = {p["name"] for p in paths["/search"]["get"].get("parameters", [])}
+    supported = "/moments" in paths or "group" in search_params
+    box = page.locator("#f-group")
+    if not supported:  # the page says so and searches plain hits
+        assert box.is_disabled() and page.is_visible("#group-note")
+        return
+    assert box.is_enabled() and box.is_checked() and page.is_hidden("#group-note")
+    page.fill("#q", "the allen key")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#results > li.moment")
+    assert re.search(r"\d+ moments? for", page.text_content("#search-status"))
+    members = page.eval_on_selector_all(
+        "#results > li.moment", "ms => ms.map(m => m.querySelectorAll('li.hit').length)"
+    )
+    assert members and all(n >= 1 for n in members)
+    top = page.text_content("#results > li.moment")
+    assert "tightened a bolt with the allen key" in top
+    shot(page, tmp_path, "browser-moments")
+    page.uncheck("#f-group")  # back to plain hits
+    page.click("#search-form button[type=submit]")
+    page.wait_for_selector("#results > li.hit:not(.moment)")
+
+
+@pytest.mark.slow
+def test_search_by_example_upload_npy_and_json(page, served, tmp_path):
+    window, name = served["windows"][2]
+    path = tmp_path / "example.npy"
+    np.save(path, window.astype(np.uint16))
+    page.set_input_files("#like-file", str(path))
+    page.click("#like-form button[type=submit]")
+    page.wait_for_selector("#results > li.hit")
+    assert first_hit(page)["id"] == served["ids"][name]
+    assert "the example example.npy (8 frames)" in page.text_content("#search-status")
+    wait_heatmaps_loaded(page, "#like-preview img")
+    wait_heatmaps_loaded(page, "#results img.heatmap")
+    shot(page, tmp_path, "browser-search-by-example")
+
+    window, name = served["windows"][5]  # stored through the .npy write path
+    jpath = tmp_path / "example.json"
+    jpath.write_text(json.dumps({"frames": window.tolist(), "calibrated": False}))
+    page.set_input_files("#like-file", str(jpath))
+    page.click("#like-form button[type=submit]")
+    page.wait_for_function(
+        "id => document.querySelector('#results > li.hit')?.dataset.id === id",
+        arg=served["ids"][name],
+    )
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps([[1, 2, 3]]))
+    page.set_input_files("#like-file", str(bad))
+    page.click("#like-form button[type=submit]")
+    page.wait_for_function(
+        "() => document.querySelector('#search-status').dataset.kind === 'error'"
+    )
+    assert "K×32×32" in page.text_content("#search-status")
+
+
+@pytest.mark.slow
+def test_senses_view_and_tab_keys(page, served):
+    page.focus("#tab-search")
+    page.keyboard.press("ArrowRight")
+    page.keyboard.press("ArrowRight")
+    assert page.evaluate("document.activeElement.id") == "tab-senses"
+    page.wait_for_selector("#senses-list .sense-card")
+    text = page.text_content("#senses-list")
+    assert "imu-demo" in text and "Provenance" in text
+    encoder = served["server"].touch_encoder
+    assert ("stand-in-touch" in text) == encoder.startswith("StandInTouch"), encoder
+    assert page.is_hidden("#view-search") and page.is_visible("#view-senses")
+
+
+# ============================================================================ HTTP checks
+@pytest.mark.slow
+def test_png_routes_and_no_external_origin(served):
+    base = served["server"].base
+    ids = served["ids"]
+    with httpx.Client(base_url=base, timeout=60) as c:
+        r = c.get(f"/items/{ids['ball']}/touch.png")
+        assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+        assert png_size(r.content) == (8 * 128 + 7 * 4, 128, "RGBA")
+        r = c.get(f"/items/{ids['ball']}/touch.png", params={"scale": 1, "max_frames": 2})
+        assert png_size(r.content)[:2] == (2 * 32 + 1, 32)
+        r = c.get(f"/items/{ids[NOTES[0][1]]}/touch.png")
+        assert r.status_code == 422 and "no touch window" in r.json()["detail"]
+        assert r.headers["content-type"].startswith("application/problem+json")
+        assert c.get("/items/nope/touch.png").status_code == 404
+        assert c.get("/items/bad id!/touch.png").status_code == 422
+        window = served["windows"][0][0]
+        r = c.post("/render/touch.png", json={"frames": window.tolist()})
+        assert r.status_code == 200 and png_size(r.content)[1] == 128
+        assert c.post("/render/touch.png", json={"frames": [[1.0]]}).status_code == 422
+        # the page and its assets: served, and no http(s) origin anywhere in them
+        texts = {"/": c.get("/")}
+        for name in ("app.js", "style.css"):
+            texts[name] = c.get(f"/static/{name}")
+        for name, resp in texts.items():
+            assert resp.status_code == 200, name
+            urls = re.findall(r"(?:https?:)?//[A-Za-z0-9.-]+\.[A-Za-z]{2,}", resp.text)
+            assert not urls, f"{name} references external origins: {urls}"
+        assert texts["/"].headers["content-type"].startswith("text/html")
+        assert texts["app.js"].headers["content-type"].startswith("text/javascript")
+        assert c.get("/static/../app.py").status_code == 404
+        assert c.get("/static/nothing.js").status_code == 404
+    assert {p.name for p in STATIC.iterdir()} >= {"index.html", "app.js", "style.css"}
