@@ -26,6 +26,7 @@ from tactus_memory.service.routers import (
     search,
     senses,
     sessions,
+    temporal,
     touch,
     touch_stream,
     ui,
@@ -116,6 +117,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     app.include_router(health.router)
     for module in (sessions, senses, search, items, touch, ui):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
+    app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)
     app.include_router(ui.page_router)  # the browser page: static, no data, no token
     return app
