@@ -299,3 +299,46 @@ def test_cli_eval_end_to_end(tmp_path: Path):
     assert m2["top1"] == pytest.approx(np.mean(vals))
     assert m2["aggregate"]["top1"]["std"] == pytest.approx(np.std(vals, ddof=1))
     assert m2["split"] == "holdout:recordings@0,3"
+
+
+def test_ablation_rows_change_one_thing():
+    from tactus_memory.touch.ablate import ROWS
+
+    base = ROWS["recipe"]
+    assert base == {"norm": "affine", "sampling": "cluster", "mae": True}
+    for name, row in ROWS.items():
+        assert sum(row[k] != base[k] for k in base) == (0 if name == "recipe" else 1), name
+
+
+def test_per_file_max_scaling_is_the_defect():
+    from tactus_memory.touch.ablate import per_file_max_scaled
+
+    p = np.full((4, 32, 32), 510, np.int16)
+    p[0, 0, 0], p[2, 0, 0] = 1000, 654  # file 0 saturates, file 1 (weights-like) does not
+    out = per_file_max_scaled(p, np.array([0, 0, 1, 1]))
+    assert out[0, 0, 0] == 1.0 and out[2, 0, 0] == 1.0  # each file's max maps to 1
+    assert out[1, 5, 5] == pytest.approx(0.51) and out[3, 5, 5] == pytest.approx(510 / 654)
+
+
+def test_ablation_runs_seeds_and_aggregates(tmp_path: Path):
+    from tactus_memory.touch.ablate import AblationConfig, format_table, run_ablation
+    from tests.fakes import HashingSpace
+    from tests.stag_synth import make_fields, write_subset
+
+    folder = write_subset(tmp_path, "cls", make_fields("classification", [12, 10, 8, 10]))
+    cfg = AblationConfig(
+        steps=2,
+        pretrain_steps=2,
+        seeds=2,
+        holdout="recordings@1",
+        model="tactus-tiny",
+        batch=4,
+        pretrain_batch=8,
+        rows=["recipe", "no_mae"],
+    )
+    res = run_ablation([folder], cfg, tmp_path / "abl", space=HashingSpace(dim=384), progress=False)
+    assert len(res["runs"]) == 4 and res["heldout_recordings"] == ["001-allen_key_set"]
+    for row in res["rows"].values():
+        assert row["top1"]["n"] == 2 and row["top1"]["mean"] is not None
+    assert "| no_mae |" in format_table(res)
+    assert len(list((tmp_path / "abl").glob("mae_*.safetensors"))) == 2  # one per seed

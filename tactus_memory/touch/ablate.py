@@ -30,11 +30,14 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tactus_memory.touch.evaluate import mean_std
+
+if TYPE_CHECKING:
+    from tactus_memory.spaces.base import Space
 
 ROWS: dict[str, dict[str, Any]] = {
     "recipe": {"norm": "affine", "sampling": "cluster", "mae": True},
@@ -69,9 +72,16 @@ def per_file_max_scaled(pressure: np.ndarray, subset: np.ndarray) -> np.ndarray:
 
 
 def run_ablation(
-    data_paths: Sequence[str | Path], cfg: AblationConfig, workdir: str | Path
+    data_paths: Sequence[str | Path],
+    cfg: AblationConfig,
+    workdir: str | Path,
+    *,
+    space: Space | None = None,
+    progress: bool = True,
 ) -> dict[str, Any]:
-    """Train every (row, seed); returns per-run scores and mean ± sample std per row."""
+    """Train every (row, seed); returns per-run scores and mean ± sample std per row.
+
+    ``space``: the text space object (default: ``get_space(cfg.space)``)."""
     from tactus_memory.spaces import get_space
     from tactus_memory.touch.data import combine, load_stag
     from tactus_memory.touch.pretrain import PretrainConfig, pretrain
@@ -95,7 +105,7 @@ def run_ablation(
             calibration={"name": "per-file-max", "note": "raw / max(raw of the file)"},
         ),
     }
-    space = get_space(cfg.space)
+    space = space if space is not None else get_space(cfg.space)
     targets = build_targets(space, td_affine.classes)
 
     maes: dict[tuple[str, int], Path] = {}
@@ -122,6 +132,7 @@ def run_ablation(
                             warmup=max(1, min(150, cfg.pretrain_steps // 20)),
                         ),
                         fingerprint=td.fingerprint,
+                        progress=progress,
                     )
                     maes[key] = p
                 mae_path = maes[key]
@@ -142,6 +153,7 @@ def run_ablation(
                 space_dim=space.dim,
                 pretrained=mae_path,
                 device="cpu",
+                progress=progress,
             )
             ho = summary.get("heldout", {})
             runs.append(
@@ -162,7 +174,7 @@ def run_ablation(
         for row in cfg.rows
     }
     return {
-        "config": {**cfg.__dict__, "data": [str(p) for p in data_paths]},
+        "config": {**cfg.__dict__, "data": [str(p) for p in data_paths], "space": space.name},
         "heldout_recordings": [data.recordings[r] for r in held],
         "rows": table,
         "runs": runs,
