@@ -206,16 +206,20 @@ def match_flags(scores: Sequence[float], threshold: float, relative: float) -> l
     return [s >= bar for s in scores]
 
 
-def group_moments(evidence: Sequence[Evidence], gap: float) -> list[Moment]:
-    """Merge evidence of one session whose aligned spans overlap or lie within ``gap`` seconds
-    (transitively) into moments; returns them in time order (session, t)."""
-    by_session: dict[str, list[Evidence]] = {}
+def group_moments(
+    evidence: Sequence[Evidence], gap: float, *, per_stream: bool = False
+) -> list[Moment]:
+    """Merge evidence of one session (``per_stream``: of one session + sense + source) whose
+    aligned spans overlap or lie within ``gap`` seconds (transitively) into moments; returns
+    them in time order (t, t_end, session)."""
+    by_key: dict[tuple[str, ...], list[Evidence]] = {}
     for e in evidence:
-        by_session.setdefault(e.session, []).append(e)
+        key = (e.session, e.sense, e.source) if per_stream else (e.session,)
+        by_key.setdefault(key, []).append(e)
     out: list[Moment] = []
-    for session in sorted(by_session):
+    for key in sorted(by_key):
         items = sorted(
-            by_session[session],
+            by_key[key],
             key=lambda e: (e.t_aligned, e.t_end_aligned, e.sense, e.source, e.id),
         )
         group: list[Evidence] = []
@@ -440,9 +444,11 @@ class TemporalMixin:
         threshold: float | Mapping[str, float] | None = None,
         relative: float = RELATIVE_KEEP,
         merge_gap: float = DEFAULT_MERGE_GAP,
+        per_stream: bool = False,
     ) -> Occurrences:
         """Distinct occurrences of ``query``: matching items merged per session when their
-        aligned spans overlap or lie within ``merge_gap`` seconds."""
+        aligned spans overlap or lie within ``merge_gap`` seconds. ``per_stream=True`` merges
+        only within one stream (session + sense + source): a grasp and its note count twice."""
         gap = check_seconds(merge_gap, "merge_gap")
         ev, capped = self._evidence(
             query,
@@ -455,7 +461,7 @@ class TemporalMixin:
             relative=relative,
             per_sense=MATCH_CANDIDATES,
         )
-        moments = group_moments([e for e in ev if e.match], gap)
+        moments = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
         return Occurrences(
             query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments
         )
@@ -472,6 +478,7 @@ class TemporalMixin:
         threshold: float | Mapping[str, float] | None = None,
         relative: float = RELATIVE_KEEP,
         merge_gap: float = DEFAULT_MERGE_GAP,
+        per_stream: bool = False,
     ) -> int:
         """How many distinct times ``query`` happened (see :meth:`occurrences`)."""
         return self.occurrences(
@@ -484,6 +491,7 @@ class TemporalMixin:
             threshold=threshold,
             relative=relative,
             merge_gap=merge_gap,
+            per_stream=per_stream,
         ).count
 
     def last(

@@ -50,6 +50,8 @@ def test_count_last_first(client) -> None:
     assert client.get("/count", params={"q": "giraffe savanna"}).json()["count"] == 0
     touch_only = client.get("/count", params={"q": "the mug", "sense": "touch", "merge_gap": 0})
     assert touch_only.json()["count"] == 3
+    streams = client.get("/count", params={"q": "the mug", "per_stream": "true"})
+    assert streams.json()["count"] == 6
     last = client.get("/last", params={"q": "the mug"}).json()["moment"]
     assert (last["t"], last["t_end"]) == (70.0, 72.5)
     first = client.get("/first", params={"q": "the mug", "after": 20}).json()["moment"]

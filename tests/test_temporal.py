@@ -182,6 +182,8 @@ def test_threshold_means_something_per_sense(kitchen) -> None:
     assert mem.count("the mug", senses=["text"]) == 3
     # adjacent windows of one stream merge only within merge_gap
     assert mem.count("the mug", senses=["touch"], merge_gap=0.0) == 3  # windows touch (t_end=t)
+    # per stream: each grasp and each note is its own occurrence
+    assert mem.count("the mug", per_stream=True) == 6
     # an absurd bar matches nothing; a bar of 0 matches only what clears the relative gate
     assert mem.count("the mug", threshold=50.0) == 0
     assert mem.count("the mug", threshold={"touch": 50.0}, senses=["touch"]) == 0

@@ -184,9 +184,14 @@ def count(
     threshold: Threshold = None,
     relative: Relative = RELATIVE_KEEP,
     merge_gap: MergeGap = DEFAULT_MERGE_GAP,
+    per_stream: Annotated[
+        bool, Query(description="Merge only within one stream (session + sense + source).")
+    ] = False,
 ) -> Occurrences:
     f = _filters(senses=sense, session=session, source=source, after=after, before=before)
-    return memory.occurrences(q, threshold=threshold, relative=relative, merge_gap=merge_gap, **f)
+    return memory.occurrences(
+        q, threshold=threshold, relative=relative, merge_gap=merge_gap, per_stream=per_stream, **f
+    )
 
 
 def _context(side: str, window: float, ctx: Any) -> ContextOut:
