@@ -308,7 +308,11 @@ def ablate_cmd(
         rows=[r.strip() for r in rows.split(",") if r.strip()],
     )
     work = workdir or json_out.with_suffix("")
-    result = run_ablation(data, cfg, work)
     json_out.parent.mkdir(parents=True, exist_ok=True)
-    json_out.write_text(json.dumps(result, indent=1) + "\n")
+
+    def write(partial: dict[str, Any]) -> None:
+        json_out.write_text(json.dumps(dict(partial, complete=False), indent=1) + "\n")
+
+    result = run_ablation(data, cfg, work, on_run=write)
+    json_out.write_text(json.dumps(dict(result, complete=True), indent=1) + "\n")
     typer.echo(format_table(result))

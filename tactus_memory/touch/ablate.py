@@ -27,7 +27,7 @@ own held-out evaluation (fixed-seed cluster tuples, top-1/top-3, recording top-1
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -78,10 +78,13 @@ def run_ablation(
     *,
     space: Space | None = None,
     progress: bool = True,
+    on_run: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Train every (row, seed); returns per-run scores and mean ± sample std per row.
 
-    ``space``: the text space object (default: ``get_space(cfg.space)``)."""
+    ``space``: the text space object (default: ``get_space(cfg.space)``); ``on_run(partial)``
+    receives the result so far after every run (the CLI writes it, so a cut-off run keeps
+    what finished)."""
     from tactus_memory.spaces import get_space
     from tactus_memory.touch.data import combine, load_stag
     from tactus_memory.touch.pretrain import PretrainConfig, pretrain
@@ -166,12 +169,26 @@ def run_ablation(
                     "wall_s": round(time.perf_counter() - t0, 1),
                 }
             )
+            if on_run is not None:
+                on_run(_result(cfg, data_paths, space, data, held, runs))
+    return _result(cfg, data_paths, space, data, held, runs)
+
+
+def _result(
+    cfg: AblationConfig,
+    data_paths: Sequence[str | Path],
+    space: Space,
+    data: Any,
+    held: list[int],
+    runs: list[dict[str, Any]],
+) -> dict[str, Any]:
     table = {
         row: {
             "changes": ROWS[row],
             **{k: mean_std([r[k] for r in runs if r["row"] == row]) for k in METRICS},
         }
         for row in cfg.rows
+        if any(r["row"] == row for r in runs)
     }
     return {
         "config": {**cfg.__dict__, "data": [str(p) for p in data_paths], "space": space.name},
