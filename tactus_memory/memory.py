@@ -22,6 +22,11 @@ their registration (name, modality, dim, provenance, optional ``query_centroid``
 calibration) is persisted, so a sense with rows can be *searched* without its live object:
 its query transform is rebuilt from the stored centroid (``q - c``, renormalised). A sense
 object that exposes ``query_centroid`` (a (D,) array) must use exactly that transform.
+
+Extension points (temporal operators and the service build on these, not on LanceDB):
+``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
+``Memory._query(q, k, senses, where, transform=..., build=...)`` (the one ranked search
+path), ``Memory.store.scan(where, columns, limit)`` (unranked reads), ``Memory.calibration``.
 """
 
 from __future__ import annotations
@@ -838,6 +843,16 @@ class Memory(TemporalMixin):
             )
             for sid, d in sorted(by.items())
         ]
+
+    def close(self) -> None:
+        """Let background maintenance finish (the store needs no other closing)."""
+        self.wait_for_maintenance()
+
+    def __enter__(self) -> Memory:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def __len__(self) -> int:
         return self.store.count()

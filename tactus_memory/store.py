@@ -224,7 +224,7 @@ class IndexConfig:
 
     #: build the ANN index once the table has this many rows (flat search below it)
     threshold: int = 50_000
-    index_type: str = "IVF_HNSW_SQ"
+    index_type: str = "IVF_SQ"
     #: rows per IVF partition (num_partitions = rows / this)
     rows_per_partition: int = 4096
     nprobes: int = 20
