@@ -220,7 +220,7 @@ def test_keyboard_search_finds_the_note_first(page, served, tmp_path):
     assert re.search(r"\d+ (hits?|moments?) for", status), status
     assert page.get_attribute("#search-status", "aria-live") == "polite"
     # every hit shows rank, sense badge, score, session and time
-    head = page.text_content(f"{HIT} .hit-head")
+    head = page.text_content("#results > li.hit > .hit-head")
     assert "#1" in head and "score" in head and "session kitchen-demo" in head and " s" in head
     shot(page, tmp_path, "browser-search-text")
 
@@ -362,6 +362,43 @@ def test_senses_view_and_tab_keys(page, served):
     encoder = served["server"].touch_encoder
     assert ("stand-in-touch" in text) == encoder.startswith("StandInTouch"), encoder
     assert page.is_hidden("#view-search") and page.is_visible("#view-senses")
+
+
+@pytest.mark.slow
+def test_token_protected_server(browser_context, served, stag_dir, tmp_path):
+    """With a token the page itself loads, says what is missing, and works once it is typed
+    (heat maps are then fetched with the header and shown from blob: URLs)."""
+    tmp = served["tmp"]
+    server = Server(tmp / "memory-token", tmp / "server-token.log", token="s3cret")
+    page = browser_context.new_page()
+    page.set_default_timeout(TIMEOUT_MS)
+    try:
+        window, name = served["windows"][0]
+        auth = {"Authorization": "Bearer s3cret"}
+        with httpx.Client(base_url=server.base, headers=auth, timeout=120) as c:
+            body = {"frames": window.tolist(), "t": 2.0, "meta": {"object": name}}
+            assert c.post("/sessions/locked/touch", json=body).status_code == 201
+            r = c.post("/sessions/locked/text", json={"text": "a secret grasp", "t": 2.0})
+            assert r.status_code == 201
+        assert httpx.get(f"{server.base}/items/x/touch.png").status_code == 401
+        page.goto(server.base + "/")
+        page.wait_for_selector("body[data-ready=true]")
+        assert "access token" in page.text_content("#sense-filter")
+        page.click(".token summary")
+        page.fill("#token", "s3cret")
+        page.keyboard.press("Enter")
+        page.wait_for_selector("#sense-touch")
+        page.uncheck("#sense-text")
+        page.uncheck("#f-group")  # plain hits: moments keep only matches over the bar
+        page.fill("#q", "a firm grasp")
+        page.keyboard.press("Enter")
+        page.wait_for_selector(HIT)
+        wait_heatmaps_loaded(page, "#results img.heatmap")
+        assert page.get_attribute("#results img.heatmap", "src").startswith("blob:")
+        shot(page, tmp_path, "browser-token")
+    finally:
+        page.close()
+        server.stop()
 
 
 # ============================================================================ HTTP checks

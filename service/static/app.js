@@ -373,7 +373,8 @@ function renderResults(res, what) {
   if (moments) {
     moments.forEach((m, i) => list.append(momentCard(m, i + 1)));
     const n = moments.length;
-    setStatus(status, n ? `${n} moment${n === 1 ? "" : "s"} for ${what}.` : `Nothing found for ${what}.`);
+    const none = `No moment clears the match bar for ${what}; untick “Group into moments” to see the nearest hits.`;
+    setStatus(status, n ? `${n} moment${n === 1 ? "" : "s"} for ${what}.` : none);
     return;
   }
   const hits = res.hits || [];
@@ -382,7 +383,7 @@ function renderResults(res, what) {
   setStatus(status, n ? `${n} hit${n === 1 ? "" : "s"} for ${what}, best first.` : `Nothing found for ${what}.`);
 }
 
-function hitCard(hit, rank) {
+function hitCard(hit, rank, inMoment = false) {
   const body = [];
   if (hit.text) body.push(h("p", { class: "hit-text" }, hit.text));
   if (isTouch(hit)) body.push(heatmap(hit.id, touchLabel(hit)));
@@ -407,9 +408,9 @@ function hitCard(hit, rank) {
           type: "button",
           class: "link session-link",
           onclick: () => openSession(hit.session, hit.id),
-          title: "Open this session's timeline",
+          title: `Open the timeline of session ${hit.session} at this item`,
         },
-        `session ${hit.session}`,
+        inMoment ? "show in timeline" : `session ${hit.session}`,
       ),
       h("span", { class: "time" }, fmtSpan(hit.t, hit.t_end)),
     ),
@@ -443,7 +444,7 @@ function momentCard(m, rank) {
         : h("span", {}, `session ${sessions}`),
       h("span", { class: "time" }, fmtSpan(t, tEnd)),
     ),
-    h("ol", { class: "members" }, members.map((x, i) => hitCard(x, `${rank}.${i + 1}`))),
+    h("ol", { class: "members" }, members.map((x, i) => hitCard(x, `${rank}.${i + 1}`, true))),
   );
 }
 
@@ -688,11 +689,14 @@ function normalisePoints(res, session) {
     .sort((a, b) => a.t - b.t);
 }
 
+const MAX_POINTS = 5000; // drawn per timeline; the status line says when a session has more
+
 async function fetchTimeline(id) {
   const summary = state.sessions.find((s) => s.id === id);
   const n = summary ? summary.n : 1000;
   if (state.caps.timeline) {
-    const res = await api(`/sessions/${encodeURIComponent(id)}/timeline`);
+    const limit = String(Math.min(Math.max(n, 1), MAX_POINTS));
+    const res = await api(`/sessions/${encodeURIComponent(id)}/timeline?limit=${limit}`);
     return { points: normalisePoints(res, id), source: `GET /sessions/${id}/timeline`, n };
   }
   const k = Math.min(Math.max(n, 1), 1000);
@@ -872,11 +876,14 @@ function showEvidence(p) {
 // ------------------------------------------------------------------------------ start
 function setupToken() {
   $("#token").value = state.token;
+  if (state.token) $(".token summary").textContent = "Access token (set)";
   $("#token-form").addEventListener("submit", (e) => {
     e.preventDefault();
     state.token = $("#token").value.trim();
     if (state.token) sessionStorage.setItem("tactus-token", state.token);
     else sessionStorage.removeItem("tactus-token");
+    $(".token").open = false;
+    $(".token summary").textContent = state.token ? "Access token (set)" : "Access token";
     refresh();
   });
 }
