@@ -122,26 +122,23 @@ def plot_ksweep(series: dict[str, dict[str, float | None]], path: str | Path) ->
 def write_examples(
     out: Path, result: EvalResult, calibrated: np.ndarray, classes: Sequence[str], n: int = 8
 ) -> list[dict[str, Any]]:
-    """One held-out tuple per class (first classes first, up to ``n``), drawn as PNG strips."""
+    """Per class (in class order, up to ``n`` classes) the held-out tuple whose anchor frame is
+    the most active (largest total calibrated pressure, as the paper's Fig. 1), as PNG strips."""
     from tactus_memory.touch.render import draw_window_png
 
     folder = out / "examples"
     folder.mkdir(parents=True, exist_ok=True)
     pred = np.argmax(result.scores_vote, axis=1) if len(result.y) else np.zeros(0, int)
+    activity = calibrated[result.tuples[:, 0]].sum(axis=(1, 2)) if len(result.y) else None
     rows = []
-    seen: set[int] = set()
-    for t in range(len(result.y)):
-        c = int(result.y[t])
-        if c in seen:
-            continue
-        seen.add(c)
-        name = f"example_{len(rows):02d}_{classes[c]}.png"
+    for c in np.unique(result.y)[:n]:
+        cand = np.flatnonzero(result.y == c)
+        t = int(cand[np.argmax(activity[cand])])
+        name = f"example_{len(rows):02d}_{classes[int(c)]}.png"
         (folder / name).write_bytes(
             draw_window_png(calibrated[result.tuples[t]], calibrated=True, scale=2)
         )
-        rows.append({"file": f"examples/{name}", "true": classes[c], "pred": classes[pred[t]]})
-        if len(rows) >= n:
-            break
+        rows.append({"file": f"examples/{name}", "true": classes[int(c)], "pred": classes[pred[t]]})
     return rows
 
 
@@ -352,8 +349,8 @@ def write_report(
             "",
             "## Example held-out windows",
             "",
-            "Calibrated frames of one held-out tuple per class (anchor first; glove taxels "
-            "only; colour 0..1 calibrated pressure).",
+            "Calibrated frames of one held-out tuple per class, the one whose anchor is the "
+            "most active (anchor first; glove taxels only; colour 0..1 calibrated pressure).",
             "",
             "| true | predicted (vote) | window |",
             "|---|---|---|",
