@@ -365,6 +365,41 @@ def test_senses_view_and_tab_keys(page, served):
 
 
 @pytest.mark.slow
+def test_degrades_without_moments_and_timeline_routes(browser_context, served):
+    """A server without GET /moments and GET /sessions/{id}/timeline (its OpenAPI schema
+    rewritten in the browser): plain hits, and the timeline from a session-filtered search."""
+    base = served["server"].base
+    spec = httpx.get(base + "/openapi.json").json()
+    for path in ("/moments", "/sessions/{session}/timeline"):
+        spec["paths"].pop(path, None)
+    page = browser_context.new_page()
+    page.set_default_timeout(TIMEOUT_MS)
+    try:
+        page.route(
+            "**/openapi.json",
+            lambda route: route.fulfill(
+                status=200, content_type="application/json", body=json.dumps(spec)
+            ),
+        )
+        page.goto(base + "/")
+        page.wait_for_selector("body[data-ready=true]")
+        assert page.locator("#f-group").is_disabled() and page.is_visible("#group-note")
+        page.fill("#q", "put the battery away")
+        page.keyboard.press("Enter")
+        page.wait_for_selector("#results > li.hit:not(.moment)")
+        assert page.query_selector("#results > li.moment") is None
+        page.goto(base + "/#sessions/kitchen-demo")
+        page.wait_for_selector("#timeline .lane")
+        status = page.text_content("#timeline-status")
+        assert "11 items, from a session-filtered search" in status, status
+        page.click(f'#timeline .point[data-id="{served["ids"]["battery"]}"]')
+        page.wait_for_selector("#evidence img.heatmap")
+        assert page.query_selector("#evidence .score") is None  # the filler query's scores
+    finally:
+        page.close()
+
+
+@pytest.mark.slow
 def test_token_protected_server(browser_context, served, stag_dir, tmp_path):
     """With a token the page itself loads, says what is missing, and works once it is typed
     (heat maps are then fetched with the header and shown from blob: URLs)."""

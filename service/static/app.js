@@ -898,10 +898,16 @@ async function start() {
   $("#search-form").addEventListener("submit", onSearch);
   $("#like-form").addEventListener("submit", onLike);
   await refresh();
+  route();
+  window.addEventListener("hashchange", route); // links like #sessions/<id> work in place
+  document.body.dataset.ready = "true";
+}
+
+// #search, #sessions, #senses, #sessions/<session id>
+function route() {
   const hash = decodeURIComponent(location.hash.slice(1));
   if (hash.startsWith("sessions/")) openSession(hash.slice("sessions/".length));
   else if (TABS.includes(hash)) showTab(hash, { push: false });
-  document.body.dataset.ready = "true";
 }
 
 start();
