@@ -351,7 +351,7 @@ def test_search_by_example_upload_npy_and_json(page, served, tmp_path):
 
 
 @pytest.mark.slow
-def test_senses_view_and_tab_keys(page, served):
+def test_senses_view_and_tab_keys(page, served, tmp_path):
     page.focus("#tab-search")
     page.keyboard.press("ArrowRight")
     page.keyboard.press("ArrowRight")
@@ -362,6 +362,7 @@ def test_senses_view_and_tab_keys(page, served):
     encoder = served["server"].touch_encoder
     assert ("stand-in-touch" in text) == encoder.startswith("StandInTouch"), encoder
     assert page.is_hidden("#view-search") and page.is_visible("#view-senses")
+    shot(page, tmp_path, "browser-senses")
 
 
 @pytest.mark.slow

@@ -273,11 +273,20 @@ function renderSenseFilter() {
   if (!state.senses.length) fs.append(h("span", { class: "muted" }, "none yet"));
 }
 
+// {a: {b: 1}, c: ""} -> [["a.b", "1"], ["c", "—"]]
+function flatEntries(obj, prefix = "") {
+  return Object.entries(obj || {}).flatMap(([k, v]) =>
+    v && typeof v === "object" && !Array.isArray(v)
+      ? flatEntries(v, `${prefix}${k}.`)
+      : [[`${prefix}${k}`, v === "" || v === null ? "—" : typeof v === "string" ? v : JSON.stringify(v)]],
+  );
+}
+
 function renderSenses() {
   const list = $("#senses-list");
   list.replaceChildren();
   for (const s of state.senses) {
-    const prov = Object.entries(s.provenance || {});
+    const prov = flatEntries(s.provenance);
     list.append(
       h(
         "article",
@@ -301,10 +310,7 @@ function renderSenses() {
           ? h(
               "dl",
               { class: "meta provenance" },
-              prov.flatMap(([k, v]) => [
-                h("dt", {}, k),
-                h("dd", {}, typeof v === "string" ? v : JSON.stringify(v)),
-              ]),
+              prov.flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, v)]),
             )
           : h("p", { class: "muted" }, "none recorded"),
       ),
@@ -625,6 +631,14 @@ async function loadSessions() {
     state.sessions = sessions;
     $("#session-ids").replaceChildren(...sessions.map((s) => h("option", { value: s.id })));
     renderSessionList();
+    const searchStatus = $("#search-status");
+    if (!sessions.length && !searchStatus.textContent) {
+      setStatus(
+        searchStatus,
+        "This memory is empty. Store notes, touch windows, images or vectors through the API " +
+          "(see API documentation below), then search them here.",
+      );
+    }
     setStatus(status, sessions.length ? `${sessions.length} session${sessions.length === 1 ? "" : "s"}.` : "No sessions stored yet.");
   } catch (err) {
     setStatus(status, `Could not load sessions: ${err.message}`, "error");
