@@ -20,6 +20,7 @@ $(VENV)/.base: pyproject.toml
 
 $(VENV)/.test: $(VENV)/.base
 	$(PIP) install -q -e ".[test]"
+	bash scripts/ensure-chromium.sh
 	touch $@
 
 setup: $(VENV)/.base
