@@ -198,8 +198,8 @@ def grid_for(index_type: str) -> list[dict[str, Any]]:
         ]
     return [
         {"nprobes": p, "ef": None, "refine_factor": rf}
-        for p in (10, 20, 40)
-        for rf in ((None, 5) if index_type == "IVF_SQ" else (5, 10, 20))
+        for p in ((5, 10, 20) if index_type == "IVF_SQ" else (10, 20, 40))
+        for rf in ((None, 2, 5) if index_type == "IVF_SQ" else (5, 10, 20))
     ]
 
 

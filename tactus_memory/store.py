@@ -308,6 +308,7 @@ class Store:
 
         self.uri = normalise_uri(uri)
         self.index = index or IndexConfig()
+        self.storage_options = dict(storage_options or {})
         self.db = lancedb.connect(
             self.uri,
             storage_options=storage_options,
@@ -359,7 +360,14 @@ class Store:
         else:
             self.set_meta("space", json.dumps({"name": name, "dim": int(dim)}))
         if self._items is None:
-            self._items = self.db.create_table(ITEMS, schema=items_schema(dim), exist_ok=True)
+            # Lance file format 2.1: ~1.5x faster random access to the hit columns than 2.0
+            # (measured at 1M rows, benchmarks/README.md)
+            self._items = self.db.create_table(
+                ITEMS,
+                schema=items_schema(dim),
+                exist_ok=True,
+                storage_options={**self.storage_options, "new_table_data_storage_version": "2.1"},
+            )
         if self._senses is None:
             self._senses = self.db.create_table(SENSES, schema=senses_schema(), exist_ok=True)
 
