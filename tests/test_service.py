@@ -13,6 +13,7 @@ from starlette.websockets import WebSocketDisconnect
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
 
+from tactus_memory.errors import InvalidInputError
 from tests.test_service_helpers import make_memory, npy_bytes, window
 
 PROBLEM = "application/problem+json"
@@ -645,3 +646,24 @@ def test_fresh_store_registers_default_senses_and_explains_missing_touch(tmp_pat
         assert "text" in h["senses"] and h["touch"] is False
         assert "TACTUS_TOUCH" in h["touch_unavailable"]
         assert_problem(c.post("/sessions/s/touch", json=touch_json()), 503, "TACTUS_TOUCH")
+
+
+def test_stream_bad_window_in_a_batch_does_not_sink_its_neighbours(client, memory):
+    """Windows the sense refuses at commit time are reported one by one; the rest are stored."""
+    real_validate = memory.senses["touch"].validate
+
+    def picky(item):
+        if float(np.asarray(item).max()) > 10_000:
+            raise InvalidInputError("window too hot")
+        return real_validate(item)
+
+    memory.senses["touch"].validate = picky  # the stand-in validates only inside the memory
+    with client.websocket_connect("/sessions/mix/touch/stream?window=1&stride=1") as ws:
+        ws.receive_json()
+        for i in range(6):
+            frame = np.full((32, 32), 20_000.0 if i == 3 else 500.0 + i)
+            ws.send_bytes(npy_bytes(frame))
+        msgs = [ws.receive_json() for _ in range(6)]
+    assert sorted(m["seq"] for m in msgs if m["type"] == "stored") == [0, 1, 2, 4, 5]
+    (err,) = [m for m in msgs if m["type"] == "error"]
+    assert err["windows"] == [3] and "too hot" in err["error"]["detail"]

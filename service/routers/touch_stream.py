@@ -14,7 +14,8 @@ Protocol (all server messages are JSON objects with a ``type``):
   this stream's id) and acknowledged after its commit:
   ``{"type": "stored", "id": "...", "seq": n, "t": ..., "t_end": ...}``.
 * a bad frame gets ``{"type": "error", "error": {problem details}, "frame": i}`` and is
-  skipped; the connection stays open (a failed store names its ``windows`` instead).
+  skipped; a window the touch sense refuses (e.g. values already in [0, 1] on a raw stream)
+  gets ``{"type": "error", "error": {...}, "windows": [seq]}``. The connection stays open.
   A partial window left at disconnect is not stored.
 
 Windows wait in a per-connection queue; a writer task stores whatever has piled up in one
@@ -182,7 +183,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
 
     stream_id = "ws-" + uuid.uuid4().hex[:16]
     windower = Windower(params.window, params.stride)
-    queue: asyncio.Queue[tuple[int, np.ndarray, float, float] | None] = asyncio.Queue(QUEUE_WINDOWS)
+    queue: asyncio.Queue[tuple[int, Any, float, float] | None] = asyncio.Queue(QUEUE_WINDOWS)
     await send(
         {
             "type": "ready",
@@ -194,16 +195,39 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
         }
     )
 
-    def store(batch: list[tuple[int, np.ndarray, float, float]]) -> list[str]:
-        items = [touch_item(memory, "touch", w, params.calibrated) for _, w, _, _ in batch]
+    def store(batch: list[tuple[int, Any, float, float]]) -> list[str]:
         return memory.add_many(
             session,
             "touch",
-            items,
+            [b[1] for b in batch],
             t=[b[2] for b in batch],
             t_end=[b[3] for b in batch],
             source=stream_id,
         )
+
+    async def commit(batch: list[tuple[int, Any, float, float]]) -> None:
+        """Store a batch in one commit and ack each window; a failing batch is retried one
+        window at a time, so one bad window never costs its neighbours."""
+        try:
+            ids = await state.writer.run(store, batch)
+        except Exception as exc:  # noqa: BLE001  (report, keep the stream alive)
+            if len(batch) > 1:
+                for one in batch:
+                    await commit([one])
+                return
+            if isinstance(exc, TactusError):
+                problem = problem_for_exception(exc)
+            else:
+                log.exception("storing a touch window failed on stream %s", stream_id)
+                problem = problem_body(
+                    500, f"storing failed ({type(exc).__name__}); see the server log"
+                )
+            await _try_send(send, {"type": "error", "error": problem, "windows": [batch[0][0]]})
+            return
+        for (seq, _, t, t_end), item_id in zip(batch, ids, strict=True):
+            await _try_send(
+                send, {"type": "stored", "id": item_id, "seq": seq, "t": t, "t_end": t_end}
+            )
 
     async def writer() -> None:
         done = False
@@ -218,35 +242,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
                     done = True
                     break
                 batch.append(nxt)
-            try:
-                ids = await state.writer.run(store, batch)
-            except TactusError as exc:
-                await _try_send(
-                    send,
-                    {
-                        "type": "error",
-                        "error": problem_for_exception(exc),
-                        "windows": [b[0] for b in batch],
-                    },
-                )
-                continue
-            except Exception as exc:  # noqa: BLE001  (report, keep the stream alive)
-                log.exception("storing touch windows failed on stream %s", stream_id)
-                await _try_send(
-                    send,
-                    {
-                        "type": "error",
-                        "error": problem_body(
-                            500, f"storing failed ({type(exc).__name__}); see the server log"
-                        ),
-                        "windows": [b[0] for b in batch],
-                    },
-                )
-                continue
-            for (seq, _, t, t_end), item_id in zip(batch, ids, strict=True):
-                await _try_send(
-                    send, {"type": "stored", "id": item_id, "seq": seq, "t": t, "t_end": t_end}
-                )
+            await commit(batch)
 
     writer_task = asyncio.create_task(writer())
     frame_index = 0
@@ -267,9 +263,18 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
             for frame, t in frames:
                 frame_index += 1
                 out = windower.push(frame, t)
-                if out is not None:
-                    await queue.put((seq, *out))
-                    seq += 1
+                if out is None:
+                    continue
+                win, t_first, t_last = out
+                try:  # the sense's own checks (range, calibration), before queueing
+                    item = touch_item(memory, "touch", win, params.calibrated)
+                except TactusError as exc:
+                    await send(
+                        {"type": "error", "error": problem_for_exception(exc), "windows": [seq]}
+                    )
+                else:
+                    await queue.put((seq, item, t_first, t_last))
+                seq += 1
             if writer_task.done():
                 break
     except WebSocketDisconnect:
