@@ -10,6 +10,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -113,9 +114,13 @@ def test_real_server_search_stream_crash_and_restart(data_dir, tmp_path):
             else:
                 r = c.post("/sessions/glove/touch", json={"frames": window().tolist(), "t": 1.0})
                 assert r.status_code == 503 and health["touch_unavailable"] in r.json()["detail"]
+
+        # Many writers at once, then SIGKILL while they are still writing.
+        crash_acked = _write_until_killed(server, auth, threads=6, acks_before_kill=60)
     finally:
         server.kill()  # SIGKILL: no shutdown hooks, no flush
     assert server.proc.returncode == -signal.SIGKILL
+    assert len(crash_acked) >= 60
 
     server = Server(data_dir, log, "--token", "t0k")
     try:
@@ -126,8 +131,46 @@ def test_real_server_search_stream_crash_and_restart(data_dir, tmp_path):
                 assert sessions["glove"]["counts"] == {"touch": touch_rows}
             hits = c.get("/search", params={"q": "hot mug", "k": 10}).json()["hits"]
             assert {h["id"] for h in hits} >= set(acked)
+            # every acknowledged write survived the SIGKILL (unacknowledged ones may too)
+            assert sessions["crash"]["n"] >= len(crash_acked)
+            params = {"q": "note", "session": "crash", "k": 1000}
+            found = {h["id"] for h in c.get("/search", params=params).json()["hits"]}
+            assert set(crash_acked) <= found
     finally:
         server.stop()
+
+
+def _write_until_killed(
+    server: Server, auth: dict[str, str], threads: int, acks_before_kill: int
+) -> list[str]:
+    """``threads`` clients post notes as fast as they can; SIGKILL the server once
+    ``acks_before_kill`` writes are acknowledged; returns the acknowledged ids."""
+    acked: list[str] = []
+    lock = threading.Lock()
+    enough = threading.Event()
+
+    def client(i: int) -> None:
+        with httpx.Client(base_url=server.base, headers=auth, timeout=30) as c:
+            for j in range(10_000):
+                try:
+                    r = c.post("/sessions/crash/text", json={"text": f"note {i} {j}", "t": j})
+                except httpx.TransportError:
+                    return  # the server is gone
+                assert r.status_code == 201, r.text
+                with lock:
+                    acked.extend(r.json()["ids"])
+                    if len(acked) >= acks_before_kill:
+                        enough.set()
+
+    pool = [threading.Thread(target=client, args=(i,)) for i in range(threads)]
+    for t in pool:
+        t.start()
+    assert enough.wait(120), "writers too slow"
+    server.kill()
+    for t in pool:
+        t.join(60)
+    with lock:
+        return list(acked)
 
 
 def _stream(port: int, session: str, n_frames: int) -> int:
