@@ -213,10 +213,20 @@ def build_store(path: Path, rows: int, seed: int = 0) -> dict[str, Any]:
 class Child:
     """``tactus serve`` equivalent in a subprocess (a stand-in touch sense if none loads)."""
 
-    def __init__(self, data: Path, log: Path) -> None:
+    def __init__(self, data: Path, log: Path, touch: str = "auto") -> None:
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        cmd = [sys.executable, __file__, "--child", "--data", str(data), "--port", str(self.port)]
+        cmd = [
+            sys.executable,
+            __file__,
+            "--child",
+            "--data",
+            str(data),
+            "--port",
+            str(self.port),
+            "--touch",
+            touch,
+        ]
         self.proc = subprocess.Popen(cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT)
         import httpx
 
@@ -253,8 +263,8 @@ def child_main(data: str, port: int) -> None:
     state = app.state.tactus
     if "touch" not in state.memory.senses:
         state.memory.add_sense(ProjectionTouch(DIM))
-        state.touch_unavailable = None
         print(f"touch: stand-in projection sense ({state.touch_unavailable})", flush=True)
+        state.touch_unavailable = None
     uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", ws_per_message_deflate=False)
 
 
@@ -430,6 +440,13 @@ def main() -> None:
     ap.add_argument("--hz", type=float, default=30.0)
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--window", type=int, default=8)
+    ap.add_argument(
+        "--touch",
+        choices=["auto", "real", "stand-in"],
+        default="auto",
+        help="touch sense for ingest: the shipped TactusEncoder, a cheap projection stand-in, "
+        "or auto (real when it loads)",
+    )
     ap.add_argument("--workdir", default="/tmp/tactus-bench-service")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "service.json"))
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -437,7 +454,7 @@ def main() -> None:
     ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        child_main(args.data, args.port)
+        child_main(args.data, args.port, args.touch)
         return
     sys.path.insert(0, str(ROOT))
     work = Path(args.workdir)
@@ -451,6 +468,7 @@ def main() -> None:
             "platform": platform.platform(),
         },
         "command": " ".join([Path(sys.executable).name, *sys.argv]),
+        "load_average_at_start": os.getloadavg(),
         "search": [],
     }
     for rows in args.rows:
@@ -480,7 +498,7 @@ def main() -> None:
         print(json.dumps(entry), flush=True)
         result["search"].append(entry)
     path = work / f"rows-{args.rows[-1]}"
-    server = Child(path, log)
+    server = Child(path, log, args.touch)
     try:
         result["touch_encoder"] = next(
             (s["provenance"] for s in httpx_senses(server.base) if s["name"] == "touch"), None
@@ -494,6 +512,7 @@ def main() -> None:
         asyncio.run(cleanup_bench_sessions(server.base))
     finally:
         server.stop()
+    result["load_average_at_end"] = os.getloadavg()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
