@@ -253,14 +253,16 @@ class Child:
                 self.proc.kill()
 
 
-def child_main(data: str, port: int) -> None:
+def child_main(data: str, port: int, touch: str) -> None:
     import uvicorn
     from tactus_memory.service.app import create_app
     from tactus_memory.service.settings import Settings
 
-    settings = Settings(data=data, port=port, log_level="warning")
+    settings = Settings(data=data, port=port, log_level="warning", touch=touch != "stand-in")
     app = create_app(settings)
     state = app.state.tactus
+    if touch == "real" and "touch" not in state.memory.senses:
+        raise SystemExit(f"--touch real: {state.touch_unavailable}")
     if "touch" not in state.memory.senses:
         state.memory.add_sense(ProjectionTouch(DIM))
         print(f"touch: stand-in projection sense ({state.touch_unavailable})", flush=True)
