@@ -526,8 +526,7 @@ class Memory(TemporalMixin):
         self._maint_thread.start()
 
     def _index_due(self) -> bool:
-        rows = sum(self._sense_counts().values())
-        return rows >= self.store.index.threshold and not self.store.has_vector_index()
+        return self.store.index_due(sum(self._sense_counts().values()))
 
     def _maintain_quietly(self) -> None:
         try:

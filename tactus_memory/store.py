@@ -224,6 +224,8 @@ class IndexConfig:
 
     #: build the ANN index once the table has this many rows (flat search below it)
     threshold: int = 50_000
+    #: build the scalar indexes (session, sense, t, id) from this many rows
+    scalar_threshold: int = 10_000
     index_type: str = "IVF_SQ"
     #: rows per IVF partition (num_partitions = rows / this)
     rows_per_partition: int = 4096
@@ -320,6 +322,7 @@ class Store:
         self._maintenance = threading.Lock()
         self._appends = 0
         self._indexed = False
+        self._scalar_indexed = False
         self._partitions: int | None = None
         self._open_existing()
 
@@ -484,6 +487,25 @@ class Store:
             self._indexed = any("vector" in ix.columns for ix in self.items.list_indices())
         return self._indexed
 
+    def has_scalar_indexes(self) -> bool:
+        if not self._scalar_indexed:
+            have = {c for ix in self.items.list_indices() for c in ix.columns}
+            self._scalar_indexed = set(self.index.scalar) <= have
+        return self._scalar_indexed
+
+    def index_due(self, rows: int) -> bool:
+        """Whether ``rows`` rows call for an index that does not exist yet."""
+        cfg = self.index
+        return (rows >= cfg.scalar_threshold and not self.has_scalar_indexes()) or (
+            rows >= cfg.threshold and not self.has_vector_index()
+        )
+
+    def build_scalar_indexes(self) -> None:
+        """BTREE/BITMAP indexes for filters, deletes and upserts (``IndexConfig.scalar``)."""
+        for column, kind in self.index.scalar.items():
+            self.items.create_index(column, config=scalar_index_config(kind), replace=True)
+        self._scalar_indexed = True
+
     def build_indexes(self) -> None:
         """Create the ANN index on ``vector`` and the scalar indexes (replacing old ones)."""
         cfg = self.index
@@ -491,8 +513,7 @@ class Store:
         parts = max(1, n // cfg.rows_per_partition)
         t0 = time.perf_counter()
         self.items.create_index("vector", config=vector_index_config(cfg, parts, self.dim()))
-        for column, kind in cfg.scalar.items():
-            self.items.create_index(column, config=scalar_index_config(kind), replace=True)
+        self.build_scalar_indexes()
         self._indexed = True
         self.set_meta("index", json.dumps({"rows": n, "type": cfg.index_type, "partitions": parts}))
         self._partitions = parts
@@ -512,6 +533,8 @@ class Store:
         try:
             cfg = self.index
             n = self.count()
+            if cfg.scalar_threshold <= n < cfg.threshold and not self.has_scalar_indexes():
+                self.build_scalar_indexes()
             if n >= cfg.threshold:
                 info = json.loads(self.get_meta("index") or "{}")
                 if not self.has_vector_index() or n >= cfg.retrain_growth * int(

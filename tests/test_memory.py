@@ -334,13 +334,15 @@ def test_background_index_and_compaction(tmp_path) -> None:
     found; compaction keeps the row count."""
     from tactus_memory.store import IndexConfig
 
-    cfg = IndexConfig(threshold=300, rows_per_partition=100, compact_every=4)
+    cfg = IndexConfig(threshold=300, scalar_threshold=150, rows_per_partition=100, compact_every=4)
     mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(), index=cfg, background=False)
     mem.add_sense(VectorSense("motion", dim=64))
     rng = np.random.default_rng(2)
     vecs = rng.standard_normal((400, 64)).astype(np.float32)
     for k in range(4):
         mem.add_many("s1", "motion", list(vecs[k * 100 : (k + 1) * 100]), t=list(range(100)))
+        if k == 1:  # 200 rows: scalar indexes yes, ANN index not yet
+            assert mem.store.has_scalar_indexes() and not mem.store.has_vector_index()
     assert mem.store.has_vector_index()
     cols = {tuple(ix.columns) for ix in mem.store.items.list_indices()}
     assert {("vector",), ("session",), ("sense",), ("t",), ("id",)} <= cols
