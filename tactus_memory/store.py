@@ -464,8 +464,8 @@ class Store:
             q = q.nprobes(min(nprobes, self.partitions()))
             if cfg.refine_factor:
                 q = q.refine_factor(cfg.refine_factor)
-            if cfg.ef:
-                q = q.ef(cfg.ef)
+            if cfg.ef:  # HNSW needs ef >= the candidates it returns
+                q = q.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
         return q.select([*columns, "_distance"]).limit(k).to_arrow()
 
     def partitions(self) -> int:
