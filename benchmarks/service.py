@@ -164,7 +164,7 @@ def build_store(path: Path, rows: int, seed: int = 0) -> dict[str, Any]:
 
     space = MiniLMSpace()
     mem = Memory.open(str(path), space=space, background=False)
-    have = len(mem)
+    have = mem.store.count("sense = 'text'")  # ingest runs add (and remove) touch rows
     if have == rows:
         return {"rows": rows, "reused": True}
     if have:
@@ -296,34 +296,40 @@ def ProjectionTouch(dim: int) -> Any:  # noqa: N802  (a factory; keeps imports l
 
 
 # ----------------------------------------------------------------------------- search
-def library_latency(path: Path, qs: list[str]) -> list[float]:
+def search_latency(path: Path, base: str, qs: list[str]) -> tuple[list[float], list[float]]:
+    """The same queries on the library (in this process) and over HTTP (the server process),
+    interleaved query by query, alternating which goes first, so both see the same machine
+    load (this box is shared); each process embeds every query itself (no shared cache)."""
+    import httpx
+
     from tactus_memory.memory import Memory
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     mem = Memory.open(str(path), space=MiniLMSpace(), background=False)
-    for q in ("warm up the model", "and the index"):
-        mem.search(q, k=K)
-    lat = []
-    for q in qs:
-        t0 = time.perf_counter()
-        mem.search(q, k=K)
-        lat.append(time.perf_counter() - t0)
-    return lat
-
-
-def http_latency(base: str, qs: list[str]) -> list[float]:
-    import httpx
-
-    lat = []
+    lib: list[float] = []
+    http: list[float] = []
     with httpx.Client(base_url=base, timeout=60) as c:
-        for q in ("warm up the model", "and the index"):
+        for q in ("warm up the model", "and the index", "and the caches"):
+            mem.search(q, k=K)
             c.get("/search", params={"q": q, "k": K}).raise_for_status()
-        for q in qs:
+
+        def on_library(q: str) -> None:
+            t0 = time.perf_counter()
+            mem.search(q, k=K)
+            lib.append(time.perf_counter() - t0)
+
+        def on_http(q: str) -> None:
             t0 = time.perf_counter()
             r = c.get("/search", params={"q": q, "k": K})
-            lat.append(time.perf_counter() - t0)
+            http.append(time.perf_counter() - t0)
             r.raise_for_status()
-    return lat
+            assert len(r.json()["hits"]) == K
+
+        for i, q in enumerate(qs):
+            first, second = (on_library, on_http) if i % 2 == 0 else (on_http, on_library)
+            first(q)
+            second(q)
+    return lib, http
 
 
 # ----------------------------------------------------------------------------- ingest
@@ -335,7 +341,18 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
     frames = [npy((500 + 200 * rng.random((32, 32))).astype(np.uint16)) for _ in range(16)]
     stats = {"sent_frames": 0, "stored": 0, "errors": 0, "lag": [], "error_samples": []}
     run_id = f"{int(time.time())}"
-    stop_at = time.monotonic() + seconds
+    # Every client connects first; the clock starts when all are ready.
+    ready = 0
+    go = asyncio.Event()
+    stop_at = float("inf")
+
+    async def arrived() -> None:
+        nonlocal ready, stop_at
+        ready += 1
+        if ready == clients + 1:
+            stop_at = time.monotonic() + seconds
+            go.set()
+        await go.wait()
 
     async def glove(i: int) -> None:
         session = f"bench-glove-{run_id}-{i}"
@@ -346,12 +363,17 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
         sent_at: dict[int, float] = {}
         async with connect(url, max_size=2**22, open_timeout=60) as ws:
             assert json.loads(await ws.recv())["type"] == "ready"
+            await arrived()
 
             async def receiver() -> None:
                 async for raw in ws:
                     msg = json.loads(raw)
                     if msg["type"] == "stored":
                         stats["stored"] += 1
+                        now = time.monotonic()
+                        stats["last_ack"] = max(stats.get("last_ack", 0.0), now)
+                        if now <= stop_at:
+                            stats["stored_during"] = stats.get("stored_during", 0) + 1
                         t_sent = sent_at.pop(msg["seq"], None)
                         if t_sent is not None:
                             stats["lag"].append(time.monotonic() - t_sent)
@@ -390,6 +412,8 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
     async def searcher() -> None:
         qs = queries(100_000, seed=7)
         async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", timeout=60) as c:
+            await c.get("/health")
+            await arrived()
             i = 0
             while time.monotonic() < stop_at:
                 t0 = time.perf_counter()
@@ -399,9 +423,8 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
                 i += 1
                 await asyncio.sleep(0.1)
 
-    t0 = time.monotonic()
     await asyncio.gather(*(glove(i) for i in range(clients)), searcher())
-    wall = time.monotonic() - t0
+    wall = time.monotonic() - (stop_at - seconds)
     return {
         "clients": clients,
         "hz": hz,
@@ -415,6 +438,9 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
         "windows_expected": stats.get("expected", 0),
         "windows_stored": stats["stored"],
         "windows_per_s": round(stats["stored"] / seconds, 1),
+        "windows_stored_while_streaming": stats.get("stored_during", 0),
+        "windows_per_s_while_streaming": round(stats.get("stored_during", 0) / seconds, 1),
+        "drain_s_after_stop": round(max(0.0, stats.get("last_ack", stop_at) - stop_at), 2),
         "errors": stats["errors"],
         "error_samples": stats["error_samples"],
         "windows_unacked_after_60s": stats.get("late_windows", 0),
@@ -478,12 +504,10 @@ def main() -> None:
         print(f"[{rows}] building/reusing store at {path}", flush=True)
         build = build_store(path, rows)
         qs = queries(args.queries, seed=rows)
-        print(f"[{rows}] library search x{len(qs)}", flush=True)
-        lib = library_latency(path, qs)
         server = Child(path, log)
         try:
-            print(f"[{rows}] HTTP search x{len(qs)}", flush=True)
-            http = http_latency(server.base, qs)
+            print(f"[{rows}] library and HTTP search x{len(qs)}, interleaved", flush=True)
+            lib, http = search_latency(path, server.base, qs)
         finally:
             server.stop()
         entry = {
@@ -494,6 +518,9 @@ def main() -> None:
             "http": summary_ms(http),
             "overhead_ratio_p50": round(pct(http, 50) / pct(lib, 50), 3),
             "overhead_ms_p50": round((pct(http, 50) - pct(lib, 50)) * 1e3, 2),
+            "overhead_ratio_per_query_median": round(
+                float(np.median(np.asarray(http) / np.asarray(lib))), 3
+            ),
             "target_p50_ms": 25.0,
             "target_ratio": 1.3,
         }
@@ -505,6 +532,7 @@ def main() -> None:
         result["touch_encoder"] = next(
             (s["provenance"] for s in httpx_senses(server.base) if s["name"] == "touch"), None
         )
+        asyncio.run(cleanup_bench_sessions(server.base))  # leftovers of an interrupted run
         print(f"ingest: {args.clients} clients x {args.hz} Hz x {args.seconds}s", flush=True)
         result["ingest"] = asyncio.run(
             ingest(server.port, args.clients, args.hz, args.seconds, args.window)
