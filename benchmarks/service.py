@@ -5,11 +5,13 @@
    and indexed (``Memory.optimize``). Then the same unique natural-language queries (so the
    MiniLM query cache never hits: the text embedding is in every measurement) are run
    (a) directly on the library, ``Memory.search(q, k=10)``, in this process, and
-   (b) over real HTTP, ``GET /search?q=...&k=10``, against ``tactus serve`` (uvicorn) in a
-   subprocess; overhead = p50(b) / p50(a).
-2. Ingest. ``--clients`` WebSocket clients stream binary ``.npy`` frames (uint16, raw units)
-   at ``--hz`` for ``--seconds`` into their own sessions (window 8, stride 8) while one client
-   searches continuously; reports stored windows/s, errors, ack lag, search latency under load.
+   (b) over real HTTP, ``GET /search?q=...&k=10``, against the service (uvicorn) in a
+   subprocess, interleaved query by query; overhead = p50(b) / p50(a).
+2. Ingest. For each ``--ingest TOUCH:CLIENTS`` run, CLIENTS WebSocket clients stream binary
+   ``.npy`` frames (uint16, raw units) at ``--hz`` for ``--seconds`` into their own sessions
+   (window 8, stride 8) while one client searches; reports stored windows/s while streaming,
+   drain time, errors, ack lag and search latency under load. ``stand-in`` uses a cheap
+   projection touch sense (measures the service), ``real`` the shipped TactusEncoder.
 
     python benchmarks/service.py --rows 10000 --seconds 5            # quick (dev)
     nice python benchmarks/service.py --rows 100000 1000000          # full
@@ -469,12 +471,14 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--window", type=int, default=8)
     ap.add_argument(
-        "--touch",
-        choices=["auto", "real", "stand-in"],
-        default="auto",
-        help="touch sense for ingest: the shipped TactusEncoder, a cheap projection stand-in, "
-        "or auto (real when it loads)",
+        "--ingest",
+        nargs="+",
+        default=["stand-in:64", "real:8"],
+        metavar="TOUCH[:CLIENTS]",
+        help="ingest runs; TOUCH: real (the shipped TactusEncoder), stand-in (a cheap "
+        "projection: measures the service, not the encoder) or auto; CLIENTS default --clients",
     )
+    ap.add_argument("--touch", default="auto", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", default="/tmp/tactus-bench-service")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "service.json"))
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -527,21 +531,26 @@ def main() -> None:
         print(json.dumps(entry), flush=True)
         result["search"].append(entry)
     path = work / f"rows-{args.rows[-1]}"
-    server = Child(path, log, args.touch)
-    try:
-        result["touch_encoder"] = next(
-            (s["provenance"] for s in httpx_senses(server.base) if s["name"] == "touch"), None
-        )
-        asyncio.run(cleanup_bench_sessions(server.base))  # leftovers of an interrupted run
-        print(f"ingest: {args.clients} clients x {args.hz} Hz x {args.seconds}s", flush=True)
-        result["ingest"] = asyncio.run(
-            ingest(server.port, args.clients, args.hz, args.seconds, args.window)
-        )
-        result["ingest"]["store_rows"] = args.rows[-1]
-        print(json.dumps(result["ingest"]), flush=True)
-        asyncio.run(cleanup_bench_sessions(server.base))
-    finally:
-        server.stop()
+    result["ingest"] = []
+    for spec in args.ingest:
+        touch, _, clients = spec.partition(":")
+        n_clients = int(clients or args.clients)
+        server = Child(path, log, touch)
+        try:
+            encoder = next(
+                (s["provenance"] for s in httpx_senses(server.base) if s["name"] == "touch"), None
+            )
+            asyncio.run(cleanup_bench_sessions(server.base))  # leftovers of an interrupted run
+            print(f"ingest [{touch}]: {n_clients} clients x {args.hz} Hz x {args.seconds}s")
+            run = asyncio.run(ingest(server.port, n_clients, args.hz, args.seconds, args.window))
+            run["touch"] = touch
+            run["touch_encoder"] = {k: encoder.get(k) for k in ("encoder", "model", "checkpoint")}
+            run["store_rows"] = args.rows[-1]
+            print(json.dumps(run), flush=True)
+            result["ingest"].append(run)
+            asyncio.run(cleanup_bench_sessions(server.base))
+        finally:
+            server.stop()
     result["load_average_at_end"] = os.getloadavg()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
