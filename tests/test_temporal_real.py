@@ -138,29 +138,38 @@ def test_real_before_after_moments_episodes(real) -> None:
     assert [e.t for e in eps] == [0.0, 10.0, 20.0, 40.0, 50.0, 55.0, 60.0, 70.0, 80.0, 95.0]
 
 
-def _stag_windows(stag_dir, k: int) -> dict[str, list[np.ndarray]]:
-    """Real raw STAG windows: k frames of distinct valid grasps (weights subset)."""
+#: idle stretches of the encoder test: one valid empty-hand grasp each (the subset has six)
+IDLE_REAL = [0.0, 20.0, 30.0, 50.0, 80.0, 95.0]
+
+
+def _stag_grasps(stag_dir, k: int) -> dict[str, list[list[np.ndarray]]]:
+    """Real raw STAG windows (weights subset, never copied here): for each of the first valid
+    grasps of an object, its first and its last k valid frames (two windows of one grasp)."""
     from tactus_memory.touch.data import load_stag
 
     d = load_stag(stag_dir / "weights_lite" / "metadata.mat")
+    grasp = d.extra["graspIndex"]
 
-    def grasps(obj: str, n: int) -> list[np.ndarray]:
+    def grasps(obj: str, n: int) -> list[list[np.ndarray]]:
         idx = np.flatnonzero((d.object_id == d.objects.index(obj)) & d.valid)
-        g = d.extra["graspIndex"][idx]
-        out = [d.pressure[idx[g == gi][:k]] for gi in np.unique(g) if (g == gi).sum() >= k]
+        out = []
+        for gi in np.unique(grasp[idx]):
+            sel = idx[grasp[idx] == gi]
+            if len(sel) >= k:
+                out.append([d.pressure[sel[:k]], d.pressure[sel[-k:]]])
         assert len(out) >= n, (obj, len(out))
         return out[:n]
 
-    empty = np.flatnonzero(d.object_id == d.objects.index("empty_hand"))
-    step = len(empty) // len(IDLE)
     return {
-        "mug": grasps("mug", 3),
+        "mug": grasps("mug", len(MUG)),
         "screwdriver": grasps("screw_driver", 1),
-        "empty": [d.pressure[empty[i * step : i * step + k]] for i in range(len(IDLE))],
+        "empty": grasps("empty_hand", len(IDLE_REAL)),
     }
 
 
 def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) -> None:
+    """The shipped TactusEncoder on real STAG grasps: two windows per grasp (t0, t0 + 1.1 s),
+    mug grasps at 10/40/70 s, a screwdriver at 55 s, six empty-hand grasps in between."""
     from tactus_memory.adapters import TactusEncoder
 
     try:
@@ -170,16 +179,33 @@ def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) ->
     mem = Memory.open(str(tmp_path / "m"), space=minilm_space)
     mem.add_sense(enc)
     add_notes(mem)
-    ids = add_touch(mem, _stag_windows(stag_dir, enc.frames))
-    # touch alone: the three mug grasps match "a mug", as three occurrences
-    touch = mem.matches("a mug", senses=["touch"])
-    assert set(ids["mug"]) <= {e.id for e in touch}
-    assert mem.count("a mug", senses=["touch"]) == 3
-    # irrelevant queries match no touch window
+    real = _stag_grasps(stag_dir, enc.frames)
+    ids: dict[str, list[str]] = {"mug": [], "screwdriver": [], "empty": []}
+    for kind, times in (("mug", MUG), ("screwdriver", [SCREW]), ("empty", IDLE_REAL)):
+        for t0, pair in zip(times, real[kind], strict=True):
+            ids[kind] += mem.add_many(
+                S, "touch", pair, t=[t0, t0 + WINDOW_S], t_end=[t0 + WINDOW_S, t0 + 2 * WINDOW_S]
+            )
+    # touch alone: the three mug grasps match object words, as three occurrences
+    for q in ["a mug", "holding a coffee mug"]:
+        occ = mem.occurrences(q, senses=["touch"])
+        assert [m.t for m in occ.moments] == MUG, q
+        assert {h.id for m in occ.moments for h in m.hits} <= set(ids["mug"])
+    assert [m.t for m in mem.occurrences("a screwdriver", senses=["touch"]).moments] == [SCREW]
+    assert mem.count("an empty hand", senses=["touch"]) == len(IDLE_REAL)
+    # irrelevant queries match no touch window (and no note)
     for q in IRRELEVANT:
         assert mem.count(q, senses=["touch"]) == 0, q
-    # a real touch window and the note written about it form one moment
+        assert mem.count(q) == 0, q
+    # a real touch window and the note written about it form one moment / one occurrence
     moments = mem.search("picked up the mug", k=3, group="moment")
     assert sorted(m.t for m in moments) == MUG
     assert all(m.senses == ["text", "touch"] for m in moments)
     assert mem.count("picked up the mug") == 3
+    last = mem.last("picked up the mug")  # the third grasp, by its window or its note
+    assert 70.0 <= last.t <= 71.5 and "text" in last.senses
+    ctx = mem.before("dropped the can", window=25.0, senses=["touch"])
+    assert [i.t for i in ctx.items] == [70.0, 71.1, 80.0, 81.1]
+    # episodes: each grasp's two windows are one episode, the gaps split the rest
+    eps = mem.timeline(S, senses=["touch"], episodes=True)
+    assert [(e.t, e.n) for e in eps] == [(t, 2) for t in sorted(MUG + [SCREW] + IDLE_REAL)]
