@@ -233,11 +233,13 @@ class IndexConfig:
     refine_factor: int | None = 5
     ef: int | None = None
     #: filtered searches allowing at most this many rows scan them exactly (no ANN)
-    flat_max: int = 10_000
+    flat_max: int = 20_000
     #: filtered ANN searches probe enough partitions to score about this many allowed rows
     min_candidates: int = 4096
     #: rebuild (retrain) the ANN index when the table has grown this many times since
     retrain_growth: float = 4.0
+    #: retrain the ANN index when incremental updates have split it into more segments
+    max_deltas: int = 8
     #: run ``optimize`` (compaction + incremental index update) after this many appends
     compact_every: int = 64
     #: versions older than this are removed by ``optimize``
@@ -487,6 +489,15 @@ class Store:
             self._indexed = any("vector" in ix.columns for ix in self.items.list_indices())
         return self._indexed
 
+    def vector_deltas(self) -> int:
+        """How many index segments the ANN index has (each ``optimize`` adds a delta for the
+        rows appended since; every search probes all of them)."""
+        for ix in self.items.list_indices():
+            if "vector" in ix.columns:
+                stats = self.items.index_stats(ix.name)
+                return int(stats.num_indices or 1) if stats is not None else 1
+        return 0
+
     def has_scalar_indexes(self) -> bool:
         if not self._scalar_indexed:
             have = {c for ix in self.items.list_indices() for c in ix.columns}
@@ -537,9 +548,8 @@ class Store:
                 self.build_scalar_indexes()
             if n >= cfg.threshold:
                 info = json.loads(self.get_meta("index") or "{}")
-                if not self.has_vector_index() or n >= cfg.retrain_growth * int(
-                    info.get("rows", n)
-                ):
+                grown = n >= cfg.retrain_growth * int(info.get("rows", n))
+                if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
                     self.build_indexes()
             self.items.optimize(cleanup_older_than=cfg.cleanup_older_than)
             self._appends = 0

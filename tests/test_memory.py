@@ -477,3 +477,23 @@ def test_grouped_search_equals_per_sense_reference(tmp_path, k: int) -> None:
         calls[-1] = unfiltered_calls
     assert 1 in calls  # the shared query sufficed (pruned or complete)...
     assert max(calls) >= 2  # ...and sometimes a sense needed its own query
+
+
+def test_index_deltas_are_bounded(tmp_path) -> None:
+    """Each optimize after appends adds an ANN index segment; past max_deltas the index is
+    retrained into one, so streaming ingest cannot degrade search without bound."""
+    from tactus_memory.store import IndexConfig
+
+    cfg = IndexConfig(threshold=200, rows_per_partition=100, compact_every=1, max_deltas=2)
+    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(), index=cfg, background=False)
+    mem.add_sense(VectorSense("motion", dim=64))
+    rng = np.random.default_rng(4)
+    mem.add_many("s1", "motion", list(rng.standard_normal((250, 64))))
+    assert mem.store.vector_deltas() == 1
+    seen = []
+    for _ in range(4):
+        mem.add_many("s1", "motion", list(rng.standard_normal((5, 64))))
+        seen.append(mem.store.vector_deltas())
+    assert max(seen) == 3 and min(seen[1:]) <= 2  # grew to 3, then was retrained
+    assert all(d <= cfg.max_deltas + 1 for d in seen)
+    assert len(mem) == 270
