@@ -1,6 +1,6 @@
 """Touch encoder CPU latency/throughput: every config, eager vs channels_last vs torch.compile.
 
-    python benchmarks/touch.py [--threads 2] [--out benchmarks/results/touch.json]
+    python benchmarks/touch.py [--threads 1 2] [--compile] [--out benchmarks/results/touch.json]
 
 Measures, per config (random weights; speed does not depend on them):
   * p50 / p90 ms per window at batch 1 (one K=8 window of 32x32 frames),
@@ -56,15 +56,14 @@ def bench_model(model: torch.nn.Module, reps1: int, reps64: int) -> dict[str, fl
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/touch.json"))
-    ap.add_argument("--no-compile", action="store_true")
+    ap.add_argument("--compile", action="store_true", help="also try torch.compile (slow)")
     args = ap.parse_args()
-    torch.set_num_threads(args.threads)
     res: dict[str, Any] = {
         "machine": {
             "cpu_count": os.cpu_count(),
-            "torch_threads": torch.get_num_threads(),
+            "torch_threads": args.threads,
             "torch": torch.__version__,
             "python": platform.python_version(),
             "loadavg_start": os.getloadavg(),
@@ -72,17 +71,30 @@ def main() -> None:
         "targets": {"b1_p50_ms_max": 5.0, "b64_windows_per_s_min": 500.0},
         "models": {},
     }
+    for threads in args.threads:
+        torch.set_num_threads(threads)
+        res["models"][f"threads={threads}"] = run_models(args, threads)
+        res["shipped_encoder"] = res.get("shipped_encoder", {})
+        res["shipped_encoder"][f"threads={threads}"] = run_shipped()
+    res["machine"]["loadavg_end"] = os.getloadavg()
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(res, indent=2) + "\n")
+    print("wrote", args.out)
+
+
+def run_models(args: argparse.Namespace, threads: int) -> dict[str, Any]:
+    out: dict[str, Any] = {}
     for name in list_models():
         big = name == "tactus-r18"
         out_dim = 2048 if big else 384
         torch.manual_seed(0)
         m = create_model(name, out_dim).eval()
         row: dict[str, Any] = {"out_dim": out_dim, "params": param_report(m)}
-        reps1, reps64 = (15, 3) if big else (60, 10)
+        reps1, reps64 = (10, 2) if big else (60, 10)
         row["eager"] = bench_model(m, reps1, reps64)
         row["channels_last"] = bench_model(m.to(memory_format=torch.channels_last), reps1, reps64)
         m = m.to(memory_format=torch.contiguous_format)
-        if not args.no_compile and not big:
+        if args.compile and not big:
             try:
                 t = time.perf_counter()
                 cm = torch.compile(m)
@@ -93,9 +105,13 @@ def main() -> None:
                 row["torch_compile"] = bench_model(cm, reps1, reps64)
             except Exception as exc:  # noqa: BLE001 - record why compile is unavailable
                 row["torch_compile"] = {"error": f"{type(exc).__name__}: {exc}"[:300]}
-        print(name, json.dumps(row), flush=True)
-        res["models"][name] = row
-    # the shipped default through the sense API (raw int16 windows, validation included)
+        print(f"threads={threads}", name, json.dumps(row), flush=True)
+        out[name] = row
+    return out
+
+
+def run_shipped() -> dict[str, Any]:
+    """The shipped default through the sense API (raw int16 windows, validation included)."""
     try:
         from tactus_memory.adapters.touch import TactusEncoder
 
@@ -105,19 +121,16 @@ def main() -> None:
         raw64 = [rng.integers(505, 700, (8, 32, 32)).astype(np.int16) for _ in range(64)]
         t1 = _time(lambda: enc.embed(raw1), 60)
         t64 = _time(lambda: enc.embed(raw64), 10, warmup=1)
-        res["shipped_encoder"] = {
+        row = {
             "model": enc.provenance()["model"],
             "checkpoint_sha256": enc.ckpt.sha256,
             "b1_p50_ms": round(1e3 * statistics.median(t1), 3),
             "b64_windows_per_s": round(64 / statistics.median(t64), 1),
         }
-        print("shipped", res["shipped_encoder"], flush=True)
+        print("shipped", row, flush=True)
+        return row
     except FileNotFoundError as exc:
-        res["shipped_encoder"] = {"error": str(exc)}
-    res["machine"]["loadavg_end"] = os.getloadavg()
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(res, indent=2) + "\n")
-    print("wrote", args.out)
+        return {"error": str(exc)}
 
 
 if __name__ == "__main__":
