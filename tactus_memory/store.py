@@ -223,14 +223,14 @@ class IndexConfig:
     """Vector/scalar index policy. Defaults chosen by ``benchmarks/memory.py`` (see README)."""
 
     #: build the ANN index once the table has this many rows (flat search below it)
-    threshold: int = 50_000
+    threshold: int = 20_000
     #: build the scalar indexes (session, sense, t, id) from this many rows
     scalar_threshold: int = 10_000
     index_type: str = "IVF_SQ"
     #: rows per IVF partition (num_partitions = rows / this)
     rows_per_partition: int = 4096
     nprobes: int = 20
-    refine_factor: int | None = 5
+    refine_factor: int | None = 2
     ef: int | None = None
     #: filtered searches allowing at most this many rows scan them exactly (no ANN)
     flat_max: int = 20_000
