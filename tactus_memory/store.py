@@ -16,6 +16,13 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
 Filters: every SQL ``WHERE`` fragment is built here, by :class:`Where`, from values that first
 pass a validator (ids and sense names by regex, numbers must be finite); string literals are
 also quote-escaped. No user string reaches LanceDB any other way.
+
+Indexes (:class:`IndexConfig`, defaults chosen with ``benchmarks/memory.py``): scalar
+BTREE/BITMAP indexes on id, session, sense, t from 10k rows; an IVF_SQ cosine index from
+20k rows (rows/4096 partitions, nprobes 20, refine 2), retrained when the table has grown
+4x or incremental updates have left more than 8 index segments. Filters allowing at most
+20k rows are answered by an exact flat scan of those rows. ``optimize`` (compaction plus
+incremental index update) runs every 64 appends; rows not yet indexed are still searched.
 """
 
 from __future__ import annotations
