@@ -479,18 +479,20 @@ class Memory(TemporalMixin):
                 "episode": pa.nulls(n, pa.int64()),
                 "created": [now] * n,
             },
-            schema=self.store.items.schema,
+            schema=self.store.schema,
         )
         with self._lock:
-            existing = 0
+            replaced: list[str] = []
             if upsert and self._counts is not None:
-                existing = self.store.count(Where().ids(id_list).sql())
+                where = Where().ids(id_list).sql()
+                replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
             self.store.write(data, upsert=upsert)
             if self._counts is not None:
-                if existing:
-                    self._counts = None  # replaced rows may change senses: recount lazily
-                else:
-                    self._counts[s.name] = self._counts.get(s.name, 0) + n
+                counts = dict(self._counts)
+                for name in replaced:  # an upsert may move an id to another sense
+                    counts[name] -= 1
+                counts[s.name] = counts.get(s.name, 0) + n
+                self._counts = counts
         self._schedule_maintenance()
         return id_list
 

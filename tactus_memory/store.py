@@ -330,6 +330,7 @@ class Store:
         self._meta: Any = None
         self._maintenance = threading.Lock()
         self._appends = 0
+        self._schema: pa.Schema | None = None
         self._indexed = False
         self._scalar_indexed = False
         self._partitions: int | None = None
@@ -355,6 +356,13 @@ class Store:
         if self._items is None:
             raise RuntimeError("store has no items table yet; call bind_space first")
         return self._items
+
+    @property
+    def schema(self) -> pa.Schema:
+        """The items table's schema (cached: reading it is a LanceDB round trip)."""
+        if self._schema is None:
+            self._schema = self.items.schema
+        return self._schema
 
     def bind_space(self, name: str, dim: int) -> None:
         """Record the space on creation; on reopen raise SpaceMismatchError if it differs."""

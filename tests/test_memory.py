@@ -497,3 +497,13 @@ def test_index_deltas_are_bounded(tmp_path) -> None:
     assert max(seen) == 3 and min(seen[1:]) <= 2  # grew to 3, then was retrained
     assert all(d <= cfg.max_deltas + 1 for d in seen)
     assert len(mem) == 270
+
+
+def test_upsert_moving_an_id_between_senses_keeps_counts(mem: Memory) -> None:
+    mem.add_sense(VectorSense("motion", dim=64))
+    mem.add("s1", "text", "a note", id="x1")
+    mem.search("note", k=1)  # counts cached
+    mem.add("s1", "motion", np.ones(64), id="x1")  # same id, now a motion row
+    assert mem._sense_counts() == {"text": 0, "motion": 1}
+    assert [s.name for s in mem.sense_info() if s.rows] == ["motion"]
+    assert mem.search("note", k=5, senses=["text"]) == []
