@@ -342,3 +342,16 @@ def test_ablation_runs_seeds_and_aggregates(tmp_path: Path):
         assert row["top1"]["n"] == 2 and row["top1"]["mean"] is not None
     assert "| no_mae |" in format_table(res)
     assert len(list((tmp_path / "abl").glob("mae_*.safetensors"))) == 2  # one per seed
+
+
+def test_leakage_check_flags_trained_on_recordings():
+    from tactus_memory.touch.evaluate import leakage_check
+
+    es = _evalset([4, 4, 4], [0, 1, 2])
+    es.fingerprint = "fp"
+    held = {"train_data_fingerprint": "fp", "train_heldout_recordings": ["rec0", "rec1", "rec2"]}
+    assert leakage_check(held, es)["status"] == "clean"
+    partly = dict(held, train_heldout_recordings=["rec0"])
+    out = leakage_check(partly, es)
+    assert out["status"] == "overlap" and out["trained_on"] == 2
+    assert leakage_check(dict(held, train_data_fingerprint="other"), es)["status"] == "unknown"

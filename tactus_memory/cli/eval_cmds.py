@@ -87,6 +87,13 @@ def run_eval(
         )
         runs.append(m)
         first = first or res
+        if m["leakage"]["status"] == "overlap":
+            typer.echo(
+                f"WARNING: {path}: {m['leakage']['trained_on']} of the "
+                f"{m['leakage']['scored_recordings']} scored recordings were in its training "
+                f"data (e.g. {m['leakage']['examples']}); these scores are not held-out",
+                err=True,
+            )
     if len(runs) == 1:
         return runs[0], first, es
     agg = aggregate_runs(runs)

@@ -252,6 +252,11 @@ class EvalSet:
     recordings: list[str]  # names indexed by recording id
     split: str  # "test" | "all" | "holdout:<spec>"
     data: list[dict[str, Any]] = field(default_factory=list)  # per-file fingerprints
+    fingerprint: str = ""  # StagData.fingerprint() of the (combined) data, as train records it
+
+    def recording_names(self) -> list[str]:
+        ids = np.unique(self.recording_id[self.members])
+        return [self.recordings[int(r)] if int(r) < len(self.recordings) else str(r) for r in ids]
 
     @property
     def n_recordings(self) -> int:
@@ -326,6 +331,7 @@ def select_eval_frames(
         recordings=list(data.recordings),
         split=label,
         data=fingerprints or [],
+        fingerprint=data.fingerprint(),
     )
 
 
@@ -673,6 +679,9 @@ def load_scorer(path: str | Path, device: str = "cpu") -> tuple[Scorer, dict[str
             "seed": ckpt.meta.get("seed"),
             "train_holdout": ckpt.meta.get("train_args", {}).get("holdout"),
             "train_data_fingerprint": ckpt.meta.get("data_fingerprint"),
+            "train_heldout_recordings": (
+                ckpt.meta.get("metrics", {}).get("heldout", {}).get("recordings_named", [])
+            ),
         }
         return tactus_scorer(ckpt, device=device), info
     from tactus_memory.touch.baseline import BASELINE_META_KEY, load_baseline
@@ -690,9 +699,31 @@ def load_scorer(path: str | Path, device: str = "cpu") -> tuple[Scorer, dict[str
             "seed": meta.get("seed"),
             "train_holdout": meta.get("holdout"),
             "train_data_fingerprint": meta.get("data_fingerprint"),
+            "train_heldout_recordings": meta.get("heldout_recordings", []),
         }
         return BaselineScorer(net, list(meta["classes"]), device=device), info
     raise InvalidInputError(f"{path}: neither a Tactus nor a baseline checkpoint")
+
+
+def leakage_check(info: dict[str, Any], es: EvalSet) -> dict[str, Any]:
+    """Were the scored recordings in the checkpoint's training data?
+
+    Decidable when the checkpoint records the fingerprint of its training data and it equals
+    the evaluated data's (same files, same order): then every scored recording that the
+    training run did not hold out was trained on. Otherwise ``unknown``.
+    """
+    names = es.recording_names()
+    train_fp = info.get("train_data_fingerprint")
+    if not train_fp or not es.fingerprint or train_fp != es.fingerprint:
+        return {"status": "unknown", "reason": "training data fingerprint differs or is absent"}
+    held = set(info.get("train_heldout_recordings") or [])
+    overlap = [n for n in names if n not in held]
+    return {
+        "status": "overlap" if overlap else "clean",
+        "scored_recordings": len(names),
+        "trained_on": len(overlap),
+        "examples": overlap[:5],
+    }
 
 
 def space_for(scorer: Scorer) -> Space | None:
@@ -724,6 +755,7 @@ def evaluate_checkpoint(
     res = evaluate_scorer(scorer, es, votes=votes, seed=seed, progress=progress)
     m = dict(res.metrics)
     m["checkpoint"] = info
+    m["leakage"] = leakage_check(info, es)
     if analysis:
         sp = space_for(scorer) if isinstance(space, str) else space
         m["analysis"] = analyse(res, scorer, space=sp)

@@ -183,6 +183,15 @@ def write_report(
             f"- checkpoint `{ck.get('path')}` sha256 `{str(ck.get('sha256'))[:16]}…` "
             f"({ck.get('kind')}, {ck.get('model')}, steps {ck.get('steps')}, seed {ck.get('seed')})"
         )
+    for r in runs:
+        lk = r.get("leakage", {})
+        if lk.get("status") == "overlap":
+            lines.append(
+                f"- **WARNING**: {lk['trained_on']} of {lk['scored_recordings']} scored "
+                "recordings were in this checkpoint's training data: not a held-out score"
+            )
+        elif lk:
+            lines.append(f"- held-out check: {lk.get('status')}")
     for d in m0.get("data", []):
         lines.append(
             f"- data `{d.get('source')}` fingerprint `{str(d.get('fingerprint'))[:16]}…` "
