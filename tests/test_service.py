@@ -667,3 +667,10 @@ def test_stream_bad_window_in_a_batch_does_not_sink_its_neighbours(client, memor
     assert sorted(m["seq"] for m in msgs if m["type"] == "stored") == [0, 1, 2, 4, 5]
     (err,) = [m for m in msgs if m["type"] == "error"]
     assert err["windows"] == [3] and "too hot" in err["error"]["detail"]
+
+
+def test_search_reports_library_time_in_server_timing(client):
+    client.post("/sessions/s/text", json={"text": "a red ball", "t": 1.0})
+    r = client.get("/search", params={"q": "red"})
+    name, _, dur = r.headers["server-timing"].partition(";dur=")
+    assert name == "library" and float(dur) > 0

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import time
 from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Response
 from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import ID_PATTERN, MemoryDep
 from tactus_memory.service.problems import problem_responses
@@ -14,6 +15,12 @@ from tactus_memory.service.touch_items import touch_item
 router = APIRouter(prefix="/search", tags=["search"])
 
 K_MAX = 1000
+
+
+def _timing(response: Response, t0: float) -> None:
+    """``Server-Timing: library;dur=<ms>``: the time spent in the library call (embedding
+    and search), so a client can tell the service's own overhead from the library's work."""
+    response.headers["Server-Timing"] = f"library;dur={(time.perf_counter() - t0) * 1e3:.3f}"
 
 
 def _out(hits: list) -> SearchOut:
@@ -34,6 +41,7 @@ def _out(hits: list) -> SearchOut:
 )
 def search(
     memory: MemoryDep,
+    response: Response,
     q: Annotated[
         str,
         Query(
@@ -55,7 +63,9 @@ def search(
     after: Annotated[float | None, Query(description="Items still going on at or after.")] = None,
     before: Annotated[float | None, Query(description="Items started at or before.")] = None,
 ) -> SearchOut:
+    t0 = time.perf_counter()
     hits = memory.search(q, k=k, senses=sense, session=session, after=after, before=before)
+    _timing(response, t0)
     return _out(hits)
 
 
@@ -70,7 +80,8 @@ def search(
     response_model=SearchOut,
     responses=problem_responses(404, 422, 503),
 )
-def search_like(body: SearchLikeIn, memory: MemoryDep) -> SearchOut:
+def search_like(body: SearchLikeIn, memory: MemoryDep, response: Response) -> SearchOut:
+    t0 = time.perf_counter()
     filters = {
         "senses": body.senses,
         "session": body.session,
@@ -84,4 +95,5 @@ def search_like(body: SearchLikeIn, memory: MemoryDep) -> SearchOut:
         hits = memory.search_like(body.sense, k=body.k, vector=body.vector, **filters)
     else:
         hits = memory.search_like(body.sense, body.text, k=body.k, **filters)
+    _timing(response, t0)
     return _out(hits)
