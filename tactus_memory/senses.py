@@ -16,7 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import CapabilityError, InvalidIdError, InvalidInputError, SenseConflictError
+from tactus_memory.errors import (
+    CapabilityError,
+    InvalidIdError,
+    InvalidInputError,
+    SenseConflictError,
+)
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
 
@@ -191,7 +196,11 @@ class VectorSense(Sense):
             raise InvalidInputError(f"dim must be a positive int, got {dim!r}")
         self.dim = dim
         self.space_name = space
-        self._provenance = {"encoder": encoder, "version": version, "checkpoint_sha256": checkpoint_sha256}
+        self._provenance = {
+            "encoder": encoder,
+            "version": version,
+            "checkpoint_sha256": checkpoint_sha256,
+        }
 
     def validate(self, item: Any) -> np.ndarray:
         return as_unit_rows(item, self.dim, what=f"{self.name} vector")[0]

@@ -9,7 +9,9 @@ from tactus_memory.errors import DimensionMismatchError, InvalidInputError
 EPS = 1e-12
 
 
-def as_unit_rows(x: np.ndarray | list, dim: int | None = None, *, what: str = "vector") -> np.ndarray:
+def as_unit_rows(
+    x: np.ndarray | list, dim: int | None = None, *, what: str = "vector"
+) -> np.ndarray:
     """Validate and L2-normalise vectors.
 
     x: (D,) or (N, D) numbers  ->  (N, D) float32, each row of unit norm.
@@ -19,7 +21,9 @@ def as_unit_rows(x: np.ndarray | list, dim: int | None = None, *, what: str = "v
     try:
         arr = np.asarray(x, dtype=np.float32)
     except (ValueError, TypeError) as exc:
-        raise InvalidInputError(f"{what} is not a numeric array (ragged or non-numeric): {exc}")
+        raise InvalidInputError(
+            f"{what} is not a numeric array (ragged or non-numeric): {exc}"
+        ) from exc
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2:
