@@ -2,7 +2,7 @@
 
 Every error response of the service is ``application/problem+json``::
 
-    {"type": "https://tactus.dev/problems/invalid-input", "title": "Invalid input",
+    {"type": "urn:tactus-memory:problem:invalid-input", "title": "Invalid input",
      "status": 422, "detail": "touch window contains NaN or inf", "instance": "/sessions/s1/touch"}
 
 Library errors (``tactus_memory.errors``) map to statuses in :data:`ERROR_STATUS`; request
@@ -27,7 +27,7 @@ from tactus_memory import errors
 log = logging.getLogger("tactus_memory.service")
 
 PROBLEM_JSON = "application/problem+json"
-TYPE_BASE = "https://tactus.dev/problems/"
+TYPE_BASE = "urn:tactus-memory:problem:"
 
 #: exception class -> (status, slug, title). The most specific class wins (MRO order).
 ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {

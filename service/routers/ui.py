@@ -18,6 +18,7 @@ from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
+from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN, MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
@@ -154,7 +155,7 @@ class RenderIn(Strict):
 async def render_touch_png(
     body: RenderIn, scale: Scale = SCALE, max_frames: MaxFrames = MAX_FRAMES
 ) -> Response:
-    window = np.asarray(body.frames, dtype=np.float32)
+    window = as_window(body.frames)
     png = await run_in_threadpool(
         draw_window_png, window, calibrated=body.calibrated, scale=scale, max_frames=max_frames
     )
