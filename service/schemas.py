@@ -7,6 +7,8 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN
 
+from tactus_memory.temporal import Moment
+
 SENSE_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
 MAX_BATCH = 4096
 
@@ -174,6 +176,11 @@ class SearchOut(BaseModel):
     )
 
     hits: list[HitOut]
+    moments: list[Moment] | None = Field(
+        None,
+        description="With group=moment: hits grouped into moments, each carrying every sense's "
+        "evidence (hits then holds each moment's best member, in moment order).",
+    )
 
 
 class SearchLikeIn(Strict):

@@ -153,3 +153,34 @@ def test_openapi_lists_the_temporal_routes(client) -> None:
     for p in ["/last", "/first", "/count", "/before", "/after", "/moments"]:
         assert p in paths
     assert "/sessions/{session}/timeline" in paths and "/sessions/{session}/clock" in paths
+
+
+def test_search_group_moment_over_http(tmp_path) -> None:
+    """GET /search?group=moment: a touch-like vector and a note at the same time form one
+    moment carrying both senses; hits hold each moment's best member."""
+    import numpy as np
+    from fastapi.testclient import TestClient
+
+    from tactus_memory import Memory, VectorSense
+    from tactus_memory.service.app import create_app
+    from tests.fakes import HashingSpace
+
+    space = HashingSpace()
+    memory = Memory.open(tmp_path / "m", space=space)
+    memory.add_sense(VectorSense("motion", dim=space.dim))
+    q = space.embed_texts(["lifting the red mug"])[0]
+    memory.add("s1", "text", "lifting the red mug", t=10.0)
+    memory.add("s1", "motion", q + 0.05 * np.ones_like(q), t=10.2, t_end=10.8)
+    memory.add("s1", "text", "wiping the table", t=50.0)
+    client = TestClient(create_app(memory=memory))
+    r = client.get("/search", params={"q": "lifting the red mug", "group": "moment", "gap": 1.0})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["moments"], body
+    first = body["moments"][0]
+    assert set(first["senses"]) == {"text", "motion"}
+    assert 9.9 < first["t"] <= 10.0 and first["t_end"] >= 10.8
+    assert body["hits"][0]["id"] == first["best"]
+    bad = client.get("/search", params={"q": "mug", "group": "episode"})
+    assert bad.status_code == 422
+    assert "group" in bad.text

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
 from tactus_memory.service.arrays import as_window
@@ -62,9 +62,25 @@ def search(
     session: Annotated[str | None, Query(pattern=ID_PATTERN, max_length=128)] = None,
     after: Annotated[float | None, Query(description="Items still going on at or after.")] = None,
     before: Annotated[float | None, Query(description="Items started at or before.")] = None,
+    group: Annotated[
+        Literal["moment"] | None,
+        Query(description="`moment`: merge hits close in time into moments across senses."),
+    ] = None,
+    gap: Annotated[
+        float | None,
+        Query(ge=0.0, le=3600.0, description="With group=moment: seconds that still join hits."),
+    ] = None,
 ) -> SearchOut:
     t0 = time.perf_counter()
-    hits = memory.search(q, k=k, senses=sense, session=session, after=after, before=before)
+    filters = {"senses": sense, "session": session, "after": after, "before": before}
+    if group == "moment":
+        moments = memory.search(q, k=k, group="moment", gap=gap, **filters)
+        _timing(response, t0)
+        best = [next(h for h in m.hits if h.id == m.best) for m in moments]
+        return SearchOut(
+            hits=[HitOut.model_validate(h, from_attributes=True) for h in best], moments=moments
+        )
+    hits = memory.search(q, k=k, **filters)
     _timing(response, t0)
     return _out(hits)
 
