@@ -127,9 +127,10 @@ def load_data(paths: Sequence[str | os.PathLike[str]]) -> Any:
 
 def prepare_data(data: Any, holdout: list[int]) -> TrainData:
     """Calibrate (STAG_GLOVE), gate the dynamic range, split off the held-out recordings."""
-    from tactus_memory.touch.data import STAG_GLOVE, check_dynamic_range
+    from tactus_memory.touch.data import STAG_GLOVE
 
-    check_dynamic_range(data.pressure, STAG_GLOVE)  # raises DynamicRangeError
+    # per source file: a badly scaled file pooled with good ones must still fail loudly
+    data.check_dynamic_range(STAG_GLOVE)  # raises DynamicRangeError naming the file
     cal = data.calibrated(STAG_GLOVE)
     held = np.isin(data.recording_id, np.asarray(holdout, dtype=np.int64))
     return TrainData(
