@@ -41,12 +41,12 @@ def pretrain_cmd(
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     _threads(threads)
-    from tactus_memory.touch.data import STAG_GLOVE, check_dynamic_range
+    from tactus_memory.touch.data import STAG_GLOVE
     from tactus_memory.touch.pretrain import PretrainConfig, pretrain
     from tactus_memory.touch.train import _resolve_device, holdout_recordings, load_data
 
     d = load_data(data)
-    check_dynamic_range(d.pressure, STAG_GLOVE)
+    d.check_dynamic_range(STAG_GLOVE)  # per source file; raises DynamicRangeError
     excl = holdout_recordings(d, holdout)
     cfg = PretrainConfig(
         model=model,
