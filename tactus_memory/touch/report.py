@@ -142,6 +142,14 @@ def write_examples(
     return rows
 
 
+def _stem(m: dict[str, Any]) -> str:
+    """The checkpoint's file stem, for table labels."""
+    path = (
+        (m.get("checkpoint") or {}).get("path") if isinstance(m.get("checkpoint"), dict) else None
+    )
+    return Path(path).stem if path else ""
+
+
 def _table_row(label: str, m: dict[str, Any], std: dict[str, Any] | None = None) -> str:
     cells = []
     for key, _ in COLUMNS:
@@ -207,7 +215,10 @@ def write_report(
     lines.append(_table_row("chance", chance))
     for c in compare:
         cr = c.get("runs") or [c]
-        label = f"{cr[0].get('model_kind', 'model')} ({len(cr)} run{'s' if len(cr) > 1 else ''})"
+        label = (
+            f"{cr[0].get('model_kind', 'model')} {_stem(cr[0])} "
+            f"({len(cr)} run{'s' if len(cr) > 1 else ''})"
+        )
         if len(cr) > 1:
             agg = c["aggregate"]
             lines.append(
@@ -234,7 +245,7 @@ def write_report(
         )
     for i, r in enumerate(runs):
         sha = str(r.get("checkpoint", {}).get("sha256"))[:8]
-        lines.append(_table_row(f"{r['model_kind']} run {i} `{sha}`", r))
+        lines.append(_table_row(f"{r['model_kind']} run {i}: {_stem(r)} `{sha}`", r))
     if len(runs) > 1:
         lines += ["", "Means ± sample standard deviation (ddof = 1) over the runs."]
 
