@@ -261,6 +261,7 @@ class Child:
 
 def child_main(data: str, port: int, touch: str) -> None:
     import uvicorn
+
     from tactus_memory.service.app import create_app
     from tactus_memory.service.settings import Settings
 

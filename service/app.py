@@ -17,6 +17,8 @@ from typing import Any
 
 from fastapi import Depends, FastAPI
 from starlette.concurrency import run_in_threadpool
+
+import tactus_memory
 from tactus_memory.service.deps import ServiceState, require_token
 from tactus_memory.service.middleware import BodyLimitMiddleware
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
@@ -32,8 +34,6 @@ from tactus_memory.service.routers import (
     ui,
 )
 from tactus_memory.service.settings import Settings
-
-import tactus_memory
 
 log = logging.getLogger("tactus_memory.service")
 

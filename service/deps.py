@@ -8,6 +8,7 @@ from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Path, Request
 from starlette.requests import HTTPConnection
+
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.settings import Settings
 from tactus_memory.service.writes import Writer

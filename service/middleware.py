@@ -13,6 +13,7 @@ import json
 
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
 from tactus_memory.service.problems import PROBLEM_JSON, problem_body
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN
 
+from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN
 from tactus_memory.temporal import Moment
 
 SENSE_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"

@@ -150,10 +150,10 @@ def _touch_sense(dim: int) -> tuple[Any, str]:
 
 def serve(data: str, port: int, token: str | None) -> None:
     import uvicorn
-    from tactus_memory.service.app import create_app
-    from tactus_memory.service.settings import Settings
 
     from tactus_memory.memory import Memory
+    from tactus_memory.service.app import create_app
+    from tactus_memory.service.settings import Settings
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     memory = Memory.open(data, space=MiniLMSpace())

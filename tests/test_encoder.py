@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from tactus_memory.adapters.touch import TactusEncoder, default_checkpoint_path
 
+from tactus_memory.adapters.touch import TactusEncoder, default_checkpoint_path
 from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
 from tactus_memory.senses import bytes_to_array
 from tactus_memory.touch.checkpoint import save_checkpoint

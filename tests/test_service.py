@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
-from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.service.app import create_app
+from tactus_memory.service.settings import Settings
 from tests.test_service_helpers import make_memory, npy_bytes, window
 
 PROBLEM = "application/problem+json"
@@ -613,10 +613,10 @@ def test_settings_from_environment(monkeypatch):
 
 
 def test_serve_command_builds_settings_and_runs_uvicorn(monkeypatch, tmp_path):
-    import tactus_memory.service.app as app_module
     import uvicorn
     from typer.testing import CliRunner
 
+    import tactus_memory.service.app as app_module
     from tactus_memory.cli import app as cli_app
 
     seen: dict[str, Any] = {}
@@ -636,7 +636,6 @@ def test_serve_command_builds_settings_and_runs_uvicorn(monkeypatch, tmp_path):
 
 def test_fresh_store_registers_default_senses_and_explains_missing_touch(tmp_path, monkeypatch):
     import tactus_memory.service.app as app_module
-
     from tests.fakes import HashingSpace
 
     monkeypatch.setattr("tactus_memory.spaces.get_space", lambda name: HashingSpace(dim=32))

@@ -11,9 +11,9 @@ import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
+
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
-
 from tests.test_service_helpers import make_memory, window
 
 _TMP = tempfile.TemporaryDirectory(prefix="tactus-schemathesis-")

@@ -7,11 +7,11 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
-from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
 
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
+from tactus_memory.service.app import create_app
+from tactus_memory.service.settings import Settings
 from tests.fakes import HashingSpace
 from tests.test_temporal import IDLE, MUG_GRASPS, NOTES, S, fill_kitchen
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
-
 from tests.test_service import assert_problem
 from tests.test_service_helpers import npy_bytes, window
 
@@ -40,7 +40,6 @@ def checkpoint(tmp_path_factory) -> Path:
 @pytest.fixture
 def client(tmp_path, checkpoint):
     from tactus_memory.adapters import TactusEncoder
-
     from tactus_memory.memory import Memory
     from tests.fakes import HashingSpace
 

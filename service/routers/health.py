@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from fastapi import APIRouter
-from tactus_memory.service.deps import StateDep
-from tactus_memory.service.schemas import HealthOut
 
 import tactus_memory
+from tactus_memory.service.deps import StateDep
+from tactus_memory.service.schemas import HealthOut
 
 router = APIRouter(tags=["health"])
 

@@ -14,12 +14,12 @@ import io
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, UploadFile
+
+from tactus_memory.errors import CapabilityError, InvalidInputError
 from tactus_memory.service.arrays import loads_strict
 from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId, WriterDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
-
-from tactus_memory.errors import CapabilityError, InvalidInputError
 
 router = APIRouter(prefix="/sessions/{session}", tags=["items"])
 

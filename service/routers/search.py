@@ -6,6 +6,7 @@ import time
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
+
 from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import ID_PATTERN, MemoryDep
 from tactus_memory.service.problems import problem_responses

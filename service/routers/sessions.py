@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter
+
 from tactus_memory.service.deps import MemoryDep, SessionId
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import DeletedOut, SessionOut, SessionsOut

@@ -11,11 +11,11 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
 from pydantic import BaseModel, ConfigDict, Field
+
+from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
 from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SENSE_PATTERN, Strict
-
-from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
 from tactus_memory.temporal import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,

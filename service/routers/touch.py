@@ -13,13 +13,13 @@ import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
+
+from tactus_memory.errors import InvalidInputError
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
 from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable, WriterDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
 from tactus_memory.service.touch_items import touch_item
-
-from tactus_memory.errors import InvalidInputError
 
 router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
 

@@ -38,12 +38,12 @@ from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+
+from tactus_memory.errors import InvalidInputError, TactusError
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.service.touch_items import touch_item
-
-from tactus_memory.errors import InvalidInputError, TactusError
 
 log = logging.getLogger("tactus_memory.service")
 

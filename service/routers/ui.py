@@ -18,12 +18,12 @@ from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
+
+from tactus_memory.errors import InvalidInputError
 from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN, MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
-
-from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.data import STAG_GLOVE, SensorProfile
 from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png
 
