@@ -344,10 +344,10 @@ def write_report(
             str(n): agg.get(f"ksweep_{n}", {}).get("mean") for n in KSWEEP
         }
     else:
-        series[m0["model_kind"]] = m0["ksweep"]
+        series[f"{m0['model_kind']} {_stem(m0)}"] = m0["ksweep"]
     for c in compare:
         cr = c.get("runs") or [c]
-        series[cr[0].get("model_kind", "compare")] = cr[0].get("ksweep", {})
+        series[f"{cr[0].get('model_kind', 'compare')} {_stem(cr[0])}"] = cr[0].get("ksweep", {})
     files.append(plot_ksweep(series, out / "ksweep.png"))
     lines += [
         "",
