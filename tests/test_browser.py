@@ -248,6 +248,8 @@ def test_keyboard_search_finds_the_note_first(page, served, tmp_path):
 def test_touch_hits_show_heat_maps(page, served, tmp_path):
     for sense in ("text", "motion"):
         page.uncheck(f"#sense-{sense}")
+    page.fill("#f-session", "kitchen-demo")  # the windows ingested with an "object" meta
+    page.uncheck("#f-group")  # plain ranked hits, whether or not they clear the match bar
     page.fill("#q", "gripping a small metal tool")
     page.click("#search-form button[type=submit]")
     page.wait_for_selector(HIT)
@@ -392,6 +394,8 @@ def test_degrades_without_moments_and_timeline_routes(browser_context, served):
     spec = httpx.get(base + "/openapi.json").json()
     for path in ("/moments", "/sessions/{session}/timeline"):
         spec["paths"].pop(path, None)
+    search = spec["paths"]["/search"]["get"]  # and no GET /search?group=moment either
+    search["parameters"] = [p for p in search["parameters"] if p["name"] not in ("group", "gap")]
     page = browser_context.new_page()
     page.set_default_timeout(TIMEOUT_MS)
     try:
