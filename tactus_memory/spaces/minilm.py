@@ -91,7 +91,9 @@ class MiniLMSpace(Space):
                 os.environ.setdefault("HF_HUB_OFFLINE", "1")
                 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
                 from sentence_transformers import SentenceTransformer
+                from transformers.utils import logging as hf_logging
 
+                hf_logging.disable_progress_bar()  # no "Loading weights" bar on every start
                 st = SentenceTransformer(str(path), device=self.device, local_files_only=True)
                 st.eval()
                 get_dim = getattr(st, "get_embedding_dimension", None)
