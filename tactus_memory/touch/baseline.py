@@ -46,7 +46,6 @@ from tqdm.auto import tqdm
 
 from tactus_memory import __version__
 from tactus_memory.touch.model import BasicBlock
-from tactus_memory.touch.tuples import TupleSampler
 
 if TYPE_CHECKING:
     from tactus_memory.touch.train import TrainData
@@ -166,17 +165,7 @@ def train_baseline(
     """
     torch.manual_seed(cfg.seed)
     net = StagCNN(len(data.classes), cfg.k, cfg.dropout).to(device)
-    sampler = TupleSampler(
-        data.calibrated,
-        data.recording_id,
-        data.train_valid,
-        anchors=data.train_anchors,
-        k=cfg.k,
-        mode=cfg.sampling,
-        seed=cfg.seed,
-    )
-    if len(sampler) == 0:
-        raise ValueError("no training tuples: no valid frames outside the held-out recordings")
+    sampler = data.train_sampler(cfg.k, cfg.sampling, cfg.seed)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     frames = torch.from_numpy(np.ascontiguousarray(data.calibrated, np.float32))
     labels = torch.from_numpy(np.asarray(data.labels, np.int64))

@@ -151,3 +151,45 @@ def load_checkpoint(path: str | os.PathLike[str], device: str = "cpu") -> Checkp
         space_name=str(meta["space"]["name"]),
     )
     return Checkpoint(model=model, meta=meta, targets=targets, sha256=file_sha256(path), path=path)
+
+
+# -- resume state (training loops) -----------------------------------------------------------
+
+
+def resume_path(out: str | Path) -> Path:
+    """Where a run writing ``out`` keeps its resume state (``<out>.resume.pt``)."""
+    out = Path(out)
+    return out.with_name(out.name + ".resume.pt")
+
+
+def save_resume(
+    path: Path,
+    *,
+    module: torch.nn.Module,
+    opt: torch.optim.Optimizer,
+    gen: torch.Generator,
+    step: int,
+    history: list[dict[str, Any]],
+    key: str = "model",
+) -> None:
+    """Module, optimizer and sampling-generator state, so ``--resume`` continues exactly."""
+    state = {"opt": opt.state_dict(), "gen": gen.get_state(), "step": step, "history": history}
+    state[key] = module.state_dict()
+    torch.save(state, path)
+
+
+def load_resume(
+    path: Path,
+    *,
+    module: torch.nn.Module,
+    opt: torch.optim.Optimizer,
+    gen: torch.Generator,
+    device: str = "cpu",
+    key: str = "model",
+) -> tuple[int, list[dict[str, Any]]]:
+    """Restore what :func:`save_resume` wrote; returns (step, history)."""
+    st = torch.load(path, map_location=device, weights_only=True)
+    module.load_state_dict(st[key])
+    opt.load_state_dict(st["opt"])
+    gen.set_state(st["gen"])
+    return int(st["step"]), list(st["history"])

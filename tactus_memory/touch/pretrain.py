@@ -39,6 +39,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from tactus_memory import __version__
+from tactus_memory.touch.checkpoint import load_resume, resume_path, save_resume
 from tactus_memory.touch.model import FRAME_SIZE, TactusConfig, Trunk, get_config
 
 log = logging.getLogger(__name__)
@@ -182,14 +183,12 @@ def pretrain(
     opt = torch.optim.AdamW(mae.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     gen = torch.Generator().manual_seed(cfg.seed)
     out = Path(out)
-    state_path = out.with_name(out.name + ".resume.pt")
+    state_path = resume_path(out)
     step, history = 0, []
     if resume and state_path.exists():
-        st = torch.load(state_path, map_location=device, weights_only=True)
-        mae.load_state_dict(st["mae"])
-        opt.load_state_dict(st["opt"])
-        gen.set_state(st["gen"])
-        step, history = int(st["step"]), list(st["history"])
+        step, history = load_resume(
+            state_path, module=mae, opt=opt, gen=gen, device=device, key="mae"
+        )
         log.info("resumed MAE pretraining at step %d", step)
     mae.train()
     t0, ema, ema_base = time.perf_counter(), None, None
@@ -225,15 +224,8 @@ def pretrain(
         bar.set_postfix(loss=f"{ema:.3f}", ratio=f"{ratio:.2f}")
         bar.update(1)
         if step % cfg.save_every == 0 or step == cfg.steps:
-            torch.save(
-                {
-                    "mae": mae.state_dict(),
-                    "opt": opt.state_dict(),
-                    "gen": gen.get_state(),
-                    "step": step,
-                    "history": history,
-                },
-                state_path,
+            save_resume(
+                state_path, module=mae, opt=opt, gen=gen, step=step, history=history, key="mae"
             )
     bar.close()
     wall = time.perf_counter() - t0

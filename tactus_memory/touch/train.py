@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from tactus_memory.touch.augment import AugmentConfig, augment
-from tactus_memory.touch.checkpoint import save_checkpoint
+from tactus_memory.touch.checkpoint import load_resume, resume_path, save_checkpoint, save_resume
 from tactus_memory.touch.model import TactusModel, create_model, param_report
 from tactus_memory.touch.pretrain import load_pretrained_trunk, lr_at
 from tactus_memory.touch.targets import Targets, target_report
@@ -76,6 +76,21 @@ class TrainData:
     calibration: dict[str, Any] = field(default_factory=dict)
     heldout_recordings: list[str] = field(default_factory=list)  # names, for the report
     train_anchors: np.ndarray | None = None  # (N,) bool, default: train_valid
+
+    def train_sampler(self, k: int, mode: str, seed: int) -> Any:
+        """The TupleSampler over the training frames (held-out recordings never appear)."""
+        sampler = TupleSampler(
+            self.calibrated,
+            self.recording_id,
+            self.train_valid,
+            anchors=self.train_anchors,
+            k=k,
+            mode=mode,
+            seed=seed,
+        )
+        if len(sampler) == 0:
+            raise ValueError("no training tuples: no valid frames outside the held-out recordings")
+        return sampler
 
 
 # -- data -----------------------------------------------------------------------------------
@@ -274,30 +289,16 @@ def fit(
     )
     tgt = torch.from_numpy(np.ascontiguousarray(targets.centred, np.float32)).to(device)
 
-    sampler = TupleSampler(
-        data.calibrated,
-        data.recording_id,
-        data.train_valid,
-        anchors=data.train_anchors,
-        k=cfg.k,
-        mode=cfg.sampling,
-        seed=cfg.seed,
-    )
-    if len(sampler) == 0:
-        raise ValueError("no training tuples: no valid frames outside the held-out recordings")
+    sampler = data.train_sampler(cfg.k, cfg.sampling, cfg.seed)
     frames = torch.from_numpy(np.ascontiguousarray(data.calibrated, np.float32))
     labels = torch.from_numpy(data.labels)
     gen = torch.Generator().manual_seed(cfg.seed * 1000 + rank)
 
     out = Path(out)
-    state_path = out.with_name(out.name + ".resume.pt")
+    state_path = resume_path(out)
     step, history = 0, []
     if resume and state_path.exists():
-        st = torch.load(state_path, map_location=device, weights_only=True)
-        model.load_state_dict(st["model"])
-        opt.load_state_dict(st["opt"])
-        gen.set_state(st["gen"])
-        step, history = int(st["step"]), list(st["history"])
+        step, history = load_resume(state_path, module=model, opt=opt, gen=gen, device=device)
         log.info("resumed training at step %d", step)
 
     tuples, epoch = None, -1
@@ -333,16 +334,7 @@ def fit(
         bar.set_postfix(loss=f"{ema_loss:.3f}", acc=f"{ema_acc:.2f}")
         bar.update(1)
         if rank == 0 and (step % cfg.save_every == 0 or step == cfg.steps):
-            torch.save(
-                {
-                    "model": model.state_dict(),
-                    "opt": opt.state_dict(),
-                    "gen": gen.get_state(),
-                    "step": step,
-                    "history": history,
-                },
-                state_path,
-            )
+            save_resume(state_path, module=model, opt=opt, gen=gen, step=step, history=history)
     bar.close()
     wall = time.perf_counter() - t0
     summary: dict[str, Any] = {
