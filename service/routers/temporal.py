@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Depends, Query
 from pydantic import BaseModel, ConfigDict, Field
 
 from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
@@ -113,8 +113,34 @@ class SegmentOut(BaseModel):
     episodes: int = Field(description="Episodes written.")
 
 
-def _filters(**kw: Any) -> dict[str, Any]:
-    return kw
+class MatchFilters:
+    """The query parameters every temporal question shares (one dependency, one place)."""
+
+    def __init__(
+        self,
+        sense: Senses = None,
+        session: SessionQ = None,
+        source: SourceQ = None,
+        after: After = None,
+        before: Before = None,
+        threshold: Threshold = None,
+        relative: Relative = RELATIVE_KEEP,
+    ) -> None:
+        self.scope = {
+            "senses": sense,
+            "session": session,
+            "source": source,
+            "after": after,
+            "before": before,
+        }
+        self.match = {"threshold": threshold, "relative": relative}
+
+    def kw(self) -> dict[str, Any]:
+        """Keyword arguments for the library call: scope filters and the match bar."""
+        return {**self.scope, **self.match}
+
+
+Filters = Annotated[MatchFilters, Depends()]
 
 
 @router.get(
@@ -126,20 +152,9 @@ def _filters(**kw: Any) -> dict[str, Any]:
     responses=ERRORS,
 )
 def last(
-    memory: MemoryDep,
-    q: Query_,
-    sense: Senses = None,
-    session: SessionQ = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
-    threshold: Threshold = None,
-    relative: Relative = RELATIVE_KEEP,
-    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
+    memory: MemoryDep, q: Query_, f: Filters, merge_gap: MergeGap = DEFAULT_MERGE_GAP
 ) -> MomentOut:
-    f = _filters(senses=sense, session=session, source=source, after=after, before=before)
-    m = memory.last(q, threshold=threshold, relative=relative, merge_gap=merge_gap, **f)
-    return MomentOut(moment=m)
+    return MomentOut(moment=memory.last(q, merge_gap=merge_gap, **f.kw()))
 
 
 @router.get(
@@ -149,20 +164,9 @@ def last(
     responses=ERRORS,
 )
 def first(
-    memory: MemoryDep,
-    q: Query_,
-    sense: Senses = None,
-    session: SessionQ = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
-    threshold: Threshold = None,
-    relative: Relative = RELATIVE_KEEP,
-    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
+    memory: MemoryDep, q: Query_, f: Filters, merge_gap: MergeGap = DEFAULT_MERGE_GAP
 ) -> MomentOut:
-    f = _filters(senses=sense, session=session, source=source, after=after, before=before)
-    m = memory.first(q, threshold=threshold, relative=relative, merge_gap=merge_gap, **f)
-    return MomentOut(moment=m)
+    return MomentOut(moment=memory.first(q, merge_gap=merge_gap, **f.kw()))
 
 
 @router.get(
@@ -176,22 +180,13 @@ def first(
 def count(
     memory: MemoryDep,
     q: Query_,
-    sense: Senses = None,
-    session: SessionQ = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
-    threshold: Threshold = None,
-    relative: Relative = RELATIVE_KEEP,
+    f: Filters,
     merge_gap: MergeGap = DEFAULT_MERGE_GAP,
     per_stream: Annotated[
         bool, Query(description="Merge only within one stream (session + sense + source).")
     ] = False,
 ) -> Occurrences:
-    f = _filters(senses=sense, session=session, source=source, after=after, before=before)
-    return memory.occurrences(
-        q, threshold=threshold, relative=relative, merge_gap=merge_gap, per_stream=per_stream, **f
-    )
+    return memory.occurrences(q, merge_gap=merge_gap, per_stream=per_stream, **f.kw())
 
 
 def _context(side: str, window: float, ctx: Any) -> ContextOut:
@@ -224,20 +219,11 @@ AnchorSenses = Annotated[
 def before_anchor(
     memory: MemoryDep,
     anchor: Anchor,
+    f: Filters,
     window: Window = DEFAULT_WINDOW,
-    sense: Senses = None,
     anchor_sense: AnchorSenses = None,
-    session: SessionQ = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
-    threshold: Threshold = None,
-    relative: Relative = RELATIVE_KEEP,
 ) -> ContextOut:
-    ctx = memory.before(
-        anchor, window, senses=sense, anchor_senses=anchor_sense, session=session,
-        source=source, after=after, before=before, threshold=threshold, relative=relative,
-    )  # fmt: skip
+    ctx = memory.before(anchor, window, anchor_senses=anchor_sense, **f.kw())
     return _context("before", window, ctx)
 
 
@@ -252,20 +238,11 @@ def before_anchor(
 def after_anchor(
     memory: MemoryDep,
     anchor: Anchor,
+    f: Filters,
     window: Window = DEFAULT_WINDOW,
-    sense: Senses = None,
     anchor_sense: AnchorSenses = None,
-    session: SessionQ = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
-    threshold: Threshold = None,
-    relative: Relative = RELATIVE_KEEP,
 ) -> ContextOut:
-    ctx = memory.after(
-        anchor, window, senses=sense, anchor_senses=anchor_sense, session=session,
-        source=source, after=after, before=before, threshold=threshold, relative=relative,
-    )  # fmt: skip
+    ctx = memory.after(anchor, window, anchor_senses=anchor_sense, **f.kw())
     return _context("after", window, ctx)
 
 
@@ -281,17 +258,11 @@ def after_anchor(
 def moments(
     memory: MemoryDep,
     q: Query_,
+    f: Filters,
     k: Annotated[int, Query(ge=1, le=K_MAX, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
-    sense: Senses = None,
-    session: SessionQ = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
-    threshold: Threshold = None,
 ) -> MomentsOut:
-    f = _filters(senses=sense, session=session, source=source, after=after, before=before)
-    return MomentsOut(moments=memory.search_moments(q, k, gap=gap, threshold=threshold, **f))
+    return MomentsOut(moments=memory.search_moments(q, k, gap=gap, **f.kw()))
 
 
 @router.get(
