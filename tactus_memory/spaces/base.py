@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import CapabilityError
+from tactus_memory.errors import CapabilityError, InvalidInputError
 
 
 class Space(ABC):
@@ -38,3 +38,14 @@ class Space(ABC):
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "dim": self.dim, "has_vision": self.has_vision}
+
+
+def check_texts(texts: Sequence[str]) -> list[str]:
+    """The input check every space's ``embed_texts`` shares: a sequence of strings (not one)."""
+    if isinstance(texts, str):
+        raise InvalidInputError("embed_texts takes a sequence of strings, not one string")
+    items = list(texts)
+    for t in items:
+        if not isinstance(t, str):
+            raise InvalidInputError(f"embed_texts takes strings, got {type(t).__name__}")
+    return items

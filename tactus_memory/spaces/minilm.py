@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.spaces.base import Space
+from tactus_memory.spaces.base import Space, check_texts
 from tactus_memory.vectors import as_unit_rows
 
 MINILM_NAME = "minilm-l6"
@@ -128,12 +128,7 @@ class MiniLMSpace(Space):
 
     def embed_texts(self, texts: Sequence[str], *, query: bool = False) -> np.ndarray:
         """texts: N strings -> (N, 384) float32, L2-normalised. ``query`` only toggles caching."""
-        if isinstance(texts, str):
-            raise InvalidInputError("embed_texts takes a sequence of strings, not one string")
-        items = list(texts)
-        for t in items:
-            if not isinstance(t, str):
-                raise InvalidInputError(f"embed_texts takes strings, got {type(t).__name__}")
+        items = check_texts(texts)
         if not items:
             return np.zeros((0, self.dim), dtype=np.float32)
         if not query or self.cache_size <= 0:

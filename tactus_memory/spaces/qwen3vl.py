@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import CapabilityError, InvalidInputError
-from tactus_memory.spaces.base import Space
+from tactus_memory.spaces.base import Space, check_texts
 from tactus_memory.vectors import as_unit_rows
 
 QWEN3VL_NAME = "qwen3-vl-embedding-2b"
@@ -307,12 +307,7 @@ class Qwen3VLSpace(Space):
 
     def embed_texts(self, texts: Sequence[str], *, query: bool = False) -> np.ndarray:
         """texts: N strings -> (N, dim) float32, unit rows. Query vs document instruction."""
-        if isinstance(texts, str):
-            raise InvalidInputError("embed_texts takes a sequence of strings, not one string")
-        items = list(texts)
-        for t in items:
-            if not isinstance(t, str):
-                raise InvalidInputError(f"embed_texts takes strings, got {type(t).__name__}")
+        items = check_texts(texts)
         if not items:
             return np.zeros((0, self.dim), dtype=np.float32)
         self._load()
