@@ -22,13 +22,13 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
-import httpx
 import numpy as np
 import pytest
+
+from tests.servers import wait_healthy
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = os.environ.get("TACTUS_CHROMIUM", "/usr/bin/chromium")
@@ -102,18 +102,7 @@ class Server:
         self.proc = subprocess.Popen(
             cmd, cwd=ROOT, stdout=log.open("ab"), stderr=subprocess.STDOUT, env=env
         )
-        deadline = time.monotonic() + STARTUP_S
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                pytest.fail(f"server exited ({self.proc.returncode}):\n{self.tail()}")
-            try:
-                if httpx.get(self.base + "/health", timeout=2).status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.3)
-        self.stop()
-        pytest.fail(f"server did not start in {STARTUP_S}s:\n{self.tail()}")
+        wait_healthy(self.proc, self.base, STARTUP_S, self.tail, self.stop)
 
     @property
     def touch_encoder(self) -> str:

@@ -11,12 +11,12 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import httpx
 import pytest
 
+from tests.servers import wait_healthy
 from tests.test_service_helpers import window
 
 pytestmark = pytest.mark.slow
@@ -50,18 +50,7 @@ class Server:
         ]
         env = {**os.environ, "TACTUS_LOG_LEVEL": "warning", "OMP_NUM_THREADS": "1"}
         self.proc = subprocess.Popen(cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT, env=env)
-        deadline = time.monotonic() + STARTUP_S
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                pytest.fail(f"server exited ({self.proc.returncode}):\n{log.read_text()[-3000:]}")
-            try:
-                if httpx.get(self.base + "/health", timeout=2).status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.3)
-        self.kill()
-        pytest.fail(f"server did not start in {STARTUP_S}s:\n{log.read_text()[-3000:]}")
+        wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.kill)
 
     def kill(self) -> None:
         if self.proc.poll() is None:
