@@ -33,7 +33,6 @@ import math
 import re
 import time
 import uuid
-from collections import deque
 from typing import Any
 
 import numpy as np
@@ -44,6 +43,7 @@ from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.service.touch_items import touch_item
+from tactus_memory.touch.windows import WindowStream
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -101,33 +101,6 @@ class StreamParams:
         return value
 
 
-class Windower:
-    """Frames in, (window, t, t_end) out: K frames per window, a new window every S frames."""
-
-    def __init__(self, window: int, stride: int) -> None:
-        self.k = window
-        self.stride = stride
-        self.frames: deque[np.ndarray] = deque()
-        self.times: deque[float] = deque()
-        self.skip = 0
-
-    def push(self, frame: np.ndarray, t: float) -> tuple[np.ndarray, float, float] | None:
-        if self.skip:
-            self.skip -= 1
-            return None
-        self.frames.append(frame)
-        self.times.append(t)
-        if len(self.frames) < self.k:
-            return None
-        out = (np.stack(self.frames), self.times[0], self.times[-1])
-        drop = min(self.stride, self.k)
-        for _ in range(drop):
-            self.frames.popleft()
-            self.times.popleft()
-        self.skip = self.stride - drop
-        return out
-
-
 def _frame_time(obj: Any, index: int) -> float:
     if "t" not in obj:
         raise InvalidInputError(f"frame message {index} has no 't'")
@@ -182,7 +155,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
         return
 
     stream_id = "ws-" + uuid.uuid4().hex[:16]
-    windower = Windower(params.window, params.stride)
+    windower = WindowStream(params.window, params.stride)  # the library's stream windowing
     queue: asyncio.Queue[tuple[int, Any, float, float] | None] = asyncio.Queue(QUEUE_WINDOWS)
     await send(
         {
@@ -262,19 +235,17 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
                 continue
             for frame, t in frames:
                 frame_index += 1
-                out = windower.push(frame, t)
-                if out is None:
-                    continue
-                win, t_first, t_last = out
-                try:  # the sense's own checks (range, calibration), before queueing
-                    item = touch_item(memory, "touch", win, params.calibrated)
-                except TactusError as exc:
-                    await send(
-                        {"type": "error", "error": problem_for_exception(exc), "windows": [seq]}
-                    )
-                else:
-                    await queue.put((seq, item, t_first, t_last))
-                seq += 1
+                done = windower.push(frame, [t])
+                for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
+                    try:  # the sense's own checks (range, calibration), before queueing
+                        item = touch_item(memory, "touch", win, params.calibrated)
+                    except TactusError as exc:
+                        await send(
+                            {"type": "error", "error": problem_for_exception(exc), "windows": [seq]}
+                        )
+                    else:
+                        await queue.put((seq, item, float(t_first), float(t_last)))
+                    seq += 1
             if writer_task.done():
                 break
     except WebSocketDisconnect:
