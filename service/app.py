@@ -25,6 +25,7 @@ from tactus_memory.service.problems import install_problem_handlers, problem_res
 from tactus_memory.service.routers import (
     health,
     items,
+    recordings,
     search,
     senses,
     sessions,
@@ -115,7 +116,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, search, items, touch, ui):
+    for module in (sessions, senses, search, items, touch, ui, recordings):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)

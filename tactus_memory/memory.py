@@ -861,6 +861,21 @@ class Memory(TemporalMixin):
     def __repr__(self) -> str:
         return f"Memory({self.store.uri!r}, space={self.space.name!r}, senses={sorted(self._live)})"
 
+    # ----------------------------------------------------------- recordings
+    def ingest_recording(
+        self, path: Any, *, session: str, topics: dict[str, str], **kw: Any
+    ) -> Any:
+        """MCAP files / ROS 2 bags in: :func:`tactus_memory.recordings.ingest_recording`."""
+        from tactus_memory.recordings import ingest_recording
+
+        return ingest_recording(self, path, session=session, topics=topics, **kw)
+
+    def export_rerun(self, session: str, path: Any, **kw: Any) -> Any:
+        """A session to a Rerun ``.rrd``: :func:`tactus_memory.recordings.export_rerun`."""
+        from tactus_memory.recordings import export_rerun
+
+        return export_rerun(self, session, path, **kw)
+
 
 def _hit(row: dict[str, Any], score: float, cos: float) -> Hit:
     return Hit(

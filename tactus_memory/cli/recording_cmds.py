@@ -1,0 +1,157 @@
+"""``tactus ingest`` (MCAP files, ROS 2 bags -> a session) and ``tactus export rerun``.
+
+    tactus ingest run1.mcap --list
+    tactus ingest run1.mcap --session run1 --topic /notes=text --topic /glove/pressure=touch
+    tactus export rerun run1 --out run1.rrd --query "holding a mug"
+
+The memory is ``--data`` (else $TACTUS_DATA, else ./memory; created when missing). Senses a
+topic maps to are registered like ``tactus serve`` does: touch with the shipped checkpoint,
+image when the space has vision.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from tactus_memory.cli.app import app
+from tactus_memory.cli.memory_cmds import DATA_HELP, _data_dir, _fail, _print_json
+
+if TYPE_CHECKING:
+    from tactus_memory.memory import Memory
+
+export_app = typer.Typer(help="Export a session to a viewer's format.", no_args_is_help=True)
+app.add_typer(export_app, name="export")
+
+
+def _memory_for(data: str | None, senses: set[str]) -> Memory:
+    from tactus_memory.memory import Memory
+
+    memory = Memory.open(_data_dir(data))
+    if "touch" in senses and "touch" not in memory.senses:
+        from tactus_memory.adapters import TactusEncoder
+
+        memory.add_sense(TactusEncoder())
+    if (
+        "image" in senses
+        and "image" not in memory.senses
+        and getattr(memory.space, "has_vision", False)
+    ):
+        from tactus_memory.senses import ImageSense
+
+        memory.add_sense(ImageSense(memory.space))
+    return memory
+
+
+@app.command("ingest")
+def ingest(
+    files: Annotated[
+        list[Path], typer.Argument(help="MCAP files and/or ROS 2 bag folders.", exists=True)
+    ],
+    session: Annotated[str | None, typer.Option("--session", help="Session id to fill.")] = None,
+    topic: Annotated[
+        list[str] | None,
+        typer.Option("--topic", help="TOPIC=SENSE, repeatable (e.g. /glove/pressure=touch)."),
+    ] = None,
+    data: Annotated[str | None, typer.Option("--data", help=DATA_HELP)] = None,
+    absolute: Annotated[
+        bool, typer.Option("--absolute", help="Unix times instead of the session clock.")
+    ] = False,
+    list_only: Annotated[
+        bool, typer.Option("--list", help="Print topics, types, counts, default senses.")
+    ] = False,
+    window: Annotated[
+        int | None, typer.Option(min=1, max=512, help="Touch frames per window (default K).")
+    ] = None,
+    stride: Annotated[
+        int | None, typer.Option(min=1, max=512, help="Frames between window starts.")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Ingest ROS 2 bags / MCAP files: text (std_msgs/String), touch (mono16/16UC1/mono8/32FC1
+    Images, Int16/Float32MultiArray), images (rgb8/bgr8, CompressedImage). Safe to re-run."""
+    from tactus_memory.errors import TactusError
+    from tactus_memory.recordings import ingest_recording, list_topics, parse_topic_map
+
+    try:
+        if list_only:
+            rows = list_topics(files)
+            if as_json:
+                _print_json([r.model_dump() for r in rows])
+                return
+            from rich.console import Console
+            from rich.table import Table
+
+            table = Table(title="topics")
+            for col in ("file", "topic", "type", "count", "sense"):
+                table.add_column(col)
+            for r in rows:
+                table.add_row(r.file, r.topic, r.type, str(r.count), r.sense or "-")
+            Console().print(table)
+            return
+        if not session:
+            _fail("--session is required (or --list to see the topics)")
+            return
+        if not topic:
+            _fail("map topics with --topic TOPIC=SENSE (see --list for the topics)")
+            return
+        topics = parse_topic_map(topic)
+        memory = _memory_for(data, set(topics.values()))
+        summary = ingest_recording(
+            memory,
+            files,
+            session=session,
+            topics=topics,
+            absolute=absolute,
+            window=window,
+            stride=stride,
+            progress=not as_json,
+        )
+    except (TactusError, ImportError) as exc:
+        _fail(str(exc))
+        return
+    if as_json:
+        _print_json(summary.model_dump())
+        return
+    rows_txt = ", ".join(f"{k}: {v}" for k, v in sorted(summary.rows.items())) or "none"
+    typer.echo(
+        f"session {summary.session}: {summary.messages} messages, new rows {rows_txt}, "
+        f"already present {summary.existing} ({summary.messages_per_s:.0f} msg/s, "
+        f"{summary.rows_per_s:.1f} rows/s)"
+    )
+    for reason, n in sorted(summary.skipped.items()):
+        typer.echo(f"  skipped {n}: {reason}")
+
+
+@export_app.command("rerun")
+def export_rerun_cmd(
+    session: Annotated[str, typer.Argument(help="Session id.")],
+    out: Annotated[Path, typer.Option("--out", help="The .rrd file to write.")],
+    query: Annotated[
+        str | None, typer.Option("--query", help="Annotate the moments of this query.")
+    ] = None,
+    data: Annotated[str | None, typer.Option("--data", help=DATA_HELP)] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Write a session as a Rerun recording: touch heat maps, notes, query moments."""
+    from tactus_memory.errors import TactusError
+    from tactus_memory.memory import Memory
+
+    location = _data_dir(data)
+    if "://" not in location and not Path(location).is_dir():
+        _fail(f"no memory at {location!r} (set --data or TACTUS_DATA)")
+    try:
+        summary = Memory.open(location).export_rerun(session, out, query=query)
+    except (TactusError, ImportError) as exc:
+        _fail(str(exc))
+        return
+    if as_json:
+        _print_json(summary.model_dump())
+        return
+    typer.echo(
+        f"wrote {summary.path}: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(summary.entities.items()))
+        + f"; {summary.moments} moments"
+    )

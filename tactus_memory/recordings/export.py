@@ -1,0 +1,112 @@
+"""Export a session to a Rerun recording (``.rrd``), to open in the Rerun viewer.
+
+On the timeline ``session_time`` (the session clock, aligned with the memory's clock
+offsets), one entity per stream:
+
+* ``touch/<source>``: each touch window as a heat-map image of its K frames side by side,
+  drawn by :func:`tactus_memory.touch.render.window_rgba` (the page's renderer and colour
+  scale; non-taxel pixels transparent), logged at the window's start;
+* ``text/<source>``: notes as text logs;
+* ``image/<source>``: stored camera images, when the image sense kept the pixels;
+* ``moments/query``: with ``query``, each moment of that query (``Memory.search_moments``) as
+  a text-log annotation at the moment's start (level WARN, with its score and senses) and
+  ``moments/score`` as a scalar that is the moment's score over its span and 0 outside.
+
+``rerun-sdk`` is imported lazily (``pip install 'tactus-memory[recordings]'``).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from pydantic import BaseModel
+
+from tactus_memory.senses import bytes_to_array
+from tactus_memory.store import Where, validate_id
+
+if TYPE_CHECKING:
+    from tactus_memory.memory import Memory
+
+TIMELINE = "session_time"
+APPLICATION_ID = "tactus-memory"
+SCAN_COLUMNS = ("id", "sense", "raw", "text", "source")
+#: moments of a query exported with --query
+MOMENTS_K = 20
+
+
+class ExportSummary(BaseModel):
+    session: str
+    path: str
+    entities: dict[str, int]  # entity path -> rows logged
+    moments: int
+
+
+def _entity(part: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", part) or "default"
+
+
+def export_rerun(
+    memory: Memory,
+    session: str,
+    path: str | Path,
+    *,
+    query: str | None = None,
+    moments: int = MOMENTS_K,
+) -> ExportSummary:
+    """Write ``session`` to ``path`` (``.rrd``); NotFoundError for an unknown session."""
+    try:
+        import rerun as rr
+    except ImportError as exc:
+        raise ImportError(
+            f"exporting to Rerun needs rerun-sdk ({exc}); pip install 'tactus-memory[recordings]'"
+        ) from exc
+    from tactus_memory.touch.render import window_rgba
+
+    session = validate_id(session, "session id")
+    items = memory.timeline(session)  # NotFoundError for an unknown session; aligned times
+    modality = {s.name: s.modality for s in memory.sense_info()}
+    found = memory.search_moments(query, k=moments, session=session) if query else []
+    table = memory.store.scan(Where().session(session).sql(), list(SCAN_COLUMNS))
+    raw = dict(zip(table.column("id").to_pylist(), table.column("raw").to_pylist(), strict=True))
+
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"{session}")
+    rec.save(str(out))
+    counts: dict[str, int] = {}
+
+    def log(entity: str, t: float, value: Any) -> None:
+        rec.set_time(TIMELINE, duration=float(t))
+        rec.log(entity, value)
+        counts[entity] = counts.get(entity, 0) + 1
+
+    try:
+        for it in items:
+            kind = modality.get(it.sense, "")
+            stream = _entity(it.source or it.sense)
+            if kind == "touch" and raw.get(it.id) is not None:
+                window = bytes_to_array(raw[it.id]).astype(np.float32)  # (K, 32, 32)
+                log(f"touch/{stream}", it.t_aligned, rr.Image(window_rgba(window)))
+            elif kind == "text" or (it.text is not None and kind != "image"):
+                log(f"text/{stream}", it.t_aligned, rr.TextLog(it.text or "", level="INFO"))
+            elif kind == "image" and raw.get(it.id) is not None:
+                log(f"image/{stream}", it.t_aligned, rr.Image(bytes_to_array(raw[it.id])))
+        for m in found:
+            label = (
+                f"{query!r}: score {m.score:.2f}, {m.t:.2f}-{m.t_end:.2f} s, "
+                f"senses {', '.join(m.senses)}"
+            )
+            log("moments/query", m.t, rr.TextLog(label, level="WARN"))
+            log("moments/score", max(m.t - 1e-3, 0.0), rr.Scalars(0.0))
+            log("moments/score", m.t, rr.Scalars(float(m.score)))
+            log("moments/score", m.t_end, rr.Scalars(float(m.score)))
+            log("moments/score", m.t_end + 1e-3, rr.Scalars(0.0))
+        if found:
+            rec.log("moments/query_text", rr.TextDocument(f"query: {query}"), static=True)
+    finally:
+        rec.flush()
+        rec.disconnect()
+    return ExportSummary(session=session, path=str(out), entities=counts, moments=len(found))

@@ -1,0 +1,399 @@
+"""Ingest ROS 2 bags and MCAP files into a memory: topics -> senses, messages -> items.
+
+``ingest_recording(memory, paths, session=..., topics={"/notes": "text", "/glove": "touch"})``
+
+* **Times**: a message's header stamp when set, else its log time; on the session clock
+  (seconds from the earliest first message of the mapped topics, over all the files of the
+  call) unless ``absolute=True`` (unix seconds). Touch frames are cut into windows by the
+  library's stream windowing (:func:`tactus_memory.touch.windows.cut_windows`); a window spans
+  its first to its last frame.
+* **Safe to run twice**: every item's id is a digest of (session, file digest, topic,
+  timestamp, index), items are committed in batches, and a batch's ids already in the memory
+  are skipped before embedding. A second ingest of the same file adds nothing; an
+  interrupted one picks up where its last commit ended.
+* ``source`` = the topic as an id (``/glove/left`` -> ``glove.left``, ROS names have no dots);
+  ``meta`` = ``{"topic", "type", "recording"}``.
+* Images go to the sense mapped (``image``); when that sense is not registered because the
+  space has no vision they are counted as skipped with that reason. Windows or notes a sense
+  refuses (e.g. a touch window with no reading above the sensor offset) are skipped with the
+  reason too; a mapped topic of a type the sense cannot take is a :class:`RecordingError`
+  before anything is written.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import time
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel, Field
+
+from tactus_memory.errors import TactusError, UnknownSenseError
+from tactus_memory.recordings import decode
+from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
+from tactus_memory.store import Where, validate_id
+from tactus_memory.touch.windows import WindowStream
+
+if TYPE_CHECKING:
+    from tactus_memory.memory import Memory
+
+#: items per commit (per sense and topic); a crash loses at most this many per topic
+DEFAULT_BATCH = 256
+#: touch frame shape when the sense does not say (the STAG glove raster, stag-format.md)
+DEFAULT_FRAME_SHAPE = (32, 32)
+NS = 1_000_000_000
+
+
+class TopicListing(BaseModel):
+    """One topic of a recording, as ``tactus ingest FILE --list`` shows it."""
+
+    file: str
+    topic: str
+    type: str
+    count: int
+    sense: str | None = Field(description="the sense it would map to by default, or None")
+
+
+class IngestSummary(BaseModel):
+    """What one ingest call did."""
+
+    session: str
+    files: list[str]
+    topics: dict[str, str] = Field(description="topic -> sense")
+    messages: int = Field(description="messages read on the mapped topics")
+    rows: dict[str, int] = Field(description="new rows per sense")
+    existing: int = Field(description="items already in the memory (earlier ingest), skipped")
+    skipped: dict[str, int] = Field(description="reason -> messages or windows not stored")
+    t0: float | None = Field(description="unix time of the session clock's zero (None: absolute)")
+    seconds: float
+    messages_per_s: float
+    rows_per_s: float
+
+
+def topic_source(topic: str) -> str:
+    """A ROS topic name as a source id: ``/glove/left`` -> ``glove.left``."""
+    s = re.sub(r"[^A-Za-z0-9._:-]", "_", topic.strip("/").replace("/", "."))
+    s = s.lstrip("._:-") or "topic"
+    return validate_id(s[:128], "source id")
+
+
+def _item_id(*parts: object) -> str:
+    return hashlib.sha256("\x1f".join(str(p) for p in parts).encode()).hexdigest()[:32]
+
+
+def list_topics(paths: Sequence[str | Path] | str | Path) -> list[TopicListing]:
+    """Topics, types and counts of each recording, with the sense each would map to (the
+    encoding of an ``Image`` topic is read from its first message)."""
+    out: list[TopicListing] = []
+    for rec in [open_recording(p) for p in _paths(paths)]:
+        infos = rec.topics()
+        encodings: dict[str, str] = {}
+        images = [i.topic for i in infos if i.msgtype == decode.IMAGE and i.count]
+        if images:
+            for m in rec.messages(images):
+                encodings.setdefault(m.topic, str(m.msg.encoding))
+                if len(encodings) == len(images):
+                    break
+        for i in infos:
+            sense = decode.default_modality(i.msgtype, encodings.get(i.topic))
+            if i.encoding != "cdr":
+                sense = None
+            out.append(TopicListing(file=str(rec.path), topic=i.topic, type=i.msgtype or "?",
+                                    count=i.count, sense=sense))  # fmt: skip
+    return out
+
+
+def _paths(paths: Sequence[str | Path] | str | Path) -> list[Path]:
+    if isinstance(paths, (str, Path)):
+        return [Path(paths)]
+    return [Path(p) for p in paths]
+
+
+@dataclass
+class _Topic:
+    """A mapped topic: its sense, and how its messages become items."""
+
+    topic: str
+    sense: str
+    modality: str
+    source: str
+    skip_reason: str | None = None  # every message skipped for this reason
+
+
+@dataclass
+class _Batch:
+    ids: list[str] = field(default_factory=list)
+    items: list[Any] = field(default_factory=list)
+    t: list[float] = field(default_factory=list)
+    t_end: list[float] = field(default_factory=list)
+    meta: list[dict[str, Any]] = field(default_factory=list)
+
+
+class _Ingest:
+    def __init__(
+        self,
+        memory: Memory,
+        recordings: list[Recording],
+        session: str,
+        topics: Mapping[str, str],
+        *,
+        absolute: bool,
+        window: int | None,
+        stride: int | None,
+        batch: int,
+        progress: bool,
+    ) -> None:
+        self.memory = memory
+        self.recs = recordings
+        self.session = validate_id(session, "session id")
+        self.absolute = absolute
+        self.batch_size = max(1, int(batch))
+        self.progress = progress
+        self.rows: Counter[str] = Counter()
+        self.skipped: Counter[str] = Counter()
+        self.existing = 0
+        self.messages = 0
+        self.pending: dict[str, _Batch] = {}
+        self.plan = self._plan(topics)
+        touch = [memory.senses[p.sense] for p in self.plan.values() if p.modality == "touch"]
+        k = window or (int(getattr(touch[0], "frames", 8)) if touch else 8)
+        self.window, self.stride = int(k), int(stride or k)
+
+    # ------------------------------------------------------------------ planning
+    def _plan(self, topics: Mapping[str, str]) -> dict[str, _Topic]:
+        if not topics:
+            raise RecordingError("no topics to ingest: map at least one, TOPIC=SENSE")
+        infos: dict[str, list[TopicInfo]] = {}
+        for rec in self.recs:
+            for info in rec.topics():
+                infos.setdefault(info.topic, []).append(info)
+        plan: dict[str, _Topic] = {}
+        live = self.memory.senses
+        for topic, sense in topics.items():
+            if topic not in infos:
+                known = ", ".join(sorted(infos)) or "none"
+                raise RecordingError(f"topic {topic!r} is in none of the files (topics: {known})")
+            found = infos[topic]
+            for info in found:
+                if info.encoding != "cdr":
+                    raise RecordingError(
+                        f"topic {topic!r} ({info.msgtype}) is encoded as {info.encoding!r}; "
+                        "only ROS 2 CDR messages are read"
+                    )
+            if sense in live:
+                modality = str(live[sense].modality)
+                reason = None
+            elif sense == "image" and not getattr(self.memory.space, "has_vision", False):
+                modality = "image"
+                reason = f"image: space {self.memory.space.name!r} has no vision, images not stored"
+            else:
+                raise UnknownSenseError(
+                    f"topic {topic!r} maps to sense {sense!r}, which this memory does not have "
+                    f"(registered: {', '.join(sorted(live))})"
+                )
+            for info in found:
+                decode.check_supported(topic, info.msgtype, modality)
+            plan[topic] = _Topic(topic, sense, modality, topic_source(topic), reason)
+        return plan
+
+    def _t0_ns(self) -> int | None:
+        """The earliest time (ns) among the first message of each mapped topic, all files."""
+        if self.absolute:
+            return None
+        firsts: list[int] = []
+        for rec in self.recs:
+            wanted = {i.topic for i in rec.topics() if i.topic in self.plan and i.count}
+            seen: set[str] = set()
+            for m in rec.messages(sorted(wanted)):
+                if m.topic not in seen:
+                    seen.add(m.topic)
+                    firsts.append(decode.stamp_ns(m.msg) or m.log_time_ns)
+                if seen >= wanted:
+                    break
+        return min(firsts) if firsts else 0
+
+    # ------------------------------------------------------------------ writing
+    def _queue(self, topic: _Topic, item_id: str, item: Any, t: float, t_end: float,
+               meta: dict[str, Any]) -> None:  # fmt: skip
+        b = self.pending.setdefault(topic.topic, _Batch())
+        b.ids.append(item_id)
+        b.items.append(item)
+        b.t.append(t)
+        b.t_end.append(t_end)
+        b.meta.append(meta)
+        if len(b.ids) >= self.batch_size:
+            self._flush(topic)
+
+    def _flush(self, topic: _Topic) -> None:
+        b = self.pending.pop(topic.topic, None)
+        if b is None or not b.ids:
+            return
+        where = Where().ids(b.ids).sql()
+        present = set(self.memory.store.scan(where, ["id"]).column("id").to_pylist())
+        keep = [i for i, x in enumerate(b.ids) if x not in present]
+        self.existing += len(b.ids) - len(keep)
+        if not keep:
+            return
+        self.memory.add_many(
+            self.session,
+            topic.sense,
+            [b.items[i] for i in keep],
+            t=[b.t[i] for i in keep],
+            t_end=[b.t_end[i] for i in keep],
+            meta=[b.meta[i] for i in keep],
+            ids=[b.ids[i] for i in keep],
+            source=topic.source,
+        )
+        self.rows[topic.sense] += len(keep)
+
+    def _flush_all(self) -> None:
+        for name in list(self.pending):
+            self._flush(self.plan[name])
+
+    def _accept(self, topic: _Topic, item: Any) -> Any | None:
+        """The sense's own checks; a refused item is skipped with the reason."""
+        try:
+            return self.memory.senses[topic.sense].validate(item)
+        except TactusError as exc:
+            self.skipped[f"{topic.sense}: refused ({type(exc).__name__}: {exc})"[:160]] += 1
+            return None
+
+    # ------------------------------------------------------------------ reading
+    def run(self) -> IngestSummary:
+        from tqdm.auto import tqdm
+
+        start = time.perf_counter()
+        t0 = self._t0_ns()
+        total = sum(i.count for rec in self.recs for i in rec.topics() if i.topic in self.plan)
+        bar = tqdm(total=total, unit="msg", unit_scale=True, disable=not self.progress,
+                   desc=f"ingest {self.session}", dynamic_ncols=True)  # fmt: skip
+        try:
+            for rec in self.recs:
+                self._one(rec, t0, bar)
+        finally:
+            try:
+                self._flush_all()  # what was read before a failure is kept (resume)
+            finally:
+                bar.close()
+        seconds = time.perf_counter() - start
+        new = sum(self.rows.values())
+        return IngestSummary(
+            session=self.session,
+            files=[str(r.path) for r in self.recs],
+            topics={p.topic: p.sense for p in self.plan.values()},
+            messages=self.messages,
+            rows=dict(self.rows),
+            existing=self.existing,
+            skipped=dict(self.skipped),
+            t0=None if t0 is None else t0 / NS,
+            seconds=seconds,
+            messages_per_s=self.messages / seconds if seconds > 0 else 0.0,
+            rows_per_s=new / seconds if seconds > 0 else 0.0,
+        )
+
+    def _one(self, rec: Recording, t0: int | None, bar: Any) -> None:
+        digest = rec.digest
+        name = rec.path.name
+        index: Counter[str] = Counter()
+        streams: dict[str, WindowStream] = {}
+        shapes: dict[str, tuple[int, int]] = {}
+        for m in rec.messages([t for t in self.plan]):
+            topic = self.plan[m.topic]
+            self.messages += 1
+            bar.update(1)
+            i = index[m.topic]
+            index[m.topic] += 1
+            if topic.skip_reason is not None:
+                self.skipped[topic.skip_reason] += 1
+                continue
+            ns = decode.stamp_ns(m.msg) or m.log_time_ns
+            t = ns / NS if t0 is None else (ns - t0) / NS
+            where = f"{name} topic {m.topic!r} message {i}"
+            meta = {"topic": m.topic, "type": m.msgtype, "recording": name}
+            if topic.modality == "text":
+                item = self._accept(topic, str(m.msg.data))
+                if item is not None:
+                    self._queue(topic, _item_id(self.session, digest, m.topic, ns, i), item,
+                                t, t, meta)  # fmt: skip
+            elif topic.modality == "image":
+                item = self._accept(topic, decode.camera_image(m.msg, m.msgtype, where))
+                if item is not None:
+                    self._queue(topic, _item_id(self.session, digest, m.topic, ns, i), item,
+                                t, t, meta)  # fmt: skip
+            else:
+                shape = shapes.get(m.topic)
+                if shape is None:
+                    sense = self.memory.senses[topic.sense]
+                    fs = getattr(sense, "frame_shape", None)
+                    shape = shapes[m.topic] = tuple(fs) if fs else DEFAULT_FRAME_SHAPE  # type: ignore[assignment]
+                frame = decode.touch_frame(m.msg, m.msgtype, shape, where)  # (H, W)
+                ws = streams.setdefault(m.topic, WindowStream(self.window, self.stride))
+                done = ws.push(frame, [t])
+                for w in range(len(done)):
+                    window = done.frames[w]  # (K, H, W)
+                    item = self._accept(topic, window)
+                    if item is None:
+                        continue
+                    wid = _item_id(self.session, digest, m.topic, self.window, self.stride,
+                                   int(done.start[w]), repr(float(done.t[w])))  # fmt: skip
+                    wmeta = {**meta, "frames": int(window.shape[0]),
+                             "first_frame": int(done.start[w])}  # fmt: skip
+                    self._queue(topic, wid, item, float(done.t[w]), float(done.t_end[w]), wmeta)
+        for topic_name, ws in streams.items():
+            if ws.pending:
+                sense = self.plan[topic_name].sense
+                self.skipped[f"{sense}: frames after the last full window"] += ws.pending
+
+
+def ingest_recording(
+    memory: Memory,
+    paths: Sequence[str | Path] | str | Path,
+    *,
+    session: str,
+    topics: Mapping[str, str],
+    absolute: bool = False,
+    window: int | None = None,
+    stride: int | None = None,
+    batch: int = DEFAULT_BATCH,
+    progress: bool = False,
+) -> IngestSummary:
+    """Ingest MCAP files / ROS 2 bag folders into ``session`` (see the module doc).
+
+    ``topics`` maps topic -> sense name. ``window`` defaults to the touch sense's K (8 for the
+    shipped encoder), ``stride`` to ``window``. ``progress`` shows a tqdm bar (messages/s).
+    Raises :class:`RecordingError` (unreadable file, unknown topic, unsupported type) and
+    :class:`~tactus_memory.errors.UnknownSenseError` (a sense the memory does not have).
+    """
+    recs = [open_recording(p) for p in _paths(paths)]
+    if not recs:
+        raise RecordingError("no recordings given")
+    job = _Ingest(memory, recs, session, dict(topics), absolute=absolute, window=window,
+                  stride=stride, batch=batch, progress=progress)  # fmt: skip
+    return job.run()
+
+
+def parse_topic_map(pairs: Iterable[str]) -> dict[str, str]:
+    """``["/notes=text", "/glove=touch"]`` -> ``{"/notes": "text", "/glove": "touch"}``."""
+    out: dict[str, str] = {}
+    for p in pairs:
+        topic, sep, sense = p.rpartition("=")
+        if not sep or not topic or not sense:
+            raise RecordingError(f"--topic {p!r}: write TOPIC=SENSE, e.g. /glove/pressure=touch")
+        out[topic] = sense
+    return out
+
+
+__all__ = [
+    "DEFAULT_BATCH",
+    "IngestSummary",
+    "TopicListing",
+    "ingest_recording",
+    "list_topics",
+    "parse_topic_map",
+    "topic_source",
+]
