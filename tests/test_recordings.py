@@ -1,0 +1,196 @@
+"""Recordings in and out on real files: MCAP (mcap-ros2-support writer), ROS 2 bags (rosbags
+writer, sqlite3 and mcap storage), Rerun .rrd read back with rerun's own reader. A fake text
+space and a stand-in touch sense keep these fast; tests/test_recordings_real.py runs MiniLM,
+the shipped TactusEncoder and real STAG frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactus_memory.errors import UnknownSenseError
+from tactus_memory.recordings import RecordingError, ingest_recording, list_topics
+from tactus_memory.recordings.ingest import topic_source
+from tactus_memory.touch.windows import cut_windows
+from tests import recording_files as rf
+from tests.test_service_helpers import make_memory
+
+START = 1_700_000_000 * rf.NS  # unix 1.7e9 s
+NOTES = ["picked up the red mug", "put the mug on the shelf", "opened the fridge"]
+N_FRAMES = 100  # 3.3 s at 30 Hz -> 12 windows of 8, 4 frames left over
+
+
+def _messages(frames: np.ndarray | None = None) -> list[rf.Msg]:
+    frames = rf.synthetic_grasp(N_FRAMES) if frames is None else frames
+    msgs = rf.glove("/glove/pressure", frames, start_ns=START + rf.NS // 2)
+    msgs += [rf.note("/notes", START + (i + 1) * rf.NS, t) for i, t in enumerate(NOTES)]
+    msgs += [rf.vector3("/imu", START + k * rf.NS // 10) for k in range(5)]
+    msgs += [rf.rgb8("/camera", START + rf.NS, np.full((6, 8, 3), 90, np.uint8))]
+    return msgs
+
+
+TOPICS = {"/notes": "text", "/glove/pressure": "touch"}
+
+
+@pytest.fixture(params=["mcap", "bag-sqlite3", "bag-mcap"])
+def recording(request, tmp_path) -> Path:
+    msgs = _messages()
+    if request.param == "mcap":
+        return rf.write_mcap(tmp_path / "run.mcap", msgs)
+    return rf.write_bag(tmp_path / "run_bag", msgs, storage=request.param.split("-")[1])
+
+
+def test_list_topics_types_counts_and_default_senses(recording: Path) -> None:
+    rows = {r.topic: r for r in list_topics(recording)}
+    assert rows["/glove/pressure"].type == "sensor_msgs/msg/Image"
+    assert rows["/glove/pressure"].count == N_FRAMES
+    assert rows["/glove/pressure"].sense == "touch"  # mono16 -> touch
+    assert (rows["/notes"].count, rows["/notes"].sense) == (3, "text")
+    assert (rows["/camera"].sense, rows["/imu"].sense) == ("image", None)
+    assert rows["/imu"].type == "geometry_msgs/msg/Vector3"
+
+
+def test_ingest_rows_times_windows_and_rerun_adds_nothing(recording: Path, tmp_path) -> None:
+    mem = make_memory(tmp_path / "mem")
+    s = ingest_recording(mem, recording, session="run1", topics=TOPICS)
+    assert s.rows == {"text": 3, "touch": N_FRAMES // 8}
+    assert s.messages == N_FRAMES + 3 and s.existing == 0
+    assert s.skipped == {"touch: frames after the last full window": N_FRAMES % 8}
+    # the clock starts at the earliest mapped message: the first glove frame (/imu is unmapped)
+    assert s.t0 == pytest.approx(START / rf.NS + 0.5)
+    items = mem.timeline("run1")
+    notes = [it for it in items if it.sense == "text"]
+    assert [n.text for n in notes] == NOTES
+    assert [n.t for n in notes] == pytest.approx([0.5, 1.5, 2.5])  # session clock
+    assert {n.source for n in notes} == {"notes"}
+    touch = [it for it in items if it.sense == "touch"]
+    assert touch[0].source == "glove.pressure" and touch[0].meta["topic"] == "/glove/pressure"
+    assert touch[0].t == pytest.approx(0.0)
+    assert touch[0].t_end == pytest.approx(7 / 30, abs=1e-6)  # 8 frames at 30 Hz
+    # the same windows the library's stream windowing cuts from the frames
+    frames = rf.synthetic_grasp(N_FRAMES)
+    want = cut_windows(frames, np.arange(N_FRAMES) / 30, window=8, stride=8)
+    got = [mem.get_item(it.id).raw for it in touch]
+    stored = np.stack(got)  # float16 calibrated by the stand-in: raw values kept
+    assert np.allclose(stored, want.frames, rtol=2e-3)
+    assert [it.t for it in touch] == pytest.approx(want.t.tolist())
+    # twice: nothing new, same count
+    n = len(mem)
+    again = ingest_recording(mem, recording, session="run1", topics=TOPICS)
+    assert again.rows == {} and again.existing == 3 + N_FRAMES // 8
+    assert len(mem) == n
+
+
+def test_interrupted_ingest_resumes(tmp_path, monkeypatch) -> None:
+    """A crash after some commits keeps them; the next run adds exactly the rest."""
+    path = rf.write_mcap(tmp_path / "run.mcap", _messages())
+    mem = make_memory(tmp_path / "mem")
+    real_add_many = mem.add_many
+    calls = {"n": 0}
+
+    def flaky(*a, **kw):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt  # the process is stopped mid-ingest
+        return real_add_many(*a, **kw)
+
+    monkeypatch.setattr(mem, "add_many", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        ingest_recording(mem, path, session="run1", topics=TOPICS, batch=4)
+    first = len(mem)
+    assert 0 < first < 3 + N_FRAMES // 8
+    monkeypatch.setattr(mem, "add_many", real_add_many)
+    s = ingest_recording(mem, path, session="run1", topics=TOPICS, batch=4)
+    assert s.existing == first
+    assert sum(s.rows.values()) == 3 + N_FRAMES // 8 - first
+    assert len(mem) == 3 + N_FRAMES // 8
+
+
+def test_unsupported_topic_is_named(tmp_path) -> None:
+    path = rf.write_mcap(tmp_path / "run.mcap", _messages())
+    mem = make_memory(tmp_path / "mem")
+    with pytest.raises(RecordingError, match=r"'/imu'.*geometry_msgs/msg/Vector3.*touch"):
+        ingest_recording(mem, path, session="s", topics={"/imu": "touch", "/notes": "text"})
+    assert len(mem) == 0  # checked before anything is written
+    with pytest.raises(RecordingError, match="'/nope' is in none of the files"):
+        ingest_recording(mem, path, session="s", topics={"/nope": "text"})
+    with pytest.raises(UnknownSenseError, match="'smell'"):
+        ingest_recording(mem, path, session="s", topics={"/notes": "smell"})
+    with pytest.raises(RecordingError, match="cannot become text"):
+        ingest_recording(mem, path, session="s", topics={"/glove/pressure": "text"})
+
+
+def test_images_skipped_without_vision(tmp_path) -> None:
+    path = rf.write_bag(tmp_path / "bag", _messages())
+    mem = make_memory(tmp_path / "mem")
+    s = ingest_recording(mem, path, session="s", topics={"/camera": "image", "/notes": "text"})
+    assert s.rows == {"text": 3}
+    assert s.skipped == {"image: space 'fake-hash' has no vision, images not stored": 1}
+
+
+@pytest.mark.parametrize("kind", ["garbage", "truncated", "empty-bag-folder"])
+def test_corrupt_file_is_a_clear_error(tmp_path, kind: str) -> None:
+    mem = make_memory(tmp_path / "mem")
+    if kind == "garbage":
+        path = tmp_path / "x.mcap"
+        path.write_bytes(b"this is not an mcap file at all" * 10)
+    elif kind == "truncated":
+        good = rf.write_mcap(tmp_path / "good.mcap", _messages()).read_bytes()
+        path = tmp_path / "cut.mcap"
+        path.write_bytes(good[: len(good) // 2])
+    else:
+        path = tmp_path / "bag"
+        path.mkdir()
+        (path / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9}\n")
+    with pytest.raises(RecordingError, match=str(path.name)):
+        ingest_recording(mem, path, session="s", topics=TOPICS)
+
+
+def test_int16_multiarray_and_unstamped_frames_use_log_time(tmp_path) -> None:
+    frames = rf.synthetic_grasp(16, seed=3)
+    msgs = [rf.int16_array("/taxels", START + i * rf.NS // 30, f) for i, f in enumerate(frames)]
+    msgs += rf.glove("/glove", frames, start_ns=START + 10 * rf.NS, stamped=False)
+    path = rf.write_bag(tmp_path / "bag", msgs, storage="mcap")
+    mem = make_memory(tmp_path / "mem")
+    s = ingest_recording(
+        mem, path, session="s", topics={"/taxels": "touch", "/glove": "touch"}, absolute=True
+    )
+    assert s.rows == {"touch": 4} and s.t0 is None
+    items = mem.timeline("s")
+    assert [it.source for it in items] == ["taxels", "taxels", "glove", "glove"]
+    assert items[0].t == pytest.approx(START / rf.NS)  # --absolute: unix seconds
+    assert items[2].t == pytest.approx(START / rf.NS + 10)  # no header stamp: log time
+    assert np.allclose(mem.get_item(items[0].id).raw, frames[:8], rtol=2e-3)
+
+
+def test_topic_source_ids() -> None:
+    assert topic_source("/glove/left/pressure") == "glove.left.pressure"
+    assert topic_source("/~weird{x}") == "weird_x_"
+
+
+def test_export_rerun_reads_back(tmp_path) -> None:
+    from rerun.chunk import RrdReader
+
+    path = rf.write_mcap(tmp_path / "run.mcap", _messages())
+    mem = make_memory(tmp_path / "mem")
+    ingest_recording(mem, path, session="run1", topics=TOPICS)
+    out = mem.export_rerun("run1", tmp_path / "out" / "run1.rrd", query="picked up the red mug")
+    assert out.entities["touch/glove.pressure"] == N_FRAMES // 8
+    assert out.entities["text/notes"] == 3
+    assert out.moments >= 1
+    chunks = RrdReader(out.path).stream().to_chunks()
+    by: dict[str, list] = {}
+    for c in chunks:
+        by.setdefault(c.entity_path, []).append(c.to_record_batch().to_pydict())
+    texts = [t[0] for b in by["/text/notes"] for t in b["TextLog:text"]]
+    assert sorted(texts) == sorted(NOTES)
+    times = sorted(
+        x.total_seconds() for b in by["/touch/glove.pressure"] for x in b["session_time"]
+    )
+    assert times == pytest.approx([8 * i / 30 for i in range(N_FRAMES // 8)], abs=1e-6)
+    image_rows = sum(len(b["Image:buffer"]) for b in by["/touch/glove.pressure"])
+    assert image_rows == N_FRAMES // 8
+    moments = [t[0] for b in by["/moments/query"] for t in b["TextLog:text"]]
+    assert any("picked up the red mug" in m for m in moments)
