@@ -15,6 +15,7 @@ from tactus_memory.recordings import RecordingError, ingest_recording, list_topi
 from tactus_memory.recordings.ingest import topic_source
 from tactus_memory.touch.windows import cut_windows
 from tests import recording_files as rf
+from tests.fakes import HashingSpace
 from tests.test_service_helpers import make_memory
 
 START = 1_700_000_000 * rf.NS  # unix 1.7e9 s
@@ -194,3 +195,89 @@ def test_export_rerun_reads_back(tmp_path) -> None:
     assert image_rows == N_FRAMES // 8
     moments = [t[0] for b in by["/moments/query"] for t in b["TextLog:text"]]
     assert any("picked up the red mug" in m for m in moments)
+
+
+class VisionHashingSpace(HashingSpace):
+    """The hashing text space plus a toy vision tower (mean colour -> a fixed projection)."""
+
+    has_vision = True
+
+    def embed_images(self, images):
+        rng = np.random.default_rng(1)
+        proj = rng.standard_normal((3, self.dim)).astype(np.float32)
+        means = np.stack([np.asarray(im, np.float32).reshape(-1, 3).mean(0) + 1 for im in images])
+        out = means @ proj
+        return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def test_images_stored_with_a_vision_space(tmp_path) -> None:
+    from tactus_memory.memory import Memory
+    from tactus_memory.senses import ImageSense
+
+    mem = Memory.open(str(tmp_path / "mem"), space=VisionHashingSpace())
+    mem.add_sense(ImageSense(mem.space))
+    picture = np.zeros((6, 8, 3), np.uint8)
+    picture[..., 0] = 200  # red in RGB
+    msgs = [rf.rgb8("/camera", START + i * rf.NS, picture) for i in range(3)]
+    path = rf.write_mcap(tmp_path / "cam.mcap", msgs)
+    s = ingest_recording(mem, path, session="cam", topics={"/camera": "image"})
+    assert s.rows == {"image": 3} and s.skipped == {}
+    items = mem.timeline("cam")
+    assert [it.t for it in items] == pytest.approx([0.0, 1.0, 2.0])
+    assert [it.source for it in items] == ["camera"] * 3
+
+
+def _ns(**kw):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(**kw)
+
+
+def test_decode_touch_encodings() -> None:
+    from tactus_memory.recordings import decode
+
+    frame = np.arange(1024, dtype=np.uint16).reshape(32, 32) + 500
+    padded = np.zeros((32, 40), ">u2")  # big-endian rows padded to a 80-byte step
+    padded[:, :32] = frame
+    msg = _ns(height=32, width=32, step=80, encoding="16UC1", is_bigendian=1,
+              data=padded.tobytes())  # fmt: skip
+    got = decode.touch_frame(msg, decode.IMAGE, (32, 32), "t")
+    assert np.array_equal(got, frame) and got.dtype.isnative
+    mono8 = _ns(height=32, width=32, step=32, encoding="mono8", is_bigendian=0,
+                data=np.full(1024, 255, np.uint8).tobytes())  # fmt: skip
+    assert np.allclose(decode.touch_frame(mono8, decode.IMAGE, (32, 32), "t"), 1.0)
+    f32 = _ns(height=32, width=32, step=128, encoding="32FC1", is_bigendian=0,
+              data=np.full(1024, 0.25, "<f4").tobytes())  # fmt: skip
+    assert np.allclose(decode.touch_frame(f32, decode.IMAGE, (32, 32), "t"), 0.25)
+    arr = _ns(data=[0.5] * 1024)
+    got = decode.touch_frame(arr, "std_msgs/msg/Float32MultiArray", (32, 32), "t")
+    assert got.shape == (32, 32) and np.allclose(got, 0.5)
+    with pytest.raises(RecordingError, match="holds 10 values"):
+        decode.touch_frame(_ns(data=[1] * 10), "std_msgs/msg/Int16MultiArray", (32, 32), "w")
+    small = _ns(height=16, width=16, step=32, encoding="mono16", is_bigendian=0,
+                data=bytes(512))  # fmt: skip
+    with pytest.raises(RecordingError, match=r"\(16, 16\), the sense takes \(32, 32\)"):
+        decode.touch_frame(small, decode.IMAGE, (32, 32), "w")
+    rgb = _ns(height=2, width=2, step=6, encoding="rgb8", is_bigendian=0, data=bytes(12))
+    with pytest.raises(RecordingError, match="'rgb8' is not single-channel"):
+        decode.touch_frame(rgb, decode.IMAGE, (32, 32), "w")
+
+
+def test_decode_camera_images() -> None:
+    import io
+
+    from PIL import Image
+
+    from tactus_memory.recordings import decode
+
+    px = np.zeros((2, 3, 3), np.uint8)
+    px[..., 2] = 255  # blue in RGB
+    bgr = _ns(height=2, width=3, step=9, encoding="bgr8", is_bigendian=0,
+              data=px[..., ::-1].tobytes())  # fmt: skip
+    assert np.array_equal(decode.camera_image(bgr, decode.IMAGE, "c"), px)
+    buf = io.BytesIO()
+    Image.fromarray(px).save(buf, format="PNG")
+    png = _ns(format="png", data=buf.getvalue())
+    assert np.array_equal(decode.camera_image(png, decode.COMPRESSED, "c"), px)
+    with pytest.raises(RecordingError, match="cannot be decoded"):
+        decode.camera_image(_ns(format="jpeg", data=b"nope"), decode.COMPRESSED, "c")
