@@ -34,6 +34,7 @@ def test_wheel_maps_adapters_and_service_under_tactus_memory(tmp_path: Path) -> 
     assert "tactus_memory/service/__init__.py" in names
     assert "tactus_memory/service/routers/__init__.py" in names
     assert "tactus_memory/service/static/index.html" in names
+    assert "tactus_memory/recordings/ingest.py" in names
     assert not any(n.startswith(("adapters/", "service/")) for n in names), names
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     assert "tactus = tactus_memory.cli:main" in zipfile.ZipFile(wheel).read(entry_points).decode()

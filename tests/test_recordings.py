@@ -281,3 +281,27 @@ def test_decode_camera_images() -> None:
     assert np.array_equal(decode.camera_image(png, decode.COMPRESSED, "c"), px)
     with pytest.raises(RecordingError, match="cannot be decoded"):
         decode.camera_image(_ns(format="jpeg", data=b"nope"), decode.COMPRESSED, "c")
+
+
+def test_exported_heat_map_is_the_page_renderer(tmp_path) -> None:
+    """The .rrd image of a window is exactly render.window_rgba's picture of the stored window."""
+    from rerun.chunk import RrdReader
+
+    from tactus_memory.recordings.export import EXPORT_SCALE
+    from tactus_memory.touch.render import window_rgba
+
+    path = rf.write_mcap(tmp_path / "run.mcap", _messages())
+    mem = make_memory(tmp_path / "mem")
+    ingest_recording(mem, path, session="run1", topics={"/glove/pressure": "touch"})
+    first = mem.timeline("run1")[0]
+    want = window_rgba(mem.get_item(first.id).raw, scale=EXPORT_SCALE)  # (H, W, 4) uint8
+    out = mem.export_rerun("run1", tmp_path / "run1.rrd")
+    rows = []
+    for c in RrdReader(out.path).stream().to_chunks():
+        if c.entity_path == "/touch/glove.pressure":
+            b = c.to_record_batch().to_pydict()
+            rows += list(zip(b["session_time"], b["Image:buffer"], strict=True))
+    t, buffer = min(rows, key=lambda r: r[0])
+    assert t.total_seconds() == pytest.approx(first.t)
+    got = np.frombuffer(bytes(np.asarray(buffer[0], np.uint8)), np.uint8)
+    assert np.array_equal(got, want.reshape(-1))

@@ -35,6 +35,9 @@ APPLICATION_ID = "tactus-memory"
 SCAN_COLUMNS = ("id", "sense", "raw", "text", "source")
 #: moments of a query exported with --query
 MOMENTS_K = 20
+#: pixels per taxel in the exported heat maps: 1 keeps a K=8 window at 32 x 263 RGBA (34 kB;
+#: a 10-minute 30 Hz session is 2250 windows); the viewer scales images up itself
+EXPORT_SCALE = 1
 
 
 class ExportSummary(BaseModel):
@@ -89,7 +92,11 @@ def export_rerun(
             stream = _entity(it.source or it.sense)
             if kind == "touch" and raw.get(it.id) is not None:
                 window = bytes_to_array(raw[it.id]).astype(np.float32)  # (K, 32, 32)
-                log(f"touch/{stream}", it.t_aligned, rr.Image(window_rgba(window)))
+                log(
+                    f"touch/{stream}",
+                    it.t_aligned,
+                    rr.Image(window_rgba(window, scale=EXPORT_SCALE)),
+                )
             elif kind == "text" or (it.text is not None and kind != "image"):
                 log(f"text/{stream}", it.t_aligned, rr.TextLog(it.text or "", level="INFO"))
             elif kind == "image" and raw.get(it.id) is not None:
