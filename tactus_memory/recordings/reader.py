@@ -67,6 +67,7 @@ class Recording:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._digest: str | None = None
+        self._topics: list[TopicInfo] | None = None
 
     @property
     def digest(self) -> str:
@@ -84,6 +85,12 @@ class Recording:
         raise NotImplementedError
 
     def topics(self) -> list[TopicInfo]:
+        """Topics with their type, message count and encoding (read once, then cached)."""
+        if self._topics is None:
+            self._topics = self._read_topics()
+        return list(self._topics)
+
+    def _read_topics(self) -> list[TopicInfo]:
         raise NotImplementedError
 
     def messages(self, topics: Iterable[str]) -> Iterator[Message]:
@@ -108,7 +115,7 @@ class McapRecording(Recording):
         except Exception as exc:  # noqa: BLE001  (mcap raises several unrelated types)
             raise RecordingError(f"{self.path} is not a readable MCAP file: {exc}") from exc
 
-    def topics(self) -> list[TopicInfo]:
+    def _read_topics(self) -> list[TopicInfo]:
         with self.path.open("rb") as fh:
             reader = self._reader(fh)
             try:
@@ -182,7 +189,7 @@ class BagRecording(Recording):
             raise RecordingError(f"{self.path} is not a readable ROS 2 bag: {exc}") from exc
         return reader
 
-    def topics(self) -> list[TopicInfo]:
+    def _read_topics(self) -> list[TopicInfo]:
         reader = self._open()
         try:
             by: dict[str, TopicInfo] = {}
