@@ -75,6 +75,14 @@ def int16_array(topic: str, log_ns: int, frame: np.ndarray) -> Msg:
     return Msg(topic, INT16_ARRAY, log_ns, {"layout": layout, "data": values})
 
 
+def float32_array(topic: str, log_ns: int, frame: np.ndarray) -> Msg:
+    h, w = frame.shape
+    layout = {"dim": [{"label": "rows", "size": h, "stride": h * w},
+                      {"label": "cols", "size": w, "stride": w}], "data_offset": 0}  # fmt: skip
+    values = [float(v) for v in np.asarray(frame, np.float32).reshape(-1)]
+    return Msg(topic, FLOAT32_ARRAY, log_ns, {"layout": layout, "data": values})
+
+
 def vector3(topic: str, log_ns: int) -> Msg:
     return Msg(topic, VECTOR3, log_ns, {"x": 1.0, "y": 2.0, "z": 3.0})
 

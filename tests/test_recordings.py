@@ -305,3 +305,19 @@ def test_exported_heat_map_is_the_page_renderer(tmp_path) -> None:
     assert t.total_seconds() == pytest.approx(first.t)
     got = np.frombuffer(bytes(np.asarray(buffer[0], np.uint8)), np.uint8)
     assert np.array_equal(got, want.reshape(-1))
+
+
+@pytest.mark.parametrize("writer", ["mcap", "bag"])
+def test_refused_windows_are_skipped_with_their_reason(tmp_path, writer: str) -> None:
+    frames = rf.synthetic_grasp(24, seed=5).astype(np.float32)
+    frames[10, 3, 3] = np.nan  # window 1 (frames 8-15) is refused by the sense
+    msgs = [rf.float32_array("/taxels", START + i * rf.NS // 30, f) for i, f in enumerate(frames)]
+    if writer == "mcap":
+        path = rf.write_mcap(tmp_path / "f.mcap", msgs)
+    else:
+        path = rf.write_bag(tmp_path / "bag", msgs)
+    mem = make_memory(tmp_path / "mem")
+    s = ingest_recording(mem, path, session="s", topics={"/taxels": "touch"})
+    assert s.rows == {"touch": 2}
+    assert s.skipped == {"touch: refused, InvalidInputError: touch window contains NaN or inf": 1}
+    assert [it.t for it in mem.timeline("s")] == pytest.approx([0.0, 16 / 30])

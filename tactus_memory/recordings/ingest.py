@@ -260,7 +260,9 @@ class _Ingest:
         try:
             return self.memory.senses[topic.sense].validate(item)
         except TactusError as exc:
-            self.skipped[f"{topic.sense}: refused ({type(exc).__name__}: {exc})"[:160]] += 1
+            # numbers blanked so that one kind of refusal is one reason in the summary
+            why = re.sub(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", str(exc))
+            self.skipped[f"{topic.sense}: refused, {type(exc).__name__}: {why}"[:200]] += 1
             return None
 
     # ------------------------------------------------------------------ reading
