@@ -153,11 +153,11 @@ def _finish(part: Path, dest: Path, expected: str | None, what: str) -> str:
         part.unlink(missing_ok=True)
         raise ChecksumError(
             f"{what}: sha256 {digest} does not match the pinned {expected}; "
-            "the file was deleted (a wrong or changed source? see --base-url)"
+            "nothing was kept (a wrong or changed source? see --base-url)"
         )
     if not looks_like_mat(part):
         part.unlink(missing_ok=True)
-        raise FetchError(f"{what}: not a MATLAB MAT-file (an error page?); the file was deleted")
+        raise FetchError(f"{what}: not a MATLAB MAT-file (an error page?); nothing was kept")
     os.replace(part, dest)
     return digest
 
