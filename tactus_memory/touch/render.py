@@ -164,7 +164,7 @@ def touch_scale(
     lo = contact_level(profile)
     top = float(np.percentile(frames[:, taxels], TOP_PERCENTILE)) if taxels.any() else lo
     hi = min(max(top, lo + MIN_RANGE), 1.0)
-    return TouchScale(lo=round(lo, 4), hi=round(max(hi, lo + 1e-3), 4))
+    return TouchScale(lo=lo, hi=max(hi, lo + 1e-3))
 
 
 def _prepare(
