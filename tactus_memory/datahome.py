@@ -2,7 +2,7 @@
 
 Resolution (first that applies):
 
-1. ``TACTUS_DATA`` set: that folder, and nothing else (no fallback, so a test run can point
+1. ``TACTUS_DATA_HOME`` set: that folder, and nothing else (no fallback, so a test run can point
    it at an empty folder and see what a stranger sees);
 2. the user's data folder, ``$XDG_DATA_HOME/tactus`` (default ``~/.local/share/tactus``;
    ``%LOCALAPPDATA%\\tactus`` on Windows) when it holds STAG files;
@@ -21,7 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 #: environment variable naming the data folder (overrides everything)
-ENV_DATA = "TACTUS_DATA"
+#: (not TACTUS_DATA: that is the memory store of `tactus serve` and the memory commands)
+ENV_DATA = "TACTUS_DATA_HOME"
 #: the STAG subsets, folder names as the dataset ships them
 STAG = "stag"
 #: the subsets ``tactus data fetch stag`` downloads, and the one the real-data tests need most

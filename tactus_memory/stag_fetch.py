@@ -112,7 +112,7 @@ def _is_hex(s: str) -> bool:
 
 
 def fetch_target() -> Path:
-    """Where fetched files go: ``TACTUS_DATA`` when set, else the user's data folder (never
+    """Where fetched files go: ``TACTUS_DATA_HOME`` when set, else the user's data folder (never
     the read-only ``../shared`` fallback that :func:`data_home` may resolve to)."""
     env = os.environ.get(ENV_DATA, "").strip()
     return Path(env).expanduser() if env else user_data_dir()

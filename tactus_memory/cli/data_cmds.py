@@ -108,7 +108,7 @@ def inspect(
 def path_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """Where the data folder is (TACTUS_DATA, the user data folder, or ../shared beside a
+    """Where the data folder is (TACTUS_DATA_HOME, the user data folder, or ../shared beside a
     checkout) and which STAG subsets it holds."""
     from tactus_memory.datahome import data_home, how_to_get_stag
 
