@@ -294,6 +294,8 @@ def test_cli_fetch_then_path_then_inspect(tmp_path, server, synth_files, monkeyp
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["source"] == "env" and out["stag_subsets"] == sorted(SUBSETS)
+    res = runner.invoke(app, ["data", "path", "--stag"])
+    assert res.stdout.strip() == str(tmp_path / "data" / "stag") == out["stag"]
     res = runner.invoke(app, ["data", "inspect", str(Path(out["stag"]) / "weights_lite"), "--json"])
     assert res.exit_code == 0 and json.loads(res.stdout)["frames"] == 150
     # a corrupted mirror: exit 1 and a message naming the problem, nothing new in place

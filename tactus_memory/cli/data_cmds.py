@@ -107,6 +107,7 @@ def inspect(
 @data_app.command("path")
 def path_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+    stag: bool = typer.Option(False, "--stag", help="Print only the STAG folder (for scripts)."),
 ) -> None:
     """Where the data folder is (TACTUS_DATA_HOME, the user data folder, or ../shared beside a
     checkout) and which STAG subsets it holds."""
@@ -114,6 +115,9 @@ def path_cmd(
 
     home = data_home()
     subsets = home.stag_subsets()
+    if stag:
+        typer.echo(str(home.stag))
+        return
     if as_json:
         out = {"path": str(home.path), "source": home.source, "stag": str(home.stag)}
         typer.echo(json.dumps({**out, "stag_subsets": subsets}, indent=2))
