@@ -188,6 +188,16 @@ def stag_windows(stag_dir: Path, n: int, k: int = 8) -> list[tuple[np.ndarray, s
     return out
 
 
+def synthetic_windows(n: int, k: int = 8) -> list[tuple[np.ndarray, str]]:
+    """``n`` STAG-format raw windows (``tests/stag_synth``: rest 511-516 on the taxels, sparse
+    pressure up to raw 700) named after the first ``n`` objects that are not the empty hand:
+    the stand-in for :func:`stag_windows` on a machine without the real files."""
+    from tests.stag_synth import OBJECTS, make_pressure
+
+    pressure = make_pressure([k] * n, np.random.default_rng(7), peak=700, n_poses=3)
+    return [(pressure[i * k : (i + 1) * k], OBJECTS[1 + i]) for i in range(n)]
+
+
 def npy_bytes(arr: np.ndarray) -> bytes:
     import io
 

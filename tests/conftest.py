@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
+from tactus_memory.datahome import CORE_SUBSET, data_home, how_to_get_stag
 from tests.fakes import HashingSpace
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-STAG_DIR = SHARED / "data" / "stag"
+#: set to 1 (CI does, in .ci/run) to make missing real STAG data a failure instead of a skip
+REQUIRE_REAL_DATA = "TACTUS_REQUIRE_REAL_DATA"
+NO_REAL_DATA = "real STAG data not found"
 
 
 @pytest.fixture
@@ -25,9 +29,48 @@ def minilm_space():
     return MiniLMSpace()
 
 
+def _no_real_data(what: Path) -> None:
+    """Skip (or, with TACTUS_REQUIRE_REAL_DATA=1, fail) a test whose real STAG file is missing."""
+    if os.environ.get(REQUIRE_REAL_DATA, "").strip() not in ("", "0"):
+        msg = f"{NO_REAL_DATA}: {what}; {how_to_get_stag()} ({REQUIRE_REAL_DATA} is set)"
+        pytest.fail(msg, pytrace=False)
+    pytest.skip(f"{NO_REAL_DATA}: {what} (`tactus data fetch stag` gets it)")
+
+
 @pytest.fixture(scope="session")
 def stag_dir() -> Path:
-    """Real STAG files beside the project (../shared). CI always has them."""
-    if not STAG_DIR.exists():
-        pytest.fail(f"real STAG data not found at {STAG_DIR}; tests run beside ../shared")
-    return STAG_DIR
+    """The real STAG folder (``tactus_memory.datahome.data_home().stag``) holding at least
+    ``weights_lite``; skipped when absent (failed under TACTUS_REQUIRE_REAL_DATA=1)."""
+    root = data_home().stag
+    if not (root / CORE_SUBSET / "metadata.mat").is_file():
+        _no_real_data(root / CORE_SUBSET / "metadata.mat")
+    return root
+
+
+@pytest.fixture(scope="session")
+def stag_subset(stag_dir: Path) -> Callable[..., Path]:
+    """``stag_subset("blindfolded_lite_train", ...)``: the first of those subset folders
+    present in the real STAG folder; skipped (or failed, see ``stag_dir``) when none is."""
+
+    def get(*names: str) -> Path:
+        for name in names:
+            if (stag_dir / name / "metadata.mat").is_file():
+                return stag_dir / name
+        _no_real_data(stag_dir / f"{names[0]}/metadata.mat")
+        raise AssertionError("unreachable")
+
+    return get
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
+    """One line when real-data tests were skipped, saying how to get the data."""
+    skipped = [
+        r for r in terminalreporter.stats.get("skipped", []) if NO_REAL_DATA in str(r.longrepr)
+    ]
+    if skipped:
+        terminalreporter.write_line(
+            f"{len(skipped)} real-data tests skipped ({NO_REAL_DATA} under "
+            f"{data_home().stag}): {how_to_get_stag()}; "
+            f"{REQUIRE_REAL_DATA}=1 makes this a failure",
+            yellow=True,
+        )

@@ -17,11 +17,36 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+from matplotlib import colormaps
 
+from tactus_memory.datahome import CORE_SUBSET, data_home
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.data import taxel_mask_from_spec
-from tactus_memory.touch.render import draw_window_png, pick_frames, window_rgba
-from tests.browser_util import ROOT, Server, launch, npy_bytes, stag_windows, sync_playwright
+from tactus_memory.touch.render import (
+    BACKGROUND,
+    COLORMAP,
+    GAP_COLOUR,
+    LEGEND_PX,
+    MIN_RANGE,
+    TouchScale,
+    as_frames,
+    calibrated_frames,
+    contact_level,
+    draw_window_png,
+    pick_frames,
+    touch_scale,
+    window_rgba,
+    window_values,
+)
+from tests.browser_util import (
+    ROOT,
+    Server,
+    launch,
+    npy_bytes,
+    stag_windows,
+    sync_playwright,
+    synthetic_windows,
+)
 
 SCREENSHOTS = ROOT / "runs" / "screenshots"
 STATIC = ROOT / "service" / "static"
@@ -44,23 +69,65 @@ def png_size(data: bytes) -> tuple[int, int, str]:
 
 
 # ============================================================================ the renderer
-def test_render_masks_non_taxels_and_lays_frames_side_by_side():
+def test_render_background_gaps_grid_and_colour_bar():
     window = np.full((3, 32, 32), 500.0, np.float32)  # raw units: rest
     window[1] = 650.0  # full scale
     rgba = window_rgba(window, scale=2, gap=1)
-    assert rgba.shape == (64, 3 * 64 + 2 * 2, 4)
+    assert rgba.shape == (64, 3 * 64 + 2 * 2, 4) and (rgba[..., 3] == 255).all()  # opaque
     mask = taxel_mask_from_spec()
     assert int(mask.sum()) == 548
-    alpha = rgba[::2, :64:2, 3]
-    assert np.array_equal(alpha > 0, mask)  # non-taxel pixels transparent
-    assert (rgba[:, 64:66, 3] == 0).all()  # the gap
+    frame0 = rgba[::2, :64:2, :3]
+    zero = np.array(colormaps[COLORMAP](0.0, bytes=True)[:3])
+    assert (frame0[~mask] == BACKGROUND[:3]).all()  # unused taxels: background, not bars
+    assert (frame0[mask] == zero).all()  # no contact: magma's darkest
+    assert np.abs(np.array(BACKGROUND[:3]) - zero).sum() >= 30  # ... and the two differ
+    assert (rgba[:, 64:66, :3] == GAP_COLOUR[:3]).all()  # the line between frames
     r, c = np.argwhere(mask)[0]
-    rest = rgba[2 * r, 2 * c, :3].astype(int)
     full = rgba[2 * r, 66 + 2 * c, :3].astype(int)
-    assert full.sum() > rest.sum() + 300  # bright at full pressure, dark at rest
+    assert full.sum() > zero.sum() + 500  # bright at full pressure
+    grid = window_rgba(np.zeros((8, 32, 32)), scale=1, columns=4)
+    assert grid.shape == (2 * 33 - 1, 4 * 33 - 1, 4)  # 4 per row, 2 rows
     png = draw_window_png(window)
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    assert png_size(png) == (3 * 128 + 2 * 4, 128, "RGBA")
+    assert png_size(png) == (3 * 128 + 2 * 4, 128 + 4 + LEGEND_PX, "RGBA")  # + colour bar
+    assert png_size(draw_window_png(window, legend=False)) == (3 * 128 + 2 * 4, 128, "RGBA")
+
+
+def test_render_scale_fits_light_real_grasps():
+    """Light contact (raw 540 = 0.27 calibrated, where real grasps sit) is drawn bright, not
+    near-black as on a linear 0-1 scale; a quiet window's noise is not stretched."""
+    window = np.full((2, 32, 32), 512, np.int16)  # rest
+    window[:, 0:3, 0:10] = 540  # light contact on 60 taxels
+    assert contact_level() == pytest.approx((520 - 500) / 150)  # raw 520: above the pedestal
+    cal = calibrated_frames(as_frames(window))
+    ts = touch_scale(cal, taxel_mask_from_spec())
+    assert ts.hi == pytest.approx(40 / 150) and ts.gamma == 0.5
+    rgba = window_rgba(window, scale=1)
+    assert rgba[1, 5, :3].astype(int).sum() > 600  # the patch: magma's bright end
+    assert (rgba[1, 20, :3] == colormaps[COLORMAP](0.0, bytes=True)[:3]).all()  # rest: dark
+    quiet = np.full((1, 32, 32), 519, np.int16)
+    quiet[0, 0, 0] = 523  # noise just above the contact level
+    ts = touch_scale(calibrated_frames(quiet), taxel_mask_from_spec())
+    assert ts.hi == pytest.approx(ts.lo + MIN_RANGE)  # not stretched to full brightness
+    assert ts.unit(np.float32(ts.lo + MIN_RANGE / 4)) == pytest.approx(0.5, abs=1e-3)
+
+
+def test_render_values_match_the_picture():
+    rng = np.random.default_rng(3)
+    window = rng.integers(505, 700, size=(6, 32, 32)).astype(np.int16)
+    vals = window_values(window, scale=3, columns=4)
+    lay = vals["layout"]
+    assert (lay["columns"], lay["rows"], lay["scale"], lay["gap"]) == (4, 2, 3, 1)
+    rgba = window_rgba(window, scale=3, columns=4)
+    assert rgba.shape[:2] == (lay["height"], lay["width"])
+    cal = calibrated_frames(window)
+    assert np.allclose(vals["values"], cal, atol=1e-4) and vals["frames"] == list(range(6))
+    assert np.array_equal(np.array(vals["taxels"], bool), taxel_mask_from_spec())
+    ts = TouchScale(**vals["scale"])
+    f, r, c = 5, 16, 3  # frame 5 sits in row 1, column 1 of the grid
+    x, y = (f % 4) * 33 * 3 + c * 3, (f // 4) * 33 * 3 + r * 3
+    want = colormaps[COLORMAP](ts.unit(cal[f, r, c]), bytes=True)[:3]
+    assert tuple(rgba[y + 1, x + 1, :3]) == tuple(want)
 
 
 def test_render_calibration_frames_and_errors():
@@ -68,25 +135,33 @@ def test_render_calibration_frames_and_errors():
     raw = np.full((2, 32, 32), 650.0, np.float32)
     assert np.array_equal(window_rgba(cal), window_rgba(raw))  # 0..1 taken as calibrated
     assert np.array_equal(window_rgba(raw), window_rgba(raw, calibrated=False))
-    assert png_size(draw_window_png(np.zeros((32, 32))))[:2] == (128, 128)  # one frame
+    assert png_size(draw_window_png(np.zeros((32, 32)), legend=False))[:2] == (128, 128)
     assert list(pick_frames(5)) == [0, 1, 2, 3, 4]
     picked = pick_frames(100, 16)
     assert len(picked) == 16 and picked[0] == 0 and picked[-1] == 99
-    assert png_size(draw_window_png(np.zeros((100, 32, 32)), scale=1))[:2] == (16 * 33 - 1, 32)
+    one_row = draw_window_png(np.zeros((100, 32, 32)), scale=1, legend=False)
+    assert png_size(one_row)[:2] == (16 * 33 - 1, 32)
     for bad in (np.zeros((2, 32, 31)), np.full((1, 32, 32), np.nan), np.zeros((0, 32, 32))):
         with pytest.raises(InvalidInputError):
             draw_window_png(bad)
     with pytest.raises(InvalidInputError):
         draw_window_png(np.zeros((1, 32, 32)), scale=0)
+    with pytest.raises(InvalidInputError):
+        draw_window_png(np.zeros((1, 32, 32)), columns=0)
 
 
 # ============================================================================ server + data
 @pytest.fixture(scope="module")
-def served(tmp_path_factory, stag_dir):
-    """A real server with two sessions: notes, real STAG touch windows, motion vectors."""
+def served(tmp_path_factory):
+    """A real server with two sessions: notes, touch windows, motion vectors. The touch
+    windows are real STAG grasps when the data folder has them (``data_home()``), otherwise
+    STAG-format synthetic ones, so the page is tested on a fresh clone too; the test of a
+    real grasp (``test_real_grasp_heat_map_shows_the_contact_area``) needs the real ones."""
     tmp = tmp_path_factory.mktemp("browser")
+    stag = data_home().stag
+    real = (stag / CORE_SUBSET / "metadata.mat").is_file()
+    windows = stag_windows(stag, 6) if real else synthetic_windows(6)
     server = Server(tmp / "memory", tmp / "server.log")
-    windows = stag_windows(stag_dir, 6)
     ids: dict[str, str] = {}
     try:
         with httpx.Client(base_url=server.base, timeout=120) as c:
@@ -119,7 +194,7 @@ def served(tmp_path_factory, stag_dir):
                 ids[name] = r.json()["ids"][0]
             r = c.post("/sessions/glove-bench/text", json={"text": "bench check", "t": 100.0})
             assert r.status_code == 201, r.text
-        yield {"server": server, "ids": ids, "windows": windows, "tmp": tmp}
+        yield {"server": server, "ids": ids, "windows": windows, "tmp": tmp, "real": real}
     finally:
         server.stop()
 
@@ -257,7 +332,7 @@ def test_touch_hits_show_heat_maps(page, served, tmp_path):
     assert senses and set(senses) == {"touch"}, senses
     wait_heatmaps_loaded(page, "#results img.heatmap")
     width = page.eval_on_selector("#results img.heatmap", "i => i.naturalWidth")
-    assert width == 8 * 96 + 7 * 3  # 8 frames at scale 3, 3 px gaps
+    assert width == 4 * 33 * 5 - 5  # 4 frames per row at 5 px per taxel, 5 px lines between
     alt = page.get_attribute("#results img.heatmap", "alt")
     assert alt.startswith("Pressure heat map of the touch window")
     assert "object" in page.text_content(f"{HIT} .meta")
@@ -266,6 +341,77 @@ def test_touch_hits_show_heat_maps(page, served, tmp_path):
         page.check(f"#sense-{sense}")
     path = shot(page, tmp_path, "browser-search-touch")
     shutil.copy(path, SCREENSHOTS / "browser.png")  # the one for the report
+
+
+#: a taxel is drawn "above no contact" when its colour differs from magma's darkest by more
+#: than this (sum of |dR|+|dG|+|dB|; the first contact step is >= 25 away, screenshots are exact)
+LIT = 12
+#: contact in the raw data: above the resting pedestal (510-516 raw, stag-format.md) + margin
+CONTACT_RAW = 520
+
+
+@pytest.mark.slow
+def test_real_grasp_heat_map_shows_the_contact_area(page, served, tmp_path, stag_dir):
+    """A real STAG grasp of a known object (the ball), as a person sees it in the browser: in
+    a screenshot of its heat map, the share of taxels drawn brighter than "no contact" matches
+    the share of taxels in contact in the raw data; pointing at a taxel shows its value."""
+    assert served["real"], f"the server was given synthetic windows although {stag_dir} exists"
+    name = "ball"
+    raw = next(w for w, n in served["windows"] if n == name)  # (8, 32, 32) int16
+    item = served["ids"][name]
+    for sense in ("text", "motion"):
+        page.uncheck(f"#sense-{sense}")
+    page.fill("#f-session", "kitchen-demo")
+    page.uncheck("#f-group")
+    page.fill("#q", "holding a ball")
+    page.click("#search-form button[type=submit]")
+    sel = f'{HIT}[data-id="{item}"] img.heatmap'
+    page.wait_for_selector(sel)
+    wait_heatmaps_loaded(page, sel)
+    img = page.locator(sel)
+    natural = img.evaluate("i => i.naturalWidth")
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    crop = SCREENSHOTS / f"heatmap-real-{name}.png"
+    img.screenshot(path=str(crop))
+    shot(page, tmp_path, "browser-real-grasp")
+    from PIL import Image
+
+    with Image.open(crop) as im:
+        pix = np.asarray(im.convert("RGB"), dtype=np.int32)
+    k = pix.shape[1] / natural  # screenshot px per image px (1 unless the page shrank it)
+    mask = taxel_mask_from_spec()
+    zero = np.array(colormaps[COLORMAP](0.0, bytes=True)[:3], np.int32)
+    rows, cols = np.nonzero(mask)
+    lit = []
+    for f in range(raw.shape[0]):
+        ox, oy = (f % 4) * 33 * 5, (f // 4) * 33 * 5  # 4 per row, 5 px per taxel
+        ys = ((oy + rows * 5 + 2.5) * k).astype(int)
+        xs = ((ox + cols * 5 + 2.5) * k).astype(int)
+        lit.append(np.abs(pix[ys, xs] - zero).sum(axis=1) > LIT)
+    drawn = float(np.mean(lit))
+    contact = float(np.mean(raw[:, mask] > CONTACT_RAW))
+    print(f"{name}: contact taxels in the data {contact:.3f}, drawn above background {drawn:.3f}")
+    assert contact >= 0.03, "the chosen grasp should touch something"
+    assert abs(drawn - contact) <= 0.01 + 0.05 * contact
+    # the unused taxels are background, never lit
+    off = np.argwhere(~mask)[100]
+    y, x = (np.array(off) * 5 + 2.5) * k
+    assert np.abs(pix[int(y), int(x)] - np.array(BACKGROUND[:3])).sum() <= LIT
+    # hover the firmest taxel of frame 1: its calibrated value is shown
+    cal = calibrated_frames(raw)
+    r, c = np.unravel_index(int(np.argmax(np.where(mask, cal[0], -1))), mask.shape)
+    want = f"frame 1, row {r}, column {c}: "
+    readout = page.locator(f'{HIT}[data-id="{item}"] output.taxel-value')
+    for attempt in range(100):  # the first hover fetches touch.json; later ones read it
+        img.hover(position={"x": (c * 5 + 1 + attempt % 3) / k, "y": (r * 5 + 2) / k})
+        if readout.text_content():
+            break
+        page.wait_for_timeout(100)
+    text = readout.text_content()
+    assert text.startswith(want) and text.endswith(" calibrated (contact)"), text
+    shown = float(text[len(want) :].split()[0])  # stored as float16, shown to 3 decimals
+    assert shown == pytest.approx(float(cal[0, r, c]), abs=1.5e-3)
+    assert img.get_attribute("title") == text
 
 
 @pytest.mark.slow
@@ -330,8 +476,11 @@ def test_grouped_moments_or_graceful_fallback(page, served, tmp_path):
         "#results > li.moment", "ms => ms.map(m => m.querySelectorAll('li.hit').length)"
     )
     assert members and all(n >= 1 for n in members)
-    top = page.text_content("#results > li.moment")
-    assert "tightened a bolt with the allen key" in top
+    moments = page.eval_on_selector_all("#results > li.moment", "ms => ms.map(m => m.textContent)")
+    # real grasps leave the note on top; synthetic windows (no real data) may outrank it
+    assert "tightened a bolt with the allen key" in (
+        moments[0] if served["real"] else " ".join(moments)
+    )
     shot(page, tmp_path, "browser-moments")
     page.uncheck("#f-group")  # back to plain hits
     page.click("#search-form button[type=submit]")
@@ -424,7 +573,7 @@ def test_degrades_without_moments_and_timeline_routes(browser_context, served):
 
 
 @pytest.mark.slow
-def test_token_protected_server(browser_context, served, stag_dir, tmp_path):
+def test_token_protected_server(browser_context, served, tmp_path):
     """With a token the page itself loads, says what is missing, and works once it is typed
     (heat maps are then fetched with the header and shown from blob: URLs)."""
     tmp = served["tmp"]
@@ -468,9 +617,21 @@ def test_png_routes_and_no_external_origin(served):
     with httpx.Client(base_url=base, timeout=60) as c:
         r = c.get(f"/items/{ids['ball']}/touch.png")
         assert r.status_code == 200 and r.headers["content-type"] == "image/png"
-        assert png_size(r.content) == (8 * 128 + 7 * 4, 128, "RGBA")
-        r = c.get(f"/items/{ids['ball']}/touch.png", params={"scale": 1, "max_frames": 2})
+        assert png_size(r.content) == (8 * 128 + 7 * 4, 128 + 4 + LEGEND_PX, "RGBA")
+        q = {"scale": 1, "max_frames": 2, "legend": False}
+        r = c.get(f"/items/{ids['ball']}/touch.png", params=q)
         assert png_size(r.content)[:2] == (2 * 32 + 1, 32)
+        q = {"scale": 5, "columns": 4}
+        r = c.get(f"/items/{ids['ball']}/touch.png", params=q)
+        assert png_size(r.content)[:2] == (4 * 165 - 5, 2 * 165 - 5 + 4 + LEGEND_PX)
+        v = c.get(f"/items/{ids['ball']}/touch.json", params=q).json()
+        assert np.asarray(v["values"]).shape == (8, 32, 32) and v["frames"] == list(range(8))
+        assert (v["layout"]["columns"], v["layout"]["rows"]) == (4, 2)
+        assert v["scale"]["colormap"] == COLORMAP and v["scale"]["lo"] < v["scale"]["hi"]
+        raw = [w for w, name in served["windows"] if name == "ball"][0]
+        # the touch sense stores the calibrated window as float16: 1e-3 near 1
+        assert np.allclose(v["values"], calibrated_frames(raw), atol=1e-3)
+        assert c.get(f"/items/{ids[NOTES[0][1]]}/touch.json").status_code == 422
         r = c.get(f"/items/{ids[NOTES[0][1]]}/touch.png")
         assert r.status_code == 422 and "no touch window" in r.json()["detail"]
         assert r.headers["content-type"].startswith("application/problem+json")
@@ -478,7 +639,7 @@ def test_png_routes_and_no_external_origin(served):
         assert c.get("/items/bad id!/touch.png").status_code == 422
         window = served["windows"][0][0]
         r = c.post("/render/touch.png", json={"frames": window.tolist()})
-        assert r.status_code == 200 and png_size(r.content)[1] == 128
+        assert r.status_code == 200 and png_size(r.content)[1] == 128 + 4 + LEGEND_PX
         assert c.post("/render/touch.png", json={"frames": [[1.0]]}).status_code == 422
         # the page and its assets: served, and no http(s) origin anywhere in them
         texts = {"/": c.get("/")}

@@ -186,14 +186,14 @@ def test_shipped_default_in_a_minilm_memory(tmp_path, shipped, minilm_space, sta
     print("screwdriver query ->", [names[h.id] for h in hits])
 
 
-def test_shipped_default_classifies_real_windows_above_chance(shipped, stag_dir) -> None:
+def test_shipped_default_classifies_real_windows_above_chance(shipped, stag_subset) -> None:
     """Pipeline check on real raw STAG windows (raw int16 -> calibration -> model -> targets).
 
     These recordings were in the shipped model's training data; the held-out number is the
     validation run's (checkpoints/README.md). Chance is 1/27."""
     from tactus_memory.touch.data import load_stag
 
-    d = load_stag(stag_dir / "blindfolded_lite_train")
+    d = load_stag(stag_subset("blindfolded_lite_train", "blindfolded_lite"))
     rng = np.random.default_rng(0)
     wins, labels = [], []
     for r in np.unique(d.recording_id[d.valid]):

@@ -613,25 +613,40 @@ def test_settings_from_environment(monkeypatch):
 
 
 def test_serve_command_builds_settings_and_runs_uvicorn(monkeypatch, tmp_path):
-    import uvicorn
     from typer.testing import CliRunner
 
-    import tactus_memory.service.app as app_module
+    import tactus_memory.cli.serve_cmd as serve_cmd
     from tactus_memory.cli import app as cli_app
 
     seen: dict[str, Any] = {}
     monkeypatch.setenv("TACTUS_STRIDE", "2")
     monkeypatch.setattr(
-        app_module, "create_app", lambda settings: seen.setdefault("settings", settings)
+        serve_cmd, "load_app", lambda settings, say: seen.setdefault("settings", settings)
     )
-    monkeypatch.setattr(uvicorn, "run", lambda app, **kw: seen.update(kw))
+    monkeypatch.setattr(serve_cmd, "run_server", lambda app, settings: seen.update(ran=settings))
     args = ["serve", "--port", "8123", "--data", str(tmp_path), "--token", "T", "--no-touch"]
     result = CliRunner().invoke(cli_app, args)
     assert result.exit_code == 0, result.output
     s = seen["settings"]
     assert (s.port, s.data, s.stride, s.touch) == (8123, str(tmp_path), 2, False)
     assert s.token.get_secret_value() == "T"
-    assert (seen["host"], seen["port"]) == ("127.0.0.1", 8123)
+    assert seen["ran"] is s and (s.host, s.port) == ("127.0.0.1", 8123)
+
+
+def test_serve_loads_step_by_step_and_names_the_page(monkeypatch, tmp_path):
+    from tactus_memory.cli.serve_cmd import load_app, page_url
+    from tests.fakes import HashingSpace
+
+    monkeypatch.setattr("tactus_memory.spaces.get_space", lambda name: HashingSpace(dim=32))
+    lines: list[str] = []
+    app = load_app(Settings(data=str(tmp_path / "m"), touch=False), say=lines.append)
+    assert [ln.split(" ", 1)[0] for ln in lines if "done in" in ln] == ["[1/3]", "[2/3]", "[3/3]"]
+    assert any("loading the text model" in ln for ln in lines)
+    assert any(ln.startswith("touch is off") and "TACTUS_TOUCH" in ln for ln in lines)
+    with TestClient(app) as c:
+        assert "TACTUS_TOUCH" in c.get("/health").json()["touch_unavailable"]
+    assert page_url(Settings(host="0.0.0.0", port=9000)) == "http://127.0.0.1:9000/"
+    assert page_url(Settings(host="::1", port=9000), 9001) == "http://[::1]:9001/"
 
 
 def test_fresh_store_registers_default_senses_and_explains_missing_touch(tmp_path, monkeypatch):

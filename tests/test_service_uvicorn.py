@@ -79,6 +79,9 @@ def test_real_server_search_stream_crash_and_restart(data_dir, tmp_path):
         with httpx.Client(base_url=server.base, headers=auth, timeout=60) as c:
             health = httpx.get(server.base + "/health").json()
             assert health["space"]["name"] == "minilm-l6" and health["space"]["dim"] == 384
+            started = log.read_text()  # `tactus serve` said what it loaded and where to look
+            assert "[2/3] loading the text model (minilm-l6): done in" in started
+            assert f"memory browser: {server.base}/" in started
             assert httpx.get(server.base + "/sessions").status_code == 401
 
             notes = ["the mug was hot", "a soft sponge", "a cold metal spoon", "a rough brick"]

@@ -403,8 +403,8 @@ def test_real_weights_file(stag_dir: Path) -> None:
 
 
 @pytest.mark.slow
-def test_real_blindfolded_file(stag_dir: Path) -> None:
-    d = load_stag(stag_dir / "blindfolded_lite_train" / "metadata.mat")
+def test_real_blindfolded_file(stag_dir: Path, stag_subset) -> None:
+    d = load_stag(stag_subset("blindfolded_lite_train") / "metadata.mat")
     assert (d.n_frames, d.n_recordings, d.valid_frames) == (3034, 52, 260)
     assert len(d.recordings) == 105 and d.objects == OBJECTS
     assert d.splits == ["train", "test"] and d.split_mask("test").all() and d.balanced.all()

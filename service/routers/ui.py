@@ -3,9 +3,10 @@
 ``page_router`` (no token: it is static HTML/JS/CSS and holds no data; the page sends the
 token the user types on every API call) serves ``/`` and ``/static/<file>`` from
 ``service/static``. ``router`` (behind the token like every data route) draws touch windows:
-``GET /items/{id}/touch.png`` for a stored window and ``POST /render/touch.png`` for a window
-the user is about to search with. Both use :func:`tactus_memory.touch.render.draw_window_png`,
-the same renderer as the evaluation report.
+``GET /items/{id}/touch.png`` for a stored window (``/touch.json``: its numbers, for the value
+under the pointer) and ``POST /render/touch.png`` for a window the user is about to search
+with. Both use :func:`tactus_memory.touch.render.draw_window_png`, the same renderer as the
+evaluation report.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN, MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
 from tactus_memory.touch.data import STAG_GLOVE, SensorProfile
-from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png
+from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png, window_values
 
 STATIC = FsPath(__file__).resolve().parent.parent / "static"
 STATIC_TYPES = {
@@ -46,6 +47,10 @@ router = APIRouter(tags=["browser"])
 
 Scale = Annotated[int, Query(ge=1, le=16, description="Pixels per taxel.")]
 MaxFrames = Annotated[int, Query(ge=1, le=64, description="Most frames drawn (evenly spread).")]
+Columns = Annotated[
+    int | None, Query(ge=1, le=64, description="Frames per row (default: all in one row).")
+]
+Legend = Annotated[bool, Query(description="Draw the colour bar under the frames.")]
 
 
 # ----------------------------------------------------------------------------- the page
@@ -98,19 +103,42 @@ def _png(body: bytes) -> Response:
     return Response(body, media_type=PNG, headers={"Cache-Control": "private, max-age=300"})
 
 
-def _item_png(memory: Any, item_id: str, scale: int, max_frames: int) -> bytes:
+def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, SensorProfile]:
     item = memory.get_item(item_id)  # NotFoundError -> 404
     window, calibrated = _window_of(item.raw)
     if window is None:
         raise InvalidInputError(
             f"item {item_id!r} (sense {item.sense!r}) holds no touch window to draw"
         )
+    return window, calibrated, _profile(memory, item.sense)
+
+
+def _item_png(
+    memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None, legend: bool
+) -> bytes:
+    window, calibrated, profile = _item_window(memory, item_id)
     return draw_window_png(
         window,
         calibrated=calibrated,
-        profile=_profile(memory, item.sense),
+        profile=profile,
         scale=scale,
         max_frames=max_frames,
+        columns=columns,
+        legend=legend,
+    )
+
+
+def _item_values(
+    memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
+) -> dict[str, Any]:
+    window, calibrated, profile = _item_window(memory, item_id)
+    return window_values(
+        window,
+        calibrated=calibrated,
+        profile=profile,
+        scale=scale,
+        max_frames=max_frames,
+        columns=columns,
     )
 
 
@@ -118,9 +146,11 @@ def _item_png(memory: Any, item_id: str, scale: int, max_frames: int) -> bytes:
     "/items/{item_id}/touch.png",
     summary="A stored touch window as a pressure heat map (PNG)",
     description=(
-        "One image per frame, side by side: calibrated pressure 0..1 (inferno colour map) on "
-        "the glove's 548 taxels; pixels of the 32x32 raster that are not taxels are "
-        "transparent. 422 when the item holds no touch window (e.g. a text note)."
+        "One image per frame (one row, or `columns` per row): calibrated pressure on the "
+        "glove's 548 taxels through the magma colour map, from the contact level (darkest) to "
+        "the window's 99th percentile (brightest), gamma 0.5, with a colour bar stating both; "
+        "pixels of the 32x32 raster that are not taxels are drawn in the background colour. "
+        "422 when the item holds no touch window (e.g. a text note)."
     ),
     response_class=Response,
     responses={**PNG_RESPONSE, **problem_responses(404, 422)},
@@ -132,8 +162,34 @@ async def touch_png(
     memory: MemoryDep,
     scale: Scale = SCALE,
     max_frames: MaxFrames = MAX_FRAMES,
+    columns: Columns = None,
+    legend: Legend = True,
 ) -> Response:
-    return _png(await run_in_threadpool(_item_png, memory, item_id, scale, max_frames))
+    png = await run_in_threadpool(_item_png, memory, item_id, scale, max_frames, columns, legend)
+    return _png(png)
+
+
+@router.get(
+    "/items/{item_id}/touch.json",
+    summary="The numbers behind a stored touch window's heat map",
+    description=(
+        "For the same query as `touch.png`: `values` (K', 32, 32) calibrated pressure of the "
+        "drawn frames, `frames` their indices in the window, `taxels` the (32, 32) taxel mask, "
+        "`scale` (lo, hi, gamma, colormap) and `layout` (columns, rows, scale, gap, size, "
+        "width, height of the frames in pixels) so a pointer position maps to a taxel."
+    ),
+    responses=problem_responses(404, 422),
+)
+async def touch_json(
+    item_id: Annotated[
+        str, Path(pattern=ID_PATTERN, max_length=128, description="Item id. " + ID_DESCRIPTION)
+    ],
+    memory: MemoryDep,
+    scale: Scale = SCALE,
+    max_frames: MaxFrames = MAX_FRAMES,
+    columns: Columns = None,
+) -> dict[str, Any]:
+    return await run_in_threadpool(_item_values, memory, item_id, scale, max_frames, columns)
 
 
 class RenderIn(Strict):
@@ -153,10 +209,20 @@ class RenderIn(Strict):
     responses={**PNG_RESPONSE, **problem_responses(413, 422)},
 )
 async def render_touch_png(
-    body: RenderIn, scale: Scale = SCALE, max_frames: MaxFrames = MAX_FRAMES
+    body: RenderIn,
+    scale: Scale = SCALE,
+    max_frames: MaxFrames = MAX_FRAMES,
+    columns: Columns = None,
+    legend: Legend = True,
 ) -> Response:
     window = as_window(body.frames)
     png = await run_in_threadpool(
-        draw_window_png, window, calibrated=body.calibrated, scale=scale, max_frames=max_frames
+        draw_window_png,
+        window,
+        calibrated=body.calibrated,
+        scale=scale,
+        max_frames=max_frames,
+        columns=columns,
+        legend=legend,
     )
     return _png(png)

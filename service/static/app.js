@@ -120,9 +120,14 @@ function metaList(meta) {
 
 // ------------------------------------------------------------------------------ heat maps
 // The PNG comes from the service (tactus_memory.touch.render.draw_window_png, the renderer
-// the evaluation report uses too). With a token, <img src> cannot send the header: fetch it.
+// the evaluation report uses too): frames 4 per row at 5 px per taxel, a colour bar under
+// them. With a token, <img src> cannot send the header: fetch it. Hovering a taxel shows its
+// calibrated value, from GET /items/{id}/touch.json (same query, fetched on first hover).
+const HEATMAP_QUERY = "scale=5&columns=4";
+
 function heatmap(itemId, label) {
-  const src = `/items/${encodeURIComponent(itemId)}/touch.png?scale=3`;
+  const base = `/items/${encodeURIComponent(itemId)}`;
+  const src = `${base}/touch.png?${HEATMAP_QUERY}`;
   const img = h("img", {
     class: "heatmap",
     alt: label,
@@ -141,12 +146,56 @@ function heatmap(itemId, label) {
   } else {
     img.src = src;
   }
+  const readout = h("output", { class: "taxel-value", "aria-live": "off" }, "");
+  let values = null; // the touch.json answer, once fetched
+  let loading = null;
+  img.addEventListener("mousemove", (ev) => {
+    if (!values) {
+      loading = loading || api(`${base}/touch.json?${HEATMAP_QUERY}`).then((v) => (values = v));
+      loading.catch(() => {});
+      return;
+    }
+    const text = taxelAt(values, img, ev);
+    readout.textContent = text;
+    img.title = text;
+  });
+  img.addEventListener("mouseleave", () => {
+    readout.textContent = "";
+  });
   return h(
     "figure",
     { class: "heatmap-figure" },
     img,
-    h("figcaption", { class: "muted" }, "pressure per frame, left to right (dark 0 → bright 1)"),
+    h(
+      "figcaption",
+      { class: "muted" },
+      "pressure per frame, left to right then down; colour bar below (dark: no contact); " +
+        "point at a taxel for its value ",
+      readout,
+    ),
   );
+}
+
+// The taxel under the pointer: the image is drawn at layout.scale px per taxel, frames
+// (size + gap) taxels apart, layout.columns per row; the colour bar sits below the frames.
+function taxelAt(v, img, ev) {
+  const L = v.layout;
+  const k = img.naturalWidth / img.clientWidth; // CSS may shrink the image
+  const x = ev.offsetX * k;
+  const y = ev.offsetY * k;
+  if (x >= L.width || y >= L.height) return "";
+  const pitch = (L.size + L.gap) * L.scale;
+  const col = Math.floor(x / pitch);
+  const row = Math.floor(y / pitch);
+  const c = Math.floor((x - col * pitch) / L.scale);
+  const r = Math.floor((y - row * pitch) / L.scale);
+  const f = row * L.columns + col;
+  if (c >= L.size || r >= L.size || f >= v.values.length) return "";
+  const where = `frame ${v.frames[f] + 1}, row ${r}, column ${c}`;
+  if (!v.taxels[r][c]) return `${where}: not a taxel of the glove`;
+  const value = v.values[f][r][c];
+  const contact = value > v.scale.lo ? "contact" : "no contact";
+  return `${where}: ${value.toFixed(3)} calibrated (${contact})`;
 }
 
 function touchLabel(hit) {
@@ -608,7 +657,7 @@ async function onLike(e) {
 async function showLikePreview(frames, calibrated, name) {
   const fig = $("#like-preview");
   try {
-    const res = await api("/render/touch.png?scale=2", {
+    const res = await api(`/render/touch.png?${HEATMAP_QUERY}`, {
       method: "POST",
       body: { frames, calibrated },
       raw: true,

@@ -1,4 +1,5 @@
-"""``tactus data ...``: inspect STAG files (counts, class list, dynamic range, the gate)."""
+"""``tactus data ...``: inspect STAG files (counts, class list, dynamic range, the gate), show
+the data folder (``data path``) and get the STAG lite files into it (``data fetch stag``)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ import typer
 
 from tactus_memory.cli.app import app
 
-data_app = typer.Typer(name="data", help="Inspect STAG tactile data files.", no_args_is_help=True)
+data_app = typer.Typer(
+    name="data", help="STAG tactile data: where it is, get it, inspect it.", no_args_is_help=True
+)
 app.add_typer(data_app, name="data")
 
 
@@ -99,3 +102,78 @@ def inspect(
     dwidth = max(len(k) for k in dr)
     for key, value in dr.items():
         typer.echo(f"  {key:<{dwidth}}  {_fmt(value)}")
+
+
+@data_app.command("path")
+def path_cmd(
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+    stag: bool = typer.Option(False, "--stag", help="Print only the STAG folder (for scripts)."),
+) -> None:
+    """Where the data folder is (TACTUS_DATA_HOME, the user data folder, or ../shared beside a
+    checkout) and which STAG subsets it holds."""
+    from tactus_memory.datahome import data_home, how_to_get_stag
+
+    home = data_home()
+    subsets = home.stag_subsets()
+    if stag:
+        typer.echo(str(home.stag))
+        return
+    if as_json:
+        out = {"path": str(home.path), "source": home.source, "stag": str(home.stag)}
+        typer.echo(json.dumps({**out, "stag_subsets": subsets}, indent=2))
+        return
+    typer.echo(f"data folder  {home.path}  ({home.source})")
+    typer.echo(f"STAG subsets {', '.join(subsets) if subsets else 'none'}  (under {home.stag})")
+    if not subsets:
+        typer.echo(how_to_get_stag(), err=True)
+
+
+@data_app.command("fetch")
+def fetch_cmd(
+    dataset: str = typer.Argument(..., help="The data set to get: `stag`."),
+    from_dir: Path | None = typer.Option(
+        None,
+        "--from",
+        help="Import files you already have instead of downloading: a folder holding "
+        "<subset>/metadata.mat (or stag/<subset>/metadata.mat, or one subset folder).",
+    ),
+    base_url: str | None = typer.Option(
+        None,
+        "--base-url",
+        help="Download from this mirror: <base-url>/<subset>/metadata.mat "
+        "(default: TACTUS_STAG_BASE_URL, else the public ini_estim mirror on GitHub).",
+    ),
+    subset: list[str] = typer.Option(
+        [], "--subset", help="Only these subsets (repeatable; default: all pinned ones)."
+    ),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
+) -> None:
+    """Get the STAG lite subsets (weights_lite, blindfolded_lite) into the data folder,
+    sha256-checked against pinned sums; an interrupted download resumes on the next run."""
+    from tactus_memory.stag_fetch import (
+        FetchError,
+        StagSource,
+        fetch_stag,
+        fetch_target,
+        import_stag,
+    )
+
+    if dataset != "stag":
+        typer.echo(f"error: unknown data set {dataset!r}; known: stag", err=True)
+        raise typer.Exit(code=2)
+    source = StagSource.from_env(base_url)
+
+    def say(line: str) -> None:
+        typer.echo(line, err=True)
+
+    try:
+        if from_dir is not None:
+            placed = import_stag(from_dir, source=source, subsets=subset or None, say=say)
+        else:
+            placed = fetch_stag(source=source, subsets=subset or None, progress=progress, say=say)
+    except FetchError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=1) from exc
+    for p in placed:
+        typer.echo(f"{p.subset}\t{p.status}\t{p.sha256}\t{p.path}")
+    typer.echo(f"data folder: {fetch_target()}", err=True)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+import time
+from collections.abc import Callable
+from typing import Annotated, Any
 
 import typer
 
@@ -48,9 +50,6 @@ def serve(
     options given here win. On a fresh store the default senses are registered: text, and
     touch with the shipped checkpoint.
     """
-    import uvicorn
-
-    from tactus_memory.service.app import create_app
     from tactus_memory.service.settings import Settings
 
     given = {
@@ -68,13 +67,53 @@ def serve(
     if no_touch:
         overrides["touch"] = False
     settings = Settings(**overrides)
-    application = create_app(settings)
-    typer.echo(
-        f"tactus-memory serving {settings.data} on http://{settings.host}:{settings.port} "
-        f"(docs at /docs; token {'required' if settings.token else 'off'})",
-        err=True,
+    application = load_app(settings, say=lambda line: typer.echo(line, err=True))
+    run_server(application, settings)
+
+
+def page_url(settings: Any, port: int | None = None) -> str:
+    """The browser page's URL (a wildcard bind address is reached through localhost)."""
+    host = settings.host if settings.host not in ("0.0.0.0", "::", "") else "127.0.0.1"
+    host = f"[{host}]" if ":" in host else host
+    return f"http://{host}:{port or settings.port}/"
+
+
+def load_app(settings: Any, say: Callable[[str], None]) -> Any:
+    """Open the store and load the models step by step, saying what is loading and how long
+    each step took (the text model and the touch encoder take seconds on a CPU)."""
+    from tactus_memory.memory import Memory
+    from tactus_memory.service.app import create_app, register_default_senses
+    from tactus_memory.spaces import get_space
+
+    steps = 3
+
+    def step(i: int, what: str, fn: Callable[[], Any]) -> Any:
+        say(f"[{i}/{steps}] {what} ...")
+        t0 = time.perf_counter()
+        out = fn()
+        say(f"[{i}/{steps}] {what}: done in {time.perf_counter() - t0:.1f} s")
+        return out
+
+    memory = step(
+        1,
+        f"opening the memory at {settings.data}",
+        lambda: Memory.open(settings.data, space=get_space(settings.space)),
     )
-    uvicorn.run(
+    name = getattr(memory.space, "name", settings.space)
+    step(2, f"loading the text model ({name})", lambda: memory.space.embed_texts(["warm up"]))
+    why = step(3, "loading the touch encoder", lambda: register_default_senses(memory, settings))
+    if why:
+        say(f"touch is off: {why}")
+    application = create_app(settings, memory=memory)
+    application.state.tactus.touch_unavailable = why
+    return application
+
+
+def run_server(application: Any, settings: Any) -> None:
+    """uvicorn; once it listens, print the page's URL."""
+    import uvicorn
+
+    config = uvicorn.Config(
         application,
         host=settings.host,
         port=settings.port,
@@ -83,3 +122,21 @@ def serve(
         ws_per_message_deflate=False,  # noisy sensor frames hardly compress; save the CPU
         timeout_graceful_shutdown=5,
     )
+
+    class Server(uvicorn.Server):
+        async def startup(self, sockets: Any = None) -> None:
+            await super().startup(sockets=sockets)
+            if self.started:
+                bound = [s.getsockname() for srv in self.servers for s in (srv.sockets or [])]
+                port = bound[0][1] if bound else settings.port  # --port 0: the one it got
+                url = page_url(settings, port)
+                typer.echo(
+                    f"tactus-memory is serving {settings.data}\n"
+                    f"  memory browser: {url}\n"
+                    f"  API docs:       {url}docs\n"
+                    f"  token:          {'required' if settings.token else 'off'}\n"
+                    "  (Ctrl+C stops it)",
+                    err=True,
+                )
+
+    Server(config).run()

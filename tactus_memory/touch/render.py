@@ -1,18 +1,31 @@
 """Touch windows as pressure heat maps of the hand: ONE renderer for the web page and reports.
 
-``draw_window_png(window) -> bytes`` draws a (K, 32, 32) window as K small images side by side
-(one per frame), calibrated pressure 0..1 through a perceptual colour map, and the pixels of
-the 32x32 raster that are not taxels of the glove (``data.taxel_mask_from_spec``: 548 of
-1024) left transparent, so the hand's outline shows. Raw sensor units are calibrated with the
-sensor profile (STAG glove by default); windows already in [0, 1] are taken as calibrated.
+``draw_window_png(window) -> bytes`` draws a (K, 32, 32) window as K frames (in a row, or a
+grid with ``columns``) with a colour bar under them. Readable for real grasps:
 
-Used by the service (``GET /items/{id}/touch.png``) and meant for the ``tactus eval`` report:
-the page and the report show the same picture of the same window.
+- **scale**: calibrated pressure (``clip((raw - 500) / 150, 0, 1)`` for the STAG glove), shown
+  from the contact level ``lo`` (raw 520: the resting pedestal is 510-516, stag-format.md
+  "The sensor"; only 3% of the empty hand's readings in the weights subset exceed it) to a
+  robust per-window top ``hi`` (the 99th percentile of its taxel readings, at least
+  ``lo + MIN_RANGE`` so a quiet window's noise is not stretched to full brightness), with a
+  gamma of 0.5 so light contact (real grasps mostly sit below 0.3) is visible next to firm
+  contact. The colour bar states ``lo``, ``hi`` and the gamma in calibrated units.
+- **colour**: matplotlib's perceptual ``magma``; a taxel at or below ``lo`` is magma's darkest
+  colour, so only contact lights up.
+- **unused taxels** (the 476 pixels of the 32x32 raster that are not taxels of the glove,
+  ``data.taxel_mask_from_spec``) are drawn in the background colour, a near-black slate a
+  shade lighter than "no contact": the sensor layout shows faintly, never as bright bars.
+  Frames are separated by grey lines.
+
+:func:`window_values` gives the same window as numbers (calibrated values, the taxel mask,
+the scale and the layout) so the page can show the value under the pointer. Used by the
+service (``GET /items/{id}/touch.png`` and ``/touch.json``) and the ``tactus eval`` report.
 """
 
 from __future__ import annotations
 
 import io
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -24,9 +37,75 @@ from tactus_memory.touch.data import STAG_GLOVE, SensorProfile, taxel_mask_from_
 SCALE = 4
 #: most frames drawn; longer windows are subsampled evenly (first and last kept)
 MAX_FRAMES = 16
-#: transparent pixels between frames, in taxels
+#: background pixels between frames, in taxels
 GAP = 1
-COLORMAP = "inferno"
+COLORMAP = "magma"
+#: display gamma: value shown = ((cal - lo) / (hi - lo)) ** GAMMA
+GAMMA = 0.5
+#: contact starts this many raw units above the profile's resting reading (STAG: 512 + 8 = 520;
+#: the pedestal is 510-516 raw, stag-format.md; 97% of empty-hand readings stay at or below 520)
+CONTACT_MARGIN_RAW = 8.0
+#: calibrated contact level when the profile names no resting reading
+CONTACT_FALLBACK = 0.1
+#: smallest shown range (calibrated; 15 raw units on the STAG glove)
+MIN_RANGE = 0.1
+#: top of the per-window range: this percentile of the window's taxel readings
+TOP_PERCENTILE = 99.0
+#: the unused (non-taxel) pixels and the colour bar's strip, RGBA: a near-black slate, a
+#: shade above "no contact" (magma's darkest, (0, 0, 4)), so the sensor layout shows faintly
+BACKGROUND = (22, 22, 32, 255)
+#: between frames, RGBA: a mid grey that separates them
+GAP_COLOUR = (120, 124, 134, 255)
+#: height of the colour bar strip, in pixels (bar + labels)
+LEGEND_PX = 34
+
+
+@dataclass(frozen=True)
+class TouchScale:
+    """How calibrated pressure maps to colour: ``lo`` (contact level, darkest) to ``hi``
+    (brightest), ``gamma`` in between; all values calibrated 0..1."""
+
+    lo: float
+    hi: float
+    gamma: float = GAMMA
+    colormap: str = COLORMAP
+
+    def unit(self, cal: np.ndarray) -> np.ndarray:
+        """Calibrated values -> 0..1 colour positions (0 at or below ``lo``)."""
+        v = np.clip((np.asarray(cal, np.float32) - self.lo) / (self.hi - self.lo), 0.0, 1.0)
+        return v**self.gamma
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where frame ``i`` sits: column ``i % columns``, row ``i // columns``, each frame
+    ``32 * scale`` px square, ``gap * scale`` px between frames."""
+
+    frames: int
+    columns: int
+    scale: int
+    gap: int
+    size: int = 32
+
+    @property
+    def rows(self) -> int:
+        return -(-self.frames // self.columns)
+
+    @property
+    def pitch(self) -> int:
+        return (self.size + self.gap) * self.scale
+
+    @property
+    def width(self) -> int:
+        return self.columns * self.pitch - self.gap * self.scale
+
+    @property
+    def height(self) -> int:
+        return self.rows * self.pitch - self.gap * self.scale
+
+    def origin(self, i: int) -> tuple[int, int]:
+        """(x, y) of frame ``i``'s top-left pixel."""
+        return (i % self.columns) * self.pitch, (i // self.columns) * self.pitch
 
 
 def as_frames(window: Any) -> np.ndarray:
@@ -69,6 +148,53 @@ def pick_frames(n: int, max_frames: int = MAX_FRAMES) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, max_frames).round().astype(np.int64))
 
 
+def contact_level(profile: SensorProfile = STAG_GLOVE) -> float:
+    """Calibrated level where contact starts (STAG glove: raw 520 -> 0.1333)."""
+    if profile.rest_raw is None:
+        return CONTACT_FALLBACK
+    return float((profile.rest_raw + CONTACT_MARGIN_RAW - profile.offset) / profile.span)
+
+
+def touch_scale(
+    frames: np.ndarray, taxels: np.ndarray, profile: SensorProfile = STAG_GLOVE
+) -> TouchScale:
+    """The per-window scale: ``lo`` = contact level, ``hi`` = robust top of the window's
+    taxel readings (``TOP_PERCENTILE``), at least ``lo + MIN_RANGE``, at most 1 (or ``lo``
+    plus a sliver when the contact level itself is near the ceiling)."""
+    lo = contact_level(profile)
+    top = float(np.percentile(frames[:, taxels], TOP_PERCENTILE)) if taxels.any() else lo
+    hi = min(max(top, lo + MIN_RANGE), 1.0)
+    return TouchScale(lo=lo, hi=max(hi, lo + 1e-3))
+
+
+def _prepare(
+    window: Any,
+    calibrated: bool | None,
+    profile: SensorProfile,
+    scale: int,
+    max_frames: int,
+    gap: int,
+    columns: int | None,
+    mask: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, TouchScale, Layout]:
+    if not 1 <= int(scale) <= 32:
+        raise InvalidInputError(f"scale must be in [1, 32], got {scale}")
+    if int(max_frames) < 1:
+        raise InvalidInputError(f"max_frames must be >= 1, got {max_frames}")
+    if columns is not None and int(columns) < 1:
+        raise InvalidInputError(f"columns must be >= 1, got {columns}")
+    frames = calibrated_frames(window, calibrated=calibrated, profile=profile)
+    picked = pick_frames(frames.shape[0], int(max_frames))
+    frames = frames[picked]
+    taxels = taxel_mask_from_spec() if mask is None else np.asarray(mask, dtype=bool)
+    if taxels.shape != frames.shape[1:]:
+        raise InvalidInputError(f"mask has shape {taxels.shape}, frames {frames.shape[1:]}")
+    k = frames.shape[0]
+    cols = k if columns is None else min(int(columns), k)
+    layout = Layout(frames=k, columns=cols, scale=int(scale), gap=int(gap))
+    return frames, picked, taxels, touch_scale(frames, taxels, profile), layout
+
+
 def window_rgba(
     window: Any,
     *,
@@ -77,28 +203,62 @@ def window_rgba(
     scale: int = SCALE,
     max_frames: int = MAX_FRAMES,
     gap: int = GAP,
+    columns: int | None = None,
     mask: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(H, W, 4) uint8: the frames side by side, non-taxel pixels transparent."""
+    """(H, W, 4) uint8, opaque: the frames (one row, or ``columns`` per row) with grey lines
+    between them, unused taxels in the background colour. No colour bar."""
+    frames, _, taxels, ts, layout = _prepare(
+        window, calibrated, profile, scale, max_frames, gap, columns, mask
+    )
+    return _paint(frames, taxels, ts, layout)
+
+
+def _paint(frames: np.ndarray, taxels: np.ndarray, ts: TouchScale, layout: Layout) -> np.ndarray:
     from matplotlib import colormaps
 
-    if not 1 <= int(scale) <= 32:
-        raise InvalidInputError(f"scale must be in [1, 32], got {scale}")
-    if int(max_frames) < 1:
-        raise InvalidInputError(f"max_frames must be >= 1, got {max_frames}")
-    frames = calibrated_frames(window, calibrated=calibrated, profile=profile)
-    frames = frames[pick_frames(frames.shape[0], int(max_frames))]
-    taxels = taxel_mask_from_spec() if mask is None else np.asarray(mask, dtype=bool)
-    if taxels.shape != frames.shape[1:]:
-        raise InvalidInputError(f"mask has shape {taxels.shape}, frames {frames.shape[1:]}")
-    rgba = colormaps[COLORMAP](frames, bytes=True)  # (K, 32, 32, 4) uint8
-    rgba[..., 3] = np.where(taxels, 255, 0).astype(np.uint8)
-    k, h, w = frames.shape
-    out = np.zeros((h, k * w + (k - 1) * gap, 4), np.uint8)
-    for i in range(k):
-        out[:, i * (w + gap) : i * (w + gap) + w] = rgba[i]
-    s = int(scale)
-    return np.repeat(np.repeat(out, s, axis=0), s, axis=1)
+    rgba = colormaps[ts.colormap](ts.unit(frames), bytes=True)  # (K, 32, 32, 4) uint8
+    rgba[:, ~taxels] = BACKGROUND
+    s = layout.scale
+    out = np.empty((layout.height, layout.width, 4), np.uint8)
+    out[:] = GAP_COLOUR
+    for i in range(layout.frames):
+        x, y = layout.origin(i)
+        big = np.repeat(np.repeat(rgba[i], s, axis=0), s, axis=1)
+        out[y : y + 32 * s, x : x + 32 * s] = big
+    return out
+
+
+def _font(size: int) -> Any:
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: the fixed bitmap font
+        return ImageFont.load_default()
+
+
+def legend_rgba(ts: TouchScale, width: int) -> np.ndarray:
+    """(LEGEND_PX, width, 4) uint8: the colour bar from ``lo`` to ``hi`` with its labels."""
+    from matplotlib import colormaps
+    from PIL import Image, ImageDraw
+
+    width = max(int(width), 160)
+    img = Image.new("RGBA", (width, LEGEND_PX), BACKGROUND)
+    pad = 6
+    bar_w = width - 2 * pad
+    ramp = colormaps[ts.colormap](np.linspace(0.0, 1.0, bar_w), bytes=True)[None]
+    img.paste(Image.fromarray(np.repeat(ramp, 10, axis=0)), (pad, 4))
+    draw = ImageDraw.Draw(img)
+    font = _font(11)
+    ink = (235, 235, 240, 255)
+    draw.text((pad, 16), f"<= {ts.lo:.2f}: no contact", fill=ink, font=font)
+    right = f">= {ts.hi:.2f}"
+    draw.text((pad + bar_w - draw.textlength(right, font=font), 16), right, fill=ink, font=font)
+    mid = f"calibrated pressure (0-1), gamma {ts.gamma:g}"
+    if width >= 330:
+        draw.text(((width - draw.textlength(mid, font=font)) / 2, 16), mid, fill=ink, font=font)
+    return np.asarray(img, dtype=np.uint8)
 
 
 def encode_png(rgba: np.ndarray) -> bytes:
@@ -117,15 +277,58 @@ def draw_window_png(
     profile: SensorProfile = STAG_GLOVE,
     scale: int = SCALE,
     max_frames: int = MAX_FRAMES,
+    columns: int | None = None,
+    legend: bool = True,
 ) -> bytes:
-    """A touch window as a PNG heat-map strip: one ``32*scale`` px image per frame.
+    """A touch window as a PNG heat map: one ``32*scale`` px image per frame (in one row, or
+    ``columns`` per row), and with ``legend`` a colour bar under them.
 
     ``window``: (K, 32, 32) (or one (32, 32) frame), raw sensor units or calibrated 0..1
-    (``calibrated=None`` decides from the values). Colour: ``inferno``, 0 (no pressure) dark
-    to 1 (the calibrated ceiling) bright; non-taxel pixels transparent.
+    (``calibrated=None`` decides from the values). See the module docstring for the scale.
     """
-    return encode_png(
-        window_rgba(
-            window, calibrated=calibrated, profile=profile, scale=scale, max_frames=max_frames
-        )
+    cal, _, taxels, ts, layout = _prepare(
+        window, calibrated, profile, scale, max_frames, GAP, columns, None
     )
+    frames = _paint(cal, taxels, ts, layout)
+    if not legend:
+        return encode_png(frames)
+    bar = legend_rgba(ts, frames.shape[1])
+    width = max(frames.shape[1], bar.shape[1])
+    out = np.empty((frames.shape[0] + 4 + bar.shape[0], width, 4), np.uint8)
+    out[:] = BACKGROUND
+    out[: frames.shape[0], : frames.shape[1]] = frames
+    out[frames.shape[0] + 4 :, : bar.shape[1]] = bar
+    return encode_png(out)
+
+
+def window_values(
+    window: Any,
+    *,
+    calibrated: bool | None = None,
+    profile: SensorProfile = STAG_GLOVE,
+    scale: int = SCALE,
+    max_frames: int = MAX_FRAMES,
+    columns: int | None = None,
+) -> dict[str, Any]:
+    """The numbers behind :func:`draw_window_png` (JSON-ready): ``values`` (K', 32, 32)
+    calibrated, rounded to 1e-4, of the drawn frames; ``frames`` their indices in the window;
+    ``taxels`` the (32, 32) mask; ``scale`` (lo, hi, gamma, colormap); ``layout`` (columns,
+    scale, gap, frame size in taxels) so a pointer position maps to (frame, row, column)."""
+    frames, picked, taxels, ts, layout = _prepare(
+        window, calibrated, profile, scale, max_frames, GAP, columns, None
+    )
+    return {
+        "values": np.round(frames, 4).tolist(),
+        "frames": picked.tolist(),
+        "taxels": taxels.astype(int).tolist(),
+        "scale": asdict(ts),
+        "layout": {
+            "columns": layout.columns,
+            "rows": layout.rows,
+            "scale": layout.scale,
+            "gap": layout.gap,
+            "size": layout.size,
+            "width": layout.width,
+            "height": layout.height,
+        },
+    }
