@@ -24,6 +24,7 @@ from tactus_memory.service.middleware import BodyLimitMiddleware
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
 from tactus_memory.service.routers import (
     health,
+    images,
     items,
     search,
     senses,
@@ -115,7 +116,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, search, items, touch, ui):
+    for module in (sessions, senses, images, search, items, touch, ui):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)
