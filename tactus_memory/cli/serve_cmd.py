@@ -7,6 +7,7 @@ from typing import Annotated
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 
 
 @app.command()
@@ -23,8 +24,15 @@ def serve(
             help="Require 'Authorization: Bearer <token>' (all but /health) (env TACTUS_TOKEN)."
         ),
     ] = None,
-    space: Annotated[
-        str | None, typer.Option(help="Space for a fresh store (default minilm).")
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
+    touch_checkpoint: Annotated[
+        str | None,
+        typer.Option(
+            help="Tactus checkpoint for touch, trained in this space (tactus train --space ...); "
+            "default the shipped MiniLM one (env TACTUS_TOUCH_CHECKPOINT)."
+        ),
     ] = None,
     max_body_bytes: Annotated[
         int | None,
@@ -59,6 +67,9 @@ def serve(
         "data": data,
         "token": token,
         "space": space,
+        "space_path": space_path,
+        "space_dim": space_dim,
+        "touch_checkpoint": touch_checkpoint,
         "max_body_bytes": max_body_bytes,
         "window": window,
         "stride": stride,
@@ -67,8 +78,13 @@ def serve(
     overrides = {k: v for k, v in given.items() if v is not None}
     if no_touch:
         overrides["touch"] = False
+    from tactus_memory.errors import TactusError
+
     settings = Settings(**overrides)
-    application = create_app(settings)
+    try:
+        application = create_app(settings)
+    except (TactusError, OSError) as exc:  # e.g. SpaceConfigError, a missing checkpoint
+        fail(str(exc))
     typer.echo(
         f"tactus-memory serving {settings.data} on http://{settings.host}:{settings.port} "
         f"(docs at /docs; token {'required' if settings.token else 'off'})",

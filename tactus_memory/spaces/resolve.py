@@ -69,11 +69,13 @@ def resolve_space(
     recorded: dict[str, Any] | None = None,
     *,
     use_env: bool = True,
+    owner: str = "this memory",
 ) -> Space:
     """Build the space the user named, checked against what a store ``recorded``.
 
     recorded: ``{"name", "dim", "fingerprint"?}`` from the store, or None (fresh store or no
-    store: training). Raises :class:`SpaceConfigError` (one line) when the folder is missing,
+    store: training; a checkpoint's ``space`` meta works too, with ``owner`` naming it in
+    messages). Raises :class:`SpaceConfigError` (one line) when the folder is missing,
     not given, or holds another model than the recorded fingerprint.
     """
     choice = choice or SpaceChoice()
@@ -84,7 +86,7 @@ def resolve_space(
     same_base = recorded and _base_name(name) == _base_name(str(recorded["name"]))
     if dim is None and same_base and needs_path(name):
         dim = int(recorded["dim"])  # the store's Matryoshka dim, e.g. "...@512"
-    where = f"this memory's space {recorded['name']!r} (dim {recorded['dim']})" if recorded else ""
+    where = f"{owner}'s space {recorded['name']!r} (dim {recorded['dim']})" if recorded else ""
     if needs_path(name) and choice.path is None:
         what = where or f"space {name!r}"
         raise SpaceConfigError(
@@ -104,27 +106,33 @@ def resolve_space(
         if recorded and choice.path is not None:
             raise SpaceConfigError(
                 f"--space-path {choice.path!r} cannot give {where}: {exc}; {PATH_HINT} naming "
-                "the folder this memory was created with"
+                f"the folder {owner} was created with"
             ) from None
         raise SpaceConfigError(str(exc)) from None
     if recorded:
-        check_recorded(space, recorded, path=choice.path)
+        check_recorded(space, recorded, path=choice.path, owner=owner)
     return space
 
 
-def check_recorded(space: Space, recorded: dict[str, Any], *, path: str | None = None) -> None:
-    """Raise SpaceConfigError when ``space`` is not the one the store recorded."""
+def check_recorded(
+    space: Space,
+    recorded: dict[str, Any],
+    *,
+    path: str | None = None,
+    owner: str = "this memory",
+) -> None:
+    """Raise SpaceConfigError when ``space`` is not the one the store (or checkpoint)
+    recorded: name and dim, then the model fingerprint when both have one."""
     if space.name != recorded["name"] or int(space.dim) != int(recorded["dim"]):
         raise SpaceConfigError(
-            f"this memory was created in space {recorded['name']!r} (dim {recorded['dim']}), "
-            f"not {space.name!r} (dim {space.dim}); pass --space {recorded['name']!r} "
-            "or use another --data folder"
+            f"{owner} was created in space {recorded['name']!r} (dim {recorded['dim']}), "
+            f"not {space.name!r} (dim {space.dim}); pass --space {recorded['name']!r}"
         )
     want = recorded.get("fingerprint")
     have = space.fingerprint()
     if want and have and want != have:
         where = f"--space-path {path!r}" if path else "the given model folder"
         raise SpaceConfigError(
-            f"{where} holds another model (fingerprint {have}) than this memory was created "
+            f"{where} holds another model (fingerprint {have}) than {owner} was created "
             f"with (fingerprint {want}); {PATH_HINT} naming the folder it was created with"
         )
