@@ -69,8 +69,8 @@ class Sense(ABC):
         ):
             raise SenseConflictError(
                 f"sense {self.name!r} maps into space {self.space_name or 'any'!r} "
-                f"(dim {self.dim}), but this memory's space is {space.name!r} "
-                f"(dim {space.dim})"
+                f"(dimension {self.dim}), but this memory's space is {space.name!r} "
+                f"(dimension {space.dim})"
             )
 
     @abstractmethod

@@ -18,8 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tactus_memory import spaces as registry
 from tactus_memory.errors import SpaceConfigError
-from tactus_memory.spaces import QWEN3VL_ALIASES, get_space
+from tactus_memory.spaces import QWEN3VL_ALIASES
 from tactus_memory.spaces.base import Space
 
 ENV_SPACE = "TACTUS_SPACE"
@@ -97,7 +98,9 @@ def resolve_space(
             f"--space-path {choice.path!r} is not a folder; {PATH_HINT} with a local model folder"
         )
     try:
-        space = get_space(name, path=choice.path, dim=dim)
+        # looked up on the module at call time (tests swap the registry function)
+        extra = {} if dim is None else {"dim": dim}
+        space = registry.get_space(name, path=choice.path, **extra)
     except SpaceConfigError:
         raise
     except FileNotFoundError as exc:
