@@ -99,8 +99,8 @@ def resolve_space(
         )
     try:
         # looked up on the module at call time (tests swap the registry function)
-        extra = {} if dim is None else {"dim": dim}
-        space = registry.get_space(name, path=choice.path, **extra)
+        given = {"path": choice.path, "dim": dim}
+        space = registry.get_space(name, **{k: v for k, v in given.items() if v is not None})
     except SpaceConfigError:
         raise
     except FileNotFoundError as exc:
