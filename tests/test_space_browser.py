@@ -41,7 +41,7 @@ def test_page_shows_image_thumbnails_and_searches_by_image(tmp_path: Path) -> No
     try:
         with httpx.Client(base_url=server.base, timeout=120) as c:
             ids = []
-            for i, body in enumerate([picture, png_bytes(8), png_bytes(9)]):
+            for i, body in enumerate([picture, png_bytes(8, (120, 200)), png_bytes(9, (90, 240))]):
                 files = {"file": (f"p{i}.png", body, "image/png")}
                 r = c.post("/sessions/cam/image", files=files, data={"t": str(float(i))})
                 assert r.status_code == 201, r.text
