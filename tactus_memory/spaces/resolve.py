@@ -88,6 +88,11 @@ def resolve_space(
     if dim is None and same_base and needs_path(name):
         dim = int(recorded["dim"])  # the store's Matryoshka dim, e.g. "...@512"
     where = f"{owner}'s space {recorded['name']!r} (dim {recorded['dim']})" if recorded else ""
+    if recorded and not same_base:  # say so before asking for a folder it would not use
+        raise SpaceConfigError(
+            f"{owner} was created in space {recorded['name']!r} (dim {recorded['dim']}), "
+            f"not {name!r}; pass --space {recorded['name']!r} or leave --space out"
+        )
     if needs_path(name) and choice.path is None:
         what = where or f"space {name!r}"
         raise SpaceConfigError(
