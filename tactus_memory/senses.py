@@ -159,6 +159,9 @@ class ImageSense(Sense):
         self.space_name = space.name
 
     def validate(self, item: Any) -> np.ndarray:
+        """(H, W, 3) uint8, or a PIL image of any mode (converted to RGB)."""
+        if hasattr(item, "convert") and hasattr(item, "mode"):  # a PIL image
+            item = item.convert("RGB")
         arr = np.asarray(item)
         if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
             raise InvalidInputError(f"image must be (H, W, 3) uint8, got {arr.shape} {arr.dtype}")

@@ -26,10 +26,15 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
-from tactus_memory.errors import SenseConflictError, SpaceConfigError  # noqa: E402
+from tactus_memory.errors import (  # noqa: E402
+    SenseConflictError,
+    SpaceConfigError,
+    SpaceMismatchError,
+)
 from tactus_memory.memory import Memory  # noqa: E402
 from tactus_memory.senses import THUMBNAIL_SIDE, ImageSense  # noqa: E402
 from tactus_memory.spaces.fingerprint import model_fingerprint  # noqa: E402
+from tactus_memory.spaces.qwen3vl import Qwen3VLSpace  # noqa: E402
 from tests.qwen_tiny import perturbed_copy, png_bytes  # noqa: E402
 from tests.test_qwen3vl import HIDDEN, build_tiny_qwen3vl  # noqa: E402
 
@@ -104,12 +109,18 @@ def test_memory_records_space_and_reopens_from_option_or_env(
     assert "\n" not in str(other.value) and "--space-path" in str(other.value)
     with pytest.raises(SpaceConfigError, match="not a folder"):
         Memory.open(data, space_path=str(tmp_path / "nowhere"), background=False)
+    with pytest.raises(SpaceMismatchError, match="fingerprinted"):  # a Space object: the store
+        Memory.open(data, space=Qwen3VLSpace(other_qwen), background=False)
 
     monkeypatch.setenv("TACTUS_SPACE_PATH", str(tiny_qwen))
     again = Memory.open(data, background=False)  # the path from the environment
     again.add_sense(ImageSense(again.space))
     like = again.search_like("image", picture, k=2)
     assert like[0].id == img_id and like[0].cosine > 0.999  # image -> image
+    from PIL import Image
+
+    rgba = Image.fromarray(picture).convert("RGBA")  # e.g. a PNG with alpha, as opened
+    assert again.search_like("image", rgba, k=1)[0].id == img_id
     to_image = again.search("a white mug on a table", k=5, senses=["image"])  # text -> image
     assert [h.id for h in to_image] == [img_id]
     assert {h.id for h in again.search("holding a mug", k=5)} == {img_id, text_id}
@@ -207,7 +218,6 @@ def qwen_ckpt(tiny_qwen: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
 
 
 def test_train_targets_come_from_the_space(qwen_ckpt: Path, tiny_qwen: Path) -> None:
-    from tactus_memory.spaces.qwen3vl import Qwen3VLSpace
     from tactus_memory.touch.checkpoint import load_checkpoint
     from tactus_memory.touch.targets import build_targets
 
