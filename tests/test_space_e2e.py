@@ -197,6 +197,11 @@ def test_cli_space_options_and_one_line_errors(
     assert r.exit_code == 2 and "not a folder" in _one_line(r.stderr)
     r = _cli(["serve", "--data", data, "--space-path", str(other_qwen), "--no-touch"])
     assert r.exit_code == 2 and "another model" in _one_line(r.stderr)
+    missing = str(tmp_path / "no-such.safetensors")
+    r = _cli(
+        ["serve", "--data", data, "--space-path", str(tiny_qwen), "--touch-checkpoint", missing]
+    )
+    assert r.exit_code == 2 and "no-such.safetensors" in _one_line(r.stderr)
 
 
 # -- a touch encoder trained into the space -------------------------------------------------

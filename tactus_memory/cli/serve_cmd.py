@@ -83,8 +83,10 @@ def serve(
     settings = Settings(**overrides)
     try:
         application = create_app(settings)
-    except (TactusError, OSError) as exc:  # e.g. SpaceConfigError, a missing checkpoint
+    except TactusError as exc:  # e.g. SpaceConfigError: the model folder is missing or other
         fail(str(exc))
+    except OSError as exc:  # e.g. --touch-checkpoint names no file
+        fail(f"cannot start: {exc}")
     typer.echo(
         f"tactus-memory serving {settings.data} on http://{settings.host}:{settings.port} "
         f"(docs at /docs; token {'required' if settings.token else 'off'})",
