@@ -36,8 +36,9 @@ from typing import Any
 import numpy as np
 
 from tactus_memory import __version__
-from tactus_memory.errors import DynamicRangeError, InvalidInputError
+from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
+from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
 
 DEFAULT_CHECKPOINT = "tactus-lite-minilm.safetensors"  # in tactus_memory/touch/checkpoints/
@@ -87,6 +88,19 @@ class TactusEncoder(Sense):
         #: (D,) removed from text queries; Memory stores it with the sense registration
         self.query_centroid = self.ckpt.targets.centroid.astype(np.float32)
         self._targets = self.ckpt.targets.centred.astype(np.float32)  # (C, D) unit rows
+
+    def bind(self, space: Space) -> None:
+        """Refuse a memory of another space: name and dim (``Sense.bind``), then the model
+        fingerprint when both the checkpoint and the space record one."""
+        super().bind(space)
+        want = self.ckpt.meta["space"].get("fingerprint")
+        have = space.fingerprint()
+        if want and have and want != have:
+            raise SenseConflictError(
+                f"sense {self.name!r} was trained in space {self.space_name!r} (dim {self.dim}) "
+                f"of the model fingerprinted {want}, but this memory's {space.name!r} "
+                f"(dim {space.dim}) model is fingerprinted {have}"
+            )
 
     @classmethod
     def from_pretrained(cls, path: str | os.PathLike[str], **kw: Any) -> TactusEncoder:

@@ -2,7 +2,8 @@
 
 ``memory`` injects a ready :class:`~tactus_memory.memory.Memory` (tests pass one with a small
 space and a stand-in touch sense; its senses are then the caller's business). Without it the
-memory at ``settings.data`` is opened with ``settings.space``; text is registered by the
+memory at ``settings.data`` is opened in ``settings.space`` (``space_path``/``space_dim``; by
+default the store's recorded space, see ``tactus_memory.spaces.resolve``); text is registered by the
 memory itself, touch (the shipped ``TactusEncoder``) when ``settings.touch`` and importable,
 an image sense when the space has vision. When touch cannot be loaded the reason is kept and
 the touch routes answer 503 naming it.
@@ -24,6 +25,7 @@ from tactus_memory.service.middleware import BodyLimitMiddleware
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
 from tactus_memory.service.routers import (
     health,
+    images,
     items,
     recordings,
     search,
@@ -57,9 +59,13 @@ def open_memory(settings: Settings) -> tuple[Any, str | None]:
     Returns (memory, why touch is unavailable or None).
     """
     from tactus_memory.memory import Memory
-    from tactus_memory.spaces import get_space
 
-    memory = Memory.open(settings.data, space=get_space(settings.space))
+    memory = Memory.open(
+        settings.data,
+        space=settings.space,
+        space_path=settings.space_path,
+        space_dim=settings.space_dim,
+    )
     return memory, register_default_senses(memory, settings)
 
 
@@ -73,8 +79,10 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
             try:
                 from tactus_memory.adapters import TactusEncoder
 
-                memory.add_sense(TactusEncoder())
+                memory.add_sense(TactusEncoder(settings.touch_checkpoint))
             except Exception as exc:  # noqa: BLE001  (any failure: serve the rest, say why)
+                if settings.touch_checkpoint:  # asked for by name: a failure stops the start
+                    raise
                 why = f"the touch encoder could not be loaded ({type(exc).__name__}: {exc})"
                 log.warning("touch disabled: %s", why)
     if "image" not in memory.senses and getattr(memory.space, "has_vision", False):
@@ -116,7 +124,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, search, items, touch, ui, recordings):
+    for module in (sessions, senses, images, search, items, touch, ui, recordings):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)

@@ -19,7 +19,22 @@ class Settings(BaseSettings):
         "./tactus-memory",
         description="Memory location: a local directory, file://, s3://, gs:// or az:// URI.",
     )
-    space: str = Field("minilm", description="Embedding space for a fresh store (registry name).")
+    space: str | None = Field(
+        None,
+        description="Embedding space (registry name: minilm, qwen3vl); default: the store's "
+        "recorded space, minilm for a fresh store.",
+    )
+    space_path: str | None = Field(
+        None, description="Local model folder of the space (needed by Qwen3-VL-Embedding-2B)."
+    )
+    space_dim: int | None = Field(
+        None, ge=1, description="Matryoshka output size of a Qwen3-VL space (64..2048)."
+    )
+    touch_checkpoint: str | None = Field(
+        None,
+        description="Tactus checkpoint for the touch sense (default: the shipped MiniLM one); "
+        "a store in another space needs one trained there (tactus train --space ...).",
+    )
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     token: SecretStr | None = Field(

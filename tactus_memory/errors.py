@@ -49,3 +49,8 @@ class DataFormatError(TactusError, ValueError):
 
 class DynamicRangeError(TactusError, ValueError):
     """Calibrated pressure uses too few intensity levels or looks already normalised."""
+
+
+class SpaceConfigError(TactusError, ValueError):
+    """A space cannot be built as asked: its model folder is missing, not given, or holds
+    another model than the one a store was created with. One line naming the option to pass."""

@@ -238,7 +238,7 @@ class Memory(TemporalMixin):
         self._counts: dict[str, int] | None = None
         self._probes: np.ndarray | None = None
         self._maint_thread: threading.Thread | None = None
-        store.bind_space(space.name, int(space.dim))
+        store.bind_space(space.name, int(space.dim), space.fingerprint())
         self._load_registry()
         self.add_sense(TextSense(space))
 
@@ -247,8 +247,10 @@ class Memory(TemporalMixin):
     def open(
         cls,
         path: str = "./memory",
-        space: Space | None = None,
+        space: Space | str | None = None,
         *,
+        space_path: str | None = None,
+        space_dim: int | None = None,
         storage_options: dict[str, str] | None = None,
         index: IndexConfig | None = None,
         index_threshold: int | None = None,
@@ -260,7 +262,11 @@ class Memory(TemporalMixin):
 
         ``space`` defaults to the space the store records (MiniLM, ``get_space("minilm")``, for
         a new store); a store created with another space raises
-        :class:`~tactus_memory.errors.SpaceMismatchError` naming both.
+        :class:`~tactus_memory.errors.SpaceMismatchError` naming both. A space name (``str``),
+        ``space_path`` and ``space_dim`` (else ``TACTUS_SPACE*`` from the environment) go
+        through :func:`~tactus_memory.spaces.resolve.resolve_space`: a Qwen3-VL store reopens
+        with ``space_path=DIR``, and a missing or other model folder raises a one-line
+        :class:`~tactus_memory.errors.SpaceConfigError`.
         """
         cfg = index or IndexConfig()
         if index_threshold is not None:
@@ -271,11 +277,11 @@ class Memory(TemporalMixin):
             read_consistency_interval=read_consistency_interval,
             index=cfg,
         )
-        if space is None:
-            from tactus_memory.spaces import get_space
+        if not isinstance(space, Space):
+            from tactus_memory.spaces.resolve import SpaceChoice, recorded_space, resolve_space
 
-            recorded = store.get_meta("space")
-            space = get_space(json.loads(recorded)["name"] if recorded else "minilm")
+            choice = SpaceChoice(space, None if space_path is None else str(space_path), space_dim)
+            space = resolve_space(choice, recorded_space(store.get_meta("space")))
         return cls(store, space, background=background)
 
     def _load_registry(self) -> None:

@@ -27,6 +27,8 @@ from tactus_memory.vectors import as_unit_rows
 
 SENSE_NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 MAX_TEXT_CHARS = 8192
+#: longest side of the thumbnail an image item keeps in ``raw`` (256 px: <= 192 KiB a row)
+THUMBNAIL_SIDE = 256
 
 
 def validate_sense_name(name: str) -> str:
@@ -62,15 +64,13 @@ class Sense(ABC):
 
     def bind(self, space: Space) -> None:
         """Called by ``Memory.add_sense``. Raises ``SenseConflictError`` on a space mismatch."""
-        if self.space_name is not None and self.space_name != space.name:
+        if (self.space_name is not None and self.space_name != space.name) or (
+            self.dim != space.dim
+        ):
             raise SenseConflictError(
-                f"sense {self.name!r} maps into space {self.space_name!r}, "
-                f"but this memory's space is {space.name!r}"
-            )
-        if self.dim != space.dim:
-            raise SenseConflictError(
-                f"sense {self.name!r} has dimension {self.dim}, "
-                f"but space {space.name!r} has dimension {space.dim}"
+                f"sense {self.name!r} maps into space {self.space_name or 'any'!r} "
+                f"(dimension {self.dim}), but this memory's space is {space.name!r} "
+                f"(dimension {space.dim})"
             )
 
     @abstractmethod
@@ -159,6 +159,9 @@ class ImageSense(Sense):
         self.space_name = space.name
 
     def validate(self, item: Any) -> np.ndarray:
+        """(H, W, 3) uint8, or a PIL image of any mode (converted to RGB)."""
+        if hasattr(item, "convert") and hasattr(item, "mode"):  # a PIL image
+            item = item.convert("RGB")
         arr = np.asarray(item)
         if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
             raise InvalidInputError(f"image must be (H, W, 3) uint8, got {arr.shape} {arr.dtype}")
@@ -167,8 +170,24 @@ class ImageSense(Sense):
     def embed(self, batch: Sequence[np.ndarray]) -> np.ndarray:
         return as_unit_rows(self.space.embed_images(list(batch)), self.dim)
 
+    def to_row(self, item: np.ndarray) -> dict[str, Any]:
+        """Keep a thumbnail (longest side <= THUMBNAIL_SIDE, (h, w, 3) uint8) for drawing."""
+        return {"raw": array_to_bytes(thumbnail(item, THUMBNAIL_SIDE))}
+
     def provenance(self) -> dict[str, Any]:
         return {"encoder": "space-vision", "space": self.space.describe()}
+
+
+def thumbnail(image: np.ndarray, side: int) -> np.ndarray:
+    """(H, W, 3) uint8 -> (h, w, 3) uint8 with max(h, w) <= side, aspect kept (Lanczos)."""
+    h, w = image.shape[:2]
+    if max(h, w) <= side:
+        return np.ascontiguousarray(image)
+    from PIL import Image
+
+    img = Image.fromarray(np.ascontiguousarray(image))
+    img.thumbnail((side, side), Image.Resampling.LANCZOS)
+    return np.asarray(img.convert("RGB"), dtype=np.uint8)
 
 
 class VectorSense(Sense):

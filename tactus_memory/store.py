@@ -364,11 +364,16 @@ class Store:
             self._schema = self.items.schema
         return self._schema
 
-    def bind_space(self, name: str, dim: int) -> None:
-        """Record the space on creation; on reopen raise SpaceMismatchError if it differs."""
+    def bind_space(self, name: str, dim: int, fingerprint: str | None = None) -> None:
+        """Record the space (name, dim, model fingerprint; never its folder) on creation; on
+        reopen raise SpaceMismatchError if it differs. A store recorded without a fingerprint
+        gets the first one it is opened with."""
         if self._meta is None:
             self._meta = self.db.create_table(META, schema=meta_schema(), exist_ok=True)
         stored = self.get_meta("space")
+        record = {"name": name, "dim": int(dim)}
+        if fingerprint:
+            record["fingerprint"] = fingerprint
         if stored is not None:
             info = json.loads(stored)
             if info["name"] != name or int(info["dim"]) != int(dim):
@@ -377,8 +382,17 @@ class Store:
                     f"but was opened with space {name!r} (dim {dim}); open it with "
                     f"{info['name']!r} or use another directory"
                 )
+            known = info.get("fingerprint")
+            if known and fingerprint and known != fingerprint:
+                raise SpaceMismatchError(
+                    f"this memory was created with the {name!r} model fingerprinted {known}, "
+                    f"but was opened with a model folder fingerprinted {fingerprint}; open it "
+                    "with the folder it was created with"
+                )
+            if fingerprint and not known:
+                self.set_meta("space", json.dumps(record))
         else:
-            self.set_meta("space", json.dumps({"name": name, "dim": int(dim)}))
+            self.set_meta("space", json.dumps(record))
         if self._items is None:
             # Lance file format 2.1: ~1.5x faster random access to the hit columns than 2.0
             # (measured at 1M rows, benchmarks/README.md)

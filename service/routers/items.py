@@ -10,7 +10,6 @@ acknowledged write survives a crash of the server.
 
 from __future__ import annotations
 
-import io
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, UploadFile
@@ -18,12 +17,11 @@ from fastapi import APIRouter, File, Form, UploadFile
 from tactus_memory.errors import CapabilityError, InvalidInputError
 from tactus_memory.service.arrays import loads_strict
 from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId, WriterDep
+from tactus_memory.service.images import decode_image
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
 
 router = APIRouter(prefix="/sessions/{session}", tags=["items"])
-
-MAX_IMAGE_PIXELS = 64_000_000
 
 
 @router.post(
@@ -77,26 +75,13 @@ async def add_vectors(
     return StoredOut(ids=ids, count=len(ids))
 
 
-def _decode_image(raw: bytes) -> object:
-    try:
-        from PIL import Image
-    except ImportError:  # pragma: no cover - pillow ships with the vision extra
-        raise CapabilityError("image upload needs Pillow (pip install pillow)") from None
-    import numpy as np
-
-    Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS
-    try:
-        with Image.open(io.BytesIO(raw)) as img:
-            return np.asarray(img.convert("RGB"), dtype=np.uint8)
-    except Exception as exc:  # noqa: BLE001  (PIL raises many kinds on garbage)
-        raise InvalidInputError(f"file is not a readable image: {exc}") from None
-
-
 @router.post(
     "/image",
     status_code=201,
     summary="Store a camera image (spaces with vision only)",
-    description="Multipart upload (`file`, optional `t`, `t_end`, `meta` as a JSON string). "
+    description="Multipart upload (`file`: PNG/JPEG/WebP, at most 64 M pixels, sides >= 8 px; "
+    "`t`, optional `t_end`, `meta` as a JSON string). The item keeps a 256 px thumbnail, "
+    "drawn by `GET /items/{id}/image.png`. "
     "Answers 400 when the memory's space has no vision (e.g. the default MiniLM space).",
     response_model=StoredOut,
     responses=problem_responses(400, 404, 413, 422),
@@ -121,7 +106,7 @@ async def add_image(
         meta_obj = loads_strict(meta)
         if not isinstance(meta_obj, dict):
             raise InvalidInputError("meta must be a JSON object")
-    image = await writer.run(_decode_image, await file.read())
+    image = await writer.run(decode_image, await file.read())
     item_id = await writer.run(
         memory.add, session, "image", image, t=t, t_end=t_end, meta=meta_obj, id=id
     )

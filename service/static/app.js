@@ -52,7 +52,9 @@ function authHeaders(extra = {}) {
 
 async function api(path, { method = "GET", body, raw = false } = {}) {
   const init = { method, headers: authHeaders() };
-  if (body !== undefined) {
+  if (body instanceof FormData) {
+    init.body = body; // multipart: the browser sets the boundary header
+  } else if (body !== undefined) {
     init.body = JSON.stringify(body);
     init.headers["Content-Type"] = "application/json";
   }
@@ -196,6 +198,35 @@ function taxelAt(v, img, ev) {
   const value = v.values[f][r][c];
   const contact = value > v.scale.lo ? "contact" : "no contact";
   return `${where}: ${value.toFixed(3)} calibrated (${contact})`;
+}
+
+// ------------------------------------------------------------------------------ image thumbnails
+// An image item keeps a thumbnail; GET /items/{id}/image.png draws it (fetched with the token).
+function isImage(hit) {
+  const info = state.senses.find((s) => s.name === hit.sense);
+  return info ? info.modality === "image" : hit.sense === "image";
+}
+
+function thumbnail(itemId, label) {
+  const src = `/items/${encodeURIComponent(itemId)}/image.png?size=160`;
+  const img = h("img", { class: "thumb", alt: label, loading: "lazy", decoding: "async" });
+  if (state.token) {
+    api(src, { raw: true })
+      .then((res) => res.blob())
+      .then((blob) => {
+        img.src = URL.createObjectURL(blob);
+      })
+      .catch((err) => {
+        img.alt = `${label} (could not load: ${err.message})`;
+      });
+  } else {
+    img.src = src;
+  }
+  return h("figure", { class: "thumb-figure" }, img);
+}
+
+function imageLabel(hit) {
+  return `Image in session ${hit.session} at ${fmtSpan(hit.t, hit.t_end)}`;
 }
 
 function touchLabel(hit) {
@@ -442,6 +473,7 @@ function hitCard(hit, rank, inMoment = false) {
   const body = [];
   if (hit.text) body.push(h("p", { class: "hit-text" }, hit.text));
   if (isTouch(hit)) body.push(heatmap(hit.id, touchLabel(hit)));
+  if (isImage(hit)) body.push(thumbnail(hit.id, imageLabel(hit)));
   body.push(metaList(hit.meta));
   const cls = hit.match === false ? "hit nomatch" : "hit";
   return h(
@@ -634,6 +666,10 @@ async function onLike(e) {
     $("#like-file").focus();
     return;
   }
+  if (file.type.startsWith("image/")) {
+    await likeImage(file, status);
+    return;
+  }
   const sense = state.touchSenses.has("touch") ? "touch" : [...state.touchSenses][0] || "touch";
   setStatus(status, `Reading ${file.name}…`, "busy");
   try {
@@ -651,6 +687,31 @@ async function onLike(e) {
   } catch (err) {
     $("#results").replaceChildren();
     setStatus(status, `Search by example failed: ${err.message}`, "error");
+  }
+}
+
+// Search by an example image (PNG/JPEG/WebP): POST /search/like/image, image -> image.
+async function likeImage(file, status) {
+  const fig = $("#like-preview");
+  const img = $("img", fig);
+  img.src = URL.createObjectURL(file);
+  img.alt = `Your example image ${file.name}`;
+  $("figcaption", fig).textContent = `Your example: ${file.name}`;
+  fig.hidden = false;
+  const f = readFilters();
+  const form = new FormData();
+  form.append("file", file);
+  form.append("k", String(f.k));
+  if (f.session) form.append("session", f.session);
+  if (f.after !== undefined) form.append("after", String(f.after));
+  if (f.before !== undefined) form.append("before", String(f.before));
+  setStatus(status, "Searching by example image…", "busy");
+  try {
+    const res = await api("/search/like/image", { method: "POST", body: form });
+    renderResults(res, `the image ${file.name}`);
+  } catch (err) {
+    $("#results").replaceChildren();
+    setStatus(status, `Search by image failed: ${err.message}`, "error");
   }
 }
 
@@ -914,6 +975,7 @@ function showEvidence(p) {
     ),
     p.text ? h("blockquote", { class: "hit-text" }, p.text) : "",
     isTouch(p) ? heatmap(p.id, touchLabel(p)) : "",
+    isImage(p) ? thumbnail(p.id, imageLabel(p)) : "",
     h(
       "dl",
       { class: "meta" },

@@ -10,6 +10,7 @@ from typing import Any
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail, space_choice
 
 HOLDOUT_HELP = (
     "score exactly the recordings a `tactus train --holdout SPEC` run held out (same grammar: "
@@ -57,11 +58,14 @@ def run_eval(
     seed: int | None = None,
     analysis: bool = True,
     progress: bool = True,
+    space: Any = None,
 ) -> tuple[dict[str, Any], Any, Any]:
     """Evaluate one or more checkpoints on one scope. Returns (payload, first result, scope).
 
     One checkpoint: the payload is that run's metrics. Several: ``runs`` (each run's metrics),
     ``aggregate`` (mean, sample std per metric), and the top-level metric keys hold the means.
+    ``space``: a ``SpaceChoice`` for the analyses' text space (each checkpoint's recorded
+    space, its model folder from ``--space-path``); None: built from the name when possible.
     """
     from tactus_memory.touch.evaluate import (
         EVAL_SEED,
@@ -84,6 +88,7 @@ def run_eval(
             seed=EVAL_SEED if seed is None else seed,
             analysis=analysis,
             progress=progress,
+            space="auto" if space is None or not analysis else checkpoint_space(path, space),
         )
         runs.append(m)
         first = first or res
@@ -119,6 +124,24 @@ def run_eval(
     payload["aggregate"] = agg
     payload["runs"] = runs
     return payload, first, es
+
+
+def checkpoint_space(path: Path, choice: Any) -> Any:
+    """The text space a Tactus checkpoint was trained in, built from the space options and
+    checked against the checkpoint's record (name, dim, model fingerprint); one line, exit 2,
+    when it cannot be. Other checkpoints (the baseline) get ``"auto"``."""
+    from tactus_memory.errors import SpaceConfigError
+    from tactus_memory.spaces.resolve import resolve_space
+    from tactus_memory.touch.checkpoint import read_metadata
+
+    try:
+        recorded = read_metadata(path)["space"]
+    except (ValueError, KeyError):
+        return "auto"
+    try:
+        return resolve_space(choice, recorded, owner=f"checkpoint {Path(path).name}")
+    except SpaceConfigError as exc:
+        fail(str(exc))
 
 
 def _write_outputs(
@@ -165,14 +188,27 @@ def eval_cmd(
     ),
     analysis: bool = typer.Option(True, "--analysis/--no-analysis", help="confusion analyses"),
     threads: int = typer.Option(1, "--threads", help="torch CPU threads (0: torch default)"),
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
 ) -> None:
-    """Score checkpoints on STAG: top-1/3, voting, recording level, per class, confusion."""
+    """Score checkpoints on STAG: top-1/3, voting, recording level, per class, confusion.
+    The analyses embed phrasings in each checkpoint's space: a Qwen3-VL checkpoint needs
+    --space-path (else they are skipped with a note)."""
     logging.basicConfig(level=logging.WARNING)
     if split not in ("test", "all"):
         raise typer.BadParameter("--split must be 'test' or 'all'")
     _threads(threads)
+    given = space is not None or space_path is not None or space_dim is not None
     payload, first, es = run_eval(
-        checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed, analysis=analysis
+        checkpoint,
+        data,
+        split=split,
+        holdout=holdout,
+        votes=votes,
+        seed=seed,
+        analysis=analysis,
+        space=space_choice(space, space_path, space_dim) if given else None,
     )
     _write_outputs(payload, first, es, json_out, report, compare)
 
@@ -290,7 +326,6 @@ def ablate_cmd(
     ),
     model: str = typer.Option("tactus-lite", "--model"),
     batch: int = typer.Option(64, "--batch"),
-    space: str = typer.Option("minilm", "--space"),
     rows: str = typer.Option(
         "recipe,max_scaling,random_tuples,no_mae", "--rows", help="comma-separated rows to run"
     ),
@@ -298,11 +333,17 @@ def ablate_cmd(
         None, "--workdir", help="checkpoints (default: beside JSON)"
     ),
     threads: int = typer.Option(1, "--threads"),
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
 ) -> None:
     """Recipe ablations: each row changes one thing of the recipe, seeds repeated, mean ± std."""
     logging.basicConfig(level=logging.WARNING)
     _threads(threads)
+    from tactus_memory.cli.space_opts import resolve_or_exit
     from tactus_memory.touch.ablate import AblationConfig, format_table, run_ablation
+
+    sp = resolve_or_exit(space, space_path, space_dim)
 
     cfg = AblationConfig(
         steps=steps,
@@ -311,7 +352,7 @@ def ablate_cmd(
         holdout=holdout,
         model=model,
         batch=batch,
-        space=space,
+        space=sp.name,
         rows=[r.strip() for r in rows.split(",") if r.strip()],
     )
     work = workdir or json_out.with_suffix("")
@@ -320,6 +361,6 @@ def ablate_cmd(
     def write(partial: dict[str, Any]) -> None:
         json_out.write_text(json.dumps(dict(partial, complete=False), indent=1) + "\n")
 
-    result = run_ablation(data, cfg, work, on_run=write)
+    result = run_ablation(data, cfg, work, space=sp, on_run=write)
     json_out.write_text(json.dumps(dict(result, complete=True), indent=1) + "\n")
     typer.echo(format_table(result))

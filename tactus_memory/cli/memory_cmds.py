@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 
 if TYPE_CHECKING:
     from tactus_memory.memory import Memory
@@ -27,20 +28,23 @@ def _data_dir(data: str | None) -> str:
     return data or os.environ.get("TACTUS_DATA") or "./memory"
 
 
-def _open(data: str | None) -> Memory:
+def _open(
+    data: str | None,
+    space: str | None = None,
+    space_path: str | None = None,
+    space_dim: int | None = None,
+) -> Memory:
+    """The memory at ``data`` in its recorded space (the space options find its model)."""
     from tactus_memory.memory import Memory
 
     location = _data_dir(data)
     if "://" not in location and not Path(location).is_dir():
         _fail(f"no memory at {location!r} (set --data or TACTUS_DATA)")
-    return Memory.open(location)
+    return Memory.open(location, space=space, space_path=space_path, space_dim=space_dim)
 
 
 def _fail(message: str) -> None:
-    from rich.console import Console
-
-    Console(stderr=True).print(f"[bold red]error:[/] {message}", highlight=False)
-    raise typer.Exit(code=2)
+    fail(message)
 
 
 def _print_json(value: Any) -> None:
@@ -59,12 +63,15 @@ def search(
     after: float | None = typer.Option(None, "--after", help="Items overlapping t >= AFTER."),
     before: float | None = typer.Option(None, "--before", help="Items overlapping t <= BEFORE."),
     as_json: bool = typer.Option(False, "--json", help="Print a JSON list of hits."),
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
 ) -> None:
     """Search the memory; scores are calibrated z-scores comparable across senses."""
     from tactus_memory.errors import TactusError
 
     try:
-        memory = _open(data)
+        memory = _open(data, space, space_path, space_dim)
         hits = memory.search(
             query, k=k, senses=sense or None, session=session, after=after, before=before
         )
@@ -97,12 +104,15 @@ def search(
 def sessions(
     data: str | None = typer.Option(None, "--data", help=DATA_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print a JSON list of sessions."),
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
 ) -> None:
     """List sessions: item counts per sense and time span."""
     from tactus_memory.errors import TactusError
 
     try:
-        summaries = _open(data).sessions()
+        summaries = _open(data, space, space_path, space_dim).sessions()
     except TactusError as exc:
         _fail(str(exc))
         return

@@ -9,6 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 
 
 @app.command()
@@ -25,8 +26,15 @@ def serve(
             help="Require 'Authorization: Bearer <token>' (all but /health) (env TACTUS_TOKEN)."
         ),
     ] = None,
-    space: Annotated[
-        str | None, typer.Option(help="Space for a fresh store (default minilm).")
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
+    touch_checkpoint: Annotated[
+        str | None,
+        typer.Option(
+            help="Tactus checkpoint for touch, trained in this space (tactus train --space ...); "
+            "default the shipped MiniLM one (env TACTUS_TOUCH_CHECKPOINT)."
+        ),
     ] = None,
     max_body_bytes: Annotated[
         int | None,
@@ -58,6 +66,9 @@ def serve(
         "data": data,
         "token": token,
         "space": space,
+        "space_path": space_path,
+        "space_dim": space_dim,
+        "touch_checkpoint": touch_checkpoint,
         "max_body_bytes": max_body_bytes,
         "window": window,
         "stride": stride,
@@ -66,8 +77,15 @@ def serve(
     overrides = {k: v for k, v in given.items() if v is not None}
     if no_touch:
         overrides["touch"] = False
+    from tactus_memory.errors import TactusError
+
     settings = Settings(**overrides)
-    application = load_app(settings, say=lambda line: typer.echo(line, err=True))
+    try:
+        application = load_app(settings, say=lambda line: typer.echo(line, err=True))
+    except TactusError as exc:  # e.g. SpaceConfigError: the model folder is missing or other
+        fail(str(exc))
+    except OSError as exc:  # e.g. --touch-checkpoint names no file
+        fail(f"cannot start: {exc}")
     run_server(application, settings)
 
 
@@ -83,7 +101,6 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
     each step took (the text model and the touch encoder take seconds on a CPU)."""
     from tactus_memory.memory import Memory
     from tactus_memory.service.app import create_app, register_default_senses
-    from tactus_memory.spaces import get_space
 
     steps = 3
 
@@ -97,7 +114,12 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
     memory = step(
         1,
         f"opening the memory at {settings.data}",
-        lambda: Memory.open(settings.data, space=get_space(settings.space)),
+        lambda: Memory.open(
+            settings.data,
+            space=settings.space,
+            space_path=settings.space_path,
+            space_dim=settings.space_dim,
+        ),
     )
     name = getattr(memory.space, "name", settings.space)
     step(2, f"loading the text model ({name})", lambda: memory.space.embed_texts(["warm up"]))

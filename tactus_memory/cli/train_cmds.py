@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
 
 HOLDOUT_HELP = (
     "recordings kept out of training (and pretraining) and scored: none | "
@@ -76,7 +77,6 @@ def train_cmd(
     data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
     out: Path = typer.Option(..., "--out", help="checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="architecture in configs/"),
-    space: str = typer.Option("minilm", "--space", help="frozen text space (get_space name)"),
     pretrained: Path | None = typer.Option(None, "--pretrained", help="MAE checkpoint"),
     steps: int = typer.Option(600, "--steps", help="optimizer steps (shipped recipe: 600)"),
     batch: int = typer.Option(64, "--batch", help="windows per step"),
@@ -87,11 +87,16 @@ def train_cmd(
     half: bool = typer.Option(False, "--half", help="store float16 weights"),
     threads: int = typer.Option(2, "--threads", help="torch CPU threads (0: torch default)"),
     resume: bool = typer.Option(False, "--resume", help="continue from OUT.resume.pt"),
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
 ) -> None:
-    """Train the touch encoder against centred class-phrase targets; report held-out accuracy."""
+    """Train the touch encoder against centred class-phrase targets embedded in the frozen
+    space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
+    space's name, dim and model fingerprint, so it only registers in a memory of that space."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     _threads(threads)
-    from tactus_memory.spaces import get_space
+    sp = resolve_or_exit(space, space_path, space_dim)
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.touch.train import (
         TrainConfig,
@@ -103,7 +108,6 @@ def train_cmd(
 
     d = load_data(data)
     td = prepare_data(d, holdout_recordings(d, holdout))
-    sp = get_space(space)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
     cfg = TrainConfig(

@@ -43,13 +43,13 @@ def get_space(
             raise ValueError(f"space 'minilm-l6' has dim {MINILM_DIM}; dim={dim} is not possible")
         return MiniLMSpace(path)
     if key in QWEN3VL_ALIASES:
-        from tactus_memory.spaces.qwen3vl import QWEN3VL_FULL_DIM, Qwen3VLSpace
+        from tactus_memory.spaces.qwen3vl import Qwen3VLSpace
 
         if path is None:
             raise ValueError(
                 "space 'qwen3-vl-embedding-2b' needs path= a local Qwen3-VL-Embedding-2B folder"
             )
-        return Qwen3VLSpace(path, dim=dim if dim is not None else QWEN3VL_FULL_DIM)
+        return Qwen3VLSpace(path, dim=dim)  # None: the model's full size (2048 for the 2B)
     raise ValueError(f"unknown space {name!r}; known spaces: {', '.join(KNOWN_SPACES)}")
 
 

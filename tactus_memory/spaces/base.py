@@ -36,6 +36,11 @@ class Space(ABC):
         """images: N PIL images or (H, W, 3) uint8 arrays -> (N, D) float32, L2-normalised."""
         raise CapabilityError(f"space {self.name!r} has no vision: it cannot embed images")
 
+    def fingerprint(self) -> str | None:
+        """Which model files define this space (recorded in a store, checked on reopen);
+        None for spaces whose model is fixed by their name (MiniLM ships in a package)."""
+        return None
+
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "dim": self.dim, "has_vision": self.has_vision}
 

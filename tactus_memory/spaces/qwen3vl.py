@@ -202,6 +202,7 @@ class Qwen3VLSpace(Space):
         self._tokenizer: Any = None
         self._image_processor: Any = None
         self._passes_mm_types = False
+        self._fingerprint: str | None = None
         self._lock = threading.Lock()
         # one encode at a time: fast tokenizers are not safe under concurrent calls
         self._encode_lock = threading.Lock()
@@ -252,6 +253,14 @@ class Qwen3VLSpace(Space):
     @property
     def loaded(self) -> bool:
         return self._model is not None
+
+    def fingerprint(self) -> str:
+        """sha256 prefix over config.json and the weight files' sizes and ends (cached)."""
+        if self._fingerprint is None:
+            from tactus_memory.spaces.fingerprint import model_fingerprint
+
+            self._fingerprint = model_fingerprint(self.path)
+        return self._fingerprint
 
     # -- encoding ----------------------------------------------------------------------------
 
@@ -355,8 +364,8 @@ class Qwen3VLSpace(Space):
         info.update(
             {
                 "model": "Qwen3-VL-Embedding-2B",
-                "path": str(self.path),
                 "full_dim": self.full_dim,
+                "fingerprint": self.fingerprint(),
                 "query_instruction": normalize_instruction(self.instruction),
                 "document_instruction": normalize_instruction(self.document_instruction),
             }

@@ -95,10 +95,13 @@ def save_checkpoint(
     tensors["targets.centroid"] = torch.from_numpy(
         np.ascontiguousarray(targets.centroid, np.float32)
     )
+    space_meta: dict[str, Any] = {"name": targets.space_name, "dim": int(space_dim)}
+    if targets.space_fingerprint:
+        space_meta["fingerprint"] = targets.space_fingerprint
     meta = {
         "format": FORMAT,
         "model": model.cfg.to_dict(),
-        "space": {"name": targets.space_name, "dim": int(space_dim)},
+        "space": space_meta,
         "classes": list(targets.classes),
         "phrases": list(targets.phrases),
         "calibration": calibration or {},
@@ -149,6 +152,7 @@ def load_checkpoint(path: str | os.PathLike[str], device: str = "cpu") -> Checkp
         centroid=tensors["targets.centroid"].numpy().astype(np.float32),
         centred=tensors["targets.centred"].numpy().astype(np.float32),
         space_name=str(meta["space"]["name"]),
+        space_fingerprint=meta["space"].get("fingerprint"),
     )
     return Checkpoint(model=model, meta=meta, targets=targets, sha256=file_sha256(path), path=path)
 

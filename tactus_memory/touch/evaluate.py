@@ -731,10 +731,10 @@ def space_for(scorer: Scorer) -> Space | None:
     name = getattr(scorer, "space_name", None)
     if not name:
         return None
-    try:
-        from tactus_memory.spaces import get_space
+    try:  # a Qwen3-VL checkpoint's space needs TACTUS_SPACE_PATH (or eval --space-path)
+        from tactus_memory.spaces.resolve import SpaceChoice, resolve_space
 
-        return get_space(name)
+        return resolve_space(SpaceChoice(name=name))
     except Exception:  # unknown or unavailable space: the phrasing test is skipped
         return None
 

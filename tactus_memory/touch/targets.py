@@ -90,6 +90,8 @@ class Targets:
     centroid: np.ndarray  # (D,) float32 mean of ``raw`` (not normalised)
     centred: np.ndarray  # (C, D) float32 unit rows: normalize(raw - centroid)
     space_name: str
+    #: the space's model fingerprint (None for spaces named by their package, e.g. MiniLM)
+    space_fingerprint: str | None = None
 
     def query_transform(self, q: np.ndarray) -> np.ndarray:
         """(N, D) text vectors -> (N, D) comparable with touch vectors: normalize(q - centroid)."""
@@ -120,6 +122,7 @@ def build_targets(space: Space, classes: Sequence[str], *, ensemble: bool = True
         centroid=centroid,
         centred=centre(raw, centroid),
         space_name=space.name,
+        space_fingerprint=space.fingerprint(),
     )
 
 
