@@ -13,6 +13,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -65,7 +66,11 @@ def _image(seed: int, size: tuple[int, int] = (64, 96)) -> np.ndarray:
 
 
 def _one_line(text: str) -> str:
+    """The one error line (serve's "[i/n] ..." steps and model-loading bars may come before it;
+    nothing else, and no traceback)."""
     lines = [ln for ln in text.strip().splitlines() if ln.strip()]
+    progress = re.compile(r"^\[\d+/\d+\] |it/s\]$")  # serve's steps, tqdm bars
+    lines = [ln for ln in lines if not progress.search(ln)]
     assert len(lines) == 1, f"expected one line, got {len(lines)}:\n{text}"
     return lines[0]
 
