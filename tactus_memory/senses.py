@@ -9,7 +9,6 @@ The memory never branches on a sense's name; everything sense-specific lives her
 from __future__ import annotations
 
 import io
-import re
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from typing import Any
@@ -22,11 +21,9 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
+from tactus_memory.limits import MAX_TEXT_CHARS, SENSE_NAME_RE
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
-
-SENSE_NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
-MAX_TEXT_CHARS = 8192
 
 
 def validate_sense_name(name: str) -> str:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import re
 import threading
 import time
 from collections.abc import Iterable, Sequence
@@ -41,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatchError
+from tactus_memory.limits import ID_RE
 from tactus_memory.senses import validate_sense_name
 
 if TYPE_CHECKING:  # heavy imports stay lazy
@@ -48,10 +48,11 @@ if TYPE_CHECKING:  # heavy imports stay lazy
 
 log = logging.getLogger(__name__)
 
-ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")
 ITEMS = "items"
 SENSES = "senses"
 META = "meta"
+#: meta key holding every clock offset as JSON
+CLOCK_KEY = "clock_offsets"
 REMOTE_SCHEMES = ("s3://", "s3+ddb://", "gs://", "az://", "abfs://", "memory://")
 #: columns returned by searches (everything except the vector and raw bytes)
 HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
@@ -408,6 +409,22 @@ class Store:
             .when_not_matched_insert_all()
             .execute(data)
         )
+
+    # ----------------------------------------------------------- temporal state
+    def clock_table(self) -> dict[str, dict[str, float]]:
+        """Every clock offset: session -> {"sense/source": offset} (meta key CLOCK_KEY)."""
+        raw = self.get_meta(CLOCK_KEY)
+        return json.loads(raw) if raw else {}
+
+    def put_clock_table(self, table: dict[str, dict[str, float]]) -> None:
+        self.set_meta(CLOCK_KEY, json.dumps(table, sort_keys=True))
+
+    def set_episodes(self, ids: Sequence[str], episodes: np.ndarray) -> None:
+        """Write the ``episode`` column of the rows ``ids`` (an (N,) int array) in one commit."""
+        import pyarrow as pa
+
+        data = pa.table({"id": list(ids), "episode": pa.array(episodes, pa.int64())})
+        self.items.merge_insert("id").when_matched_update_all().execute(data)
 
     # ----------------------------------------------------------- senses registry
     def sense_rows(self) -> list[dict[str, Any]]:
