@@ -56,10 +56,16 @@ def default_checkpoint_path() -> Path:
     return path
 
 
+class CalibratedWindow(np.ndarray):
+    """A window the touch sense has validated: (K, 32, 32) float32, calibrated to [0, 1].
+    ``validate`` returns one and takes one back as it is; ``embed`` trusts it."""
+
+
 class TactusEncoder(Sense):
     """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``)."""
 
     modality = "touch"
+    validate_options = frozenset({"calibrated"})
 
     def __init__(
         self,
@@ -95,7 +101,13 @@ class TactusEncoder(Sense):
     # -- input ------------------------------------------------------------------------------
 
     def validate(self, item: Any, *, calibrated: bool | None = None) -> np.ndarray:
-        """One window (K, 32, 32), raw or calibrated -> calibrated float32 (K, 32, 32)."""
+        """One window (K, 32, 32), raw or calibrated -> calibrated float32 (K, 32, 32).
+
+        ``calibrated`` None guesses (float values in [0, 1] are calibrated); a window this
+        method returned (a :class:`CalibratedWindow`) comes back as it is unless it is
+        passed as raw (``calibrated=False``, an error)."""
+        if isinstance(item, CalibratedWindow) and calibrated is not False:
+            return item
         try:
             arr = np.asarray(item)
         except (ValueError, TypeError) as exc:
@@ -127,7 +139,7 @@ class TactusEncoder(Sense):
                 raise InvalidInputError(
                     f"calibrated touch window must lie in [0, 1], got {lo:.4g}..{hi:.4g}"
                 )
-            return np.ascontiguousarray(arr, dtype=np.float32)
+            return np.ascontiguousarray(arr, dtype=np.float32).view(CalibratedWindow)
         if lo >= 0.0 and hi <= 1.0:
             raise DynamicRangeError(
                 f"window passed as raw but its values lie in [0, 1] (max {hi:.4g}): it looks "
@@ -139,7 +151,7 @@ class TactusEncoder(Sense):
                 f"no raw reading above the sensor offset {self.profile.offset:g} (max {hi:.4g}): "
                 f"this is not raw {self.profile.name} data"
             )
-        return self.profile.calibrate(arr)
+        return np.ascontiguousarray(self.profile.calibrate(arr), np.float32).view(CalibratedWindow)
 
     def _pad(self, w: np.ndarray) -> np.ndarray:
         if w.shape[0] == self.frames:
@@ -156,7 +168,10 @@ class TactusEncoder(Sense):
             items = list(batch)
         if not items:
             return np.zeros((0, self.frames, FRAME, FRAME), np.float32)
-        return np.stack([self._pad(self.validate(w, calibrated=calibrated)) for w in items])
+        # validated windows (what Memory passes) are trusted; raw ones are validated here
+        return np.stack(
+            [np.asarray(self._pad(self.validate(w, calibrated=calibrated))) for w in items]
+        )
 
     # -- output -----------------------------------------------------------------------------
 

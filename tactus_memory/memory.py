@@ -132,6 +132,12 @@ def _per_item(value: Any, n: int, what: str) -> list[Any]:
     return [value] * n
 
 
+def _options_for(sense: Sense, options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The options ``sense.validate`` takes (its ``validate_options``): an option a sense
+    does not declare does not apply to it (``calibrated`` means nothing to a text sense)."""
+    return {k: v for k, v in (options or {}).items() if k in sense.validate_options}
+
+
 # --------------------------------------------------------------------------- memory
 class Memory:
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
@@ -293,7 +299,7 @@ class Memory:
                 raise InvalidInputError("ids contain duplicates")
         else:
             id_list = [uuid.uuid4().hex for _ in range(n)]
-        opts = dict(options or {})
+        opts = _options_for(s, options)
         canon = [s.validate(x, **opts) for x in items]
         vectors = as_unit_rows(s.embed(canon), self.space.dim, what=f"{sense} embedding")
         if vectors.shape[0] != n:
@@ -346,6 +352,13 @@ class Memory:
                 self.store.delete(where)
                 self.registry.forget_counts()
             return n
+
+    def validate_item(self, sense: str, item: Any, options: Mapping[str, Any] | None = None) -> Any:
+        """``item`` checked (and canonicalised) by the live ``sense``, as ``add`` would store
+        it; ``add``/``add_many`` take the result as it is (a stream validates each window
+        before queueing its write)."""
+        s = self.registry.live_sense(sense)
+        return s.validate(item, **_options_for(s, options))
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
@@ -439,7 +452,7 @@ class Memory:
             if example is None:
                 raise InvalidInputError("search_like needs an example or vector=")
             s = self.registry.live_sense(sense)
-            item = s.validate(example, **dict(options or {}))
+            item = s.validate(example, **_options_for(s, options))
             q = as_unit_rows(s.embed([item]), self.space.dim, what="example")
         else:
             self.registry.search_sense(sense)

@@ -56,6 +56,9 @@ class Sense(ABC):
     dim: int
     #: the space this sense maps into; None means "whatever space it is bound to"
     space_name: str | None = None
+    #: keyword options ``validate`` takes (``Memory.add(..., options=...)`` passes these on;
+    #: e.g. the touch sense's ``calibrated``); options a sense does not declare are not its own
+    validate_options: frozenset[str] = frozenset()
 
     def bind(self, space: Space) -> None:
         """Called by ``Memory.add_sense``. Raises ``SenseConflictError`` on a space mismatch."""
@@ -72,11 +75,13 @@ class Sense(ABC):
 
     @abstractmethod
     def validate(self, item: Any) -> Any:
-        """Check one raw item and return its canonical form. Raises ``InvalidInputError``."""
+        """Check one raw item and return its canonical form. Raises ``InvalidInputError``.
+        A sense with ``validate_options`` takes them as keyword arguments."""
 
     @abstractmethod
     def embed(self, batch: Sequence[Any]) -> np.ndarray:
-        """batch: N validated items -> (N, D) float32, L2-normalised."""
+        """batch: N validated items (what ``validate`` returned; not checked again) ->
+        (N, D) float32, L2-normalised."""
 
     def query_transform(self, queries: np.ndarray) -> np.ndarray:
         """queries: (N, D) text-query vectors -> (N, D) vectors comparable with this sense.

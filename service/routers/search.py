@@ -11,7 +11,6 @@ from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import ID_PATTERN, MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SENSE_PATTERN, HitOut, SearchLikeIn, SearchOut
-from tactus_memory.service.touch_items import touch_item
 
 router = APIRouter(prefix="/search", tags=["search"])
 
@@ -106,8 +105,9 @@ def search_like(body: SearchLikeIn, memory: MemoryDep, response: Response) -> Se
         "before": body.before,
     }
     if body.frames is not None:
-        example = touch_item(memory, body.sense, as_window(body.frames), body.calibrated)
-        hits = memory.search_like(body.sense, example, k=body.k, **filters)
+        window = as_window(body.frames)
+        opts = {"calibrated": body.calibrated}
+        hits = memory.search_like(body.sense, window, k=body.k, options=opts, **filters)
     elif body.vector is not None:
         hits = memory.search_like(body.sense, k=body.k, vector=body.vector, **filters)
     else:

@@ -15,11 +15,11 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.memory import Memory
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
 from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable, WriterDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
-from tactus_memory.service.touch_items import touch_item
 
 router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
 
@@ -54,7 +54,7 @@ def _validate(model: type, obj: Any) -> Any:
 
 
 def _store(
-    memory: Any,
+    memory: Memory,
     session: str,
     windows: list[np.ndarray],
     t: list[float],
@@ -63,8 +63,17 @@ def _store(
     ids: list[str] | None,
     calibrated: bool,
 ) -> list[str]:
-    items = [touch_item(memory, "touch", w, calibrated) for w in windows]
-    return memory.add_many(session, "touch", items, t=t, t_end=t_end, meta=meta, ids=ids)
+    # the edge checked the shape; the touch sense checks range and calibration, once
+    return memory.add_many(
+        session,
+        "touch",
+        windows,
+        t=t,
+        t_end=t_end,
+        meta=meta,
+        ids=ids,
+        options={"calibrated": calibrated},
+    )
 
 
 def _times(values: list[float] | None, n: int, what: str) -> list[float] | None:

@@ -43,7 +43,6 @@ from tactus_memory.errors import InvalidInputError, TactusError
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
-from tactus_memory.service.touch_items import touch_item
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -267,7 +266,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
                     continue
                 win, t_first, t_last = out
                 try:  # the sense's own checks (range, calibration), before queueing
-                    item = touch_item(memory, "touch", win, params.calibrated)
+                    item = memory.validate_item("touch", win, {"calibrated": params.calibrated})
                 except TactusError as exc:
                     await send(
                         {"type": "error", "error": problem_for_exception(exc), "windows": [seq]}
