@@ -169,9 +169,14 @@ class TactusEncoder(Sense):
         if not items:
             return np.zeros((0, self.frames, FRAME, FRAME), np.float32)
         # validated windows (what Memory passes) are trusted; raw ones are validated here
-        return np.stack(
-            [np.asarray(self._pad(self.validate(w, calibrated=calibrated))) for w in items]
-        )
+        trusted = calibrated is not False
+        checked = [
+            w
+            if trusted and isinstance(w, CalibratedWindow)
+            else self.validate(w, calibrated=calibrated)
+            for w in items
+        ]
+        return np.stack([np.asarray(self._pad(w)) for w in checked])
 
     # -- output -----------------------------------------------------------------------------
 

@@ -2,51 +2,44 @@
 per-stream clock offsets (``tactus_memory.temporal``).
 
 "A match" is a calibrated score over a per-sense threshold and close to the best of its sense
-(see the library docstring); ``threshold`` here sets one bar for every sense searched.
+(see ``tactus_memory.matching``); ``threshold`` here sets one bar for every sense searched.
+Every route takes the one scope dependency (``deps.ScopeDep``) and the match bar
+(``MatchDep``), and hands both to the library as they are.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query
-from pydantic import BaseModel, ConfigDict, Field
 
-from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
-from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId
+from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
+from tactus_memory.matching import Match
+from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId, StreamScopeDep
 from tactus_memory.service.problems import problem_responses
-from tactus_memory.service.schemas import SENSE_PATTERN, Strict
+from tactus_memory.service.schemas import (
+    ClockIn,
+    ClockOut,
+    ContextOut,
+    MomentOut,
+    MomentsOut,
+    SegmentIn,
+    SegmentOut,
+    TimelineOut,
+)
 from tactus_memory.temporal import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
     RELATIVE_KEEP,
-    ClockOffset,
-    Evidence,
-    Moment,
     Occurrences,
-    TimelineItem,
 )
 
 router = APIRouter(tags=["temporal"])
 
-K_MAX = 1000
 ERRORS = problem_responses(404, 422)
 
-Query_ = Annotated[str, Query(min_length=1, max_length=8192, description="The query in words.")]
-Senses = Annotated[
-    list[str] | None,
-    Query(
-        description="Restrict to these senses (repeat the parameter).",
-        json_schema_extra={"items": {"type": "string", "pattern": SENSE_PATTERN}},
-    ),
-]
-SessionQ = Annotated[str | None, Query(pattern=ID_PATTERN, max_length=128)]
-SourceQ = Annotated[
-    str | None, Query(max_length=128, description="Only this stream (source id; '' for none).")
-]
-After = Annotated[float | None, Query(description="Items still going on at or after (aligned).")]
-Before = Annotated[float | None, Query(description="Items started at or before (aligned).")]
 Threshold = Annotated[
     float | None,
     Query(description="Match bar on the calibrated score for every sense (default per sense)."),
@@ -59,88 +52,12 @@ MergeGap = Annotated[
 ]
 
 
-class MomentOut(BaseModel):
-    """The occurrence found, or null when nothing matches."""
-
-    moment: Moment | None
-
-
-class MomentsOut(BaseModel):
-    moments: list[Moment]
+def match_bar(threshold: Threshold = None, relative: Relative = RELATIVE_KEEP) -> Match:
+    """The match bar's query parameters -> :class:`~tactus_memory.matching.Match`."""
+    return Match(threshold=threshold, relative=relative)
 
 
-class ContextOut(BaseModel):
-    """What happened before/after the anchor; ``anchor`` null when nothing matches it."""
-
-    side: str
-    window: float
-    anchor: Evidence | None = None
-    t_from: float | None = None
-    t_to: float | None = None
-    items: list[TimelineItem] = Field(default_factory=list)
-
-
-class TimelineOut(BaseModel):
-    session: str
-    items: list[TimelineItem] | None = None
-    episodes: list[Episode] | None = None
-
-
-class ClockIn(Strict):
-    model_config = ConfigDict(
-        json_schema_extra={"examples": [{"sense": "touch", "source": "glove-l", "offset": 2.5}]},
-    )
-
-    sense: str = Field(pattern=SENSE_PATTERN)
-    source: str = Field("", max_length=128, description="Stream id ('' for none).")
-    offset: float = Field(
-        description="Seconds added to the stream's t to put it on the session clock (0 clears)."
-    )
-
-
-class ClockOut(BaseModel):
-    offsets: list[ClockOffset]
-
-
-class SegmentIn(Strict):
-    min_cos: float = Field(EPISODE_MIN_COS, ge=-1.0, le=1.0)
-    mean_cos: float = Field(EPISODE_MEAN_COS, ge=-1.0, le=1.0)
-    max_gap: float = Field(EPISODE_MAX_GAP, ge=0.0)
-
-
-class SegmentOut(BaseModel):
-    session: str
-    episodes: int = Field(description="Episodes written.")
-
-
-class MatchFilters:
-    """The query parameters every temporal question shares (one dependency, one place)."""
-
-    def __init__(
-        self,
-        sense: Senses = None,
-        session: SessionQ = None,
-        source: SourceQ = None,
-        after: After = None,
-        before: Before = None,
-        threshold: Threshold = None,
-        relative: Relative = RELATIVE_KEEP,
-    ) -> None:
-        self.scope = {
-            "senses": sense,
-            "session": session,
-            "source": source,
-            "after": after,
-            "before": before,
-        }
-        self.match = {"threshold": threshold, "relative": relative}
-
-    def kw(self) -> dict[str, Any]:
-        """Keyword arguments for the library call: scope filters and the match bar."""
-        return {**self.scope, **self.match}
-
-
-Filters = Annotated[MatchFilters, Depends()]
+MatchDep = Annotated[Match, Depends(match_bar)]
 
 
 @router.get(
@@ -152,9 +69,14 @@ Filters = Annotated[MatchFilters, Depends()]
     responses=ERRORS,
 )
 def last(
-    memory: MemoryDep, q: Query_, f: Filters, merge_gap: MergeGap = DEFAULT_MERGE_GAP
+    memory: MemoryDep,
+    q: QueryText,
+    scope: ScopeDep,
+    match: MatchDep,
+    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
 ) -> MomentOut:
-    return MomentOut(moment=memory.last(q, merge_gap=merge_gap, **f.kw()))
+    occ = memory.temporal.occurrences(q, scope, match, merge_gap)
+    return MomentOut(moment=occ.moments[-1] if occ.moments else None)
 
 
 @router.get(
@@ -164,9 +86,14 @@ def last(
     responses=ERRORS,
 )
 def first(
-    memory: MemoryDep, q: Query_, f: Filters, merge_gap: MergeGap = DEFAULT_MERGE_GAP
+    memory: MemoryDep,
+    q: QueryText,
+    scope: ScopeDep,
+    match: MatchDep,
+    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
 ) -> MomentOut:
-    return MomentOut(moment=memory.first(q, merge_gap=merge_gap, **f.kw()))
+    occ = memory.temporal.occurrences(q, scope, match, merge_gap)
+    return MomentOut(moment=occ.moments[0] if occ.moments else None)
 
 
 @router.get(
@@ -179,14 +106,15 @@ def first(
 )
 def count(
     memory: MemoryDep,
-    q: Query_,
-    f: Filters,
+    q: QueryText,
+    scope: ScopeDep,
+    match: MatchDep,
     merge_gap: MergeGap = DEFAULT_MERGE_GAP,
     per_stream: Annotated[
         bool, Query(description="Merge only within one stream (session + sense + source).")
     ] = False,
 ) -> Occurrences:
-    return memory.occurrences(q, merge_gap=merge_gap, per_stream=per_stream, **f.kw())
+    return memory.temporal.occurrences(q, scope, match, merge_gap, per_stream)
 
 
 def _context(side: str, window: float, ctx: Any) -> ContextOut:
@@ -196,14 +124,15 @@ def _context(side: str, window: float, ctx: Any) -> ContextOut:
 
 
 Anchor = Annotated[
-    str, Query(min_length=1, max_length=8192, description="What the window is relative to.")
+    str,
+    Query(min_length=1, max_length=MAX_TEXT_CHARS, description="What the window is relative to."),
 ]
 Window = Annotated[float, Query(ge=0.0, le=1e9, description="Seconds before/after the anchor.")]
 AnchorSenses = Annotated[
     list[str] | None,
     Query(
         description="Search the anchor in these senses (repeat).",
-        json_schema_extra={"items": {"type": "string", "pattern": SENSE_PATTERN}},
+        json_schema_extra={"items": {"type": "string", "pattern": SENSE_NAME_PATTERN}},
     ),
 ]
 
@@ -219,11 +148,12 @@ AnchorSenses = Annotated[
 def before_anchor(
     memory: MemoryDep,
     anchor: Anchor,
-    f: Filters,
+    scope: ScopeDep,
+    match: MatchDep,
     window: Window = DEFAULT_WINDOW,
     anchor_sense: AnchorSenses = None,
 ) -> ContextOut:
-    ctx = memory.before(anchor, window, anchor_senses=anchor_sense, **f.kw())
+    ctx = memory.temporal.around("before", anchor, window, scope, match, anchor_sense)
     return _context("before", window, ctx)
 
 
@@ -238,11 +168,12 @@ def before_anchor(
 def after_anchor(
     memory: MemoryDep,
     anchor: Anchor,
-    f: Filters,
+    scope: ScopeDep,
+    match: MatchDep,
     window: Window = DEFAULT_WINDOW,
     anchor_sense: AnchorSenses = None,
 ) -> ContextOut:
-    ctx = memory.after(anchor, window, anchor_senses=anchor_sense, **f.kw())
+    ctx = memory.temporal.around("after", anchor, window, scope, match, anchor_sense)
     return _context("after", window, ctx)
 
 
@@ -257,12 +188,15 @@ def after_anchor(
 )
 def moments(
     memory: MemoryDep,
-    q: Query_,
-    f: Filters,
-    k: Annotated[int, Query(ge=1, le=K_MAX, description="How many moments.")] = 10,
+    q: QueryText,
+    scope: ScopeDep,
+    match: MatchDep,
+    k: Annotated[int, Query(ge=1, le=MAX_K, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
 ) -> MomentsOut:
-    return MomentsOut(moments=memory.search_moments(q, k, gap=gap, **f.kw()))
+    bar = {"threshold": match.threshold, "relative": match.relative}
+    moments = memory.search_moments(q, k, gap=gap, scope=scope, **bar)
+    return MomentsOut(moments=moments)
 
 
 @router.get(
@@ -276,16 +210,11 @@ def moments(
 def timeline(
     session: SessionId,
     memory: MemoryDep,
-    sense: Senses = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
+    scope: StreamScopeDep,
     episodes: bool = False,
     limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
 ) -> TimelineOut:
-    out = memory.timeline(
-        session, sense, after, before, episodes, source=source, limit=limit
-    )  # fmt: skip
+    out = memory.temporal.timeline(replace(scope, session=session), episodes, limit)
     if episodes:
         return TimelineOut(session=session, episodes=out)
     return TimelineOut(session=session, items=out)
