@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -38,22 +37,12 @@ import numpy as np
 from tactus_memory import __version__
 from tactus_memory.errors import DynamicRangeError, InvalidInputError
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
+
+# re-exported: `from tactus_memory.adapters.touch import default_checkpoint_path` keeps working
+from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.vectors import as_unit_rows
 
-DEFAULT_CHECKPOINT = "tactus-lite-minilm.safetensors"  # in tactus_memory/touch/checkpoints/
 FRAME = 32
-
-
-def default_checkpoint_path() -> Path:
-    """The shipped default checkpoint (package data)."""
-    ref = resources.files("tactus_memory.touch") / "checkpoints" / DEFAULT_CHECKPOINT
-    path = Path(str(ref))
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"the shipped touch checkpoint {DEFAULT_CHECKPOINT} is missing from {path.parent}; "
-            "train one with `tactus train` and use TactusEncoder.from_pretrained(path)"
-        )
-    return path
 
 
 class CalibratedWindow(np.ndarray):

@@ -10,6 +10,7 @@ from typing import Any
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.common import set_threads
 
 HOLDOUT_HELP = (
     "score exactly the recordings a `tactus train --holdout SPEC` run held out (same grammar: "
@@ -26,13 +27,6 @@ baseline_app = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(baseline_app, name="baseline")
-
-
-def _threads(n: int) -> None:
-    import torch
-
-    if n > 0:
-        torch.set_num_threads(n)
 
 
 def load_eval_data(paths: list[Path]) -> tuple[Any, list[dict[str, Any]]]:
@@ -170,7 +164,7 @@ def eval_cmd(
     logging.basicConfig(level=logging.WARNING)
     if split not in ("test", "all"):
         raise typer.BadParameter("--split must be 'test' or 'all'")
-    _threads(threads)
+    set_threads(threads)
     payload, first, es = run_eval(
         checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed, analysis=analysis
     )
@@ -194,7 +188,7 @@ def baseline_train_cmd(
     """Train the STAG reference CNN on the non-held-out frames; the last epoch is saved (no
     model selection). With --holdout, the held-out recordings are scored afterwards."""
     logging.basicConfig(level=logging.WARNING)
-    _threads(threads)
+    set_threads(threads)
     from tactus_memory.touch.baseline import (
         BaselineConfig,
         BaselineScorer,
@@ -269,7 +263,7 @@ def baseline_eval_cmd(
     """Score baseline checkpoints with the same tuples and JSON keys as ``tactus eval``
     (voting and recording level average class probabilities)."""
     logging.basicConfig(level=logging.WARNING)
-    _threads(threads)
+    set_threads(threads)
     payload, first, es = run_eval(
         checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed
     )
@@ -301,7 +295,7 @@ def ablate_cmd(
 ) -> None:
     """Recipe ablations: each row changes one thing of the recipe, seeds repeated, mean ± std."""
     logging.basicConfig(level=logging.WARNING)
-    _threads(threads)
+    set_threads(threads)
     from tactus_memory.touch.ablate import AblationConfig, format_table, run_ablation
 
     cfg = AblationConfig(

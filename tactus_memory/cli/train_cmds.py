@@ -9,19 +9,13 @@ from pathlib import Path
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.common import set_threads
 
 HOLDOUT_HELP = (
     "recordings kept out of training (and pretraining) and scored: none | "
     "one-per-object@SUBSTR (per object, the lowest-id recording with valid frames in the "
     "--data file whose path contains SUBSTR) | recordings@NAME,NAME"
 )
-
-
-def _threads(n: int) -> None:
-    import torch
-
-    if n > 0:
-        torch.set_num_threads(n)
 
 
 @app.command("pretrain")
@@ -40,7 +34,7 @@ def pretrain_cmd(
 ) -> None:
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    _threads(threads)
+    set_threads(threads)
     from tactus_memory.touch.data import STAG_GLOVE
     from tactus_memory.touch.pretrain import PretrainConfig, pretrain
     from tactus_memory.touch.train import _resolve_device, holdout_recordings, load_data
@@ -90,7 +84,7 @@ def train_cmd(
 ) -> None:
     """Train the touch encoder against centred class-phrase targets; report held-out accuracy."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    _threads(threads)
+    set_threads(threads)
     from tactus_memory.spaces import get_space
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.touch.train import (

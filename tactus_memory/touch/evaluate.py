@@ -634,25 +634,9 @@ def analyse(
 # --------------------------------------------------------------------------- checkpoints
 
 
-def default_checkpoint_path() -> Path:
-    """The shipped checkpoint: ``TactusEncoder``'s default (``adapters.touch``), else the one
-    ``.safetensors`` file in ``tactus_memory/touch/checkpoints/``."""
-    try:
-        from tactus_memory.adapters.touch import default_checkpoint_path as shipped
-    except ImportError:
-        shipped = None
-    if shipped is not None:
-        return Path(shipped())
-    from importlib import resources
-
-    root = Path(str(resources.files("tactus_memory.touch") / "checkpoints"))
-    found = sorted(root.glob("*.safetensors")) if root.is_dir() else []
-    if not found:
-        raise FileNotFoundError(f"no shipped checkpoint (no .safetensors in {root})")
-    return found[0]
-
-
 def resolve_checkpoint(spec: str | Path) -> Path:
+    from tactus_memory.touch.checkpoint import default_checkpoint_path
+
     p = default_checkpoint_path() if str(spec) == "default" else Path(spec)
     if not p.is_file():
         raise FileNotFoundError(f"checkpoint not found: {p}")
