@@ -38,10 +38,7 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import threading
-import time
-import uuid
 from collections.abc import Callable, Mapping, Sequence
 from datetime import timedelta
 from typing import Any
@@ -49,31 +46,24 @@ from typing import Any
 import numpy as np
 from typing_extensions import Unpack
 
-from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
 from tactus_memory.matching import (
-    DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
-    DEFAULT_WINDOW,
-    MatchKwargs,
     split_match,
 )
 from tactus_memory.models import (
-    ClockOffset,
-    Context,
-    Evidence,
     Hit,
     Item,
     Moment,
-    Occurrences,
     SenseInfo,
     SessionSummary,
-    TimelineItem,
 )
 from tactus_memory.query import Scope, ScopeKwargs, check_k, check_query_text, embed_query
+from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry, StoredSense
+from tactus_memory.rows import check_batch, item_from_row, items_table, options_for, summarise
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
@@ -82,7 +72,6 @@ from tactus_memory.store import (
     IndexConfig,
     Store,
     Where,
-    finite_float,
     validate_id,
     validate_source,
 )
@@ -108,38 +97,8 @@ _check_k = check_k  # old private names, still imported by other branches
 _check_query_text = check_query_text
 
 
-# --------------------------------------------------------------------------- helpers
-def _meta_json(meta: Any) -> str:
-    if meta is None:
-        return "{}"
-    if not isinstance(meta, dict) or not all(isinstance(key, str) for key in meta):
-        raise InvalidInputError("meta must be a dict with string keys")
-    try:
-        out = json.dumps(meta, allow_nan=False, sort_keys=True, ensure_ascii=False)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"meta is not JSON-serialisable: {exc}") from None
-    if len(out.encode()) > MAX_META_BYTES:
-        raise InvalidInputError(f"meta is larger than {MAX_META_BYTES} bytes as JSON")
-    return out
-
-
-def _per_item(value: Any, n: int, what: str) -> list[Any]:
-    """A list of n values, or a scalar/None broadcast to n."""
-    if isinstance(value, (list, tuple, np.ndarray)):
-        if len(value) != n:
-            raise InvalidInputError(f"{what} has {len(value)} entries for {n} items")
-        return list(value)
-    return [value] * n
-
-
-def _options_for(sense: Sense, options: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The options ``sense.validate`` takes (its ``validate_options``): an option a sense
-    does not declare does not apply to it (``calibrated`` means nothing to a text sense)."""
-    return {k: v for k, v in (options or {}).items() if k in sense.validate_options}
-
-
 # --------------------------------------------------------------------------- memory
-class Memory:
+class Memory(TemporalQuestions):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -269,70 +228,31 @@ class Memory:
         ``options`` go to the sense's ``validate`` (e.g. ``{"calibrated": True}`` for touch);
         the sense's ``embed`` then takes the validated items as they are.
         """
-        import pyarrow as pa
-
         session = validate_id(session, "session id")
         source = validate_source(source)
         s = self.registry.live_sense(sense)
         items = list(items)
-        n = len(items)
-        if n == 0:
+        if not items:
             return []
-        if n > MAX_BATCH:
-            raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
-        now = time.time()
-        ts = [now if x is None else finite_float(x, "t") for x in _per_item(t, n, "t")]
-        ends = [
-            ts[i] if x is None else finite_float(x, "t_end")
-            for i, x in enumerate(_per_item(t_end, n, "t_end"))
-        ]
-        for a, b in zip(ts, ends, strict=True):
-            if b < a:
-                raise InvalidInputError(f"t_end ({b}) is before t ({a})")
-        metas = [_meta_json(m) for m in _per_item(meta, n, "meta")]
-        upsert = ids is not None
-        if upsert:
-            if isinstance(ids, str) or len(ids) != n:
-                raise InvalidInputError(f"ids must be a list of {n} ids")
-            id_list = [validate_id(i, "item id") for i in ids]
-            if len(set(id_list)) != n:
-                raise InvalidInputError("ids contain duplicates")
-        else:
-            id_list = [uuid.uuid4().hex for _ in range(n)]
-        opts = _options_for(s, options)
+        batch = check_batch(len(items), t, t_end, meta, ids)
+        opts = options_for(s, options)
         canon = [s.validate(x, **opts) for x in items]
         vectors = as_unit_rows(s.embed(canon), self.space.dim, what=f"{sense} embedding")
-        if vectors.shape[0] != n:
-            raise InvalidInputError(f"sense {sense!r} returned {vectors.shape[0]} vectors for {n}")
+        if vectors.shape[0] != len(items):
+            raise InvalidInputError(
+                f"sense {sense!r} returned {vectors.shape[0]} vectors for {len(items)}"
+            )
         extras = [s.to_row(x) for x in canon]
-        data = pa.table(
-            {
-                "id": id_list,
-                "session": [session] * n,
-                "sense": [s.name] * n,
-                "t": ts,
-                "t_end": ends,
-                "vector": pa.FixedSizeListArray.from_arrays(
-                    pa.array(vectors.reshape(-1), pa.float32()), self.space.dim
-                ),
-                "meta": metas,
-                "text": [e.get("text") for e in extras],
-                "raw": [e.get("raw") for e in extras],
-                "source": [source] * n,
-                "episode": pa.nulls(n, pa.int64()),
-                "created": [now] * n,
-            },
-            schema=self.store.schema,
-        )
+        data = items_table(self.store.schema, batch, session, s.name, source, vectors, extras)
         with self.lock:
             replaced: list[str] = []
-            if upsert and self.registry.counting:
-                where = Where().ids(id_list).sql()
+            if batch.upsert and self.registry.counting:
+                where = Where().ids(batch.ids).sql()
                 replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
-            self.store.write(data, upsert=upsert)
-            self.registry.note_write(s.name, n, replaced)
+            self.store.write(data, upsert=batch.upsert)
+            self.registry.note_write(s.name, len(items), replaced)
         self._schedule_maintenance()
-        return id_list
+        return batch.ids
 
     def delete(self, ids: Sequence[str] | str) -> int:
         """Delete items by id; returns how many rows were removed."""
@@ -358,7 +278,7 @@ class Memory:
         it; ``add``/``add_many`` take the result as it is (a stream validates each window
         before queueing its write)."""
         s = self.registry.live_sense(sense)
-        return s.validate(item, **_options_for(s, options))
+        return s.validate(item, **options_for(s, options))
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
@@ -452,7 +372,7 @@ class Memory:
             if example is None:
                 raise InvalidInputError("search_like needs an example or vector=")
             s = self.registry.live_sense(sense)
-            item = s.validate(example, **_options_for(s, options))
+            item = s.validate(example, **options_for(s, options))
             q = as_unit_rows(s.embed([item]), self.space.dim, what="example")
         else:
             self.registry.search_sense(sense)
@@ -478,133 +398,6 @@ class Memory:
 
     _query = rank  # the old private name
 
-    # ----------------------------------------------------------- temporal (temporal.py)
-    def matches(self, query: str, **kw: Unpack[MatchKwargs]) -> list[Evidence]:
-        """Every item matching ``query`` (see :mod:`tactus_memory.matching`), in aligned time
-        order. Keywords: the scope (session, senses, source, after, before, or ``scope=``)
-        and the match bar (``threshold``, ``relative``)."""
-        return self.temporal.matches(query, *split_match(kw))
-
-    def occurrences(
-        self,
-        query: str,
-        *,
-        merge_gap: float = DEFAULT_MERGE_GAP,
-        per_stream: bool = False,
-        **kw: Unpack[MatchKwargs],
-    ) -> Occurrences:
-        """Distinct occurrences of ``query`` (see :meth:`Temporal.occurrences`)."""
-        scope, match = split_match(kw)
-        return self.temporal.occurrences(query, scope, match, merge_gap, per_stream)
-
-    def count(
-        self,
-        query: str,
-        *,
-        merge_gap: float = DEFAULT_MERGE_GAP,
-        per_stream: bool = False,
-        **kw: Unpack[MatchKwargs],
-    ) -> int:
-        """How many distinct times ``query`` happened (see :meth:`occurrences`)."""
-        return self.occurrences(query, merge_gap=merge_gap, per_stream=per_stream, **kw).count
-
-    def last(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
-    ) -> Moment | None:
-        """The most recent occurrence of ``query`` (latest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, **kw).moments
-        return moments[-1] if moments else None
-
-    def first(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
-    ) -> Moment | None:
-        """The earliest occurrence of ``query`` (earliest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, **kw).moments
-        return moments[0] if moments else None
-
-    def before(
-        self,
-        anchor: str,
-        window: float = DEFAULT_WINDOW,
-        *,
-        anchor_senses: Sequence[str] | None = None,
-        **kw: Unpack[MatchKwargs],
-    ) -> Context | None:
-        """What happened in the ``window`` seconds before the best match of ``anchor`` (see
-        :meth:`Temporal.around`)."""
-        scope, match = split_match(kw)
-        return self.temporal.around("before", anchor, window, scope, match, anchor_senses)
-
-    def after(
-        self,
-        anchor: str,
-        window: float = DEFAULT_WINDOW,
-        *,
-        anchor_senses: Sequence[str] | None = None,
-        **kw: Unpack[MatchKwargs],
-    ) -> Context | None:
-        """What happened in the ``window`` seconds after the best match of ``anchor`` (see
-        :meth:`Temporal.around`)."""
-        scope, match = split_match(kw)
-        return self.temporal.around("after", anchor, window, scope, match, anchor_senses)
-
-    def search_moments(
-        self,
-        query: str,
-        k: int = 10,
-        *,
-        gap: float = DEFAULT_MOMENT_GAP,
-        **kw: Unpack[MatchKwargs],
-    ) -> list[Moment]:
-        """Search grouped into moments (see :meth:`Temporal.moments`)."""
-        scope, match = split_match(kw)
-        return self.temporal.moments(embed_query(self.space, query), k, scope, match, gap)
-
-    def timeline(
-        self,
-        session: str,
-        senses: Sequence[str] | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        episodes: bool = False,
-        *,
-        source: str | None = None,
-        limit: int | None = None,
-    ) -> list[TimelineItem] | list[Episode]:
-        """The session's items (or, with ``episodes=True``, its episodes) in aligned time
-        order; ``after``/``before`` use overlap semantics on the aligned clock. Raises
-        NotFoundError for an unknown session."""
-        session = validate_id(session, "session id")
-        scope = Scope(session=session, senses=senses, source=source, after=after, before=before)
-        return self.temporal.timeline(scope, episodes, limit)
-
-    def segment_episodes(
-        self,
-        session: str | None = None,
-        *,
-        min_cos: float = EPISODE_MIN_COS,
-        mean_cos: float = EPISODE_MEAN_COS,
-        max_gap: float = EPISODE_MAX_GAP,
-    ) -> int:
-        """Segment streams into stored episodes (see :meth:`Temporal.segment_episodes`)."""
-        return self.temporal.segment_episodes(
-            session, min_cos=min_cos, mean_cos=mean_cos, max_gap=max_gap
-        )
-
-    def episodes(
-        self, session: str, *, senses: Sequence[str] | None = None, source: str | None = None
-    ) -> list[Episode]:
-        """The session's episodes in aligned time order (segmenting it first if needed)."""
-        return self.temporal.episodes(session, senses=senses, source=source)
-
-    def set_clock_offset(self, session: str, sense: str, offset: float, source: str = "") -> None:
-        """Place the stream (session, sense, source) at ``t + offset`` on the session clock."""
-        self.temporal.set_clock_offset(session, sense, offset, source)
-
-    def clock_offsets(self, session: str | None = None) -> list[ClockOffset]:
-        """Every recorded clock offset (of one session), sorted."""
-        return self.temporal.clock_offsets(session)
-
     # ----------------------------------------------------------- reads
     def get_item(self, id: str, *, vector: bool = False) -> Item:  # noqa: A002
         """One stored item with ``raw`` decoded (by its sense when live, else as npy/text)."""
@@ -618,20 +411,7 @@ class Memory:
             raw = s.from_row(row)
         else:
             raw = bytes_to_array(row["raw"]) if row.get("raw") is not None else row.get("text")
-        return Item(
-            id=row["id"],
-            session=row["session"],
-            sense=row["sense"],
-            t=row["t"],
-            t_end=row["t_end"],
-            meta=json.loads(row["meta"] or "{}"),
-            text=row.get("text"),
-            raw=raw,
-            source=row.get("source") or "",
-            episode=row.get("episode"),
-            created=row["created"],
-            vector=row.get("vector"),
-        )
+        return item_from_row(row, raw)
 
     def sessions(self) -> list[SessionSummary]:
         """A summary per session (counts per sense, time span), sorted by id."""
@@ -644,28 +424,7 @@ class Memory:
         return out[0]
 
     def _summaries(self, where: str | None) -> list[SessionSummary]:
-        tbl = self.store.scan(where, ["session", "sense", "t", "t_end"])
-        if tbl.num_rows == 0:
-            return []
-        agg = tbl.group_by(["session", "sense"]).aggregate(
-            [("t", "min"), ("t_end", "max"), ("t", "count")]
-        )
-        by: dict[str, dict[str, Any]] = {}
-        for r in agg.to_pylist():
-            d = by.setdefault(r["session"], {"counts": {}, "t_min": math.inf, "t_max": -math.inf})
-            d["counts"][r["sense"]] = int(r["t_count"])
-            d["t_min"] = min(d["t_min"], r["t_min"])
-            d["t_max"] = max(d["t_max"], r["t_end_max"])
-        return [
-            SessionSummary(
-                id=sid,
-                n=sum(d["counts"].values()),
-                counts=dict(sorted(d["counts"].items())),
-                t_min=d["t_min"],
-                t_max=d["t_max"],
-            )
-            for sid, d in sorted(by.items())
-        ]
+        return summarise(self.store.scan(where, ["session", "sense", "t", "t_end"]))
 
     def close(self) -> None:
         """Let background maintenance finish (the store needs no other closing)."""
