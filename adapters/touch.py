@@ -65,7 +65,7 @@ class TactusEncoder(Sense):
         batch_size: int = 64,
     ) -> None:
         from tactus_memory.touch.checkpoint import load_checkpoint
-        from tactus_memory.touch.data import SensorProfile
+        from tactus_memory.touch.profile import SensorProfile
 
         self.name = validate_sense_name(name)
         path = Path(checkpoint) if checkpoint is not None else default_checkpoint_path()

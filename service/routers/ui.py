@@ -25,7 +25,7 @@ from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
-from tactus_memory.touch.data import STAG_GLOVE, SensorProfile
+from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png
 
 STATIC = FsPath(__file__).resolve().parent.parent / "static"

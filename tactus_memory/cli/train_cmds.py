@@ -35,8 +35,8 @@ def pretrain_cmd(
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
-    from tactus_memory.touch.data import STAG_GLOVE
     from tactus_memory.touch.pretrain import PretrainConfig, pretrain
+    from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.touch.train import _resolve_device, holdout_recordings, load_data
 
     d = load_data(data)

@@ -309,7 +309,7 @@ def select_eval_frames(
     ``holdout``: a ``tactus train --holdout`` spec; when given (and not ``none``) it replaces
     the split. ``calibrated``: precomputed (N, 32, 32) frames (default: the STAG_GLOVE affine).
     """
-    from tactus_memory.touch.data import STAG_GLOVE
+    from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.touch.train import holdout_recordings
 
     held = None
