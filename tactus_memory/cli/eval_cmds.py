@@ -29,90 +29,8 @@ baseline_app = typer.Typer(
 app.add_typer(baseline_app, name="baseline")
 
 
-def load_eval_data(paths: list[Path]) -> tuple[Any, list[dict[str, Any]]]:
-    """Load each file (fingerprinted), combine, run the dynamic-range gate per subset."""
-    from tactus_memory.touch.data import combine, load_stag
-    from tactus_memory.touch.evaluate import file_fingerprint
-
-    parts = [load_stag(p) for p in paths]
-    fps = [file_fingerprint(d, p) for d, p in zip(parts, paths, strict=True)]
-    data = parts[0] if len(parts) == 1 else combine(parts)
-    data.check_dynamic_range()
-    return data, fps
-
-
-def run_eval(
-    checkpoints: list[str],
-    data_paths: list[Path],
-    *,
-    split: str = "test",
-    holdout: str | None = None,
-    votes: int = 4,
-    seed: int | None = None,
-    analysis: bool = True,
-    progress: bool = True,
-) -> tuple[dict[str, Any], Any, Any]:
-    """Evaluate one or more checkpoints on one scope. Returns (payload, first result, scope).
-
-    One checkpoint: the payload is that run's metrics. Several: ``runs`` (each run's metrics),
-    ``aggregate`` (mean, sample std per metric), and the top-level metric keys hold the means.
-    """
-    from tactus_memory.touch.evaluate import (
-        EVAL_SEED,
-        SCALAR_METRICS,
-        aggregate_runs,
-        evaluate_checkpoint,
-        resolve_checkpoint,
-        select_eval_frames,
-    )
-
-    data, fps = load_eval_data(data_paths)
-    es = select_eval_frames(data, split, holdout, fingerprints=fps)
-    runs, first = [], None
-    for spec in checkpoints:
-        path = resolve_checkpoint(spec)
-        m, res, _ = evaluate_checkpoint(
-            path,
-            es,
-            votes=votes,
-            seed=EVAL_SEED if seed is None else seed,
-            analysis=analysis,
-            progress=progress,
-        )
-        runs.append(m)
-        first = first or res
-        if m["leakage"]["status"] == "overlap":
-            typer.echo(
-                f"WARNING: {path}: {m['leakage']['trained_on']} of the "
-                f"{m['leakage']['scored_recordings']} scored recordings were in its training "
-                f"data (e.g. {m['leakage']['examples']}); these scores are not held-out",
-                err=True,
-            )
-    if len(runs) == 1:
-        return runs[0], first, es
-    agg = aggregate_runs(runs)
-    shared = (
-        "split",
-        "k",
-        "seed",
-        "votes",
-        "n_tuples",
-        "n_recordings",
-        "n_frames",
-        "chance",
-        "chance_top3",
-        "classes",
-        "data",
-        "model_kind",
-    )
-    payload: dict[str, Any] = {k: runs[0][k] for k in shared}
-    payload.update({k: agg[k]["mean"] for k in SCALAR_METRICS})
-    payload.update({f"{k}_std": agg[k]["std"] for k in SCALAR_METRICS})
-    payload["n_runs"] = len(runs)
-    payload["checkpoint"] = [r["checkpoint"] for r in runs]
-    payload["aggregate"] = agg
-    payload["runs"] = runs
-    return payload, first, es
+def _warn(message: str) -> None:
+    typer.echo(message, err=True)
 
 
 def _write_outputs(
@@ -165,8 +83,17 @@ def eval_cmd(
     if split not in ("test", "all"):
         raise typer.BadParameter("--split must be 'test' or 'all'")
     set_threads(threads)
+    from tactus_memory.touch.eval_runs import run_eval
+
     payload, first, es = run_eval(
-        checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed, analysis=analysis
+        checkpoint,
+        data,
+        split=split,
+        holdout=holdout,
+        votes=votes,
+        seed=seed,
+        analysis=analysis,
+        warn=_warn,
     )
     _write_outputs(payload, first, es, json_out, report, compare)
 
@@ -189,18 +116,9 @@ def baseline_train_cmd(
     model selection). With --holdout, the held-out recordings are scored afterwards."""
     logging.basicConfig(level=logging.WARNING)
     set_threads(threads)
-    from tactus_memory.touch.baseline import (
-        BaselineConfig,
-        BaselineScorer,
-        baseline_meta,
-        save_baseline,
-        train_baseline,
-    )
-    from tactus_memory.touch.evaluate import evaluate_scorer, select_eval_frames
-    from tactus_memory.touch.train import holdout_recordings, prepare_data
+    from tactus_memory.touch.baseline import BaselineConfig
+    from tactus_memory.touch.eval_runs import train_baseline_run
 
-    d, fps = load_eval_data(data)
-    td = prepare_data(d, holdout_recordings(d, holdout))
     cfg = BaselineConfig(
         epochs=epochs,
         batch=batch,
@@ -210,31 +128,7 @@ def baseline_train_cmd(
         max_steps=max_steps,
         k=k,
     )
-
-    def snapshot(net: Any, summary: dict[str, Any]) -> None:  # latest epoch, never selected
-        meta = baseline_meta(td, cfg, summary, holdout)
-        save_baseline(out, net, dict(meta, data=fps, complete=False))
-
-    net, summary = train_baseline(td, cfg, on_epoch=snapshot)
-    meta = baseline_meta(td, cfg, summary, holdout)
-    meta["data"] = fps
-    meta["complete"] = True
-    if holdout != "none":
-        es = select_eval_frames(d, holdout=holdout, calibrated=td.calibrated, fingerprints=fps)
-        res = evaluate_scorer(BaselineScorer(net, td.classes), es)
-        meta["heldout"] = {
-            k: res.metrics[k]
-            for k in (
-                "n_tuples",
-                "n_recordings",
-                "top1",
-                "top3",
-                "top1_vote",
-                "top3_vote",
-                "recording_top1",
-            )
-        }
-    sha = save_baseline(out, net, meta)
+    sha, meta = train_baseline_run(data, out, holdout, cfg)
     typer.echo(
         json.dumps(
             {
@@ -264,8 +158,10 @@ def baseline_eval_cmd(
     (voting and recording level average class probabilities)."""
     logging.basicConfig(level=logging.WARNING)
     set_threads(threads)
+    from tactus_memory.touch.eval_runs import run_eval
+
     payload, first, es = run_eval(
-        checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed
+        checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed, warn=_warn
     )
     _write_outputs(payload, first, es, json_out, report, [])
 
