@@ -39,7 +39,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from datetime import timedelta
 from typing import Any
 
@@ -48,33 +48,17 @@ from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
-from tactus_memory.matching import (
-    DEFAULT_MOMENT_GAP,
-    split_match,
-)
-from tactus_memory.models import (
-    Hit,
-    Item,
-    Moment,
-    SenseInfo,
-    SessionSummary,
-)
+from tactus_memory.matching import DEFAULT_MOMENT_GAP, split_match
+from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, check_query_text, embed_query
 from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry, StoredSense
-from tactus_memory.rows import check_batch, item_from_row, items_table, options_for, summarise
+from tactus_memory.rows import check_batch, items_table, options_for, summarise
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
-from tactus_memory.store import (
-    HIT_COLUMNS,
-    IndexConfig,
-    Store,
-    Where,
-    validate_id,
-    validate_source,
-)
+from tactus_memory.store import HIT_COLUMNS, IndexConfig, Store, Where, validate_id, validate_source
 from tactus_memory.temporal import Temporal
 from tactus_memory.vectors import as_unit_rows
 
@@ -383,18 +367,12 @@ class Memory(TemporalQuestions):
         return self.search_vector(q[0], k, scope=where)
 
     def rank(
-        self,
-        q: np.ndarray,
-        k: int,
-        senses: Sequence[str],
-        base: Where,
-        *,
-        transform: bool,
-        build: Callable[[dict[str, Any], float, float], Hit] | None = None,
+        self, q: np.ndarray, k: int, senses: Sequence[str], base: Where, **kw: Any
     ) -> list[Hit]:
-        """The one ranked search path (see :mod:`tactus_memory.ranking`): (1, D) unit query
-        ``q``, the senses searched, ``base`` the non-sense conditions."""
-        return self.ranker.rank(q, k, senses, base, transform=transform, build=build)
+        """The one ranked search path (:meth:`tactus_memory.ranking.Ranker.rank`): (1, D)
+        unit query ``q``, the senses searched, ``base`` the non-sense conditions; keywords
+        ``transform`` (apply each sense's query transform) and ``build`` (the hit maker)."""
+        return self.ranker.rank(q, k, senses, base, **kw)
 
     _query = rank  # the old private name
 

@@ -12,14 +12,19 @@ Side = Literal["before", "after"]
 
 
 # --------------------------------------------------------------------------- memory
-class Hit(BaseModel):
-    """One search result. ``score`` is the calibrated z-score, ``cosine`` the raw cosine."""
+class Span(BaseModel):
+    """What every stored item has first: its id, session, sense and time span."""
 
     id: str
     session: str
     sense: str
     t: float
     t_end: float
+
+
+class Hit(Span):
+    """One search result. ``score`` is the calibrated z-score, ``cosine`` the raw cosine."""
+
     score: float
     cosine: float
     meta: dict[str, Any] = Field(default_factory=dict)
@@ -28,16 +33,11 @@ class Hit(BaseModel):
     episode: int | None = None
 
 
-class Item(BaseModel):
+class Item(Span):
     """One stored row, with ``raw`` decoded by its sense (array or text) when possible."""
 
     model_config = ConfigDict(arbitrary_types_allowed=True)
 
-    id: str
-    session: str
-    sense: str
-    t: float
-    t_end: float
     meta: dict[str, Any] = Field(default_factory=dict)
     text: str | None = None
     raw: Any = None
@@ -70,20 +70,21 @@ class SenseInfo(BaseModel):
     sigma: float | None = None
 
 
+def row_fields(row: dict[str, Any]) -> dict[str, Any]:
+    """The columns every hit and item carry, from a stored row (``meta`` decoded)."""
+    keys = ("id", "session", "sense", "t", "t_end", "text", "episode")
+    out = {k: row.get(k) for k in keys}
+    out.update(meta=json.loads(row["meta"] or "{}"), source=row.get("source") or "")
+    return out
+
+
 def hit_from_row(row: dict[str, Any], score: float, cos: float) -> Hit:
-    return Hit(
-        id=row["id"],
-        session=row["session"],
-        sense=row["sense"],
-        t=row["t"],
-        t_end=row["t_end"],
-        score=score,
-        cosine=cos,
-        meta=json.loads(row["meta"] or "{}"),
-        text=row.get("text"),
-        source=row.get("source") or "",
-        episode=row.get("episode"),
-    )
+    return Hit(**row_fields(row), score=score, cosine=cos)
+
+
+def item_from_row(row: dict[str, Any], raw: Any) -> Item:
+    """A stored row (with ``raw`` already decoded) -> :class:`Item`."""
+    return Item(**row_fields(row), raw=raw, created=row["created"], vector=row.get("vector"))
 
 
 # --------------------------------------------------------------------------- temporal

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 from typing_extensions import Unpack
 
-from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
+from tactus_memory.episodes import Episode
 from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
@@ -24,12 +24,20 @@ from tactus_memory.models import (
     Evidence,
     Moment,
     Occurrences,
+    Side,
     TimelineItem,
 )
 from tactus_memory.query import Scope, embed_query
 from tactus_memory.spaces.base import Space
 from tactus_memory.store import validate_id
 from tactus_memory.temporal import Temporal
+
+
+class AroundKwargs(MatchKwargs, total=False):
+    """``before``/``after`` keywords: the scope and match bar, and where the anchor is
+    searched (``anchor_senses``; default: every sense with rows)."""
+
+    anchor_senses: Sequence[str] | None
 
 
 class TemporalQuestions:
@@ -85,38 +93,27 @@ class TemporalQuestions:
         return moments[0] if moments else None
 
     def before(
-        self,
-        anchor: str,
-        window: float = DEFAULT_WINDOW,
-        *,
-        anchor_senses: Sequence[str] | None = None,
-        **kw: Unpack[MatchKwargs],
+        self, anchor: str, window: float = DEFAULT_WINDOW, **kw: Unpack[AroundKwargs]
     ) -> Context | None:
-        """What happened in the ``window`` seconds before the best match of ``anchor`` (see
-        :meth:`Temporal.around`)."""
-        scope, match = split_match(kw)
-        return self.temporal.around("before", anchor, window, scope, match, anchor_senses)
+        """What happened in the ``window`` seconds before the best match of ``anchor``
+        (searched in ``anchor_senses``; see :meth:`Temporal.around`)."""
+        return self._around("before", anchor, window, kw)
 
     def after(
-        self,
-        anchor: str,
-        window: float = DEFAULT_WINDOW,
-        *,
-        anchor_senses: Sequence[str] | None = None,
-        **kw: Unpack[MatchKwargs],
+        self, anchor: str, window: float = DEFAULT_WINDOW, **kw: Unpack[AroundKwargs]
     ) -> Context | None:
-        """What happened in the ``window`` seconds after the best match of ``anchor`` (see
-        :meth:`Temporal.around`)."""
-        scope, match = split_match(kw)
-        return self.temporal.around("after", anchor, window, scope, match, anchor_senses)
+        """What happened in the ``window`` seconds after the best match of ``anchor``
+        (searched in ``anchor_senses``; see :meth:`Temporal.around`)."""
+        return self._around("after", anchor, window, kw)
+
+    def _around(self, side: Side, anchor: str, window: float, kw: AroundKwargs) -> Context | None:
+        rest = dict(kw)
+        anchor_senses = rest.pop("anchor_senses", None)
+        scope, match = split_match(rest)
+        return self.temporal.around(side, anchor, window, scope, match, anchor_senses)
 
     def search_moments(
-        self,
-        query: str,
-        k: int = 10,
-        *,
-        gap: float = DEFAULT_MOMENT_GAP,
-        **kw: Unpack[MatchKwargs],
+        self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
     ) -> list[Moment]:
         """Search grouped into moments (see :meth:`Temporal.moments`)."""
         scope, match = split_match(kw)
@@ -140,18 +137,10 @@ class TemporalQuestions:
         scope = Scope(session=session, senses=senses, source=source, after=after, before=before)
         return self.temporal.timeline(scope, episodes, limit)
 
-    def segment_episodes(
-        self,
-        session: str | None = None,
-        *,
-        min_cos: float = EPISODE_MIN_COS,
-        mean_cos: float = EPISODE_MEAN_COS,
-        max_gap: float = EPISODE_MAX_GAP,
-    ) -> int:
-        """Segment streams into stored episodes (see :meth:`Temporal.segment_episodes`)."""
-        return self.temporal.segment_episodes(
-            session, min_cos=min_cos, mean_cos=mean_cos, max_gap=max_gap
-        )
+    def segment_episodes(self, session: str | None = None, **rule: float) -> int:
+        """Segment streams into stored episodes; ``rule``: ``min_cos``, ``mean_cos``,
+        ``max_gap`` (see :meth:`Temporal.segment_episodes`)."""
+        return self.temporal.segment_episodes(session, **rule)
 
     def episodes(
         self, session: str, *, senses: Sequence[str] | None = None, source: str | None = None

@@ -1,5 +1,5 @@
 """Rows in and out of the items table: the checks on a write batch (times, meta, ids), the
-Arrow table one commit writes, a stored row back as an :class:`Item`, session summaries."""
+Arrow table one commit writes, session summaries."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
-from tactus_memory.models import Item, SessionSummary
+from tactus_memory.models import SessionSummary
 from tactus_memory.senses import Sense
 from tactus_memory.store import finite_float, validate_id
 
@@ -129,24 +129,6 @@ def items_table(
             "created": [batch.created] * n,
         },
         schema=schema,
-    )
-
-
-def item_from_row(row: dict[str, Any], raw: Any) -> Item:
-    """A stored row (with ``raw`` already decoded) -> :class:`Item`."""
-    return Item(
-        id=row["id"],
-        session=row["session"],
-        sense=row["sense"],
-        t=row["t"],
-        t_end=row["t_end"],
-        meta=json.loads(row["meta"] or "{}"),
-        text=row.get("text"),
-        raw=raw,
-        source=row.get("source") or "",
-        episode=row.get("episode"),
-        created=row["created"],
-        vector=row.get("vector"),
     )
 
 

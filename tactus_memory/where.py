@@ -5,7 +5,7 @@ literals are also quote-escaped; no user string reaches LanceDB any other way)."
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -61,6 +61,14 @@ def _sql_float(value: float) -> str:
     return repr(float(value))
 
 
+def _session_id(value: Any) -> str:
+    return validate_id(value, "session id")
+
+
+def _item_id(value: Any) -> str:
+    return validate_id(value, "item id")
+
+
 @dataclass
 class Where:
     """A conjunction of validated conditions, rendered to one LanceDB SQL filter.
@@ -71,38 +79,34 @@ class Where:
 
     parts: list[str] = field(default_factory=list)
 
-    def session(self, session: str | None) -> Where:
-        if session is not None:
-            self.parts.append(f"session = {_sql_str(validate_id(session, 'session id'))}")
+    def _eq(self, column: str, value: str | None, check: Callable[[Any], str]) -> Where:
+        if value is not None:
+            self.parts.append(f"{column} = {_sql_str(check(value))}")
         return self
+
+    def _in(self, column: str, values: Iterable[str] | None, check: Callable[[Any], str]) -> Where:
+        if values is not None:
+            vals = [_sql_str(check(v)) for v in values]
+            self.parts.append(f"{column} IN ({', '.join(vals)})" if vals else "false")
+        return self
+
+    def session(self, session: str | None) -> Where:
+        return self._eq("session", session, _session_id)
 
     def sessions(self, sessions: Iterable[str] | None) -> Where:
-        if sessions is not None:
-            vals = [_sql_str(validate_id(s, "session id")) for s in sessions]
-            self.parts.append(f"session IN ({', '.join(vals)})" if vals else "false")
-        return self
+        return self._in("session", sessions, _session_id)
 
     def sense(self, sense: str | None) -> Where:
-        if sense is not None:
-            self.parts.append(f"sense = {_sql_str(validate_sense_name(sense))}")
-        return self
+        return self._eq("sense", sense, validate_sense_name)
 
     def senses(self, senses: Iterable[str] | None) -> Where:
-        if senses is not None:
-            vals = [_sql_str(validate_sense_name(s)) for s in senses]
-            self.parts.append(f"sense IN ({', '.join(vals)})" if vals else "false")
-        return self
+        return self._in("sense", senses, validate_sense_name)
 
     def ids(self, ids: Iterable[str] | None) -> Where:
-        if ids is not None:
-            vals = [_sql_str(validate_id(i, "item id")) for i in ids]
-            self.parts.append(f"id IN ({', '.join(vals)})" if vals else "false")
-        return self
+        return self._in("id", ids, _item_id)
 
     def source(self, source: str | None) -> Where:
-        if source is not None:
-            self.parts.append(f"source = {_sql_str(validate_source(source))}")
-        return self
+        return self._eq("source", source, validate_source)
 
     def episode(self, episode: int | None) -> Where:
         if episode is not None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import httpx
 import numpy as np
 import pytest
-import torch
 from fastapi.testclient import TestClient
 
 from tactus_memory.adapters.touch import CalibratedWindow, TactusEncoder
@@ -16,12 +15,9 @@ from tactus_memory.query import Scope, embed_query
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
 from tactus_memory.store import Where
-from tactus_memory.touch.checkpoint import save_checkpoint
 from tactus_memory.touch.data import STAG_GLOVE
-from tactus_memory.touch.model import create_model
-from tactus_memory.touch.targets import build_targets
 from tests.fakes import HashingSpace
-from tests.stag_synth import OBJECTS
+from tests.test_encoder import enc  # noqa: F401  (the tiny-checkpoint fixture)
 from tests.test_service_helpers import make_memory
 
 
@@ -102,23 +98,6 @@ def test_real_server_search_filters_by_source(tmp_path) -> None:
             assert {h["source"] for h in every} == {"cam-1", "cam-2"}
     finally:
         server.stop()
-
-
-@pytest.fixture(scope="module")
-def enc(tmp_path_factory) -> TactusEncoder:
-    space = HashingSpace()
-    torch.manual_seed(0)
-    model = create_model("tactus-tiny", out_dim=space.dim)
-    path = tmp_path_factory.mktemp("ck") / "tiny.safetensors"
-    save_checkpoint(
-        path,
-        model,
-        build_targets(space, OBJECTS),
-        space_dim=space.dim,
-        calibration=STAG_GLOVE.to_dict(),
-        seed=0,
-    )
-    return TactusEncoder.from_pretrained(path)
 
 
 def test_touch_options_flow_through_the_memory_and_validate_once(tmp_path, enc, monkeypatch):

@@ -10,7 +10,7 @@ Every route takes the one scope dependency (``deps.ScopeDep``) and the match bar
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
@@ -34,6 +34,7 @@ from tactus_memory.temporal import (
     DEFAULT_WINDOW,
     RELATIVE_KEEP,
     Occurrences,
+    Side,
 )
 
 router = APIRouter(tags=["temporal"])
@@ -60,6 +61,29 @@ def match_bar(threshold: Threshold = None, relative: Relative = RELATIVE_KEEP) -
 MatchDep = Annotated[Match, Depends(match_bar)]
 
 
+class Occurrence:
+    """The parameters an occurrence question (/last, /first, /count) shares, as one
+    dependency: the query, the scope, the match bar and ``merge_gap``."""
+
+    def __init__(
+        self,
+        memory: MemoryDep,
+        q: QueryText,
+        scope: ScopeDep,
+        match: MatchDep,
+        merge_gap: MergeGap = DEFAULT_MERGE_GAP,
+    ) -> None:
+        self.memory, self.q, self.scope, self.match = memory, q, scope, match
+        self.merge_gap = merge_gap
+
+    def ask(self, per_stream: bool = False) -> Occurrences:
+        temporal = self.memory.temporal
+        return temporal.occurrences(self.q, self.scope, self.match, self.merge_gap, per_stream)
+
+
+OccurrenceDep = Annotated[Occurrence, Depends()]
+
+
 @router.get(
     "/last",
     summary="The most recent occurrence of something",
@@ -68,15 +92,9 @@ MatchDep = Annotated[Match, Depends(match_bar)]
     response_model=MomentOut,
     responses=ERRORS,
 )
-def last(
-    memory: MemoryDep,
-    q: QueryText,
-    scope: ScopeDep,
-    match: MatchDep,
-    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
-) -> MomentOut:
-    occ = memory.temporal.occurrences(q, scope, match, merge_gap)
-    return MomentOut(moment=occ.moments[-1] if occ.moments else None)
+def last(question: OccurrenceDep) -> MomentOut:
+    moments = question.ask().moments
+    return MomentOut(moment=moments[-1] if moments else None)
 
 
 @router.get(
@@ -85,15 +103,9 @@ def last(
     response_model=MomentOut,
     responses=ERRORS,
 )
-def first(
-    memory: MemoryDep,
-    q: QueryText,
-    scope: ScopeDep,
-    match: MatchDep,
-    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
-) -> MomentOut:
-    occ = memory.temporal.occurrences(q, scope, match, merge_gap)
-    return MomentOut(moment=occ.moments[0] if occ.moments else None)
+def first(question: OccurrenceDep) -> MomentOut:
+    moments = question.ask().moments
+    return MomentOut(moment=moments[0] if moments else None)
 
 
 @router.get(
@@ -105,22 +117,12 @@ def first(
     responses=ERRORS,
 )
 def count(
-    memory: MemoryDep,
-    q: QueryText,
-    scope: ScopeDep,
-    match: MatchDep,
-    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
+    question: OccurrenceDep,
     per_stream: Annotated[
         bool, Query(description="Merge only within one stream (session + sense + source).")
     ] = False,
 ) -> Occurrences:
-    return memory.temporal.occurrences(q, scope, match, merge_gap, per_stream)
-
-
-def _context(side: str, window: float, ctx: Any) -> ContextOut:
-    if ctx is None:
-        return ContextOut(side=side, window=window)
-    return ContextOut.model_validate(ctx.model_dump())
+    return question.ask(per_stream)
 
 
 Anchor = Annotated[
@@ -137,6 +139,33 @@ AnchorSenses = Annotated[
 ]
 
 
+class Around:
+    """The parameters /before and /after share, as one dependency."""
+
+    def __init__(
+        self,
+        memory: MemoryDep,
+        anchor: Anchor,
+        scope: ScopeDep,
+        match: MatchDep,
+        window: Window = DEFAULT_WINDOW,
+        anchor_sense: AnchorSenses = None,
+    ) -> None:
+        self.memory, self.anchor, self.scope, self.match = memory, anchor, scope, match
+        self.window, self.anchor_senses = window, anchor_sense
+
+    def ask(self, side: Side) -> ContextOut:
+        ctx = self.memory.temporal.around(
+            side, self.anchor, self.window, self.scope, self.match, self.anchor_senses
+        )
+        if ctx is None:
+            return ContextOut(side=side, window=self.window)
+        return ContextOut.model_validate(ctx.model_dump())
+
+
+AroundDep = Annotated[Around, Depends()]
+
+
 @router.get(
     "/before",
     summary="What happened before something",
@@ -145,16 +174,8 @@ AnchorSenses = Annotated[
     response_model=ContextOut,
     responses=ERRORS,
 )
-def before_anchor(
-    memory: MemoryDep,
-    anchor: Anchor,
-    scope: ScopeDep,
-    match: MatchDep,
-    window: Window = DEFAULT_WINDOW,
-    anchor_sense: AnchorSenses = None,
-) -> ContextOut:
-    ctx = memory.temporal.around("before", anchor, window, scope, match, anchor_sense)
-    return _context("before", window, ctx)
+def before_anchor(question: AroundDep) -> ContextOut:
+    return question.ask("before")
 
 
 @router.get(
@@ -165,16 +186,8 @@ def before_anchor(
     response_model=ContextOut,
     responses=ERRORS,
 )
-def after_anchor(
-    memory: MemoryDep,
-    anchor: Anchor,
-    scope: ScopeDep,
-    match: MatchDep,
-    window: Window = DEFAULT_WINDOW,
-    anchor_sense: AnchorSenses = None,
-) -> ContextOut:
-    ctx = memory.temporal.around("after", anchor, window, scope, match, anchor_sense)
-    return _context("after", window, ctx)
+def after_anchor(question: AroundDep) -> ContextOut:
+    return question.ask("after")
 
 
 @router.get(

@@ -34,10 +34,7 @@ REQUEST_BODY: dict[str, Any] = {
     "content": {
         "application/json": {
             "schema": {
-                "oneOf": [
-                    TouchWindowIn.model_json_schema(),
-                    TouchBatchIn.model_json_schema(),
-                ]
+                "oneOf": [TouchWindowIn.model_json_schema(), TouchBatchIn.model_json_schema()]
             }
         },
         "application/x-npy": {"schema": {"type": "string", "format": "binary"}},

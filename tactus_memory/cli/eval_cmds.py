@@ -120,13 +120,7 @@ def baseline_train_cmd(
     from tactus_memory.touch.eval_runs import train_baseline_run
 
     cfg = BaselineConfig(
-        epochs=epochs,
-        batch=batch,
-        lr=lr,
-        seed=seed,
-        sampling=sampling,
-        max_steps=max_steps,
-        k=k,
+        epochs=epochs, batch=batch, lr=lr, seed=seed, sampling=sampling, max_steps=max_steps, k=k
     )
     sha, meta = train_baseline_run(data, out, holdout, cfg)
     typer.echo(

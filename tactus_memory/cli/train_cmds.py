@@ -110,14 +110,7 @@ def train_cmd(
         warmup=max(1, min(150, steps // 20)),
     )
     summary = fit(
-        td,
-        targets,
-        cfg,
-        out,
-        space_dim=sp.dim,
-        pretrained=pretrained,
-        device=device,
-        resume=resume,
+        td, targets, cfg, out, space_dim=sp.dim, pretrained=pretrained, device=device, resume=resume
     )
     summary.pop("heldout_per_recording", None)
     typer.echo(json.dumps(summary, indent=2))
