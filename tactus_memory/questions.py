@@ -11,26 +11,31 @@ from collections.abc import Sequence
 from typing_extensions import Unpack
 
 from tactus_memory.episodes import Episode
-from tactus_memory.matching import (
+from tactus_memory.matching import MatchKwargs, split_match
+from tactus_memory.query import Scope, embed_query
+from tactus_memory.spaces.base import Space
+from tactus_memory.store import validate_id
+from tactus_memory.temporal import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
-    MatchKwargs,
-    split_match,
-)
-from tactus_memory.models import (
     ClockOffset,
     Context,
     Evidence,
     Moment,
     Occurrences,
     Side,
+    Temporal,
     TimelineItem,
 )
-from tactus_memory.query import Scope, embed_query
-from tactus_memory.spaces.base import Space
-from tactus_memory.store import validate_id
-from tactus_memory.temporal import Temporal
+
+
+class OccurrenceKwargs(MatchKwargs, total=False):
+    """``occurrences``/``count`` keywords: the scope, the match bar, ``merge_gap`` and
+    ``per_stream``."""
+
+    merge_gap: float
+    per_stream: bool
 
 
 class AroundKwargs(MatchKwargs, total=False):
@@ -67,16 +72,9 @@ class TemporalQuestions:
         scope, match = split_match(kw)
         return self.temporal.occurrences(query, scope, match, merge_gap, per_stream)
 
-    def count(
-        self,
-        query: str,
-        *,
-        merge_gap: float = DEFAULT_MERGE_GAP,
-        per_stream: bool = False,
-        **kw: Unpack[MatchKwargs],
-    ) -> int:
+    def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
         """How many distinct times ``query`` happened (see :meth:`occurrences`)."""
-        return self.occurrences(query, merge_gap=merge_gap, per_stream=per_stream, **kw).count
+        return self.occurrences(query, **kw).count
 
     def last(
         self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]

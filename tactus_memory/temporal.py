@@ -54,15 +54,15 @@ from tactus_memory.matching import (  # re-exported: `from tactus_memory.tempora
     match_flags,
     resolve_thresholds,
 )
-from tactus_memory.models import (  # re-exported: `from tactus_memory.temporal import ...`
-    ClockOffset,
-    Context,
-    Evidence,
-    Moment,
-    Occurrences,
-    Side,
-    TimelineItem,
-)
+
+# re-exported (`X as X`): `from tactus_memory.temporal import Moment, ...` keeps working
+from tactus_memory.models import ClockOffset as ClockOffset
+from tactus_memory.models import Context as Context
+from tactus_memory.models import Evidence as Evidence
+from tactus_memory.models import Moment as Moment
+from tactus_memory.models import Occurrences as Occurrences
+from tactus_memory.models import Side as Side
+from tactus_memory.models import TimelineItem as TimelineItem
 from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import CLOCK_KEY, HIT_COLUMNS, Where, finite_float, validate_id

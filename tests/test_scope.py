@@ -16,9 +16,11 @@ from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
 from tactus_memory.store import Where
 from tactus_memory.touch.data import STAG_GLOVE
+from tests import test_encoder
 from tests.fakes import HashingSpace
-from tests.test_encoder import enc  # noqa: F401  (the tiny-checkpoint fixture)
 from tests.test_service_helpers import make_memory
+
+enc = test_encoder.enc  # the tiny-checkpoint touch encoder fixture, shared
 
 
 @pytest.fixture

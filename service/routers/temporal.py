@@ -9,7 +9,8 @@ Every route takes the one scope dependency (``deps.ScopeDep``) and the match bar
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
@@ -37,9 +38,9 @@ from tactus_memory.temporal import (
     Side,
 )
 
-router = APIRouter(tags=["temporal"])
-
 ERRORS = problem_responses(404, 422)
+#: every temporal route answers 404 (unknown session/sense) and 422 (bad input) problems
+router = APIRouter(tags=["temporal"], responses=ERRORS)
 
 Threshold = Annotated[
     float | None,
@@ -61,24 +62,29 @@ def match_bar(threshold: Threshold = None, relative: Relative = RELATIVE_KEEP) -
 MatchDep = Annotated[Match, Depends(match_bar)]
 
 
-class Occurrence:
-    """The parameters an occurrence question (/last, /first, /count) shares, as one
-    dependency: the query, the scope, the match bar and ``merge_gap``."""
+@dataclass
+class Asked:
+    """What every temporal question is asked with: the memory, the scope, the match bar."""
 
-    def __init__(
-        self,
-        memory: MemoryDep,
-        q: QueryText,
-        scope: ScopeDep,
-        match: MatchDep,
-        merge_gap: MergeGap = DEFAULT_MERGE_GAP,
-    ) -> None:
-        self.memory, self.q, self.scope, self.match = memory, q, scope, match
-        self.merge_gap = merge_gap
+    memory: MemoryDep
+    scope: ScopeDep
+    match: MatchDep
+
+
+AskedDep = Annotated[Asked, Depends()]
+
+
+@dataclass
+class Occurrence:
+    """An occurrence question (/last, /first, /count) as one dependency."""
+
+    asked: AskedDep
+    q: QueryText
+    merge_gap: MergeGap = DEFAULT_MERGE_GAP
 
     def ask(self, per_stream: bool = False) -> Occurrences:
-        temporal = self.memory.temporal
-        return temporal.occurrences(self.q, self.scope, self.match, self.merge_gap, per_stream)
+        a = self.asked
+        return a.memory.temporal.occurrences(self.q, a.scope, a.match, self.merge_gap, per_stream)
 
 
 OccurrenceDep = Annotated[Occurrence, Depends()]
@@ -90,7 +96,6 @@ OccurrenceDep = Annotated[Occurrence, Depends()]
     description="Matching items (per-sense calibrated threshold), merged into occurrences; the "
     "one that started last. `moment` is null when nothing matches.",
     response_model=MomentOut,
-    responses=ERRORS,
 )
 def last(question: OccurrenceDep) -> MomentOut:
     moments = question.ask().moments
@@ -101,7 +106,6 @@ def last(question: OccurrenceDep) -> MomentOut:
     "/first",
     summary="The earliest occurrence of something",
     response_model=MomentOut,
-    responses=ERRORS,
 )
 def first(question: OccurrenceDep) -> MomentOut:
     moments = question.ask().moments
@@ -114,7 +118,6 @@ def first(question: OccurrenceDep) -> MomentOut:
     description="Matching items within `merge_gap` seconds of each other (same session) are "
     "one occurrence. `capped` is true when the count is a lower bound.",
     response_model=Occurrences,
-    responses=ERRORS,
 )
 def count(
     question: OccurrenceDep,
@@ -139,24 +142,19 @@ AnchorSenses = Annotated[
 ]
 
 
+@dataclass
 class Around:
-    """The parameters /before and /after share, as one dependency."""
+    """A /before or /after question as one dependency."""
 
-    def __init__(
-        self,
-        memory: MemoryDep,
-        anchor: Anchor,
-        scope: ScopeDep,
-        match: MatchDep,
-        window: Window = DEFAULT_WINDOW,
-        anchor_sense: AnchorSenses = None,
-    ) -> None:
-        self.memory, self.anchor, self.scope, self.match = memory, anchor, scope, match
-        self.window, self.anchor_senses = window, anchor_sense
+    asked: AskedDep
+    anchor: Anchor
+    window: Window = DEFAULT_WINDOW
+    anchor_sense: AnchorSenses = None
 
     def ask(self, side: Side) -> ContextOut:
-        ctx = self.memory.temporal.around(
-            side, self.anchor, self.window, self.scope, self.match, self.anchor_senses
+        a = self.asked
+        ctx = a.memory.temporal.around(
+            side, self.anchor, self.window, a.scope, a.match, self.anchor_sense
         )
         if ctx is None:
             return ContextOut(side=side, window=self.window)
@@ -166,28 +164,27 @@ class Around:
 AroundDep = Annotated[Around, Depends()]
 
 
-@router.get(
-    "/before",
-    summary="What happened before something",
-    description="The best match of `anchor`, then every item of its session (of `sense`) that "
-    "starts in the `window` seconds before it (aligned clock).",
-    response_model=ContextOut,
-    responses=ERRORS,
-)
-def before_anchor(question: AroundDep) -> ContextOut:
-    return question.ask("before")
+def _around_route(side: Side) -> Callable[[Around], ContextOut]:
+    def route(question: AroundDep) -> ContextOut:
+        return question.ask(side)
+
+    route.__name__ = f"{side}_anchor"
+    return route
 
 
-@router.get(
-    "/after",
-    summary="What happened after something",
-    description="The best match of `anchor`, then every item of its session (of `sense`) that "
-    "starts in the `window` seconds after it ends (aligned clock).",
-    response_model=ContextOut,
-    responses=ERRORS,
-)
-def after_anchor(question: AroundDep) -> ContextOut:
-    return question.ask("after")
+#: /before and /after: one route each, the same parameters, the window on either side
+AROUND_ROUTES = {
+    "before": "starts in the `window` seconds before it (aligned clock).",
+    "after": "starts in the `window` seconds after it ends (aligned clock).",
+}
+for _side, _window_doc in AROUND_ROUTES.items():
+    router.get(
+        f"/{_side}",
+        summary=f"What happened {_side} something",
+        description="The best match of `anchor`, then every item of its session (of `sense`) "
+        "that " + _window_doc,
+        response_model=ContextOut,
+    )(_around_route(_side))
 
 
 @router.get(
@@ -197,7 +194,6 @@ def after_anchor(question: AroundDep) -> ContextOut:
     "clocks) form one moment; score = best member + a bonus per other matching sense. The "
     "same as `memory.search(q, group='moment')`.",
     response_model=MomentsOut,
-    responses=ERRORS,
 )
 def moments(
     memory: MemoryDep,
@@ -218,7 +214,6 @@ def moments(
     description="Items (or, with `episodes=true`, episodes: stretches of one stream whose "
     "embeddings stay coherent) in aligned time order. Times filter by overlap.",
     response_model=TimelineOut,
-    responses=ERRORS,
 )
 def timeline(
     session: SessionId,
@@ -237,7 +232,6 @@ def timeline(
     "/sessions/{session}/episodes",
     summary="Segment a session's streams into episodes (stored)",
     response_model=SegmentOut,
-    responses=ERRORS,
 )
 def segment_episodes(
     session: SessionId, memory: MemoryDep, body: SegmentIn | None = None
@@ -253,7 +247,6 @@ def segment_episodes(
     "/sessions/{session}/clock",
     summary="The session's clock offsets",
     response_model=ClockOut,
-    responses=ERRORS,
 )
 def get_clock(session: SessionId, memory: MemoryDep) -> ClockOut:
     return ClockOut(offsets=memory.clock_offsets(session))
@@ -263,7 +256,6 @@ def get_clock(session: SessionId, memory: MemoryDep) -> ClockOut:
     "/sessions/{session}/clock",
     summary="Set a stream's clock offset (t_aligned = t + offset)",
     response_model=ClockOut,
-    responses=ERRORS,
 )
 def put_clock(session: SessionId, body: ClockIn, memory: MemoryDep) -> ClockOut:
     memory.set_clock_offset(session, body.sense, body.offset, source=body.source)

@@ -10,7 +10,7 @@ from typing import Any
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import set_threads
+from tactus_memory.cli.common import DATA_OPTION, set_threads
 
 HOLDOUT_HELP = (
     "score exactly the recordings a `tactus train --holdout SPEC` run held out (same grammar: "
@@ -65,7 +65,7 @@ def eval_cmd(
     checkpoint: list[str] = typer.Option(
         ..., "--checkpoint", help="Tactus or baseline .safetensors, or 'default'; repeat for runs"
     ),
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     split: str = typer.Option("test", "--split", help=SPLIT_HELP),
     holdout: str | None = typer.Option(None, "--holdout", help=HOLDOUT_HELP),
     votes: int = typer.Option(4, "--votes", help="independent tuple draws pooled for *_vote"),
@@ -85,22 +85,14 @@ def eval_cmd(
     set_threads(threads)
     from tactus_memory.touch.eval_runs import run_eval
 
-    payload, first, es = run_eval(
-        checkpoint,
-        data,
-        split=split,
-        holdout=holdout,
-        votes=votes,
-        seed=seed,
-        analysis=analysis,
-        warn=_warn,
-    )
+    scope = {"split": split, "holdout": holdout, "votes": votes, "seed": seed}
+    payload, first, es = run_eval(checkpoint, data, analysis=analysis, warn=_warn, **scope)
     _write_outputs(payload, first, es, json_out, report, compare)
 
 
 @baseline_app.command("train")
 def baseline_train_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     out: Path = typer.Option(..., "--out", help="checkpoint to write (.safetensors)"),
     holdout: str = typer.Option("none", "--holdout", help="recordings kept out (train's grammar)"),
     epochs: int = typer.Option(30, "--epochs", help="passes over the training tuples"),
@@ -139,7 +131,7 @@ def baseline_train_cmd(
 @baseline_app.command("eval")
 def baseline_eval_cmd(
     checkpoint: list[str] = typer.Option(..., "--checkpoint", help="baseline .safetensors"),
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     split: str = typer.Option("test", "--split", help=SPLIT_HELP),
     holdout: str | None = typer.Option(None, "--holdout", help=HOLDOUT_HELP),
     votes: int = typer.Option(4, "--votes"),
@@ -162,7 +154,7 @@ def baseline_eval_cmd(
 
 @app.command("ablate")
 def ablate_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     json_out: Path = typer.Option(..., "--json", help="write the ablation table JSON here"),
     steps: int = typer.Option(300, "--steps", help="training steps per run"),
     pretrain_steps: int | None = typer.Option(

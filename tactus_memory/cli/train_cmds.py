@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import set_threads
+from tactus_memory.cli.common import DATA_OPTION, set_threads
 
 HOLDOUT_HELP = (
     "recordings kept out of training (and pretraining) and scored: none | "
@@ -18,9 +18,14 @@ HOLDOUT_HELP = (
 )
 
 
+def _warmup(steps: int) -> int:
+    """Warm-up steps: 5% of the run, at least 1, at most 150 (the shipped recipe's rule)."""
+    return max(1, min(150, steps // 20))
+
+
 @app.command("pretrain")
 def pretrain_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     out: Path = typer.Option(..., "--out", help="MAE checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="trunk architecture"),
     steps: int = typer.Option(400, "--steps", help="optimizer steps (shipped recipe: 400)"),
@@ -42,14 +47,8 @@ def pretrain_cmd(
     d = load_data(data)
     d.check_dynamic_range(STAG_GLOVE)  # per source file; raises DynamicRangeError
     excl = holdout_recordings(d, holdout)
-    cfg = PretrainConfig(
-        model=model,
-        steps=steps,
-        batch=batch,
-        lr=lr,
-        seed=seed,
-        warmup=max(1, min(150, steps // 20)),
-    )
+    warmup = _warmup(steps)
+    cfg = PretrainConfig(model=model, steps=steps, batch=batch, lr=lr, seed=seed, warmup=warmup)
     summary = pretrain(
         d.calibrated(STAG_GLOVE),
         d.recording_id,
@@ -67,7 +66,7 @@ def pretrain_cmd(
 
 @app.command("train")
 def train_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     out: Path = typer.Option(..., "--out", help="checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="architecture in configs/"),
     space: str = typer.Option("minilm", "--space", help="frozen text space (get_space name)"),
@@ -100,14 +99,9 @@ def train_cmd(
     sp = get_space(space)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
+    warmup = _warmup(steps)
     cfg = TrainConfig(
-        model=model,
-        steps=steps,
-        batch=batch,
-        lr=lr,
-        seed=seed,
-        half=half,
-        warmup=max(1, min(150, steps // 20)),
+        model=model, steps=steps, batch=batch, lr=lr, seed=seed, half=half, warmup=warmup
     )
     summary = fit(
         td, targets, cfg, out, space_dim=sp.dim, pretrained=pretrained, device=device, resume=resume
