@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -39,28 +38,24 @@ from tactus_memory import __version__
 from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
+
+# re-exported: `from tactus_memory.adapters.touch import default_checkpoint_path` keeps working
+from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.vectors import as_unit_rows
 
-DEFAULT_CHECKPOINT = "tactus-lite-minilm.safetensors"  # in tactus_memory/touch/checkpoints/
 FRAME = 32
 
 
-def default_checkpoint_path() -> Path:
-    """The shipped default checkpoint (package data)."""
-    ref = resources.files("tactus_memory.touch") / "checkpoints" / DEFAULT_CHECKPOINT
-    path = Path(str(ref))
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"the shipped touch checkpoint {DEFAULT_CHECKPOINT} is missing from {path.parent}; "
-            "train one with `tactus train` and use TactusEncoder.from_pretrained(path)"
-        )
-    return path
+class CalibratedWindow(np.ndarray):
+    """A window the touch sense has validated: (K, 32, 32) float32, calibrated to [0, 1].
+    ``validate`` returns one and takes one back as it is; ``embed`` trusts it."""
 
 
 class TactusEncoder(Sense):
     """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``)."""
 
     modality = "touch"
+    validate_options = frozenset({"calibrated"})
 
     def __init__(
         self,
@@ -71,7 +66,7 @@ class TactusEncoder(Sense):
         batch_size: int = 64,
     ) -> None:
         from tactus_memory.touch.checkpoint import load_checkpoint
-        from tactus_memory.touch.data import SensorProfile
+        from tactus_memory.touch.profile import SensorProfile
 
         self.name = validate_sense_name(name)
         path = Path(checkpoint) if checkpoint is not None else default_checkpoint_path()
@@ -109,7 +104,13 @@ class TactusEncoder(Sense):
     # -- input ------------------------------------------------------------------------------
 
     def validate(self, item: Any, *, calibrated: bool | None = None) -> np.ndarray:
-        """One window (K, 32, 32), raw or calibrated -> calibrated float32 (K, 32, 32)."""
+        """One window (K, 32, 32), raw or calibrated -> calibrated float32 (K, 32, 32).
+
+        ``calibrated`` None guesses (float values in [0, 1] are calibrated); a window this
+        method returned (a :class:`CalibratedWindow`) comes back as it is unless it is
+        passed as raw (``calibrated=False``, an error)."""
+        if isinstance(item, CalibratedWindow) and calibrated is not False:
+            return item
         try:
             arr = np.asarray(item)
         except (ValueError, TypeError) as exc:
@@ -141,7 +142,7 @@ class TactusEncoder(Sense):
                 raise InvalidInputError(
                     f"calibrated touch window must lie in [0, 1], got {lo:.4g}..{hi:.4g}"
                 )
-            return np.ascontiguousarray(arr, dtype=np.float32)
+            return np.ascontiguousarray(arr, dtype=np.float32).view(CalibratedWindow)
         if lo >= 0.0 and hi <= 1.0:
             raise DynamicRangeError(
                 f"window passed as raw but its values lie in [0, 1] (max {hi:.4g}): it looks "
@@ -153,7 +154,7 @@ class TactusEncoder(Sense):
                 f"no raw reading above the sensor offset {self.profile.offset:g} (max {hi:.4g}): "
                 f"this is not raw {self.profile.name} data"
             )
-        return self.profile.calibrate(arr)
+        return np.ascontiguousarray(self.profile.calibrate(arr), np.float32).view(CalibratedWindow)
 
     def _pad(self, w: np.ndarray) -> np.ndarray:
         if w.shape[0] == self.frames:
@@ -170,7 +171,15 @@ class TactusEncoder(Sense):
             items = list(batch)
         if not items:
             return np.zeros((0, self.frames, FRAME, FRAME), np.float32)
-        return np.stack([self._pad(self.validate(w, calibrated=calibrated)) for w in items])
+        # validated windows (what Memory passes) are trusted; raw ones are validated here
+        trusted = calibrated is not False
+        checked = [
+            w
+            if trusted and isinstance(w, CalibratedWindow)
+            else self.validate(w, calibrated=calibrated)
+            for w in items
+        ]
+        return np.stack([np.asarray(self._pad(w)) for w in checked])
 
     # -- output -----------------------------------------------------------------------------
 

@@ -3,19 +3,25 @@
 from __future__ import annotations
 
 import hmac
-from dataclasses import dataclass
-from typing import Annotated, Any
+from dataclasses import dataclass, replace
+from typing import Annotated
 
-from fastapi import Depends, HTTPException, Path, Request
+from fastapi import Depends, HTTPException, Path, Query, Request
 from starlette.requests import HTTPConnection
 
+# the library's rules, checked at the edge (one home: tactus_memory.limits)
+from tactus_memory.limits import (
+    ID_DESCRIPTION,
+    ID_PATTERN,
+    MAX_ID_CHARS,
+    MAX_TEXT_CHARS,
+    SENSE_NAME_PATTERN,
+)
+from tactus_memory.memory import Memory
+from tactus_memory.query import Scope
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.settings import Settings
 from tactus_memory.service.writes import Writer
-
-#: session and item ids: the store's rule (tactus_memory.store.ID_RE), checked at the edge
-ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$"
-ID_DESCRIPTION = "1-128 characters of [A-Za-z0-9._:-], starting with a letter or digit."
 
 
 @dataclass
@@ -23,7 +29,7 @@ class ServiceState:
     """What the app holds: the settings, the memory, and why touch is off (if it is)."""
 
     settings: Settings
-    memory: Any
+    memory: Memory
     touch_unavailable: str | None = None
     writer: Writer | None = None
 
@@ -40,7 +46,7 @@ def get_settings(state: Annotated[ServiceState, Depends(get_state)]) -> Settings
     return state.settings
 
 
-def get_memory(state: Annotated[ServiceState, Depends(get_state)]) -> Any:
+def get_memory(state: Annotated[ServiceState, Depends(get_state)]) -> Memory:
     return state.memory
 
 
@@ -52,12 +58,12 @@ StateDep = Annotated[ServiceState, Depends(get_state)]
 WriterDep = Annotated[Writer, Depends(get_writer)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 #: the ``tactus_memory.memory.Memory`` behind the app
-MemoryDep = Annotated[Any, Depends(get_memory)]
+MemoryDep = Annotated[Memory, Depends(get_memory)]
 SessionId = Annotated[
     str,
     Path(
         pattern=ID_PATTERN,
-        max_length=128,
+        max_length=MAX_ID_CHARS,
         description="Session id. " + ID_DESCRIPTION,
         examples=["kitchen-2026-11-21"],
     ),
@@ -105,3 +111,46 @@ def require_touch(state: StateDep) -> None:
 
 Authorized = Depends(require_token)
 TouchAvailable = Depends(require_touch)
+
+
+# --------------------------------------------------------------------------- the scope
+QueryText = Annotated[
+    str,
+    Query(
+        min_length=1,
+        max_length=MAX_TEXT_CHARS,
+        description="The query in words.",
+        examples=["holding a warm mug"],
+    ),
+]
+SensesQ = Annotated[
+    list[str] | None,
+    Query(
+        description="Restrict to these senses (repeat the parameter).",
+        json_schema_extra={"items": {"type": "string", "pattern": SENSE_NAME_PATTERN}},
+    ),
+]
+SessionQ = Annotated[str | None, Query(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
+SourceQ = Annotated[
+    str | None,
+    Query(max_length=MAX_ID_CHARS, description="Only this stream (source id; '' for none)."),
+]
+AfterQ = Annotated[float | None, Query(description="Items still going on at or after.")]
+BeforeQ = Annotated[float | None, Query(description="Items started at or before.")]
+
+
+def stream_scope(
+    sense: SensesQ = None, source: SourceQ = None, after: AfterQ = None, before: BeforeQ = None
+) -> Scope:
+    """The scope's query parameters but the session (a route with the session in its path)."""
+    return Scope(senses=sense, source=source, after=after, before=before)
+
+
+def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = None) -> Scope:
+    """``sense`` (repeated), ``session``, ``source``, ``after``, ``before`` -> one
+    :class:`~tactus_memory.query.Scope`, what every search and temporal route passes down."""
+    return replace(base, session=session)
+
+
+ScopeDep = Annotated[Scope, Depends(scope)]
+StreamScopeDep = Annotated[Scope, Depends(stream_scope)]

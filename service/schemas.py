@@ -6,10 +6,11 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN
-from tactus_memory.temporal import Moment
+from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
+from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS, MAX_K, MAX_TEXT_CHARS
+from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
+from tactus_memory.temporal import ClockOffset, Evidence, Moment, TimelineItem
 
-SENSE_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
 MAX_BATCH = 4096
 
 _FRAME_EXAMPLE = [[0.0] * 32 for _ in range(32)]
@@ -88,7 +89,7 @@ class TextIn(Strict):
         }
     )
 
-    text: str = Field(min_length=1, max_length=8192, description="A note or caption.")
+    text: str = Field(min_length=1, max_length=MAX_TEXT_CHARS, description="A note or caption.")
     t: float = Field(description=T_DESC)
     t_end: float | None = Field(None, description=T_END_DESC)
     meta: Meta | None = None
@@ -193,11 +194,12 @@ class SearchLikeIn(Strict):
     sense: str = Field(pattern=SENSE_PATTERN, description="The sense of the example.")
     frames: Window | None = Field(None, description="A (K, 32, 32) touch window.")
     vector: list[float] | None = Field(None, description="A vector of that sense (dim D).")
-    text: str | None = Field(None, min_length=1, max_length=8192)
+    text: str | None = Field(None, min_length=1, max_length=MAX_TEXT_CHARS)
     calibrated: bool = False
-    k: int = Field(10, ge=1, le=1000)
+    k: int = Field(10, ge=1, le=MAX_K)
     senses: list[str] | None = Field(None, description="Search these senses (default: sense).")
     session: str | None = Field(None, pattern=ID_PATTERN)
+    source: str | None = Field(None, max_length=MAX_ID_CHARS, description="Only this stream.")
     after: float | None = None
     before: float | None = None
 
@@ -265,3 +267,58 @@ class HealthOut(BaseModel):
     senses: list[str]
     touch: bool
     touch_unavailable: str | None = None
+
+
+# --------------------------------------------------------------------------- temporal
+class MomentOut(BaseModel):
+    """The occurrence found, or null when nothing matches."""
+
+    moment: Moment | None
+
+
+class MomentsOut(BaseModel):
+    moments: list[Moment]
+
+
+class ContextOut(BaseModel):
+    """What happened before/after the anchor; ``anchor`` null when nothing matches it."""
+
+    side: str
+    window: float
+    anchor: Evidence | None = None
+    t_from: float | None = None
+    t_to: float | None = None
+    items: list[TimelineItem] = Field(default_factory=list)
+
+
+class TimelineOut(BaseModel):
+    session: str
+    items: list[TimelineItem] | None = None
+    episodes: list[Episode] | None = None
+
+
+class ClockIn(Strict):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"sense": "touch", "source": "glove-l", "offset": 2.5}]},
+    )
+
+    sense: str = Field(pattern=SENSE_PATTERN)
+    source: str = Field("", max_length=MAX_ID_CHARS, description="Stream id ('' for none).")
+    offset: float = Field(
+        description="Seconds added to the stream's t to put it on the session clock (0 clears)."
+    )
+
+
+class ClockOut(BaseModel):
+    offsets: list[ClockOffset]
+
+
+class SegmentIn(Strict):
+    min_cos: float = Field(EPISODE_MIN_COS, ge=-1.0, le=1.0)
+    mean_cos: float = Field(EPISODE_MEAN_COS, ge=-1.0, le=1.0)
+    max_gap: float = Field(EPISODE_MAX_GAP, ge=0.0)
+
+
+class SegmentOut(BaseModel):
+    session: str
+    episodes: int = Field(description="Episodes written.")

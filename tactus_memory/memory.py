@@ -23,205 +23,65 @@ calibration) is persisted, so a sense with rows can be *searched* without its li
 its query transform is rebuilt from the stored centroid (``q - c``, renormalised). A sense
 object that exposes ``query_centroid`` (a (D,) array) must use exactly that transform.
 
+Where the parts live: result models in :mod:`tactus_memory.models`, the sense registry
+(live/stored senses, counts, calibration) in :mod:`tactus_memory.registry`, the ranked search
+in :mod:`tactus_memory.ranking`, query checks and the :class:`~tactus_memory.query.Scope` in
+:mod:`tactus_memory.query`, the temporal operators in :mod:`tactus_memory.temporal`.
+
 Extension points (temporal operators and the service build on these, not on LanceDB):
 ``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
-``Memory._query(q, k, senses, where, transform=..., build=...)`` (the one ranked search
+``Memory.rank(q, k, senses, where, transform=..., build=...)`` (the one ranked search
 path), ``Memory.store.scan(where, columns, limit)`` (unranked reads), ``Memory.calibration``.
 """
 
 from __future__ import annotations
 
-import json
 import logging
-import math
 import threading
-import time
-import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Mapping, Sequence
 from datetime import timedelta
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from typing_extensions import Unpack
 
-from tactus_memory.errors import (
-    InvalidInputError,
-    NotFoundError,
-    SenseConflictError,
-    UnknownSenseError,
-)
-from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
-from tactus_memory.senses import (
-    MAX_TEXT_CHARS,
-    Sense,
-    TextSense,
-    array_to_bytes,
-    bytes_to_array,
-    validate_sense_name,
-)
+from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
+from tactus_memory.matching import DEFAULT_MOMENT_GAP, split_match
+from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
+from tactus_memory.query import Scope, ScopeKwargs, check_k, check_query_text, embed_query
+from tactus_memory.questions import TemporalQuestions
+from tactus_memory.ranking import Ranker
+from tactus_memory.registry import SenseRegistry, StoredSense
+from tactus_memory.rows import check_batch, items_table, options_for, summarise
+from tactus_memory.scoring import Calibration
+from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
-from tactus_memory.store import (
-    HIT_COLUMNS,
-    IndexConfig,
-    Store,
-    Where,
-    finite_float,
-    validate_id,
-    validate_source,
-)
-from tactus_memory.temporal import TemporalMixin
+from tactus_memory.store import HIT_COLUMNS, IndexConfig, Store, Where, validate_id, validate_source
+from tactus_memory.temporal import Temporal
 from tactus_memory.vectors import as_unit_rows
 
 log = logging.getLogger(__name__)
 
-MAX_K = 1000
-MAX_META_BYTES = 65_536
-MAX_BATCH = 100_000
-
-
-# --------------------------------------------------------------------------- result models
-class Hit(BaseModel):
-    """One search result. ``score`` is the calibrated z-score, ``cosine`` the raw cosine."""
-
-    id: str
-    session: str
-    sense: str
-    t: float
-    t_end: float
-    score: float
-    cosine: float
-    meta: dict[str, Any] = Field(default_factory=dict)
-    text: str | None = None
-    source: str = ""
-    episode: int | None = None
-
-
-class Item(BaseModel):
-    """One stored row, with ``raw`` decoded by its sense (array or text) when possible."""
-
-    model_config = ConfigDict(arbitrary_types_allowed=True)
-
-    id: str
-    session: str
-    sense: str
-    t: float
-    t_end: float
-    meta: dict[str, Any] = Field(default_factory=dict)
-    text: str | None = None
-    raw: Any = None
-    source: str = ""
-    episode: int | None = None
-    created: float
-    vector: list[float] | None = None
-
-
-class SessionSummary(BaseModel):
-    """Counts per sense and the time span of one session."""
-
-    id: str
-    n: int
-    counts: dict[str, int]
-    t_min: float
-    t_max: float
-
-
-class SenseInfo(BaseModel):
-    """A sense registered in the store (live or persisted only)."""
-
-    name: str
-    modality: str
-    dim: int
-    provenance: dict[str, Any]
-    live: bool
-    rows: int
-    mu: float | None = None
-    sigma: float | None = None
-
-
-class StoredSense(Sense):
-    """A sense known only from the store: searchable (vectors are stored), not embeddable."""
-
-    def __init__(
-        self,
-        name: str,
-        modality: str,
-        dim: int,
-        provenance: dict[str, Any],
-        centroid: np.ndarray | None,
-    ) -> None:
-        self.name = name
-        self.modality = modality
-        self.dim = dim
-        self._provenance = provenance
-        self.query_centroid = centroid
-
-    def _not_loaded(self) -> UnknownSenseError:
-        return UnknownSenseError(
-            f"sense {self.name!r} has rows in this store but is not loaded; "
-            f"call memory.add_sense(...) with its encoder to add or embed {self.name!r} items"
-        )
-
-    def validate(self, item: Any) -> Any:
-        raise self._not_loaded()
-
-    def embed(self, batch: Sequence[Any]) -> np.ndarray:
-        raise self._not_loaded()
-
-    def query_transform(self, queries: np.ndarray) -> np.ndarray:
-        if self.query_centroid is None:
-            return queries
-        return as_unit_rows(queries - self.query_centroid[None, :], self.dim, what="query")
-
-    def provenance(self) -> dict[str, Any]:
-        return dict(self._provenance)
-
-
-# --------------------------------------------------------------------------- helpers
-def _same_vector(a: np.ndarray | None, b: np.ndarray | None) -> bool:
-    if a is None or b is None:
-        return a is None and b is None
-    return a.shape == b.shape and bool(np.allclose(a, b))
-
-
-def _check_k(k: Any) -> int:
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= MAX_K:
-        raise InvalidInputError(f"k must be an int in [1, {MAX_K}], got {k!r}")
-    return int(k)
-
-
-def _meta_json(meta: Any) -> str:
-    if meta is None:
-        return "{}"
-    if not isinstance(meta, dict) or not all(isinstance(key, str) for key in meta):
-        raise InvalidInputError("meta must be a dict with string keys")
-    try:
-        out = json.dumps(meta, allow_nan=False, sort_keys=True, ensure_ascii=False)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"meta is not JSON-serialisable: {exc}") from None
-    if len(out.encode()) > MAX_META_BYTES:
-        raise InvalidInputError(f"meta is larger than {MAX_META_BYTES} bytes as JSON")
-    return out
-
-
-def _per_item(value: Any, n: int, what: str) -> list[Any]:
-    """A list of n values, or a scalar/None broadcast to n."""
-    if isinstance(value, (list, tuple, np.ndarray)):
-        if len(value) != n:
-            raise InvalidInputError(f"{what} has {len(value)} entries for {n} items")
-        return list(value)
-    return [value] * n
-
-
-def _check_query_text(query: Any) -> str:
-    if not isinstance(query, str) or not query.strip():
-        raise InvalidInputError("query must be a non-empty string")
-    if len(query) > MAX_TEXT_CHARS:
-        raise InvalidInputError(f"query has {len(query)} characters, limit {MAX_TEXT_CHARS}")
-    return query
+#: re-exported: `from tactus_memory.memory import Hit, Item, MAX_K, ...` keeps working
+__all__ = [
+    "MAX_BATCH",
+    "MAX_K",
+    "MAX_META_BYTES",
+    "Hit",
+    "Item",
+    "Memory",
+    "Scope",
+    "SenseInfo",
+    "SessionSummary",
+    "StoredSense",
+]
+_check_k = check_k  # old private names, still imported by other branches
+_check_query_text = check_query_text
 
 
 # --------------------------------------------------------------------------- memory
-class Memory(TemporalMixin):
+class Memory(TemporalQuestions):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -231,15 +91,12 @@ class Memory(TemporalMixin):
         self.store = store
         self.space = space
         self.background = background
-        self._lock = threading.RLock()
-        self._live: dict[str, Sense] = {}
-        self._stored: dict[str, StoredSense] = {}
-        self._calib: dict[str, Calibration] = {}
-        self._counts: dict[str, int] | None = None
-        self._probes: np.ndarray | None = None
+        self.lock = threading.RLock()
         self._maint_thread: threading.Thread | None = None
         store.bind_space(space.name, int(space.dim), space.fingerprint())
-        self._load_registry()
+        self.registry = SenseRegistry(store, space, self.lock)
+        self.ranker = Ranker(store, self.registry)
+        self.temporal = Temporal(self)
         self.add_sense(TextSense(space))
 
     # ----------------------------------------------------------- construction
@@ -284,112 +141,34 @@ class Memory(TemporalMixin):
             space = resolve_space(choice, recorded_space(store.get_meta("space")))
         return cls(store, space, background=background)
 
-    def _load_registry(self) -> None:
-        for row in self.store.sense_rows():
-            centroid = None
-            if row.get("query_centroid") is not None:
-                centroid = bytes_to_array(row["query_centroid"]).astype(np.float32)
-            self._stored[row["name"]] = StoredSense(
-                row["name"],
-                row["modality"],
-                int(row["dim"]),
-                json.loads(row["provenance"]),
-                centroid,
-            )
-            if row.get("calib_n"):
-                self._calib[row["name"]] = Calibration(
-                    float(row["mu"]), float(row["sigma"]), int(row["calib_n"])
-                )
-
-    # ----------------------------------------------------------- senses
+    # ----------------------------------------------------------- senses (registry.py)
     @property
     def senses(self) -> dict[str, Sense]:
         """Live senses (can embed new items), name -> Sense."""
-        return dict(self._live)
+        return self.registry.senses
 
     def add_sense(self, sense: Sense) -> None:
         """Register a live sense. Raises SenseConflictError on a duplicate name or a space or
         dimension mismatch (also against a persisted registration of the same name)."""
-        name = validate_sense_name(sense.name)
-        with self._lock:
-            if name in self._live:
-                raise SenseConflictError(f"a sense named {name!r} is already registered")
-            sense.bind(self.space)
-            stored = self._stored.get(name)
-            if stored is not None and (
-                stored.dim != sense.dim or stored.modality != sense.modality
-            ):
-                raise SenseConflictError(
-                    f"sense {name!r} is stored as a {stored.modality} sense of dimension "
-                    f"{stored.dim}; cannot register a {sense.modality} sense of dimension "
-                    f"{sense.dim}"
-                )
-            centroid = getattr(sense, "query_centroid", None)
-            if centroid is not None:
-                centroid = np.asarray(centroid, dtype=np.float32).reshape(-1)
-            prov_json = json.dumps(sense.provenance(), sort_keys=True, default=str)
-            provenance = json.loads(prov_json)
-            unchanged = (
-                stored is not None
-                and stored.provenance() == provenance
-                and _same_vector(stored.query_centroid, centroid)
-            )
-            if stored is not None and not unchanged:
-                log.warning("sense %r re-registered with a different encoder", name)
-                self._calib.pop(name, None)  # a new encoder: re-estimate the null
-            calib = self._calib.get(name)
-            if not unchanged:  # reopening with the same sense writes nothing
-                self.store.put_sense_row(
-                    {
-                        "name": name,
-                        "modality": sense.modality,
-                        "dim": int(sense.dim),
-                        "provenance": prov_json,
-                        "query_centroid": None if centroid is None else array_to_bytes(centroid),
-                        "mu": calib.mu if calib else None,
-                        "sigma": calib.sigma if calib else None,
-                        "calib_n": calib.n if calib else None,
-                        "updated": time.time(),
-                    }
-                )
-            self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
-            self._live[name] = sense
-
-    def _live_sense(self, name: str) -> Sense:
-        validate_sense_name(name)
-        if name in self._live:
-            return self._live[name]
-        if name in self._stored:
-            raise self._stored[name]._not_loaded()
-        raise UnknownSenseError(f"unknown sense {name!r}; registered: {sorted(self._stored)}")
-
-    def _search_sense(self, name: str) -> Sense:
-        validate_sense_name(name)
-        if name in self._live:
-            return self._live[name]
-        if name in self._stored:
-            return self._stored[name]
-        raise UnknownSenseError(f"unknown sense {name!r}; registered: {sorted(self._stored)}")
+        self.registry.add_sense(sense)
 
     def sense_info(self) -> list[SenseInfo]:
         """Every sense the store knows, live or not, with row counts and calibration."""
-        counts = self._sense_counts()
-        out = []
-        for name, s in sorted(self._stored.items()):
-            c = self._calib.get(name)
-            out.append(
-                SenseInfo(
-                    name=name,
-                    modality=s.modality,
-                    dim=s.dim,
-                    provenance=s.provenance(),
-                    live=name in self._live,
-                    rows=counts.get(name, 0),
-                    mu=c.mu if c else None,
-                    sigma=c.sigma if c else None,
-                )
-            )
-        return out
+        return self.registry.sense_info()
+
+    def calibration(self, sense: str) -> Calibration:
+        """The null statistics of a sense, re-estimated when its row count has doubled."""
+        return self.registry.calibration(sense)
+
+    def resolve_senses(self, senses: Sequence[str] | None) -> list[str]:
+        """The senses a search covers: the named ones (checked), or every sense with rows."""
+        return self.registry.resolve(senses)
+
+    def _sense_counts(self) -> dict[str, int]:
+        return self.registry.counts()
+
+    def _probe_vectors(self) -> np.ndarray:
+        return self.registry.probe_vectors()
 
     # ----------------------------------------------------------- writes
     def add(
@@ -403,6 +182,7 @@ class Memory(TemporalMixin):
         meta: dict[str, Any] | None = None,
         id: str | None = None,  # noqa: A002  (the public contract names it id)
         source: str = "",
+        options: Mapping[str, Any] | None = None,
     ) -> str:
         """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
         to ``t``. Passing ``id`` makes the call an idempotent upsert."""
@@ -415,6 +195,7 @@ class Memory(TemporalMixin):
             meta=[meta],
             ids=None if id is None else [id],
             source=source,
+            options=options,
         )[0]
 
     def add_many(
@@ -428,79 +209,39 @@ class Memory(TemporalMixin):
         meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None = None,
         ids: Sequence[str] | None = None,
         source: str = "",
+        options: Mapping[str, Any] | None = None,
     ) -> list[str]:
         """Remember N items of one sense in one commit; returns their ids (in order).
 
         Everything is validated and embedded before the write: a failure writes nothing.
+        ``options`` go to the sense's ``validate`` (e.g. ``{"calibrated": True}`` for touch);
+        the sense's ``embed`` then takes the validated items as they are.
         """
-        import pyarrow as pa
-
         session = validate_id(session, "session id")
         source = validate_source(source)
-        s = self._live_sense(sense)
+        s = self.registry.live_sense(sense)
         items = list(items)
-        n = len(items)
-        if n == 0:
+        if not items:
             return []
-        if n > MAX_BATCH:
-            raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
-        now = time.time()
-        ts = [now if x is None else finite_float(x, "t") for x in _per_item(t, n, "t")]
-        ends = [
-            ts[i] if x is None else finite_float(x, "t_end")
-            for i, x in enumerate(_per_item(t_end, n, "t_end"))
-        ]
-        for a, b in zip(ts, ends, strict=True):
-            if b < a:
-                raise InvalidInputError(f"t_end ({b}) is before t ({a})")
-        metas = [_meta_json(m) for m in _per_item(meta, n, "meta")]
-        upsert = ids is not None
-        if upsert:
-            if isinstance(ids, str) or len(ids) != n:
-                raise InvalidInputError(f"ids must be a list of {n} ids")
-            id_list = [validate_id(i, "item id") for i in ids]
-            if len(set(id_list)) != n:
-                raise InvalidInputError("ids contain duplicates")
-        else:
-            id_list = [uuid.uuid4().hex for _ in range(n)]
-        canon = [s.validate(x) for x in items]
+        batch = check_batch(len(items), t, t_end, meta, ids)
+        opts = options_for(s, options)
+        canon = [s.validate(x, **opts) for x in items]
         vectors = as_unit_rows(s.embed(canon), self.space.dim, what=f"{sense} embedding")
-        if vectors.shape[0] != n:
-            raise InvalidInputError(f"sense {sense!r} returned {vectors.shape[0]} vectors for {n}")
+        if vectors.shape[0] != len(items):
+            raise InvalidInputError(
+                f"sense {sense!r} returned {vectors.shape[0]} vectors for {len(items)}"
+            )
         extras = [s.to_row(x) for x in canon]
-        data = pa.table(
-            {
-                "id": id_list,
-                "session": [session] * n,
-                "sense": [s.name] * n,
-                "t": ts,
-                "t_end": ends,
-                "vector": pa.FixedSizeListArray.from_arrays(
-                    pa.array(vectors.reshape(-1), pa.float32()), self.space.dim
-                ),
-                "meta": metas,
-                "text": [e.get("text") for e in extras],
-                "raw": [e.get("raw") for e in extras],
-                "source": [source] * n,
-                "episode": pa.nulls(n, pa.int64()),
-                "created": [now] * n,
-            },
-            schema=self.store.schema,
-        )
-        with self._lock:
+        data = items_table(self.store.schema, batch, session, s.name, source, vectors, extras)
+        with self.lock:
             replaced: list[str] = []
-            if upsert and self._counts is not None:
-                where = Where().ids(id_list).sql()
+            if batch.upsert and self.registry.counting:
+                where = Where().ids(batch.ids).sql()
                 replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
-            self.store.write(data, upsert=upsert)
-            if self._counts is not None:
-                counts = dict(self._counts)
-                for name in replaced:  # an upsert may move an id to another sense
-                    counts[name] -= 1
-                counts[s.name] = counts.get(s.name, 0) + n
-                self._counts = counts
+            self.store.write(data, upsert=batch.upsert)
+            self.registry.note_write(s.name, len(items), replaced)
         self._schedule_maintenance()
-        return id_list
+        return batch.ids
 
     def delete(self, ids: Sequence[str] | str) -> int:
         """Delete items by id; returns how many rows were removed."""
@@ -514,12 +255,19 @@ class Memory(TemporalMixin):
         return self._delete(Where().session(session).sql())
 
     def _delete(self, where: str | None) -> int:
-        with self._lock:
+        with self.lock:
             n = self.store.count(where)
             if n:
                 self.store.delete(where)
-                self._counts = None
+                self.registry.forget_counts()
             return n
+
+    def validate_item(self, sense: str, item: Any, options: Mapping[str, Any] | None = None) -> Any:
+        """``item`` checked (and canonicalised) by the live ``sense``, as ``add`` would store
+        it; ``add``/``add_many`` take the result as it is (a stream validates each window
+        before queueing its write)."""
+        s = self.registry.live_sense(sense)
+        return s.validate(item, **options_for(s, options))
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
@@ -534,7 +282,7 @@ class Memory(TemporalMixin):
         self._maint_thread.start()
 
     def _index_due(self) -> bool:
-        return self.store.index_due(sum(self._sense_counts().values()))
+        return self.store.index_due(sum(self.registry.counts().values()))
 
     def _maintain_quietly(self) -> None:
         try:
@@ -550,99 +298,51 @@ class Memory(TemporalMixin):
         if self._maint_thread is not None:
             self._maint_thread.join(timeout)
 
-    # ----------------------------------------------------------- counts & calibration
-    def _sense_counts(self) -> dict[str, int]:
-        counts = self._counts
-        if counts is None:
-            import pyarrow.compute as pc
-
-            col = self.store.scan(None, ["sense"]).column("sense")
-            vc = pc.value_counts(col).to_pylist()
-            counts = {d["values"]: int(d["counts"]) for d in vc}
-            self._counts = counts
-        return counts
-
-    def _probe_vectors(self) -> np.ndarray:
-        """(P, D) embedded probe bank, cached in the store per space."""
-        if self._probes is None:
-            key = f"probes:{self.space.name}:{len(PROBES)}"
-            cached = self.store.get_meta(key)
-            if cached is not None:
-                arr = np.asarray(json.loads(cached), dtype=np.float32)
-            else:
-                arr = as_unit_rows(self.space.embed_texts(list(PROBES), query=True), self.space.dim)
-                with self._lock:
-                    self.store.set_meta(key, json.dumps(arr.round(6).tolist()))
-            self._probes = as_unit_rows(arr, self.space.dim)
-        return self._probes
-
-    def calibration(self, sense: str) -> Calibration:
-        """The null statistics of a sense, re-estimated when its row count has doubled."""
-        rows = self._sense_counts().get(sense, 0)
-        calib = self._calib.get(sense, Calibration())
-        if not calib.stale(rows):
-            return calib
-        s = self._search_sense(sense)
-        probes = s.query_transform(self._probe_vectors())
-        sample = self.store.scan(Where().sense(sense).sql(), ["vector"], limit=SAMPLE)
-        vecs = np.asarray(sample.column("vector").combine_chunks().flatten(), np.float32)
-        vecs = vecs.reshape(-1, self.space.dim)
-        calib = estimate(probes, vecs, rows)
-        self._calib[sense] = calib
-        with self._lock:
-            row = next((r for r in self.store.sense_rows() if r["name"] == sense), None)
-            if row is not None:
-                row.update(mu=calib.mu, sigma=calib.sigma, calib_n=calib.n, updated=time.time())
-                self.store.put_sense_row(row)
-        return calib
-
     # ----------------------------------------------------------- search
     def search(
         self,
         query: str,
         k: int = 10,
         *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
         group: str | None = None,
         gap: float | None = None,
-    ) -> list[Hit]:
-        """Natural-language search over the chosen senses (default: every sense with rows).
+        **scope: Unpack[ScopeKwargs],
+    ) -> list[Hit] | list[Moment]:
+        """Natural-language search over the scope's senses (default: every sense with rows).
 
-        ``group="moment"`` returns Moments instead (see ``TemporalMixin.search_moments``)."""
+        Filters: ``session``, ``senses``, ``source``, ``after``/``before`` (or one ``scope=``
+        :class:`Scope`). ``group="moment"`` returns Moments instead (see
+        :meth:`search_moments`); the query is embedded once either way."""
+        where = Scope.of(**scope)
+        if group is not None and group != "moment":
+            raise InvalidInputError(f"unknown group {group!r}; use group='moment'")
         if group is not None:
-            filters = {"senses": senses, "session": session, "after": after, "before": before}
-            return self.search_grouped(query, k, group=group, gap=gap, source=source, **filters)
-        query = _check_query_text(query)
-        k = _check_k(k)
-        base = self._filter(session=session, after=after, before=before, source=source)
-        names = self._senses_to_search(senses)
-        q = as_unit_rows(self.space.embed_texts([query], query=True), self.space.dim, what="query")
-        return self._query(q, k, names, base, transform=True)
+            q = embed_query(self.space, query)
+            gap = DEFAULT_MOMENT_GAP if gap is None else gap
+            return self.temporal.moments(q, k, where, split_match({})[1], gap)
+        query = check_query_text(query)
+        k = check_k(k)
+        base = where.where()
+        names = self.resolve_senses(where.senses)
+        return self.rank(embed_query(self.space, query), k, names, base, transform=True)
 
     def search_vector(
         self,
         vector: np.ndarray | Sequence[float],
         k: int = 10,
         *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
         transform: bool = False,
+        **scope: Unpack[ScopeKwargs],
     ) -> list[Hit]:
         """Search with a raw (D,) query vector. ``transform=True`` treats it as a text query
         embedding and applies each sense's query transform."""
-        k = _check_k(k)
+        k = check_k(k)
         q = as_unit_rows(vector, self.space.dim, what="query vector")
         if q.shape[0] != 1:
             raise InvalidInputError(f"one query vector expected, got {q.shape[0]}")
-        base = self._filter(session=session, after=after, before=before, source=source)
-        return self._query(q, k, self._senses_to_search(senses), base, transform=transform)
+        where = Scope.of(**scope)
+        base = where.where()
+        return self.rank(q, k, self.resolve_senses(where.senses), base, transform=transform)
 
     def search_like(
         self,
@@ -651,143 +351,35 @@ class Memory(TemporalMixin):
         k: int = 10,
         *,
         vector: np.ndarray | Sequence[float] | None = None,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
+        options: Mapping[str, Any] | None = None,
+        **scope: Unpack[ScopeKwargs],
     ) -> list[Hit]:
-        """Query by example: embed ``example`` with ``sense`` (or take its precomputed
-        ``vector``) and search that sense's rows (or ``senses``)."""
+        """Query by example: embed ``example`` with ``sense`` (validated with ``options``) or
+        take its precomputed ``vector``, and search that sense's rows (or ``senses``)."""
         validate_sense_name(sense)
         if vector is None:
             if example is None:
                 raise InvalidInputError("search_like needs an example or vector=")
-            s = self._live_sense(sense)
-            q = as_unit_rows(s.embed([s.validate(example)]), self.space.dim, what="example")
+            s = self.registry.live_sense(sense)
+            item = s.validate(example, **options_for(s, options))
+            q = as_unit_rows(s.embed([item]), self.space.dim, what="example")
         else:
-            self._search_sense(sense)
+            self.registry.search_sense(sense)
             q = as_unit_rows(vector, self.space.dim, what="example vector")
-        return self.search_vector(
-            q[0],
-            k,
-            senses=senses or [sense],
-            session=session,
-            after=after,
-            before=before,
-            source=source,
-        )
+        where = Scope.of(**scope)
+        if not where.senses:
+            where = Scope.of(where, senses=[sense])
+        return self.search_vector(q[0], k, scope=where)
 
-    def _filter(self, **kw: Any) -> Where:
-        return (
-            Where()
-            .session(kw.get("session"))
-            .overlaps(kw.get("after"), kw.get("before"))
-            .source(kw.get("source"))
-        )
-
-    def _senses_to_search(self, senses: Sequence[str] | None) -> list[str]:
-        if senses is None:
-            counts = self._sense_counts()
-            return [name for name in sorted(self._stored) if counts.get(name, 0) > 0]
-        if isinstance(senses, str):
-            senses = [senses]
-        names = []
-        for name in senses:
-            self._search_sense(name)
-            if name not in names:
-                names.append(name)
-        return names
-
-    def _query(
-        self,
-        q: np.ndarray,
-        k: int,
-        senses: Sequence[str],
-        base: Where,
-        *,
-        transform: bool,
-        build: Callable[[dict[str, Any], float, float], Hit] | None = None,
+    def rank(
+        self, q: np.ndarray, k: int, senses: Sequence[str], base: Where, **kw: Any
     ) -> list[Hit]:
-        """The one search path: q (1, D) unit query -> per-sense query transform, prefiltered
-        ANN (or exact flat) search, calibrated scores, merged top k. ``base`` holds the
-        non-sense conditions (session, time, source, ...); temporal operators reuse this.
+        """The one ranked search path (:meth:`tactus_memory.ranking.Ranker.rank`): (1, D)
+        unit query ``q``, the senses searched, ``base`` the non-sense conditions; keywords
+        ``transform`` (apply each sense's query transform) and ``build`` (the hit maker)."""
+        return self.ranker.rank(q, k, senses, base, **kw)
 
-        Senses whose transformed query vectors coincide (e.g. identity transforms) share one
-        LanceDB query fetching ``k * len(group)`` candidates; a sense with fewer than k of
-        them gets its own query unless its best possible missing z-score (bounded by the
-        lowest candidate cosine) cannot reach the current k-th score. The merge is therefore
-        the same as one query per sense, at a fraction of the cost.
-        """
-        counts = self._sense_counts()
-        active = [name for name in senses if counts.get(name, 0) > 0]
-        groups: list[tuple[np.ndarray, list[str]]] = []
-        for name in active:
-            qs = q
-            if transform:
-                s = self._search_sense(name)
-                qs = as_unit_rows(s.query_transform(q), self.space.dim, what="query")
-            for vec, names in groups:
-                if np.array_equal(vec, qs):
-                    names.append(name)
-                    break
-            else:
-                groups.append((qs, [name]))
-        calib = {name: self.calibration(name) for name in active}
-        scored: list[tuple[float, float, dict[str, Any]]] = []
-        for vec, names in groups:
-            scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
-        scored.sort(key=lambda x: -x[0])
-        make = build or _hit
-        return [make(row, score, cos) for score, cos, row in scored[:k]]
-
-    def _search_group(
-        self,
-        vec: np.ndarray,
-        k: int,
-        names: list[str],
-        base: Where,
-        counts: dict[str, int],
-        calib: dict[str, Calibration],
-        found: list[tuple[float, float, dict[str, Any]]],
-    ) -> list[tuple[float, float, dict[str, Any]]]:
-        """One ANN query for senses sharing a query vector (D,), plus follow-ups if needed."""
-        total = sum(counts.values())
-        every = {name for name, c in counts.items() if c > 0}
-        where = Where(list(base.parts))
-        if set(names) != every:
-            where.senses(names)
-        sql = where.sql()
-        allowed = self.store.count(sql) if base.parts else sum(counts[n] for n in names)
-        if allowed == 0:
-            return []
-        want = k * len(names)
-        rows = self.store.vector_search(vec, want, sql, allowed=allowed, total=total)
-        out = [self._scored(row, calib) for row in rows.to_pylist()]
-        if len(names) == 1 or len(out) < want:
-            return out  # complete: every allowed row was a candidate or one sense only
-        floor = min(cos for _, cos, _ in out)
-        have = {name: sum(1 for _, _, r in out if r["sense"] == name) for name in names}
-        for name in names:
-            if have[name] >= k:
-                continue
-            ranked = sorted([z for z, _, _ in found] + [z for z, _, _ in out], reverse=True)
-            kth = ranked[k - 1] if len(ranked) >= k else -math.inf
-            if calib[name].score(floor) <= kth:
-                continue  # nothing of this sense below the floor can enter the top k
-            one = Where(list(base.parts)).sense(name).sql()
-            n_one = self.store.count(one) if base.parts else counts[name]
-            extra = self.store.vector_search(vec, k, one, allowed=n_one, total=total)
-            out = [x for x in out if x[2]["sense"] != name]
-            out.extend(self._scored(row, calib) for row in extra.to_pylist())
-        return out
-
-    @staticmethod
-    def _scored(
-        row: dict[str, Any], calib: dict[str, Calibration]
-    ) -> tuple[float, float, dict[str, Any]]:
-        cos = 1.0 - float(row.pop("_distance"))
-        return float(calib[row["sense"]].score(cos)), cos, row
+    _query = rank  # the old private name
 
     # ----------------------------------------------------------- reads
     def get_item(self, id: str, *, vector: bool = False) -> Item:  # noqa: A002
@@ -797,25 +389,12 @@ class Memory(TemporalMixin):
         if not rows:
             raise NotFoundError(f"no item with id {id!r}")
         row = rows[0]
-        s = self._live.get(row["sense"])
+        s = self.registry.senses.get(row["sense"])
         if s is not None:
             raw = s.from_row(row)
         else:
             raw = bytes_to_array(row["raw"]) if row.get("raw") is not None else row.get("text")
-        return Item(
-            id=row["id"],
-            session=row["session"],
-            sense=row["sense"],
-            t=row["t"],
-            t_end=row["t_end"],
-            meta=json.loads(row["meta"] or "{}"),
-            text=row.get("text"),
-            raw=raw,
-            source=row.get("source") or "",
-            episode=row.get("episode"),
-            created=row["created"],
-            vector=row.get("vector"),
-        )
+        return item_from_row(row, raw)
 
     def sessions(self) -> list[SessionSummary]:
         """A summary per session (counts per sense, time span), sorted by id."""
@@ -828,28 +407,7 @@ class Memory(TemporalMixin):
         return out[0]
 
     def _summaries(self, where: str | None) -> list[SessionSummary]:
-        tbl = self.store.scan(where, ["session", "sense", "t", "t_end"])
-        if tbl.num_rows == 0:
-            return []
-        agg = tbl.group_by(["session", "sense"]).aggregate(
-            [("t", "min"), ("t_end", "max"), ("t", "count")]
-        )
-        by: dict[str, dict[str, Any]] = {}
-        for r in agg.to_pylist():
-            d = by.setdefault(r["session"], {"counts": {}, "t_min": math.inf, "t_max": -math.inf})
-            d["counts"][r["sense"]] = int(r["t_count"])
-            d["t_min"] = min(d["t_min"], r["t_min"])
-            d["t_max"] = max(d["t_max"], r["t_end_max"])
-        return [
-            SessionSummary(
-                id=sid,
-                n=sum(d["counts"].values()),
-                counts=dict(sorted(d["counts"].items())),
-                t_min=d["t_min"],
-                t_max=d["t_max"],
-            )
-            for sid, d in sorted(by.items())
-        ]
+        return summarise(self.store.scan(where, ["session", "sense", "t", "t_end"]))
 
     def close(self) -> None:
         """Let background maintenance finish (the store needs no other closing)."""
@@ -865,7 +423,13 @@ class Memory(TemporalMixin):
         return self.store.count()
 
     def __repr__(self) -> str:
-        return f"Memory({self.store.uri!r}, space={self.space.name!r}, senses={sorted(self._live)})"
+        return (
+            f"Memory({self.store.uri!r}, space={self.space.name!r}, senses={sorted(self.senses)})"
+        )
+
+    def session_ids(self) -> list[str]:
+        """Every session id, sorted."""
+        return [s.id for s in self.sessions()]
 
     # ----------------------------------------------------------- recordings
     def ingest_recording(
@@ -881,19 +445,3 @@ class Memory(TemporalMixin):
         from tactus_memory.recordings import export_rerun
 
         return export_rerun(self, session, path, **kw)
-
-
-def _hit(row: dict[str, Any], score: float, cos: float) -> Hit:
-    return Hit(
-        id=row["id"],
-        session=row["session"],
-        sense=row["sense"],
-        t=row["t"],
-        t_end=row["t_end"],
-        score=score,
-        cosine=cos,
-        meta=json.loads(row["meta"] or "{}"),
-        text=row.get("text"),
-        source=row.get("source") or "",
-        episode=row.get("episode"),
-    )

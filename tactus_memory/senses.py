@@ -9,7 +9,6 @@ The memory never branches on a sense's name; everything sense-specific lives her
 from __future__ import annotations
 
 import io
-import re
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from typing import Any
@@ -22,11 +21,10 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
+from tactus_memory.limits import MAX_TEXT_CHARS, SENSE_NAME_RE
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
 
-SENSE_NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
-MAX_TEXT_CHARS = 8192
 #: longest side of the thumbnail an image item keeps in ``raw`` (256 px: <= 192 KiB a row)
 THUMBNAIL_SIDE = 256
 
@@ -61,6 +59,9 @@ class Sense(ABC):
     dim: int
     #: the space this sense maps into; None means "whatever space it is bound to"
     space_name: str | None = None
+    #: keyword options ``validate`` takes (``Memory.add(..., options=...)`` passes these on;
+    #: e.g. the touch sense's ``calibrated``); options a sense does not declare are not its own
+    validate_options: frozenset[str] = frozenset()
 
     def bind(self, space: Space) -> None:
         """Called by ``Memory.add_sense``. Raises ``SenseConflictError`` on a space mismatch."""
@@ -75,11 +76,13 @@ class Sense(ABC):
 
     @abstractmethod
     def validate(self, item: Any) -> Any:
-        """Check one raw item and return its canonical form. Raises ``InvalidInputError``."""
+        """Check one raw item and return its canonical form. Raises ``InvalidInputError``.
+        A sense with ``validate_options`` takes them as keyword arguments."""
 
     @abstractmethod
     def embed(self, batch: Sequence[Any]) -> np.ndarray:
-        """batch: N validated items -> (N, D) float32, L2-normalised."""
+        """batch: N validated items (what ``validate`` returned; not checked again) ->
+        (N, D) float32, L2-normalised."""
 
     def query_transform(self, queries: np.ndarray) -> np.ndarray:
         """queries: (N, D) text-query vectors -> (N, D) vectors comparable with this sense.

@@ -13,7 +13,8 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
 ``meta``   key/value strings: the space (name, dim) the store was created with, cached probe
            embeddings, index bookkeeping.
 
-Filters: every SQL ``WHERE`` fragment is built here, by :class:`Where`, from values that first
+Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.where.Where`
+(re-exported here, with the validators), from values that first
 pass a validator (ids and sense names by regex, numbers must be finite); string literals are
 also quote-escaped. No user string reaches LanceDB any other way.
 
@@ -30,152 +31,35 @@ from __future__ import annotations
 import json
 import logging
 import math
-import re
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatchError
-from tactus_memory.senses import validate_sense_name
+from tactus_memory.errors import InvalidInputError, SpaceMismatchError
+from tactus_memory.where import Where as Where  # re-exported (`X as X`): old import paths
+from tactus_memory.where import _sql_str
+from tactus_memory.where import finite_float as finite_float
+from tactus_memory.where import validate_id as validate_id
+from tactus_memory.where import validate_source as validate_source
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa
 
 log = logging.getLogger(__name__)
 
-ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")
 ITEMS = "items"
 SENSES = "senses"
 META = "meta"
+#: meta key holding every clock offset as JSON
+CLOCK_KEY = "clock_offsets"
 REMOTE_SCHEMES = ("s3://", "s3+ddb://", "gs://", "az://", "abfs://", "memory://")
 #: columns returned by searches (everything except the vector and raw bytes)
 HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
-
-
-# --------------------------------------------------------------------------- validation
-def validate_id(value: Any, what: str = "id") -> str:
-    """Session ids, item ids and source ids: 1-128 chars of ``[A-Za-z0-9._:-]``."""
-    if not isinstance(value, str) or not ID_RE.fullmatch(value):
-        shown = (
-            repr(value)
-            if not isinstance(value, str) or len(value) <= 60
-            else repr(value[:60]) + "..."
-        )
-        raise InvalidIdError(
-            f"invalid {what} {shown}: use 1-128 characters of [A-Za-z0-9._:-], "
-            "starting with a letter or digit"
-        )
-    return value
-
-
-def validate_source(value: Any) -> str:
-    """A source (stream) id is an id or the empty string."""
-    if value == "":
-        return ""
-    return validate_id(value, "source id")
-
-
-def finite_float(value: Any, what: str) -> float:
-    """A finite float (bools and non-numbers rejected)."""
-    if isinstance(value, bool):
-        raise InvalidInputError(f"{what} must be a number, got {value!r}")
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{what} must be a number, got {value!r}") from None
-    if not math.isfinite(out):
-        raise InvalidInputError(f"{what} must be finite, got {value!r}")
-    return out
-
-
-def _sql_str(value: str) -> str:
-    return "'" + value.replace("'", "''") + "'"
-
-
-def _sql_float(value: float) -> str:
-    # ``repr`` gives the shortest round-tripping form; DataFusion parses 1e+20 and -0.0 too.
-    return repr(float(value))
-
-
-@dataclass
-class Where:
-    """A conjunction of validated conditions, rendered to one LanceDB SQL filter.
-
-    Build with the methods (each validates its input) and render with :meth:`sql`.
-    Temporal operators reuse this: ``Where().session("s1").overlaps(10, 20).sql()``.
-    """
-
-    parts: list[str] = field(default_factory=list)
-
-    def session(self, session: str | None) -> Where:
-        if session is not None:
-            self.parts.append(f"session = {_sql_str(validate_id(session, 'session id'))}")
-        return self
-
-    def sessions(self, sessions: Iterable[str] | None) -> Where:
-        if sessions is not None:
-            vals = [_sql_str(validate_id(s, "session id")) for s in sessions]
-            self.parts.append(f"session IN ({', '.join(vals)})" if vals else "false")
-        return self
-
-    def sense(self, sense: str | None) -> Where:
-        if sense is not None:
-            self.parts.append(f"sense = {_sql_str(validate_sense_name(sense))}")
-        return self
-
-    def senses(self, senses: Iterable[str] | None) -> Where:
-        if senses is not None:
-            vals = [_sql_str(validate_sense_name(s)) for s in senses]
-            self.parts.append(f"sense IN ({', '.join(vals)})" if vals else "false")
-        return self
-
-    def ids(self, ids: Iterable[str] | None) -> Where:
-        if ids is not None:
-            vals = [_sql_str(validate_id(i, "item id")) for i in ids]
-            self.parts.append(f"id IN ({', '.join(vals)})" if vals else "false")
-        return self
-
-    def source(self, source: str | None) -> Where:
-        if source is not None:
-            self.parts.append(f"source = {_sql_str(validate_source(source))}")
-        return self
-
-    def episode(self, episode: int | None) -> Where:
-        if episode is not None:
-            if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)):
-                raise InvalidInputError(f"episode must be an int, got {episode!r}")
-            self.parts.append(f"episode = {int(episode)}")
-        return self
-
-    def overlaps(self, after: float | None = None, before: float | None = None) -> Where:
-        """Items whose interval ``[t, t_end]`` overlaps ``[after, before]`` (ends inclusive).
-
-        ``after`` alone: items still going on at or after ``after`` (``t_end >= after``);
-        ``before`` alone: items that started at or before ``before`` (``t <= before``).
-        """
-        if after is not None:
-            self.parts.append(f"t_end >= {_sql_float(finite_float(after, 'after'))}")
-        if before is not None:
-            self.parts.append(f"t <= {_sql_float(finite_float(before, 'before'))}")
-        if after is not None and before is not None and float(after) > float(before):
-            raise InvalidInputError(f"after ({after}) is later than before ({before})")
-        return self
-
-    def t_range(self, start: float | None = None, end: float | None = None) -> Where:
-        """Items that *start* in ``[start, end)`` (for ordering-style temporal queries)."""
-        if start is not None:
-            self.parts.append(f"t >= {_sql_float(finite_float(start, 'start'))}")
-        if end is not None:
-            self.parts.append(f"t < {_sql_float(finite_float(end, 'end'))}")
-        return self
-
-    def sql(self) -> str | None:
-        return " AND ".join(f"({p})" for p in self.parts) if self.parts else None
 
 
 # --------------------------------------------------------------------------- schema
@@ -422,6 +306,22 @@ class Store:
             .when_not_matched_insert_all()
             .execute(data)
         )
+
+    # ----------------------------------------------------------- temporal state
+    def clock_table(self) -> dict[str, dict[str, float]]:
+        """Every clock offset: session -> {"sense/source": offset} (meta key CLOCK_KEY)."""
+        raw = self.get_meta(CLOCK_KEY)
+        return json.loads(raw) if raw else {}
+
+    def put_clock_table(self, table: dict[str, dict[str, float]]) -> None:
+        self.set_meta(CLOCK_KEY, json.dumps(table, sort_keys=True))
+
+    def set_episodes(self, ids: Sequence[str], episodes: np.ndarray) -> None:
+        """Write the ``episode`` column of the rows ``ids`` (an (N,) int array) in one commit."""
+        import pyarrow as pa
+
+        data = pa.table({"id": list(ids), "episode": pa.array(episodes, pa.int64())})
+        self.items.merge_insert("id").when_matched_update_all().execute(data)
 
     # ----------------------------------------------------------- senses registry
     def sense_rows(self) -> list[dict[str, Any]]:

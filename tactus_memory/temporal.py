@@ -1,47 +1,12 @@
 """Temporal reasoning over the memory: last / first / count / before / after / timeline,
 moments (hits of every sense grouped in time), episodes and per-stream clock offsets.
 
-Everything here is deterministic (no LLM) and built on the memory's own search path: the query
-is embedded once, each sense is searched with its query transform and scored by its calibrated
-z-score (:mod:`tactus_memory.scoring`), then time logic runs in Python.
-
-**What "a match" is.** A hit of sense *s* matches a query when
-
-1. ``score >= threshold[s]``: its calibrated score (null standard deviations above the cosine
-   that the generic probe queries get against *s*) clears an absolute, per-sense bar
-   (:data:`MATCH_Z`, overridable per call with ``threshold=``). This is what makes an
-   irrelevant query match *nothing*: a relative gate alone (e.g. "the top half of the
-   candidates", as min-max normalised relevance does) always finds something.
-2. ``score >= relative * best[s]``: it is also close to the best hit *of its own sense* for
-   this query (``relative`` = :data:`RELATIVE_KEEP`; 0 disables it). This drops near misses
-   that share words or texture with the real thing ("picked up the screwdriver" for "picked
-   up the mug") once the real thing is in the memory. Per sense, so a strong note never
-   suppresses a weaker but genuine touch match.
-
-How the defaults were chosen (measured, real MiniLM + the shipped touch checkpoint):
-
-* text (MiniLM notes): exact notes score 6-9, paraphrases ("holding a coffee cup" for
-  "picked up the mug") about 3.4, unrelated queries at most 1.6 (generic ones such as
-  "an object" 1.2) -> 3.0. The near miss "picked up the screwdriver" scores 3.1 for
-  "picked up the mug" against 8.6 for the real notes: the relative gate removes it.
-* touch (all 1,445 8-frame windows of the STAG ``weights`` subset, grasps and transitions):
-  seven unrelated queries ("the weather in paris", "stock market prices fell", ...) have a
-  99th percentile of 1.3-2.2 and a maximum of 2.1-2.8 ("a giraffe in the savanna", closest
-  to the toy cat, reaches 3.7); object queries on valid-grasp windows have medians 5.2-8.2
-  -> 3.0. Grasp-level on the 162 valid grasps, 10 object queries, threshold 3.0: relative
-  0 finds 92% of the grasps of the queried object and matches 2.4% of other objects'
-  grasps; 0.4 finds 92% / matches 2.2%; 0.6 finds 87% / 0.8%. Occurrence counting must
-  not miss grasps, so RELATIVE_KEEP = 0.4 (which still removes the text near miss above).
-
-**Occurrences.** ``count`` / ``last`` / ``first`` work on occurrences: matching items of one
-session whose (aligned) spans ``[t, t_end]`` overlap or lie within ``merge_gap`` seconds of
-each other merge into one; adjacent windows of one stream (same session + sense + source)
-are one occurrence, and a touch window with the note written about it is one too.
-
-**Candidates.** Each sense contributes at most :data:`MATCH_CANDIDATES` candidates (the top of
-a prefiltered search): ``count`` over a long session with more matching windows than that is
-a lower bound, and :class:`Occurrences` says so (``capped=True``); narrow it with
-``after``/``before``.
+:class:`Temporal` is an object over the memory's public ranked-search call
+(:class:`~tactus_memory.query.RankedSearch`: ``rank``, ``resolve_senses``): the query is
+embedded once (:func:`~tactus_memory.query.embed_query`), each sense is searched with its
+query transform and scored by its calibrated z-score, then time logic runs in Python. What
+"a match" is and how matches group: :mod:`tactus_memory.matching`. ``Memory`` exposes every
+operator with the usual keywords (``memory.count(q, session=..., senses=...)``).
 
 **Clock offsets.** ``set_clock_offset(session, sense, offset, source)`` records that a stream's
 clock runs ``offset`` seconds behind the session's reference clock: its items are placed at
@@ -52,12 +17,10 @@ this module. Offsets live in the store's ``meta`` table (persisted, shared by pr
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, Field
 
 from tactus_memory.episodes import (
     EPISODE_MAX_GAP,
@@ -69,201 +32,74 @@ from tactus_memory.episodes import (
     segment,
 )
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.limits import MAX_K
+from tactus_memory.matching import (  # re-exported: `from tactus_memory.temporal import ...`
+    CORROBORATION_BONUS,
+    DEFAULT_MATCH_Z,
+    DEFAULT_MERGE_GAP,
+    DEFAULT_MOMENT_GAP,
+    DEFAULT_WINDOW,
+    MATCH_CANDIDATES,
+    MATCH_Z,
+    MOMENT_MIN_Z,
+    MOMENT_POOL_FACTOR,
+    MOMENT_POOL_MIN,
+    RELATIVE_KEEP,
+    TIMELINE_MAX,
+    Match,
+    check_relative,
+    check_seconds,
+    group_moments,
+    make_moment,
+    match_flags,
+    resolve_thresholds,
+)
+
+# re-exported (`X as X`): `from tactus_memory.temporal import Moment, ...` keeps working
+from tactus_memory.models import ClockOffset as ClockOffset
+from tactus_memory.models import Context as Context
+from tactus_memory.models import Evidence as Evidence
+from tactus_memory.models import Moment as Moment
+from tactus_memory.models import Occurrences as Occurrences
+from tactus_memory.models import Side as Side
+from tactus_memory.models import TimelineItem as TimelineItem
+from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
-from tactus_memory.store import HIT_COLUMNS, Where, finite_float, validate_id, validate_source
+from tactus_memory.store import CLOCK_KEY, HIT_COLUMNS, Where, finite_float, validate_id
+from tactus_memory.store import validate_source as _validate_source
 
-if TYPE_CHECKING:
-    import threading
+__all__ = [
+    "CLOCK_KEY",
+    "CORROBORATION_BONUS",
+    "DEFAULT_MATCH_Z",
+    "DEFAULT_MERGE_GAP",
+    "DEFAULT_MOMENT_GAP",
+    "DEFAULT_WINDOW",
+    "MATCH_CANDIDATES",
+    "MATCH_Z",
+    "MOMENT_MIN_Z",
+    "MOMENT_POOL_FACTOR",
+    "MOMENT_POOL_MIN",
+    "RELATIVE_KEEP",
+    "TIMELINE_MAX",
+    "ClockOffset",
+    "Context",
+    "Evidence",
+    "Match",
+    "Moment",
+    "Occurrences",
+    "Side",
+    "Temporal",
+    "TimelineItem",
+    "check_relative",
+    "check_seconds",
+    "group_moments",
+    "make_moment",
+    "match_flags",
+    "resolve_thresholds",
+]
 
-    from tactus_memory.spaces.base import Space
-    from tactus_memory.store import Store
-
-# --------------------------------------------------------------------------- constants
-#: per-sense match threshold on the calibrated score (z vs the probe null); see the module
-#: docstring and tests/test_temporal_real.py for the measured separation behind each value
-MATCH_Z: dict[str, float] = {"text": 3.0, "touch": 3.0}
-#: threshold for senses not in MATCH_Z (motion, image, ...)
-DEFAULT_MATCH_Z = 3.0
-#: a match must also score >= RELATIVE_KEEP x the best score of its sense for the query
-RELATIVE_KEEP = 0.4
-#: candidates pulled per sense before thresholding (the cap on count over long sessions)
-MATCH_CANDIDATES = 500
-#: occurrences: matching items within this many seconds of each other are one occurrence
-DEFAULT_MERGE_GAP = 2.0
-#: moments (search grouping): hits within this many seconds of each other are one moment
-DEFAULT_MOMENT_GAP = 1.0
-#: moment score = best member score + this bonus per other sense with a *matching* member
-CORROBORATION_BONUS = 0.5
-#: moments: candidates per sense = max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN) (<= MAX_K)
-MOMENT_POOL_FACTOR = 5
-MOMENT_POOL_MIN = 50
-#: moments: a candidate joins a moment only if it scores above the sense's null mean by this
-MOMENT_MIN_Z = 1.0
-#: before/after: the default window (seconds)
-DEFAULT_WINDOW = 30.0
-#: the most rows one timeline (or one before/after window) reads; narrow with after/before
-TIMELINE_MAX = 100_000
-#: store meta key holding every clock offset as JSON
-CLOCK_KEY = "clock_offsets"
-
-Side = Literal["before", "after"]
-
-
-# --------------------------------------------------------------------------- models
-class TimelineItem(BaseModel):
-    """One stored item placed on the session clock (``t_aligned = t + clock offset``)."""
-
-    id: str
-    session: str
-    sense: str
-    source: str = ""
-    t: float
-    t_end: float
-    t_aligned: float
-    t_end_aligned: float
-    text: str | None = None
-    meta: dict[str, Any] = Field(default_factory=dict)
-    episode: int | None = None
-
-
-class Evidence(TimelineItem):
-    """A scored item: ``score`` is the calibrated z-score, ``match`` whether it clears the
-    per-sense threshold and the relative gate for the query."""
-
-    score: float
-    cosine: float
-    match: bool = False
-
-
-class Moment(BaseModel):
-    """Hits of one session that happen together. ``t``/``t_end`` span the members on the
-    aligned clock; ``score`` = best member score + CORROBORATION_BONUS per other sense with a
-    matching member; ``hits`` (time order) is every sense's evidence."""
-
-    session: str
-    t: float
-    t_end: float
-    score: float
-    senses: list[str]
-    best: str
-    hits: list[Evidence]
-
-
-class Occurrences(BaseModel):
-    """Distinct occurrences of a query (``count == len(moments)``), in time order."""
-
-    query: str
-    count: int
-    capped: bool = Field(
-        description="True when a sense returned MATCH_CANDIDATES candidates that all matched: "
-        "the count is a lower bound (narrow with after/before)."
-    )
-    merge_gap: float
-    moments: list[Moment]
-
-
-class Context(BaseModel):
-    """What happened in ``window`` seconds before/after the anchor (same session)."""
-
-    side: Side
-    window: float
-    anchor: Evidence
-    t_from: float
-    t_to: float
-    items: list[TimelineItem]
-
-
-class ClockOffset(BaseModel):
-    """A stream's clock offset: its items are placed at ``t + offset`` on the session clock."""
-
-    session: str
-    sense: str
-    source: str = ""
-    offset: float
-
-
-# --------------------------------------------------------------------------- pure helpers
-def resolve_thresholds(
-    threshold: float | Mapping[str, float] | None, senses: Sequence[str]
-) -> dict[str, float]:
-    """Per-sense thresholds: MATCH_Z / DEFAULT_MATCH_Z, overridden by a number (every sense)
-    or a mapping (those senses)."""
-    out = {s: MATCH_Z.get(s, DEFAULT_MATCH_Z) for s in senses}
-    if threshold is None:
-        return out
-    if isinstance(threshold, Mapping):
-        for name, value in threshold.items():
-            out[validate_sense_name(name)] = finite_float(value, f"threshold[{name}]")
-        return out
-    value = finite_float(threshold, "threshold")
-    return dict.fromkeys(out, value)
-
-
-def check_relative(relative: float) -> float:
-    value = finite_float(relative, "relative")
-    if not 0.0 <= value <= 1.0:
-        raise InvalidInputError(f"relative must be in [0, 1], got {relative!r}")
-    return value
-
-
-def check_seconds(value: float, what: str) -> float:
-    out = finite_float(value, what)
-    if out < 0:
-        raise InvalidInputError(f"{what} must be >= 0 seconds, got {value!r}")
-    return out
-
-
-def match_flags(scores: Sequence[float], threshold: float, relative: float) -> list[bool]:
-    """Which of one sense's scores match: ``>= threshold`` and ``>= relative * best``."""
-    if not scores:
-        return []
-    bar = max(threshold, relative * max(scores))
-    return [s >= bar for s in scores]
-
-
-def group_moments(
-    evidence: Sequence[Evidence], gap: float, *, per_stream: bool = False
-) -> list[Moment]:
-    """Merge evidence of one session (``per_stream``: of one session + sense + source) whose
-    aligned spans overlap or lie within ``gap`` seconds (transitively) into moments; returns
-    them in time order (t, t_end, session)."""
-    by_key: dict[tuple[str, ...], list[Evidence]] = {}
-    for e in evidence:
-        key = (e.session, e.sense, e.source) if per_stream else (e.session,)
-        by_key.setdefault(key, []).append(e)
-    out: list[Moment] = []
-    for key in sorted(by_key):
-        items = sorted(
-            by_key[key],
-            key=lambda e: (e.t_aligned, e.t_end_aligned, e.sense, e.source, e.id),
-        )
-        group: list[Evidence] = []
-        end = -math.inf
-        for e in items:
-            if group and e.t_aligned > end + gap:
-                out.append(make_moment(group))
-                group = []
-            group.append(e)
-            end = max(end, e.t_end_aligned) if len(group) > 1 else e.t_end_aligned
-        if group:
-            out.append(make_moment(group))
-    out.sort(key=lambda m: (m.t, m.t_end, m.session))
-    return out
-
-
-def make_moment(hits: Sequence[Evidence]) -> Moment:
-    """One moment from its members (see :class:`Moment` for the score)."""
-    best = min(hits, key=lambda e: (-e.score, e.t_aligned, e.id))  # ties: the earliest
-    corroborating = {e.sense for e in hits if e.match and e.sense != best.sense}
-    return Moment(
-        session=best.session,
-        t=min(e.t_aligned for e in hits),
-        t_end=max(e.t_end_aligned for e in hits),
-        score=best.score + CORROBORATION_BONUS * len(corroborating),
-        senses=sorted({e.sense for e in hits}),
-        best=best.id,
-        hits=list(hits),
-    )
+Offsets = Mapping[tuple[str, str, str], float]
 
 
 def _row_item(row: dict[str, Any], offset: float) -> dict[str, Any]:
@@ -282,36 +118,39 @@ def _row_item(row: dict[str, Any], offset: float) -> dict[str, Any]:
     }
 
 
-def _overlaps(item: TimelineItem, after: float | None, before: float | None) -> bool:
+def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
     return (after is None or item.t_end_aligned >= after) and (
         before is None or item.t_aligned <= before
     )
 
 
-# --------------------------------------------------------------------------- mixin
-class TemporalMixin:
-    """Temporal operators, moments, episodes and clock offsets; ``Memory`` inherits it.
+def _pad(offsets: Offsets, session: str | None) -> float:
+    """How far store-side time bounds must be widened so no aligned item is missed."""
+    vals = [abs(v) for (s, _, _), v in offsets.items() if session is None or s == session]
+    return max(vals, default=0.0)
 
-    Every operation takes the usual filters: ``session``, ``senses`` (default: every sense
-    with rows), ``source`` and ``after``/``before`` (overlap semantics, on the aligned clock).
+
+class Temporal:
+    """Temporal operators, moments, episodes and clock offsets over one memory.
+
+    Every question takes a :class:`~tactus_memory.query.Scope` (``senses`` None: every sense
+    with rows; ``after``/``before`` with overlap semantics on the aligned clock) and, where
+    it matches, a :class:`~tactus_memory.matching.Match` bar.
     """
 
-    # provided by Memory
-    store: Store
-    space: Space
-    _lock: threading.RLock
+    def __init__(self, memory: RankedSearch) -> None:
+        self.memory = memory
+        self.store = memory.store
 
     # ----------------------------------------------------------- clock offsets
-    def _offset_table(self) -> dict[str, dict[str, float]]:
-        raw = self.store.get_meta(CLOCK_KEY)
-        return json.loads(raw) if raw else {}
-
-    def _offsets(self) -> dict[tuple[str, str, str], float]:
-        return {
-            (session, *key.split("/", 1)): float(v)  # type: ignore[misc]
-            for session, streams in self._offset_table().items()
-            for key, v in streams.items()
-        }
+    def offsets(self) -> dict[tuple[str, str, str], float]:
+        """(session, sense, source) -> offset, for every recorded stream."""
+        out: dict[tuple[str, str, str], float] = {}
+        for session, streams in self.store.clock_table().items():
+            for key, value in streams.items():
+                sense, source = key.split("/", 1)
+                out[(session, sense, source)] = float(value)
+        return out
 
     def set_clock_offset(self, session: str, sense: str, offset: float, source: str = "") -> None:
         """Place the stream (session, sense, source) at ``t + offset`` on the session clock.
@@ -320,10 +159,10 @@ class TemporalMixin:
         """
         session = validate_id(session, "session id")
         sense = validate_sense_name(sense)
-        source = validate_source(source)
+        source = _validate_source(source)
         value = finite_float(offset, "offset")
-        with self._lock:
-            table = self._offset_table()
+        with self.memory.lock:
+            table = self.store.clock_table()
             streams = table.setdefault(session, {})
             key = f"{sense}/{source}"
             if value == 0.0:
@@ -332,7 +171,7 @@ class TemporalMixin:
                     table.pop(session)
             else:
                 streams[key] = value
-            self.store.set_meta(CLOCK_KEY, json.dumps(table, sort_keys=True))
+            self.store.put_clock_table(table)
 
     def clock_offsets(self, session: str | None = None) -> list[ClockOffset]:
         """Every recorded clock offset (of one session), sorted."""
@@ -340,70 +179,26 @@ class TemporalMixin:
             validate_id(session, "session id")
         return [
             ClockOffset(session=s, sense=sense, source=source, offset=v)
-            for (s, sense, source), v in sorted(self._offsets().items())
+            for (s, sense, source), v in sorted(self.offsets().items())
             if session is None or s == session
         ]
 
-    def _pad(self, offsets: Mapping[tuple[str, str, str], float], session: str | None) -> float:
-        """How far store-side time bounds must be widened so no aligned item is missed."""
-        vals = [abs(v) for (s, _, _), v in offsets.items() if session is None or s == session]
-        return max(vals, default=0.0)
-
-    def _where(
-        self,
-        offsets: Mapping[tuple[str, str, str], float],
-        *,
-        session: str | None,
-        after: float | None,
-        before: float | None,
-        source: str | None,
-    ) -> Where:
-        after = None if after is None else finite_float(after, "after")
-        before = None if before is None else finite_float(before, "before")
-        if after is not None and before is not None and after > before:
-            raise InvalidInputError(f"after ({after}) is later than before ({before})")
-        pad = self._pad(offsets, session)
-        return (
-            Where()
-            .session(session)
-            .overlaps(
-                None if after is None else after - pad, None if before is None else before + pad
-            )
-            .source(source)
-        )
-
     # ----------------------------------------------------------- scoring
-    def _embed_query(self, query: str) -> np.ndarray:
-        from tactus_memory.memory import _check_query_text
-        from tactus_memory.vectors import as_unit_rows
-
-        query = _check_query_text(query)
-        return as_unit_rows(self.space.embed_texts([query], query=True), self.space.dim)
-
-    def _evidence(
-        self,
-        query: str,
-        *,
-        senses: Sequence[str] | None,
-        session: str | None,
-        after: float | None,
-        before: float | None,
-        source: str | None,
-        threshold: float | Mapping[str, float] | None,
-        relative: float,
-        per_sense: int,
+    def evidence(
+        self, q: np.ndarray, scope: Scope, match: Match, per_sense: int
     ) -> tuple[list[Evidence], bool]:
-        """Every candidate (all senses), scored and flagged; and whether a sense was capped."""
-        relative = check_relative(relative)
-        offsets = self._offsets()
-        base = self._where(offsets, session=session, after=after, before=before, source=source)
-        names = self._senses_to_search(senses)  # type: ignore[attr-defined]
-        bars = resolve_thresholds(threshold, names)
-        q = self._embed_query(query)
+        """Every candidate of the (1, D) query ``q`` (all senses in scope), scored and flagged;
+        and whether a sense was capped (``per_sense`` candidates, all matching)."""
+        relative = check_relative(match.relative)
+        offsets = self.offsets()
+        base = scope.where(_pad(offsets, scope.session))
+        after, before = scope.bounds()
+        names = self.memory.resolve_senses(scope.senses)
+        bars = resolve_thresholds(match.threshold, names)
         out: list[Evidence] = []
         capped = False
         for name in names:
-            hits = self._query(q, per_sense, [name], base, transform=True)  # type: ignore[attr-defined]
+            hits = self.memory.rank(q, per_sense, [name], base, transform=True)
             flags = match_flags([h.score for h in hits], bars[name], relative)
             capped = capped or (len(hits) >= per_sense and all(flags))
             for h, flag in zip(hits, flags, strict=True):
@@ -420,44 +215,19 @@ class TemporalMixin:
                     out.append(e)
         return out, capped
 
-    def matches(
-        self,
-        query: str,
-        *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
-    ) -> list[Evidence]:
-        """Every item matching ``query`` (see the module docstring), in aligned time order."""
-        ev, _ = self._evidence(
-            query,
-            senses=senses,
-            session=session,
-            after=after,
-            before=before,
-            source=source,
-            threshold=threshold,
-            relative=relative,
-            per_sense=MATCH_CANDIDATES,
-        )
+    def matches(self, query: str, scope: Scope, match: Match) -> list[Evidence]:
+        """Every item matching ``query`` (see :mod:`tactus_memory.matching`), in aligned time
+        order."""
+        q = embed_query(self.memory.space, query)
+        ev, _ = self.evidence(q, scope, match, MATCH_CANDIDATES)
         return sorted((e for e in ev if e.match), key=lambda e: (e.t_aligned, e.sense, e.id))
 
     # ----------------------------------------------------------- last / first / count
     def occurrences(
         self,
         query: str,
-        *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
+        scope: Scope,
+        match: Match,
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
     ) -> Occurrences:
@@ -465,175 +235,34 @@ class TemporalMixin:
         aligned spans overlap or lie within ``merge_gap`` seconds. ``per_stream=True`` merges
         only within one stream (session + sense + source): a grasp and its note count twice."""
         gap = check_seconds(merge_gap, "merge_gap")
-        ev, capped = self._evidence(
-            query,
-            senses=senses,
-            session=session,
-            after=after,
-            before=before,
-            source=source,
-            threshold=threshold,
-            relative=relative,
-            per_sense=MATCH_CANDIDATES,
-        )
+        q = embed_query(self.memory.space, query)
+        ev, capped = self.evidence(q, scope, match, MATCH_CANDIDATES)
         moments = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
         return Occurrences(
             query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments
         )
 
-    def count(
-        self,
-        query: str,
-        *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
-        merge_gap: float = DEFAULT_MERGE_GAP,
-        per_stream: bool = False,
-    ) -> int:
-        """How many distinct times ``query`` happened (see :meth:`occurrences`)."""
-        return self.occurrences(
-            query,
-            senses=senses,
-            session=session,
-            after=after,
-            before=before,
-            source=source,
-            threshold=threshold,
-            relative=relative,
-            merge_gap=merge_gap,
-            per_stream=per_stream,
-        ).count
-
-    def last(
-        self,
-        query: str,
-        *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
-        merge_gap: float = DEFAULT_MERGE_GAP,
-    ) -> Moment | None:
-        """The most recent occurrence of ``query`` (latest aligned start), or None."""
-        occ = self.occurrences(
-            query,
-            senses=senses,
-            session=session,
-            after=after,
-            before=before,
-            source=source,
-            threshold=threshold,
-            relative=relative,
-            merge_gap=merge_gap,
-        )
-        return occ.moments[-1] if occ.moments else None
-
-    def first(
-        self,
-        query: str,
-        *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
-        merge_gap: float = DEFAULT_MERGE_GAP,
-    ) -> Moment | None:
-        """The earliest occurrence of ``query`` (earliest aligned start), or None."""
-        occ = self.occurrences(
-            query,
-            senses=senses,
-            session=session,
-            after=after,
-            before=before,
-            source=source,
-            threshold=threshold,
-            relative=relative,
-            merge_gap=merge_gap,
-        )
-        return occ.moments[0] if occ.moments else None
-
     # ----------------------------------------------------------- before / after
-    def before(
-        self,
-        anchor: str,
-        window: float = DEFAULT_WINDOW,
-        *,
-        senses: Sequence[str] | None = None,
-        anchor_senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
-    ) -> Context | None:
-        """What happened in the ``window`` seconds before the best match of ``anchor``: items of
-        the anchor's session (of ``senses``) that start in ``[a.t - window, a.t)`` (aligned).
-        ``session``/``after``/``before``/``anchor_senses`` restrict where the anchor is
-        searched. None when nothing matches the anchor."""
-        return self._around(
-            "before", anchor, window, senses, anchor_senses, session, after, before, source,
-            threshold, relative,
-        )  # fmt: skip
-
-    def after(
-        self,
-        anchor: str,
-        window: float = DEFAULT_WINDOW,
-        *,
-        senses: Sequence[str] | None = None,
-        anchor_senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
-    ) -> Context | None:
-        """What happened in the ``window`` seconds after the best match of ``anchor``: items of
-        the anchor's session (of ``senses``) that start in ``[a.t_end, a.t_end + window]``
-        (aligned), the anchor itself excluded. None when nothing matches the anchor."""
-        return self._around(
-            "after", anchor, window, senses, anchor_senses, session, after, before, source,
-            threshold, relative,
-        )  # fmt: skip
-
-    def _around(
+    def around(
         self,
         side: Side,
         anchor: str,
         window: float,
-        senses: Sequence[str] | None,
-        anchor_senses: Sequence[str] | None,
-        session: str | None,
-        after: float | None,
-        before: float | None,
-        source: str | None,
-        threshold: float | Mapping[str, float] | None,
-        relative: float,
+        scope: Scope,
+        match: Match,
+        anchor_senses: Sequence[str] | None = None,
     ) -> Context | None:
+        """What happened in the ``window`` seconds before the best match of ``anchor``
+        (items of its session that start in ``[a.t - window, a.t)``, aligned) or after it
+        (``[a.t_end, a.t_end + window]``, the anchor excluded). The anchor is searched in
+        ``anchor_senses`` within the scope's session and time bounds; the items are of the
+        scope's senses and source. None when nothing matches the anchor."""
         window = check_seconds(window, "window")
-        names = None if senses is None else self._senses_to_search(senses)  # type: ignore[attr-defined]
-        found = self.matches(
-            anchor,
-            senses=anchor_senses,
-            session=session,
-            after=after,
-            before=before,
-            threshold=threshold,
-            relative=relative,
+        names = None if scope.senses is None else self.memory.resolve_senses(scope.senses)
+        anchor_scope = Scope(
+            session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before
         )
+        found = self.matches(anchor, anchor_scope, match)
         if not found:
             return None
         a = max(found, key=lambda e: (e.score, e.t_aligned, e.id))
@@ -641,9 +270,9 @@ class TemporalMixin:
             lo, hi = a.t_aligned - window, a.t_aligned
         else:
             lo, hi = a.t_end_aligned, a.t_end_aligned + window
-        offsets = self._offsets()
-        pad = self._pad(offsets, a.session)
-        where = Where().session(a.session).t_range(lo - pad, None).source(source)
+        offsets = self.offsets()
+        pad = _pad(offsets, a.session)
+        where = Where().session(a.session).t_range(lo - pad, None).source(scope.source)
         where.parts.append(f"t <= {float(hi + pad)!r}")
         if names is not None:
             where.senses(names)
@@ -657,9 +286,7 @@ class TemporalMixin:
         return Context(side=side, window=window, anchor=a, t_from=lo, t_to=hi, items=items)
 
     # ----------------------------------------------------------- timeline
-    def _items(
-        self, where: Where, offsets: Mapping[tuple[str, str, str], float]
-    ) -> list[TimelineItem]:
+    def _items(self, where: Where, offsets: Offsets) -> list[TimelineItem]:
         rows = self.store.scan(where.sql(), HIT_COLUMNS, limit=TIMELINE_MAX + 1).to_pylist()
         if len(rows) > TIMELINE_MAX:
             raise InvalidInputError(
@@ -675,44 +302,27 @@ class TemporalMixin:
         return items
 
     def timeline(
-        self,
-        session: str,
-        senses: Sequence[str] | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        episodes: bool = False,
-        *,
-        source: str | None = None,
-        limit: int | None = None,
+        self, scope: Scope, episodes: bool = False, limit: int | None = None
     ) -> list[TimelineItem] | list[Episode]:
-        """The session's items (or, with ``episodes=True``, its episodes) in aligned time order.
-
-        ``after``/``before`` use overlap semantics on the aligned clock; ``limit`` keeps the
-        first items. Episodes: the session is segmented first if any of its items has no
-        episode id yet (see :meth:`segment_episodes`). Raises NotFoundError for an unknown
-        session.
-        """
-        session = validate_id(session, "session id")
+        """The scope's session's items (or, with ``episodes=True``, its episodes) in aligned
+        time order; ``limit`` keeps the first. Raises NotFoundError for an unknown session."""
+        session = validate_id(scope.session, "session id")
         if limit is not None and (
             isinstance(limit, bool) or not isinstance(limit, int) or limit < 1
         ):
             raise InvalidInputError(f"limit must be a positive int, got {limit!r}")
-        names = None if senses is None else self._senses_to_search(senses)  # type: ignore[attr-defined]
-        offsets = self._offsets()
+        names = None if scope.senses is None else self.memory.resolve_senses(scope.senses)
+        offsets = self.offsets()
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
         if episodes:
-            eps = self.episodes(session, senses=names, source=source)
-            eps = [
-                e
-                for e in eps
-                if (after is None or e.t_end_aligned >= after)
-                and (before is None or e.t_aligned <= before)
-            ]
+            eps = self.episodes(session, senses=names, source=scope.source)
+            eps = [e for e in eps if _overlaps(e, scope.after, scope.before)]
             return eps[:limit] if limit else eps
-        where = self._where(offsets, session=session, after=after, before=before, source=source)
+        where = scope.where(_pad(offsets, session))
         if names is not None:
             where.senses(names)
+        after, before = scope.bounds()
         items = [it for it in self._items(where, offsets) if _overlaps(it, after, before)]
         return items[:limit] if limit else items
 
@@ -731,11 +341,9 @@ class TemporalMixin:
         Rule: :func:`tactus_memory.episodes.segment`. Episode ids are unique within a session,
         numbered 0, 1, ... by (first item's time, sense, source); re-running is idempotent.
         """
-        import pyarrow as pa
-
         check_rule(min_cos, mean_cos, max_gap)
         if session is None:
-            sessions = [s.id for s in self.sessions()]  # type: ignore[attr-defined]
+            sessions = self.memory.session_ids()
         else:
             sessions = [validate_id(session, "session id")]
         total = 0
@@ -747,12 +355,11 @@ class TemporalMixin:
                     raise NotFoundError(f"no session {sid!r}")
                 continue
             ids = tbl.column("id").to_pylist()
-            streams = _streams(tbl)
             firsts: list[tuple[float, str, str, int, np.ndarray]] = []
-            vecs = _vectors(tbl, self.space.dim)
+            vecs = _vectors(tbl, self.memory.space.dim)
             t = tbl.column("t").to_numpy()
             t_end = tbl.column("t_end").to_numpy()
-            for (sense, source), idx in sorted(streams.items()):
+            for (sense, source), idx in sorted(_streams(tbl).items()):
                 labels = segment(
                     t[idx], t_end[idx], vecs[idx], min_cos=min_cos, mean_cos=mean_cos,
                     max_gap=max_gap,
@@ -764,22 +371,13 @@ class TemporalMixin:
             episode = np.zeros(len(ids), dtype=np.int64)
             for number, (*_, members) in enumerate(firsts):
                 episode[members] = number
-            data = pa.table({"id": ids, "episode": pa.array(episode, pa.int64())})
-            with self._lock:
-                (
-                    self.store.items.merge_insert("id")
-                    .when_matched_update_all()
-                    .execute(data)
-                )  # fmt: skip
+            with self.memory.lock:
+                self.store.set_episodes(ids, episode)
             total += len(firsts)
         return total
 
     def episodes(
-        self,
-        session: str,
-        *,
-        senses: Sequence[str] | None = None,
-        source: str | None = None,
+        self, session: str, *, senses: Sequence[str] | None = None, source: str | None = None
     ) -> list[Episode]:
         """The session's episodes in aligned time order (segmenting it first if needed)."""
         session = validate_id(session, "session id")
@@ -790,16 +388,15 @@ class TemporalMixin:
         unsegmented.parts.append("episode IS NULL")
         if self.store.count(unsegmented.sql()) > 0:
             self.segment_episodes(session)
-        names = None if senses is None else self._senses_to_search(senses)  # type: ignore[attr-defined]
-        if names is not None:
-            where.senses(names)
+        if senses is not None:
+            where.senses(self.memory.resolve_senses(senses))
         where.source(source)
         cols = ["id", "sense", "source", "t", "t_end", "episode", "vector"]
         tbl = self.store.scan(where.sql(), cols)
-        offsets = self._offsets()
+        offsets = self.offsets()
         if tbl.num_rows == 0:
             return []
-        vecs = _vectors(tbl, self.space.dim)
+        vecs = _vectors(tbl, self.memory.space.dim)
         ids = tbl.column("id").to_pylist()
         senses_col = tbl.column("sense").to_pylist()
         sources = [s or "" for s in tbl.column("source").to_pylist()]
@@ -831,55 +428,28 @@ class TemporalMixin:
         return out
 
     # ----------------------------------------------------------- moments
-    def search_moments(
+    def moments(
         self,
-        query: str,
-        k: int = 10,
-        *,
-        senses: Sequence[str] | None = None,
-        session: str | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        source: str | None = None,
+        q: np.ndarray,
+        k: int,
+        scope: Scope,
+        match: Match,
         gap: float = DEFAULT_MOMENT_GAP,
-        threshold: float | Mapping[str, float] | None = None,
-        relative: float = RELATIVE_KEEP,
     ) -> list[Moment]:
-        """Search, then group hits of one session whose aligned spans overlap or lie within
-        ``gap`` seconds into moments carrying every sense's evidence; best ``k`` moments.
+        """Search with the (1, D) query embedding ``q``, then group hits of one session whose
+        aligned spans overlap or lie within ``gap`` seconds into moments carrying every
+        sense's evidence; best ``k`` moments.
 
         Candidates: the top max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN) per sense that score
         at least MOMENT_MIN_Z (above the sense's null mean). Score: see :class:`Moment`.
         """
-        from tactus_memory.memory import MAX_K, _check_k
-
-        k = _check_k(k)
+        k = check_k(k)
         gap = check_seconds(gap, "gap")
         pool = min(MAX_K, max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN))
-        ev, _ = self._evidence(
-            query,
-            senses=senses,
-            session=session,
-            after=after,
-            before=before,
-            source=source,
-            threshold=threshold,
-            relative=relative,
-            per_sense=pool,
-        )
+        ev, _ = self.evidence(q, scope, match, pool)
         moments = group_moments([e for e in ev if e.match or e.score >= MOMENT_MIN_Z], gap)
         moments.sort(key=lambda m: (-m.score, m.t, m.session))
         return moments[:k]
-
-    def search_grouped(
-        self, query: str, k: int = 10, *, group: str, gap: float | None = None, **filters: Any
-    ) -> list[Moment]:
-        """``Memory.search(..., group="moment", gap=...)`` lands here."""
-        if group != "moment":
-            raise InvalidInputError(f"unknown group {group!r}; use group='moment'")
-        return self.search_moments(
-            query, k, gap=DEFAULT_MOMENT_GAP if gap is None else gap, **filters
-        )
 
 
 def _streams(tbl: Any) -> dict[tuple[str, str], np.ndarray]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import time
 from collections.abc import Callable
@@ -31,3 +32,14 @@ def wait_healthy(
         time.sleep(0.3)
     stop()
     pytest.fail(f"server did not start in {startup_s}s:\n{tail()}")
+
+
+def stop_process(proc: subprocess.Popen, wait_s: float = 20) -> None:
+    """SIGTERM, wait ``wait_s``, then SIGKILL (and reap) if the server is still there."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)

@@ -345,7 +345,7 @@ def test_ablation_runs_seeds_and_aggregates(tmp_path: Path):
 
 
 def test_leakage_check_flags_trained_on_recordings():
-    from tactus_memory.touch.evaluate import leakage_check
+    from tactus_memory.touch.eval_runs import leakage_check
 
     es = _evalset([4, 4, 4], [0, 1, 2])
     es.fingerprint = "fp"

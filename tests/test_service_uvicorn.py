@@ -16,7 +16,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.servers import wait_healthy
+from tests.servers import stop_process, wait_healthy
 from tests.test_service_helpers import window
 
 pytestmark = pytest.mark.slow
@@ -58,12 +58,7 @@ class Server:
             self.proc.wait(10)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.kill()
+        stop_process(self.proc)
 
 
 @pytest.fixture

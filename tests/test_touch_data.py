@@ -336,7 +336,7 @@ def test_taxel_mask_from_data_and_report(tmp_path: Path) -> None:
 
 
 def test_report_histograms_match_direct_numpy(tmp_path: Path, monkeypatch) -> None:
-    import tactus_memory.touch.data as data_mod
+    import tactus_memory.touch.profile as data_mod
 
     d = load_stag(write_v5(tmp_path / "c.mat", make_fields(seed=2)))
     mask = taxel_mask_from_spec()

@@ -15,8 +15,9 @@ from typing import Annotated
 from fastapi import APIRouter, File, Form, UploadFile
 
 from tactus_memory.errors import CapabilityError, InvalidInputError
+from tactus_memory.limits import ID_PATTERN
 from tactus_memory.service.arrays import loads_strict
-from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId, WriterDep
+from tactus_memory.service.deps import MemoryDep, SessionId, WriterDep
 from tactus_memory.service.images import decode_image
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn

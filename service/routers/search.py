@@ -7,15 +7,14 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
 
+from tactus_memory.limits import MAX_K
+from tactus_memory.query import Scope
 from tactus_memory.service.arrays import as_window
-from tactus_memory.service.deps import ID_PATTERN, MemoryDep
+from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep
 from tactus_memory.service.problems import problem_responses
-from tactus_memory.service.schemas import SENSE_PATTERN, HitOut, SearchLikeIn, SearchOut
-from tactus_memory.service.touch_items import touch_item
+from tactus_memory.service.schemas import HitOut, SearchLikeIn, SearchOut
 
 router = APIRouter(prefix="/search", tags=["search"])
-
-K_MAX = 1000
 
 
 def _timing(response: Response, t0: float) -> None:
@@ -43,26 +42,9 @@ def _out(hits: list) -> SearchOut:
 def search(
     memory: MemoryDep,
     response: Response,
-    q: Annotated[
-        str,
-        Query(
-            min_length=1,
-            max_length=8192,
-            description="The query in words.",
-            examples=["holding a warm mug"],
-        ),
-    ],
-    k: Annotated[int, Query(ge=1, le=K_MAX, description="How many hits.")] = 10,
-    sense: Annotated[
-        list[str] | None,
-        Query(
-            description="Restrict to these senses (repeat the parameter).",
-            json_schema_extra={"items": {"type": "string", "pattern": SENSE_PATTERN}},
-        ),
-    ] = None,
-    session: Annotated[str | None, Query(pattern=ID_PATTERN, max_length=128)] = None,
-    after: Annotated[float | None, Query(description="Items still going on at or after.")] = None,
-    before: Annotated[float | None, Query(description="Items started at or before.")] = None,
+    q: QueryText,
+    scope: ScopeDep,
+    k: Annotated[int, Query(ge=1, le=MAX_K, description="How many hits.")] = 10,
     group: Annotated[
         Literal["moment"] | None,
         Query(description="`moment`: merge hits close in time into moments across senses."),
@@ -73,15 +55,14 @@ def search(
     ] = None,
 ) -> SearchOut:
     t0 = time.perf_counter()
-    filters = {"senses": sense, "session": session, "after": after, "before": before}
     if group == "moment":
-        moments = memory.search(q, k=k, group="moment", gap=gap, **filters)
+        moments = memory.search(q, k=k, group="moment", gap=gap, scope=scope)
         _timing(response, t0)
         best = [next(h for h in m.hits if h.id == m.best) for m in moments]
         return SearchOut(
             hits=[HitOut.model_validate(h, from_attributes=True) for h in best], moments=moments
         )
-    hits = memory.search(q, k=k, **filters)
+    hits = memory.search(q, k=k, scope=scope)
     _timing(response, t0)
     return _out(hits)
 
@@ -99,18 +80,14 @@ def search(
 )
 def search_like(body: SearchLikeIn, memory: MemoryDep, response: Response) -> SearchOut:
     t0 = time.perf_counter()
-    filters = {
-        "senses": body.senses,
-        "session": body.session,
-        "after": body.after,
-        "before": body.before,
-    }
+    scope = Scope(body.session, body.senses, body.source, body.after, body.before)
     if body.frames is not None:
-        example = touch_item(memory, body.sense, as_window(body.frames), body.calibrated)
-        hits = memory.search_like(body.sense, example, k=body.k, **filters)
+        window = as_window(body.frames)
+        opts = {"calibrated": body.calibrated}
+        hits = memory.search_like(body.sense, window, k=body.k, options=opts, scope=scope)
     elif body.vector is not None:
-        hits = memory.search_like(body.sense, k=body.k, vector=body.vector, **filters)
+        hits = memory.search_like(body.sense, k=body.k, vector=body.vector, scope=scope)
     else:
-        hits = memory.search_like(body.sense, body.text, k=body.k, **filters)
+        hits = memory.search_like(body.sense, body.text, k=body.k, scope=scope)
     _timing(response, t0)
     return _out(hits)

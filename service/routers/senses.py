@@ -36,13 +36,7 @@ def list_senses(memory: MemoryDep) -> SensesOut:
     responses=problem_responses(409, 422),
 )
 def add_sense(body: SenseIn, memory: MemoryDep) -> SenseOut:
-    sense = VectorSense(
-        body.name,
-        body.dim,
-        space=body.space,
-        encoder=body.encoder,
-        version=body.version,
-        checkpoint_sha256=body.checkpoint_sha256,
-    )
+    described = body.model_dump(include={"space", "encoder", "version", "checkpoint_sha256"})
+    sense = VectorSense(body.name, body.dim, **described)
     memory.add_sense(sense)
     return next(s for s in _senses(memory) if s.name == body.name)

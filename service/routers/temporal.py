@@ -2,51 +2,46 @@
 per-stream clock offsets (``tactus_memory.temporal``).
 
 "A match" is a calibrated score over a per-sense threshold and close to the best of its sense
-(see the library docstring); ``threshold`` here sets one bar for every sense searched.
+(see ``tactus_memory.matching``); ``threshold`` here sets one bar for every sense searched.
+Every route takes the one scope dependency (``deps.ScopeDep``) and the match bar
+(``MatchDep``), and hands both to the library as they are.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
-from pydantic import BaseModel, ConfigDict, Field
 
-from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
-from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId
+from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
+from tactus_memory.matching import Match
+from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId, StreamScopeDep
 from tactus_memory.service.problems import problem_responses
-from tactus_memory.service.schemas import SENSE_PATTERN, Strict
+from tactus_memory.service.schemas import (
+    ClockIn,
+    ClockOut,
+    ContextOut,
+    MomentOut,
+    MomentsOut,
+    SegmentIn,
+    SegmentOut,
+    TimelineOut,
+)
 from tactus_memory.temporal import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
     RELATIVE_KEEP,
-    ClockOffset,
-    Evidence,
-    Moment,
     Occurrences,
-    TimelineItem,
+    Side,
 )
 
-router = APIRouter(tags=["temporal"])
-
-K_MAX = 1000
 ERRORS = problem_responses(404, 422)
+#: every temporal route answers 404 (unknown session/sense) and 422 (bad input) problems
+router = APIRouter(tags=["temporal"], responses=ERRORS)
 
-Query_ = Annotated[str, Query(min_length=1, max_length=8192, description="The query in words.")]
-Senses = Annotated[
-    list[str] | None,
-    Query(
-        description="Restrict to these senses (repeat the parameter).",
-        json_schema_extra={"items": {"type": "string", "pattern": SENSE_PATTERN}},
-    ),
-]
-SessionQ = Annotated[str | None, Query(pattern=ID_PATTERN, max_length=128)]
-SourceQ = Annotated[
-    str | None, Query(max_length=128, description="Only this stream (source id; '' for none).")
-]
-After = Annotated[float | None, Query(description="Items still going on at or after (aligned).")]
-Before = Annotated[float | None, Query(description="Items started at or before (aligned).")]
 Threshold = Annotated[
     float | None,
     Query(description="Match bar on the calibrated score for every sense (default per sense)."),
@@ -59,88 +54,40 @@ MergeGap = Annotated[
 ]
 
 
-class MomentOut(BaseModel):
-    """The occurrence found, or null when nothing matches."""
-
-    moment: Moment | None
-
-
-class MomentsOut(BaseModel):
-    moments: list[Moment]
+def match_bar(threshold: Threshold = None, relative: Relative = RELATIVE_KEEP) -> Match:
+    """The match bar's query parameters -> :class:`~tactus_memory.matching.Match`."""
+    return Match(threshold=threshold, relative=relative)
 
 
-class ContextOut(BaseModel):
-    """What happened before/after the anchor; ``anchor`` null when nothing matches it."""
-
-    side: str
-    window: float
-    anchor: Evidence | None = None
-    t_from: float | None = None
-    t_to: float | None = None
-    items: list[TimelineItem] = Field(default_factory=list)
+MatchDep = Annotated[Match, Depends(match_bar)]
 
 
-class TimelineOut(BaseModel):
-    session: str
-    items: list[TimelineItem] | None = None
-    episodes: list[Episode] | None = None
+@dataclass
+class Asked:
+    """What every temporal question is asked with: the memory, the scope, the match bar."""
+
+    memory: MemoryDep
+    scope: ScopeDep
+    match: MatchDep
 
 
-class ClockIn(Strict):
-    model_config = ConfigDict(
-        json_schema_extra={"examples": [{"sense": "touch", "source": "glove-l", "offset": 2.5}]},
-    )
-
-    sense: str = Field(pattern=SENSE_PATTERN)
-    source: str = Field("", max_length=128, description="Stream id ('' for none).")
-    offset: float = Field(
-        description="Seconds added to the stream's t to put it on the session clock (0 clears)."
-    )
+AskedDep = Annotated[Asked, Depends()]
 
 
-class ClockOut(BaseModel):
-    offsets: list[ClockOffset]
+@dataclass
+class Occurrence:
+    """An occurrence question (/last, /first, /count) as one dependency."""
+
+    asked: AskedDep
+    q: QueryText
+    merge_gap: MergeGap = DEFAULT_MERGE_GAP
+
+    def ask(self, per_stream: bool = False) -> Occurrences:
+        a = self.asked
+        return a.memory.temporal.occurrences(self.q, a.scope, a.match, self.merge_gap, per_stream)
 
 
-class SegmentIn(Strict):
-    min_cos: float = Field(EPISODE_MIN_COS, ge=-1.0, le=1.0)
-    mean_cos: float = Field(EPISODE_MEAN_COS, ge=-1.0, le=1.0)
-    max_gap: float = Field(EPISODE_MAX_GAP, ge=0.0)
-
-
-class SegmentOut(BaseModel):
-    session: str
-    episodes: int = Field(description="Episodes written.")
-
-
-class MatchFilters:
-    """The query parameters every temporal question shares (one dependency, one place)."""
-
-    def __init__(
-        self,
-        sense: Senses = None,
-        session: SessionQ = None,
-        source: SourceQ = None,
-        after: After = None,
-        before: Before = None,
-        threshold: Threshold = None,
-        relative: Relative = RELATIVE_KEEP,
-    ) -> None:
-        self.scope = {
-            "senses": sense,
-            "session": session,
-            "source": source,
-            "after": after,
-            "before": before,
-        }
-        self.match = {"threshold": threshold, "relative": relative}
-
-    def kw(self) -> dict[str, Any]:
-        """Keyword arguments for the library call: scope filters and the match bar."""
-        return {**self.scope, **self.match}
-
-
-Filters = Annotated[MatchFilters, Depends()]
+OccurrenceDep = Annotated[Occurrence, Depends()]
 
 
 @router.get(
@@ -149,24 +96,20 @@ Filters = Annotated[MatchFilters, Depends()]
     description="Matching items (per-sense calibrated threshold), merged into occurrences; the "
     "one that started last. `moment` is null when nothing matches.",
     response_model=MomentOut,
-    responses=ERRORS,
 )
-def last(
-    memory: MemoryDep, q: Query_, f: Filters, merge_gap: MergeGap = DEFAULT_MERGE_GAP
-) -> MomentOut:
-    return MomentOut(moment=memory.last(q, merge_gap=merge_gap, **f.kw()))
+def last(question: OccurrenceDep) -> MomentOut:
+    moments = question.ask().moments
+    return MomentOut(moment=moments[-1] if moments else None)
 
 
 @router.get(
     "/first",
     summary="The earliest occurrence of something",
     response_model=MomentOut,
-    responses=ERRORS,
 )
-def first(
-    memory: MemoryDep, q: Query_, f: Filters, merge_gap: MergeGap = DEFAULT_MERGE_GAP
-) -> MomentOut:
-    return MomentOut(moment=memory.first(q, merge_gap=merge_gap, **f.kw()))
+def first(question: OccurrenceDep) -> MomentOut:
+    moments = question.ask().moments
+    return MomentOut(moment=moments[0] if moments else None)
 
 
 @router.get(
@@ -175,75 +118,73 @@ def first(
     description="Matching items within `merge_gap` seconds of each other (same session) are "
     "one occurrence. `capped` is true when the count is a lower bound.",
     response_model=Occurrences,
-    responses=ERRORS,
 )
 def count(
-    memory: MemoryDep,
-    q: Query_,
-    f: Filters,
-    merge_gap: MergeGap = DEFAULT_MERGE_GAP,
+    question: OccurrenceDep,
     per_stream: Annotated[
         bool, Query(description="Merge only within one stream (session + sense + source).")
     ] = False,
 ) -> Occurrences:
-    return memory.occurrences(q, merge_gap=merge_gap, per_stream=per_stream, **f.kw())
-
-
-def _context(side: str, window: float, ctx: Any) -> ContextOut:
-    if ctx is None:
-        return ContextOut(side=side, window=window)
-    return ContextOut.model_validate(ctx.model_dump())
+    return question.ask(per_stream)
 
 
 Anchor = Annotated[
-    str, Query(min_length=1, max_length=8192, description="What the window is relative to.")
+    str,
+    Query(min_length=1, max_length=MAX_TEXT_CHARS, description="What the window is relative to."),
 ]
 Window = Annotated[float, Query(ge=0.0, le=1e9, description="Seconds before/after the anchor.")]
 AnchorSenses = Annotated[
     list[str] | None,
     Query(
         description="Search the anchor in these senses (repeat).",
-        json_schema_extra={"items": {"type": "string", "pattern": SENSE_PATTERN}},
+        json_schema_extra={"items": {"type": "string", "pattern": SENSE_NAME_PATTERN}},
     ),
 ]
 
 
-@router.get(
-    "/before",
-    summary="What happened before something",
-    description="The best match of `anchor`, then every item of its session (of `sense`) that "
-    "starts in the `window` seconds before it (aligned clock).",
-    response_model=ContextOut,
-    responses=ERRORS,
-)
-def before_anchor(
-    memory: MemoryDep,
-    anchor: Anchor,
-    f: Filters,
-    window: Window = DEFAULT_WINDOW,
-    anchor_sense: AnchorSenses = None,
-) -> ContextOut:
-    ctx = memory.before(anchor, window, anchor_senses=anchor_sense, **f.kw())
-    return _context("before", window, ctx)
+@dataclass
+class Around:
+    """A /before or /after question as one dependency."""
+
+    asked: AskedDep
+    anchor: Anchor
+    window: Window = DEFAULT_WINDOW
+    anchor_sense: AnchorSenses = None
+
+    def ask(self, side: Side) -> ContextOut:
+        a = self.asked
+        ctx = a.memory.temporal.around(
+            side, self.anchor, self.window, a.scope, a.match, self.anchor_sense
+        )
+        if ctx is None:
+            return ContextOut(side=side, window=self.window)
+        return ContextOut.model_validate(ctx.model_dump())
 
 
-@router.get(
-    "/after",
-    summary="What happened after something",
-    description="The best match of `anchor`, then every item of its session (of `sense`) that "
-    "starts in the `window` seconds after it ends (aligned clock).",
-    response_model=ContextOut,
-    responses=ERRORS,
-)
-def after_anchor(
-    memory: MemoryDep,
-    anchor: Anchor,
-    f: Filters,
-    window: Window = DEFAULT_WINDOW,
-    anchor_sense: AnchorSenses = None,
-) -> ContextOut:
-    ctx = memory.after(anchor, window, anchor_senses=anchor_sense, **f.kw())
-    return _context("after", window, ctx)
+AroundDep = Annotated[Around, Depends()]
+
+
+def _around_route(side: Side) -> Callable[[Around], ContextOut]:
+    def route(question: AroundDep) -> ContextOut:
+        return question.ask(side)
+
+    route.__name__ = f"{side}_anchor"
+    return route
+
+
+#: /before and /after: one route each, the same parameters, the window on either side
+AROUND_ROUTES = {
+    "before": "starts in the `window` seconds before it (aligned clock).",
+    "after": "starts in the `window` seconds after it ends (aligned clock).",
+}
+for _side, _window_doc in AROUND_ROUTES.items():
+    router.get(
+        f"/{_side}",
+        summary=f"What happened {_side} something",
+        description="The best match of `anchor`, then every item of its session (of `sense`) "
+        "that " + _window_doc,
+        response_model=ContextOut,
+    )(_around_route(_side))
 
 
 @router.get(
@@ -253,16 +194,18 @@ def after_anchor(
     "clocks) form one moment; score = best member + a bonus per other matching sense. The "
     "same as `memory.search(q, group='moment')`.",
     response_model=MomentsOut,
-    responses=ERRORS,
 )
 def moments(
     memory: MemoryDep,
-    q: Query_,
-    f: Filters,
-    k: Annotated[int, Query(ge=1, le=K_MAX, description="How many moments.")] = 10,
+    q: QueryText,
+    scope: ScopeDep,
+    match: MatchDep,
+    k: Annotated[int, Query(ge=1, le=MAX_K, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
 ) -> MomentsOut:
-    return MomentsOut(moments=memory.search_moments(q, k, gap=gap, **f.kw()))
+    bar = {"threshold": match.threshold, "relative": match.relative}
+    moments = memory.search_moments(q, k, gap=gap, scope=scope, **bar)
+    return MomentsOut(moments=moments)
 
 
 @router.get(
@@ -271,21 +214,15 @@ def moments(
     description="Items (or, with `episodes=true`, episodes: stretches of one stream whose "
     "embeddings stay coherent) in aligned time order. Times filter by overlap.",
     response_model=TimelineOut,
-    responses=ERRORS,
 )
 def timeline(
     session: SessionId,
     memory: MemoryDep,
-    sense: Senses = None,
-    source: SourceQ = None,
-    after: After = None,
-    before: Before = None,
+    scope: StreamScopeDep,
     episodes: bool = False,
     limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
 ) -> TimelineOut:
-    out = memory.timeline(
-        session, sense, after, before, episodes, source=source, limit=limit
-    )  # fmt: skip
+    out = memory.temporal.timeline(replace(scope, session=session), episodes, limit)
     if episodes:
         return TimelineOut(session=session, episodes=out)
     return TimelineOut(session=session, items=out)
@@ -295,7 +232,6 @@ def timeline(
     "/sessions/{session}/episodes",
     summary="Segment a session's streams into episodes (stored)",
     response_model=SegmentOut,
-    responses=ERRORS,
 )
 def segment_episodes(
     session: SessionId, memory: MemoryDep, body: SegmentIn | None = None
@@ -311,7 +247,6 @@ def segment_episodes(
     "/sessions/{session}/clock",
     summary="The session's clock offsets",
     response_model=ClockOut,
-    responses=ERRORS,
 )
 def get_clock(session: SessionId, memory: MemoryDep) -> ClockOut:
     return ClockOut(offsets=memory.clock_offsets(session))
@@ -321,7 +256,6 @@ def get_clock(session: SessionId, memory: MemoryDep) -> ClockOut:
     "/sessions/{session}/clock",
     summary="Set a stream's clock offset (t_aligned = t + offset)",
     response_model=ClockOut,
-    responses=ERRORS,
 )
 def put_clock(session: SessionId, body: ClockIn, memory: MemoryDep) -> ClockOut:
     memory.set_clock_offset(session, body.sense, body.offset, source=body.source)

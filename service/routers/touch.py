@@ -7,6 +7,7 @@ calibrated to 0-1. Write path: see ``routers/items.py`` (threadpool, one commit,
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import numpy as np
@@ -15,11 +16,11 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.memory import Memory
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
 from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable, WriterDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
-from tactus_memory.service.touch_items import touch_item
 
 router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
 
@@ -34,10 +35,7 @@ REQUEST_BODY: dict[str, Any] = {
     "content": {
         "application/json": {
             "schema": {
-                "oneOf": [
-                    TouchWindowIn.model_json_schema(),
-                    TouchBatchIn.model_json_schema(),
-                ]
+                "oneOf": [TouchWindowIn.model_json_schema(), TouchBatchIn.model_json_schema()]
             }
         },
         "application/x-npy": {"schema": {"type": "string", "format": "binary"}},
@@ -54,7 +52,7 @@ def _validate(model: type, obj: Any) -> Any:
 
 
 def _store(
-    memory: Any,
+    memory: Memory,
     session: str,
     windows: list[np.ndarray],
     t: list[float],
@@ -63,8 +61,63 @@ def _store(
     ids: list[str] | None,
     calibrated: bool,
 ) -> list[str]:
-    items = [touch_item(memory, "touch", w, calibrated) for w in windows]
-    return memory.add_many(session, "touch", items, t=t, t_end=t_end, meta=meta, ids=ids)
+    # the edge checked the shape; the touch sense checks range and calibration, once
+    return memory.add_many(
+        session,
+        "touch",
+        windows,
+        t=t,
+        t_end=t_end,
+        meta=meta,
+        ids=ids,
+        options={"calibrated": calibrated},
+    )
+
+
+@dataclass
+class _Upload:
+    """One touch POST, whatever its form: windows (the edge checked their shape) and their
+    times, meta, ids and the calibrated flag."""
+
+    windows: list[np.ndarray]
+    t: list[float] | None
+    t_end: list[float] | None
+    meta: Any
+    ids: list[str] | None
+    calibrated: bool
+
+
+def _upload(
+    ctype: str,
+    raw: bytes,
+    t: list[float] | None,
+    t_end: list[float] | None,
+    calibrated: bool,
+) -> _Upload:
+    if ctype in NPY_TYPES:
+        arr = load_npy(raw, "npy body")
+        if arr.ndim == 3:
+            arr = arr[None]
+        windows = list(as_windows(arr, "npy body"))
+        if not t:
+            raise InvalidInputError("query parameter 't' is required with an npy body")
+        return _Upload(windows, t, t_end, None, None, calibrated)
+    if ctype not in ("application/json", "") and not ctype.endswith("+json"):
+        raise HTTPException(
+            415, f"unsupported content type {ctype!r}: use application/json or application/x-npy"
+        )
+    obj = loads_strict(raw)
+    if not isinstance(obj, dict):
+        raise InvalidInputError("body must be a JSON object with 'frames' or 'windows'")
+    if "windows" in obj:
+        batch: TouchBatchIn = _validate(TouchBatchIn, obj)
+        windows = list(as_windows(batch.windows, "windows"))
+        return _Upload(windows, batch.t, batch.t_end, batch.meta, batch.ids, batch.calibrated)
+    one: TouchWindowIn = _validate(TouchWindowIn, obj)
+    window = as_window(one.frames, "frames")
+    t_end_one = None if one.t_end is None else [one.t_end]
+    ids = None if one.id is None else [one.id]
+    return _Upload([window], [one.t], t_end_one, one.meta, ids, one.calibrated)
 
 
 def _times(values: list[float] | None, n: int, what: str) -> list[float] | None:
@@ -100,60 +153,10 @@ async def add_touch(
 ) -> StoredOut:
     ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
     raw = await request.body()
-    if ctype in NPY_TYPES:
-        arr = load_npy(raw, "npy body")
-        if arr.ndim == 3:
-            arr = arr[None]
-        windows = list(as_windows(arr, "npy body"))
-        if not t:
-            raise InvalidInputError("query parameter 't' is required with an npy body")
-        n = len(windows)
-        ids = await writer.run(
-            _store,
-            memory,
-            session,
-            windows,
-            _times(t, n, "t"),
-            _times(t_end, n, "t_end"),
-            None,
-            None,
-            calibrated,
-        )
-        return StoredOut(ids=ids, count=len(ids))
-    if ctype not in ("application/json", "") and not ctype.endswith("+json"):
-        raise HTTPException(
-            415, f"unsupported content type {ctype!r}: use application/json or application/x-npy"
-        )
-    obj = loads_strict(raw)
-    if not isinstance(obj, dict):
-        raise InvalidInputError("body must be a JSON object with 'frames' or 'windows'")
-    if "windows" in obj:
-        batch: TouchBatchIn = _validate(TouchBatchIn, obj)
-        windows = list(as_windows(batch.windows, "windows"))
-        n = len(windows)
-        ids = await writer.run(
-            _store,
-            memory,
-            session,
-            windows,
-            _times(batch.t, n, "t"),
-            _times(batch.t_end, n, "t_end"),
-            batch.meta,
-            batch.ids,
-            batch.calibrated,
-        )
-    else:
-        one: TouchWindowIn = _validate(TouchWindowIn, obj)
-        window = as_window(one.frames, "frames")
-        ids = await writer.run(
-            _store,
-            memory,
-            session,
-            [window],
-            [one.t],
-            None if one.t_end is None else [one.t_end],
-            one.meta,
-            None if one.id is None else [one.id],
-            one.calibrated,
-        )
+    up = _upload(ctype, raw, t, t_end, calibrated)
+    n = len(up.windows)
+    times = (_times(up.t, n, "t"), _times(up.t_end, n, "t_end"))
+    ids = await writer.run(
+        _store, memory, session, up.windows, *times, up.meta, up.ids, up.calibrated
+    )
     return StoredOut(ids=ids, count=len(ids))

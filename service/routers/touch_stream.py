@@ -42,7 +42,6 @@ from tactus_memory.errors import InvalidInputError, TactusError
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
-from tactus_memory.service.touch_items import touch_item
 from tactus_memory.touch.windows import WindowStream
 
 log = logging.getLogger("tactus_memory.service")
@@ -238,7 +237,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
                 done = windower.push(frame, [t])
                 for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
                     try:  # the sense's own checks (range, calibration), before queueing
-                        item = touch_item(memory, "touch", win, params.calibrated)
+                        item = memory.validate_item("touch", win, {"calibrated": params.calibrated})
                     except TactusError as exc:
                         await send(
                             {"type": "error", "error": problem_for_exception(exc), "windows": [seq]}

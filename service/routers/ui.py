@@ -21,11 +21,12 @@ from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS
 from tactus_memory.service.arrays import as_window
-from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN, MemoryDep
+from tactus_memory.service.deps import MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
-from tactus_memory.touch.data import STAG_GLOVE, SensorProfile
+from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png, window_values
 
 STATIC = FsPath(__file__).resolve().parent.parent / "static"
@@ -157,7 +158,8 @@ def _item_values(
 )
 async def touch_png(
     item_id: Annotated[
-        str, Path(pattern=ID_PATTERN, max_length=128, description="Item id. " + ID_DESCRIPTION)
+        str,
+        Path(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Item id. " + ID_DESCRIPTION),
     ],
     memory: MemoryDep,
     scale: Scale = SCALE,

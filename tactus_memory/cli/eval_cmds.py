@@ -10,6 +10,7 @@ from typing import Any
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.common import DATA_OPTION, set_threads
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail, space_choice
 
 HOLDOUT_HELP = (
@@ -29,119 +30,8 @@ baseline_app = typer.Typer(
 app.add_typer(baseline_app, name="baseline")
 
 
-def _threads(n: int) -> None:
-    import torch
-
-    if n > 0:
-        torch.set_num_threads(n)
-
-
-def load_eval_data(paths: list[Path]) -> tuple[Any, list[dict[str, Any]]]:
-    """Load each file (fingerprinted), combine, run the dynamic-range gate per subset."""
-    from tactus_memory.touch.data import combine, load_stag
-    from tactus_memory.touch.evaluate import file_fingerprint
-
-    parts = [load_stag(p) for p in paths]
-    fps = [file_fingerprint(d, p) for d, p in zip(parts, paths, strict=True)]
-    data = parts[0] if len(parts) == 1 else combine(parts)
-    data.check_dynamic_range()
-    return data, fps
-
-
-def run_eval(
-    checkpoints: list[str],
-    data_paths: list[Path],
-    *,
-    split: str = "test",
-    holdout: str | None = None,
-    votes: int = 4,
-    seed: int | None = None,
-    analysis: bool = True,
-    progress: bool = True,
-    space: Any = None,
-) -> tuple[dict[str, Any], Any, Any]:
-    """Evaluate one or more checkpoints on one scope. Returns (payload, first result, scope).
-
-    One checkpoint: the payload is that run's metrics. Several: ``runs`` (each run's metrics),
-    ``aggregate`` (mean, sample std per metric), and the top-level metric keys hold the means.
-    ``space``: a ``SpaceChoice`` for the analyses' text space (each checkpoint's recorded
-    space, its model folder from ``--space-path``); None: built from the name when possible.
-    """
-    from tactus_memory.touch.evaluate import (
-        EVAL_SEED,
-        SCALAR_METRICS,
-        aggregate_runs,
-        evaluate_checkpoint,
-        resolve_checkpoint,
-        select_eval_frames,
-    )
-
-    data, fps = load_eval_data(data_paths)
-    es = select_eval_frames(data, split, holdout, fingerprints=fps)
-    runs, first = [], None
-    for spec in checkpoints:
-        path = resolve_checkpoint(spec)
-        m, res, _ = evaluate_checkpoint(
-            path,
-            es,
-            votes=votes,
-            seed=EVAL_SEED if seed is None else seed,
-            analysis=analysis,
-            progress=progress,
-            space="auto" if space is None or not analysis else checkpoint_space(path, space),
-        )
-        runs.append(m)
-        first = first or res
-        if m["leakage"]["status"] == "overlap":
-            typer.echo(
-                f"WARNING: {path}: {m['leakage']['trained_on']} of the "
-                f"{m['leakage']['scored_recordings']} scored recordings were in its training "
-                f"data (e.g. {m['leakage']['examples']}); these scores are not held-out",
-                err=True,
-            )
-    if len(runs) == 1:
-        return runs[0], first, es
-    agg = aggregate_runs(runs)
-    shared = (
-        "split",
-        "k",
-        "seed",
-        "votes",
-        "n_tuples",
-        "n_recordings",
-        "n_frames",
-        "chance",
-        "chance_top3",
-        "classes",
-        "data",
-        "model_kind",
-    )
-    payload: dict[str, Any] = {k: runs[0][k] for k in shared}
-    payload.update({k: agg[k]["mean"] for k in SCALAR_METRICS})
-    payload.update({f"{k}_std": agg[k]["std"] for k in SCALAR_METRICS})
-    payload["n_runs"] = len(runs)
-    payload["checkpoint"] = [r["checkpoint"] for r in runs]
-    payload["aggregate"] = agg
-    payload["runs"] = runs
-    return payload, first, es
-
-
-def checkpoint_space(path: Path, choice: Any) -> Any:
-    """The text space a Tactus checkpoint was trained in, built from the space options and
-    checked against the checkpoint's record (name, dim, model fingerprint); one line, exit 2,
-    when it cannot be. Other checkpoints (the baseline) get ``"auto"``."""
-    from tactus_memory.errors import SpaceConfigError
-    from tactus_memory.spaces.resolve import resolve_space
-    from tactus_memory.touch.checkpoint import read_metadata
-
-    try:
-        recorded = read_metadata(path)["space"]
-    except (ValueError, KeyError):
-        return "auto"
-    try:
-        return resolve_space(choice, recorded, owner=f"checkpoint {Path(path).name}")
-    except SpaceConfigError as exc:
-        fail(str(exc))
+def _warn(message: str) -> None:
+    typer.echo(message, err=True)
 
 
 def _write_outputs(
@@ -176,7 +66,7 @@ def eval_cmd(
     checkpoint: list[str] = typer.Option(
         ..., "--checkpoint", help="Tactus or baseline .safetensors, or 'default'; repeat for runs"
     ),
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     split: str = typer.Option("test", "--split", help=SPLIT_HELP),
     holdout: str | None = typer.Option(None, "--holdout", help=HOLDOUT_HELP),
     votes: int = typer.Option(4, "--votes", help="independent tuple draws pooled for *_vote"),
@@ -198,24 +88,29 @@ def eval_cmd(
     logging.basicConfig(level=logging.WARNING)
     if split not in ("test", "all"):
         raise typer.BadParameter("--split must be 'test' or 'all'")
-    _threads(threads)
+    set_threads(threads)
+    from tactus_memory.errors import SpaceConfigError
+    from tactus_memory.touch.eval_runs import run_eval
+
     given = space is not None or space_path is not None or space_dim is not None
-    payload, first, es = run_eval(
-        checkpoint,
-        data,
-        split=split,
-        holdout=holdout,
-        votes=votes,
-        seed=seed,
-        analysis=analysis,
-        space=space_choice(space, space_path, space_dim) if given else None,
-    )
+    scope = {"split": split, "holdout": holdout, "votes": votes, "seed": seed}
+    try:
+        payload, first, es = run_eval(
+            checkpoint,
+            data,
+            analysis=analysis,
+            warn=_warn,
+            space=space_choice(space, space_path, space_dim) if given else None,
+            **scope,
+        )
+    except SpaceConfigError as exc:
+        fail(str(exc))
     _write_outputs(payload, first, es, json_out, report, compare)
 
 
 @baseline_app.command("train")
 def baseline_train_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     out: Path = typer.Option(..., "--out", help="checkpoint to write (.safetensors)"),
     holdout: str = typer.Option("none", "--holdout", help="recordings kept out (train's grammar)"),
     epochs: int = typer.Option(30, "--epochs", help="passes over the training tuples"),
@@ -230,53 +125,14 @@ def baseline_train_cmd(
     """Train the STAG reference CNN on the non-held-out frames; the last epoch is saved (no
     model selection). With --holdout, the held-out recordings are scored afterwards."""
     logging.basicConfig(level=logging.WARNING)
-    _threads(threads)
-    from tactus_memory.touch.baseline import (
-        BaselineConfig,
-        BaselineScorer,
-        baseline_meta,
-        save_baseline,
-        train_baseline,
-    )
-    from tactus_memory.touch.evaluate import evaluate_scorer, select_eval_frames
-    from tactus_memory.touch.train import holdout_recordings, prepare_data
+    set_threads(threads)
+    from tactus_memory.touch.baseline import BaselineConfig
+    from tactus_memory.touch.eval_runs import train_baseline_run
 
-    d, fps = load_eval_data(data)
-    td = prepare_data(d, holdout_recordings(d, holdout))
     cfg = BaselineConfig(
-        epochs=epochs,
-        batch=batch,
-        lr=lr,
-        seed=seed,
-        sampling=sampling,
-        max_steps=max_steps,
-        k=k,
+        epochs=epochs, batch=batch, lr=lr, seed=seed, sampling=sampling, max_steps=max_steps, k=k
     )
-
-    def snapshot(net: Any, summary: dict[str, Any]) -> None:  # latest epoch, never selected
-        meta = baseline_meta(td, cfg, summary, holdout)
-        save_baseline(out, net, dict(meta, data=fps, complete=False))
-
-    net, summary = train_baseline(td, cfg, on_epoch=snapshot)
-    meta = baseline_meta(td, cfg, summary, holdout)
-    meta["data"] = fps
-    meta["complete"] = True
-    if holdout != "none":
-        es = select_eval_frames(d, holdout=holdout, calibrated=td.calibrated, fingerprints=fps)
-        res = evaluate_scorer(BaselineScorer(net, td.classes), es)
-        meta["heldout"] = {
-            k: res.metrics[k]
-            for k in (
-                "n_tuples",
-                "n_recordings",
-                "top1",
-                "top3",
-                "top1_vote",
-                "top3_vote",
-                "recording_top1",
-            )
-        }
-    sha = save_baseline(out, net, meta)
+    sha, meta = train_baseline_run(data, out, holdout, cfg)
     typer.echo(
         json.dumps(
             {
@@ -293,7 +149,7 @@ def baseline_train_cmd(
 @baseline_app.command("eval")
 def baseline_eval_cmd(
     checkpoint: list[str] = typer.Option(..., "--checkpoint", help="baseline .safetensors"),
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     split: str = typer.Option("test", "--split", help=SPLIT_HELP),
     holdout: str | None = typer.Option(None, "--holdout", help=HOLDOUT_HELP),
     votes: int = typer.Option(4, "--votes"),
@@ -305,16 +161,18 @@ def baseline_eval_cmd(
     """Score baseline checkpoints with the same tuples and JSON keys as ``tactus eval``
     (voting and recording level average class probabilities)."""
     logging.basicConfig(level=logging.WARNING)
-    _threads(threads)
+    set_threads(threads)
+    from tactus_memory.touch.eval_runs import run_eval
+
     payload, first, es = run_eval(
-        checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed
+        checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed, warn=_warn
     )
     _write_outputs(payload, first, es, json_out, report, [])
 
 
 @app.command("ablate")
 def ablate_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     json_out: Path = typer.Option(..., "--json", help="write the ablation table JSON here"),
     steps: int = typer.Option(300, "--steps", help="training steps per run"),
     pretrain_steps: int | None = typer.Option(
@@ -339,7 +197,7 @@ def ablate_cmd(
 ) -> None:
     """Recipe ablations: each row changes one thing of the recipe, seeds repeated, mean ± std."""
     logging.basicConfig(level=logging.WARNING)
-    _threads(threads)
+    set_threads(threads)
     from tactus_memory.cli.space_opts import resolve_or_exit
     from tactus_memory.touch.ablate import AblationConfig, format_table, run_ablation
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.common import DATA_OPTION, set_threads
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
 
 HOLDOUT_HELP = (
@@ -18,16 +19,14 @@ HOLDOUT_HELP = (
 )
 
 
-def _threads(n: int) -> None:
-    import torch
-
-    if n > 0:
-        torch.set_num_threads(n)
+def _warmup(steps: int) -> int:
+    """Warm-up steps: 5% of the run, at least 1, at most 150 (the shipped recipe's rule)."""
+    return max(1, min(150, steps // 20))
 
 
 @app.command("pretrain")
 def pretrain_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     out: Path = typer.Option(..., "--out", help="MAE checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="trunk architecture"),
     steps: int = typer.Option(400, "--steps", help="optimizer steps (shipped recipe: 400)"),
@@ -41,22 +40,16 @@ def pretrain_cmd(
 ) -> None:
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    _threads(threads)
-    from tactus_memory.touch.data import STAG_GLOVE
+    set_threads(threads)
     from tactus_memory.touch.pretrain import PretrainConfig, pretrain
+    from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.touch.train import _resolve_device, holdout_recordings, load_data
 
     d = load_data(data)
     d.check_dynamic_range(STAG_GLOVE)  # per source file; raises DynamicRangeError
     excl = holdout_recordings(d, holdout)
-    cfg = PretrainConfig(
-        model=model,
-        steps=steps,
-        batch=batch,
-        lr=lr,
-        seed=seed,
-        warmup=max(1, min(150, steps // 20)),
-    )
+    warmup = _warmup(steps)
+    cfg = PretrainConfig(model=model, steps=steps, batch=batch, lr=lr, seed=seed, warmup=warmup)
     summary = pretrain(
         d.calibrated(STAG_GLOVE),
         d.recording_id,
@@ -74,7 +67,7 @@ def pretrain_cmd(
 
 @app.command("train")
 def train_cmd(
-    data: list[Path] = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat"),
+    data: list[Path] = DATA_OPTION,
     out: Path = typer.Option(..., "--out", help="checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="architecture in configs/"),
     pretrained: Path | None = typer.Option(None, "--pretrained", help="MAE checkpoint"),
@@ -95,7 +88,7 @@ def train_cmd(
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
     space's name, dim and model fingerprint, so it only registers in a memory of that space."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    _threads(threads)
+    set_threads(threads)
     sp = resolve_or_exit(space, space_path, space_dim)
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.touch.train import (
@@ -110,24 +103,12 @@ def train_cmd(
     td = prepare_data(d, holdout_recordings(d, holdout))
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
+    warmup = _warmup(steps)
     cfg = TrainConfig(
-        model=model,
-        steps=steps,
-        batch=batch,
-        lr=lr,
-        seed=seed,
-        half=half,
-        warmup=max(1, min(150, steps // 20)),
+        model=model, steps=steps, batch=batch, lr=lr, seed=seed, half=half, warmup=warmup
     )
     summary = fit(
-        td,
-        targets,
-        cfg,
-        out,
-        space_dim=sp.dim,
-        pretrained=pretrained,
-        device=device,
-        resume=resume,
+        td, targets, cfg, out, space_dim=sp.dim, pretrained=pretrained, device=device, resume=resume
     )
     summary.pop("heldout_per_recording", None)
     typer.echo(json.dumps(summary, indent=2))

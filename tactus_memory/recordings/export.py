@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from pydantic import BaseModel
@@ -27,8 +27,9 @@ from pydantic import BaseModel
 from tactus_memory.senses import bytes_to_array
 from tactus_memory.store import Where, validate_id
 
-if TYPE_CHECKING:
-    from tactus_memory.memory import Memory
+#: a :class:`tactus_memory.memory.Memory`. Not imported, not even for type checking:
+#: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.
+Memory = Any
 
 TIMELINE = "session_time"
 APPLICATION_ID = "tactus-memory"

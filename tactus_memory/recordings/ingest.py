@@ -29,18 +29,19 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pydantic import BaseModel, Field
 
+import tactus_memory.recordings.decode as decode
 from tactus_memory.errors import TactusError, UnknownSenseError
-from tactus_memory.recordings import decode
 from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
 from tactus_memory.store import Where, validate_id
 from tactus_memory.touch.windows import WindowStream
 
-if TYPE_CHECKING:
-    from tactus_memory.memory import Memory
+#: a :class:`tactus_memory.memory.Memory`. Not imported, not even for type checking:
+#: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.
+Memory = Any
 
 #: items per commit (per sense and topic); a crash loses at most this many per topic
 DEFAULT_BATCH = 256

@@ -20,6 +20,7 @@ import hashlib
 import json
 import os
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,19 @@ from tactus_memory.touch.model import TactusConfig, TactusModel
 from tactus_memory.touch.targets import Targets
 
 FORMAT = "tactus-touch/1"
+DEFAULT_CHECKPOINT = "tactus-lite-minilm.safetensors"  # in tactus_memory/touch/checkpoints/
+
+
+def default_checkpoint_path() -> Path:
+    """The shipped default checkpoint (package data)."""
+    ref = resources.files("tactus_memory.touch") / "checkpoints" / DEFAULT_CHECKPOINT
+    path = Path(str(ref))
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"the shipped touch checkpoint {DEFAULT_CHECKPOINT} is missing from {path.parent}; "
+            "train one with `tactus train` and use TactusEncoder.from_pretrained(path)"
+        )
+    return path
 
 
 def file_sha256(path: str | os.PathLike[str]) -> str:

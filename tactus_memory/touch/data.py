@@ -1,4 +1,6 @@
-"""The STAG data path: read ``metadata.mat`` (MATLAB v5 or v7.3), calibrate, check dynamic range.
+"""The STAG dataset: :class:`StagData` built from a ``metadata.mat`` (read by
+:mod:`tactus_memory.touch.stag_io`, calibrated and gated by :mod:`tactus_memory.touch.profile`,
+whose names are re-exported here), masks, and :func:`combine`.
 
 Spec: ``../shared/stag-format.md``. Every subset is calibrated with the sensor's own affine
 ``clip((raw - 500) / 150, 0, 1)`` (the STAG reference code; the paper, Sec. Method "Data path"),
@@ -29,26 +31,25 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
-import scipy.io
 
 from tactus_memory.errors import DataFormatError, DynamicRangeError, InvalidInputError
 
-RAW_OFFSET = 500  # STAG reference code / paper Sec. Method "Data path": clip((raw-500)/150, 0, 1)
-RAW_SPAN = 150  # same source: the informative band ends near raw 650
-REST_RAW = 512.0  # stag-format.md "The sensor": resting pedestal about 510-516 raw
-SATURATION_RAW = 1000.0  # stag-format.md "The sensor": saturation near 1000 raw
-FRAME_SHAPE = (32, 32)  # stag-format.md: 548 taxels rasterised into 32x32
-
-LEVELS = 255  # intensity levels of an 8-bit cache; the paper's forensics counts 1/255 steps
-LEVEL_LOW_PCT = 1.0  # "levels used" = span of 1/255 levels between these taxel percentiles
-LEVEL_HIGH_PCT = 99.9  # (real files: weights 64, blindfolded 39; the max-scaling defect 6-15)
-# gate: calibrated data must span at least this many levels (paper: 30-60 after the fix, ~8
-# under the defect)
-MIN_LEVELS = 20
-MAX_CALIBRATED_MEDIAN = 0.35  # gate: calibrated rest sits near 0.07-0.10 (spec); a median above
-# this means the pedestal was kept, i.e. the data was max-scaled rather than calibrated
+# re-exported (`X as X`): `from tactus_memory.touch.data import STAG_GLOVE, ...` keeps working
+from tactus_memory.touch.profile import FRAME_SHAPE as FRAME_SHAPE
+from tactus_memory.touch.profile import MIN_LEVELS as MIN_LEVELS
+from tactus_memory.touch.profile import PROFILES as PROFILES
+from tactus_memory.touch.profile import RAW_OFFSET as RAW_OFFSET
+from tactus_memory.touch.profile import RAW_SPAN as RAW_SPAN
+from tactus_memory.touch.profile import STAG_GLOVE as STAG_GLOVE
+from tactus_memory.touch.profile import SensorProfile as SensorProfile
+from tactus_memory.touch.profile import calibrate as calibrate
+from tactus_memory.touch.profile import check_dynamic_range as check_dynamic_range
+from tactus_memory.touch.profile import dynamic_range_report as dynamic_range_report
+from tactus_memory.touch.profile import get_profile as get_profile
+from tactus_memory.touch.profile import taxel_mask_from_data as taxel_mask_from_data
+from tactus_memory.touch.profile import taxel_mask_from_spec as taxel_mask_from_spec
+from tactus_memory.touch.stag_io import _resolve, read_mat_fields
 
 PER_FRAME_FIELDS = (
     "pressure",
@@ -64,97 +65,6 @@ PER_FRAME_FIELDS = (
 LIST_FIELDS = ("objects", "recordings", "batches", "splits")
 REQUIRED_FIELDS = ("pressure", "objectId", "recordingId", "frame", "ts", "objects", "recordings")
 VALID_FIELDS = ("hasValidLabel", "graspValid")  # first present wins; graspValid: weights subset
-
-
-# --------------------------------------------------------------------------- calibration
-
-
-@dataclass(frozen=True)
-class SensorProfile:
-    """A named sensor calibration: ``clip((raw - offset) / span, 0, 1)`` in float32.
-
-    Other gloves get their own profile (register it in :data:`PROFILES`).
-    """
-
-    name: str
-    offset: float
-    span: float
-    shape: tuple[int, int] = FRAME_SHAPE
-    rest_raw: float | None = None  # typical untouched reading, for diagnostics
-    saturation_raw: float | None = None  # reading where the sensor saturates, for diagnostics
-
-    def __post_init__(self) -> None:
-        if not np.isfinite(self.offset) or not np.isfinite(self.span) or self.span <= 0:
-            raise InvalidInputError(
-                f"profile {self.name!r}: offset must be finite and span > 0, "
-                f"got offset={self.offset}, span={self.span}"
-            )
-
-    def calibrate(self, raw: np.ndarray) -> np.ndarray:
-        """``raw``: (..., H, W) raw readings -> float32 in [0, 1], same shape."""
-        arr = np.asarray(raw)
-        if arr.ndim < 2 or tuple(arr.shape[-2:]) != tuple(self.shape):
-            raise InvalidInputError(
-                f"profile {self.name!r} expects (..., {self.shape[0]}, {self.shape[1]}) frames, "
-                f"got shape {arr.shape}"
-            )
-        if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-            raise InvalidInputError(f"raw pressure must be numeric, got dtype {arr.dtype}")
-        out = (arr.astype(np.float32) - np.float32(self.offset)) / np.float32(self.span)
-        if not np.all(np.isfinite(out)):
-            raise InvalidInputError("raw pressure contains NaN or inf")
-        return np.clip(out, 0.0, 1.0, out=out)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "offset": float(self.offset),
-            "span": float(self.span),
-            "shape": list(self.shape),
-            "rest_raw": self.rest_raw,
-            "saturation_raw": self.saturation_raw,
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> SensorProfile:
-        try:
-            return cls(
-                name=str(d["name"]),
-                offset=float(d["offset"]),
-                span=float(d["span"]),
-                shape=tuple(int(v) for v in d.get("shape", FRAME_SHAPE)),  # type: ignore[arg-type]
-                rest_raw=None if d.get("rest_raw") is None else float(d["rest_raw"]),
-                saturation_raw=(
-                    None if d.get("saturation_raw") is None else float(d["saturation_raw"])
-                ),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InvalidInputError(f"bad sensor profile dict {d!r}: {exc}") from exc
-
-
-STAG_GLOVE = SensorProfile(
-    "stag-glove",
-    RAW_OFFSET,
-    RAW_SPAN,
-    FRAME_SHAPE,
-    rest_raw=REST_RAW,
-    saturation_raw=SATURATION_RAW,
-)
-PROFILES: dict[str, SensorProfile] = {STAG_GLOVE.name: STAG_GLOVE}
-
-
-def get_profile(name: str) -> SensorProfile:
-    try:
-        return PROFILES[name]
-    except KeyError:
-        raise InvalidInputError(
-            f"unknown sensor profile {name!r}; known: {sorted(PROFILES)}"
-        ) from None
-
-
-def calibrate(raw: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
-    """(..., 32, 32) raw -> float32 ``clip((raw - offset) / span, 0, 1)``."""
-    return profile.calibrate(raw)
 
 
 # --------------------------------------------------------------------------- the dataset
@@ -294,112 +204,6 @@ class StagData:
         return h.hexdigest()
 
 
-# --------------------------------------------------------------------------- MAT readers
-
-
-def _resolve(path: str | Path) -> Path:
-    p = Path(path)
-    if p.is_dir():
-        p = p / "metadata.mat"
-    if not p.is_file():
-        raise DataFormatError(f"no STAG metadata file at {p}")
-    return p
-
-
-def _strings_from_v5(value: np.ndarray) -> list[str]:
-    """A v5 cell array of strings (object array) or char matrix -> list of str."""
-    arr = np.asarray(value)
-    if arr.dtype.kind == "U":  # char matrix: one string per row
-        return (
-            [str(s).rstrip() for s in arr.reshape(-1)]
-            if arr.ndim <= 1
-            else ["".join(row).rstrip() for row in arr.reshape(arr.shape[0], -1)]
-        )
-    if arr.dtype != object:
-        raise DataFormatError(f"expected a cell array of strings, got dtype {arr.dtype}")
-    out: list[str] = []
-    for item in arr.reshape(-1, order="F"):
-        el = np.asarray(item)
-        if el.size == 0:
-            out.append("")
-        elif el.dtype.kind == "U":
-            out.append("".join(str(s) for s in el.reshape(-1)))
-        else:
-            raise DataFormatError(f"cell element is not a string: dtype {el.dtype}")
-    return out
-
-
-def _read_v5(path: Path) -> dict[str, Any]:
-    try:
-        raw = scipy.io.loadmat(str(path), squeeze_me=False, chars_as_strings=True)
-    except Exception as exc:  # scipy raises several types for corrupt files
-        raise DataFormatError(f"cannot read {path} as a MATLAB file: {exc}") from exc
-    out: dict[str, Any] = {}
-    for key, value in raw.items():
-        if key.startswith("__"):
-            continue
-        if isinstance(value, np.ndarray) and (value.dtype == object or value.dtype.kind == "U"):
-            out[key] = _strings_from_v5(value)
-        else:
-            out[key] = np.asarray(value)
-    return out
-
-
-def _h5_class(obj: h5py.Dataset) -> str:
-    cls = obj.attrs.get("MATLAB_class", b"")
-    return cls.decode() if isinstance(cls, bytes) else str(cls)
-
-
-def _h5_string(f: h5py.File, ds: h5py.Dataset) -> str:
-    if ds.attrs.get("MATLAB_empty", 0) or ds.size == 0:
-        return ""
-    codes = np.atleast_2d(np.asarray(ds[()]).T)  # h5 (len, rows) -> MATLAB (rows, len)
-    # MATLAB_int_decode = 2: the codes are UTF-16 code units
-    rows = [row.astype("<u2").tobytes().decode("utf-16-le", errors="replace") for row in codes]
-    return "\n".join(r.rstrip("\x00") for r in rows)
-
-
-def _read_v73(path: Path) -> dict[str, Any]:
-    """MATLAB v7.3 (HDF5). h5py sees MATLAB arrays with axes reversed; restore them (``.T``).
-
-    Cell arrays are datasets of object references into ``#refs#``; each string is a uint16
-    char array (``MATLAB_class='char'``) stored transposed, i.e. (len, 1) for a 1 x len row.
-    """
-    out: dict[str, Any] = {}
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise DataFormatError(f"cannot read {path} as HDF5 (MATLAB v7.3): {exc}") from exc
-    with f:
-        for key, obj in f.items():
-            if key.startswith("#") or not isinstance(obj, h5py.Dataset):
-                continue
-            cls = _h5_class(obj)
-            if cls == "cell" or obj.dtype == h5py.ref_dtype or obj.dtype.kind == "O":
-                refs = np.asarray(obj[()]).reshape(-1)  # C order over h5 == MATLAB column-major
-                strings = []
-                for ref in refs:
-                    target = f[ref]
-                    if not isinstance(target, h5py.Dataset):
-                        raise DataFormatError(f"{key}: cell element is not a dataset")
-                    tcls = _h5_class(target)
-                    if tcls not in ("char", "") or target.dtype.kind not in "ui":
-                        raise DataFormatError(f"{key}: cell element is {tcls or target.dtype}")
-                    strings.append(_h5_string(f, target))
-                out[key] = strings
-            elif cls == "char":
-                out[key] = _h5_string(f, obj).split("\n")
-            elif obj.attrs.get("MATLAB_empty", 0):
-                out[key] = np.zeros((0, 0))
-            else:
-                arr = np.asarray(obj[()])
-                arr = np.ascontiguousarray(arr.T)  # restore MATLAB's axis order
-                if cls == "logical":
-                    arr = arr.astype(bool)
-                out[key] = arr
-    return out
-
-
 def _as_int64(name: str, arr: np.ndarray) -> np.ndarray:
     a = np.asarray(arr)
     if a.dtype == bool:
@@ -525,13 +329,6 @@ def _build(fields: dict[str, Any], source: str) -> StagData:
     )
 
 
-def read_mat_fields(path: str | Path) -> dict[str, Any]:
-    """All variables of a v5 or v7.3 MAT file: numeric arrays in MATLAB's axis order,
-    cell arrays of strings as ``list[str]``."""
-    p = _resolve(path)
-    return _read_v73(p) if h5py.is_hdf5(p) else _read_v5(p)
-
-
 def load_stag(path: str | Path) -> StagData:
     """Load a STAG ``metadata.mat`` (or its folder). Raises :class:`DataFormatError`."""
     p = _resolve(path)
@@ -613,191 +410,3 @@ def combine(datasets: Sequence[StagData]) -> StagData:
         extra=extra,
         frame_extra=frozenset(names),
     )
-
-
-# --------------------------------------------------------------------------- dynamic range
-
-
-def taxel_mask_from_spec() -> np.ndarray:
-    """(32, 32) bool, the 548 real taxels as stag-format.md describes them."""
-    m = np.zeros(FRAME_SHAPE, dtype=bool)
-    for r0, r1 in ((0, 2), (6, 8), (10, 12), (15, 17)):  # full rows
-        m[r0 : r1 + 1, :] = True
-    for r in (3, 4, 5, 9, 13, 14):  # columns 14-31 only
-        m[r, 14:32] = True
-    m[18:32, 25:29] = True  # the thumb: columns 25-28 in rows 18-31
-    return m
-
-
-def taxel_mask_from_data(raw: np.ndarray) -> np.ndarray:
-    """(H, W) bool: pixels whose value varies over the frames of ``raw`` (..., H, W)."""
-    arr = np.asarray(raw)
-    if arr.ndim < 2:
-        raise InvalidInputError(f"expected (..., H, W) frames, got shape {arr.shape}")
-    flat = arr.reshape((-1, *arr.shape[-2:]))
-    if flat.shape[0] == 0:
-        return np.zeros(arr.shape[-2:], dtype=bool)
-    return flat.max(axis=0) != flat.min(axis=0)
-
-
-_CHUNK_FRAMES = 8192  # frames per pass: statistics are histograms, memory stays ~32 MB
-
-
-def _frames(arr: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    a = np.asarray(arr)
-    if a.ndim < 2 or tuple(a.shape[-2:]) != tuple(shape):
-        raise InvalidInputError(f"expected (..., {shape[0]}, {shape[1]}) frames, got {a.shape}")
-    return a.reshape((-1, *a.shape[-2:]))
-
-
-def _hist_pct(counts: np.ndarray, pct: float) -> int:
-    """Nearest-rank percentile of the values whose histogram is ``counts`` (bin = value)."""
-    cum = np.cumsum(counts)
-    rank = int(round(pct / 100.0 * (int(cum[-1]) - 1)))
-    return int(np.searchsorted(cum, rank, side="right"))
-
-
-def _level_counts(calibrated_taxels: np.ndarray) -> np.ndarray:
-    q = np.rint(np.asarray(calibrated_taxels, dtype=np.float32) * LEVELS).astype(np.int64)
-    return np.bincount(np.clip(q, 0, LEVELS).reshape(-1), minlength=LEVELS + 1)
-
-
-def _level_stats(counts: np.ndarray) -> dict[str, Any]:
-    """Level statistics from a (256,) histogram of calibrated values on the 1/255 grid."""
-    if counts.sum() == 0:
-        return {"levels_used": 0, "levels_distinct": 0}
-    lo, hi = _hist_pct(counts, LEVEL_LOW_PCT), _hist_pct(counts, LEVEL_HIGH_PCT)
-    return {
-        "levels_used": hi - lo + 1,
-        "levels_distinct": int(np.count_nonzero(counts)),
-        "level_p1": lo,
-        "level_p50": _hist_pct(counts, 50),
-        "level_p95": _hist_pct(counts, 95),
-        "level_p999": hi,
-    }
-
-
-def dynamic_range_report(
-    raw: np.ndarray, profile: SensorProfile = STAG_GLOVE, mask: np.ndarray | None = None
-) -> dict[str, Any]:
-    """Diagnostics of raw (..., 32, 32) readings under ``profile``.
-
-    ``mask`` (32, 32) bool selects the taxels the statistics use; by default the pixels that
-    vary in ``raw`` (falling back to the spec's 548-taxel layout when nothing varies). Level
-    counts are on the 1/255 grid: ``levels_used`` is the span of levels between the 1st and
-    99.9th taxel percentiles (the paper's "usable intensity levels"), ``levels_distinct``
-    the number of levels that occur at all. Percentiles are nearest-rank, computed from
-    histograms in chunks (memory stays small on the 135k-frame classification subset).
-    """
-    frames = _frames(raw, profile.shape)
-    spec = taxel_mask_from_spec() if tuple(profile.shape) == FRAME_SHAPE else None
-    data_mask = taxel_mask_from_data(frames)
-    if mask is None:
-        mask = data_mask if data_mask.any() or spec is None else spec
-    mask = np.asarray(mask, dtype=bool)
-    if mask.shape != tuple(profile.shape):
-        raise InvalidInputError(f"taxel mask must have shape {profile.shape}, got {mask.shape}")
-    report: dict[str, Any] = {
-        "profile": profile.name,
-        "frames": int(frames.shape[0]),
-        "raw_min": None,
-        "raw_max": None,
-        "taxels_used": int(mask.sum()),
-    }
-    n_values = frames.shape[0] * int(mask.sum())
-    if n_values:
-        raw_min, raw_max = frames.min(), frames.max()
-        integral = np.issubdtype(frames.dtype, np.integer)
-        report["raw_min"] = int(raw_min) if integral else float(raw_min)
-        report["raw_max"] = int(raw_max) if integral else float(raw_max)
-        levels = np.zeros(LEVELS + 1, np.int64)
-        raw_counts = np.zeros(int(raw_max) - int(raw_min) + 1, np.int64) if integral else None
-        for s in range(0, frames.shape[0], _CHUNK_FRAMES):
-            chunk = frames[s : s + _CHUNK_FRAMES]
-            levels += _level_counts(profile.calibrate(chunk)[:, mask])
-            if raw_counts is not None:
-                shifted = chunk[:, mask].astype(np.int64).reshape(-1) - int(raw_min)
-                raw_counts += np.bincount(shifted, minlength=raw_counts.size)
-        for p in (1, 5, 50, 95, 99):
-            if raw_counts is not None:
-                report[f"raw_p{p}"] = _hist_pct(raw_counts, p) + int(raw_min)
-            else:  # float readings: a strided sample of at most ~2M taxel values
-                step = max(1, frames.shape[0] * int(mask.sum()) // 2_000_000)
-                report[f"raw_p{p}"] = float(np.percentile(frames[::step][:, mask], p))
-        report["frac_saturated"] = float(levels[LEVELS] / n_values)
-        report["frac_zero"] = float(levels[0] / n_values)
-        report.update(_level_stats(levels))
-        report["calibrated_median"] = report["level_p50"] / LEVELS
-    else:
-        report.update(_level_stats(np.zeros(LEVELS + 1, np.int64)))
-    report["taxels_data"] = int(data_mask.sum())
-    if spec is not None:
-        report["taxels_spec"] = int(spec.sum())
-        report["taxels_data_not_spec"] = int((data_mask & ~spec).sum())
-        report["taxels_spec_not_data"] = int((spec & ~data_mask).sum())
-        report["taxel_mask_matches_spec"] = bool(np.array_equal(data_mask, spec))
-    return report
-
-
-def check_dynamic_range(
-    raw_or_calibrated: np.ndarray,
-    profile: SensorProfile = STAG_GLOVE,
-    *,
-    min_levels: int = MIN_LEVELS,
-    already_calibrated: bool = False,
-) -> dict[str, Any]:
-    """The dynamic-range regression gate (paper Sec. forensics). Returns the level report.
-
-    Raises :class:`DynamicRangeError` when "raw" input already looks normalised (floats in
-    [0, 1], or nothing above the sensor offset), when calibrated input kept the pedestal
-    (median above 0.35: max-scaled, not calibrated), or when the calibrated taxels span fewer
-    than ``min_levels`` 1/255 levels.
-    """
-    arr = np.asarray(raw_or_calibrated)
-    if arr.size == 0:
-        raise DynamicRangeError("no pressure values to check")
-    if not np.all(np.isfinite(arr)):
-        raise DynamicRangeError("pressure contains NaN or inf")
-    if already_calibrated:
-        if arr.min() < 0 or arr.max() > 1:
-            raise DynamicRangeError(
-                f"calibrated pressure must lie in [0, 1], got {arr.min()}..{arr.max()}"
-            )
-        frames = _frames(arr, profile.shape)
-        mask = taxel_mask_from_data(frames)
-        if not mask.any():
-            mask = np.ones(frames.shape[1:], bool)
-        counts = np.zeros(LEVELS + 1, np.int64)
-        for s in range(0, frames.shape[0], _CHUNK_FRAMES):
-            counts += _level_counts(frames[s : s + _CHUNK_FRAMES][:, mask])
-        report: dict[str, Any] = {"profile": profile.name, "frames": int(frames.shape[0])}
-        report.update(_level_stats(counts))
-        median = report["level_p50"] / LEVELS
-        report["calibrated_median"] = median
-        if median > MAX_CALIBRATED_MEDIAN:
-            raise DynamicRangeError(
-                f"calibrated median {median:.3f} > {MAX_CALIBRATED_MEDIAN}: the resting "
-                "pedestal was kept, so the data looks max-scaled rather than calibrated with "
-                f"clip((raw - {profile.offset:g}) / {profile.span:g}, 0, 1)"
-            )
-    else:
-        if np.issubdtype(arr.dtype, np.floating) and arr.min() >= 0 and arr.max() <= 1.0:
-            raise DynamicRangeError(
-                f"'raw' pressure lies in [0, 1] (max {arr.max():.4g}): it looks already "
-                "normalised (e.g. max-scaled); pass raw sensor readings, or "
-                "already_calibrated=True if it is the calibrated output"
-            )
-        if arr.max() <= profile.offset:
-            raise DynamicRangeError(
-                f"no raw reading above the sensor offset {profile.offset:g} (max {arr.max()}): "
-                f"the data looks already normalised or belongs to another sensor than "
-                f"{profile.name!r}"
-            )
-        report = dynamic_range_report(arr, profile)
-    if report["levels_used"] < min_levels:
-        raise DynamicRangeError(
-            f"calibrated pressure spans only {report['levels_used']} of {LEVELS} intensity "
-            f"levels (p1..p99.9), fewer than {min_levels}: the input was probably scaled by "
-            "its maximum instead of the sensor calibration (the paper's 3%-range defect)"
-        )
-    return report

@@ -38,14 +38,12 @@ score against classes), so Tactus and the baseline share one code path and one J
 from __future__ import annotations
 
 import hashlib
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-from scipy.stats import spearmanr
 from tqdm.auto import tqdm
 
 from tactus_memory.errors import InvalidInputError
@@ -57,183 +55,30 @@ if TYPE_CHECKING:
     from tactus_memory.touch.checkpoint import Checkpoint
     from tactus_memory.touch.data import StagData
 
+# re-exported (`X as X`): `from tactus_memory.touch.evaluate import topk_accuracy, ...`
+from tactus_memory.touch.metrics import KSWEEP as KSWEEP
+from tactus_memory.touch.metrics import RECORDING_POOL as RECORDING_POOL
+from tactus_memory.touch.metrics import SCALAR_METRICS as SCALAR_METRICS
+from tactus_memory.touch.metrics import _nan_to_none as _nan_to_none
+from tactus_memory.touch.metrics import aggregate_runs as aggregate_runs
+from tactus_memory.touch.metrics import confusion_counts as confusion_counts
+from tactus_memory.touch.metrics import ksweep_windows as ksweep_windows
+from tactus_memory.touch.metrics import mean_std as mean_std
+from tactus_memory.touch.metrics import mean_unit as mean_unit
+from tactus_memory.touch.metrics import pad_window as pad_window
+from tactus_memory.touch.metrics import pair_spearman as pair_spearman
+from tactus_memory.touch.metrics import per_class_topk as per_class_topk
+from tactus_memory.touch.metrics import predictions as predictions
+from tactus_memory.touch.metrics import recording_windows as recording_windows
+from tactus_memory.touch.metrics import row_normalise as row_normalise
+from tactus_memory.touch.metrics import text_confusion_correlation as text_confusion_correlation
+from tactus_memory.touch.metrics import top_confusions as top_confusions
+from tactus_memory.touch.metrics import topk_accuracy as topk_accuracy
+from tactus_memory.touch.metrics import unit_rows as unit_rows
+
 EVAL_SEED = 1234  # same fixed tiling seed as tactus_memory.touch.train.EVAL_SEED
-RECORDING_POOL = 64  # paper, Evaluation: up to 64 valid frames pooled per recording
-KSWEEP = (1, 2, 4, 8)  # paper Fig. ksweep: distinct frames per window
 DEFAULT_VOTES = 4  # paper: tuple voting over four draws
 CONFUSION_LABEL_MIN = 0.08  # paper Fig. confusion: off-diagonal cells >= 0.08 are labelled
-SCALAR_METRICS = (
-    "top1",
-    "top3",
-    "top1_vote",
-    "top3_vote",
-    "recording_top1",
-)
-
-
-# --------------------------------------------------------------------------- metrics
-
-
-def topk_accuracy(scores: np.ndarray, y: np.ndarray, k: int) -> float:
-    """scores (T, C), y (T,) -> fraction of rows whose true class is among the k highest.
-
-    Ties are broken by class index (stable sort), so a constant scorer predicts class 0.
-    """
-    s, yy = np.asarray(scores), np.asarray(y).reshape(-1)
-    if s.ndim != 2 or s.shape[0] != yy.shape[0]:
-        raise InvalidInputError(f"scores must be (T, C) with T = len(y); got {s.shape}, {yy.shape}")
-    if yy.size == 0:
-        return float("nan")
-    top = np.argsort(-s, axis=1, kind="stable")[:, :k]
-    return float((top == yy[:, None]).any(axis=1).mean())
-
-
-def predictions(scores: np.ndarray) -> np.ndarray:
-    """(T, C) -> (T,) argmax (first index on ties)."""
-    return np.argmax(np.asarray(scores), axis=1).astype(np.int64)
-
-
-def confusion_counts(y_true: np.ndarray, y_pred: np.ndarray, n_classes: int) -> np.ndarray:
-    """(C, C) int64 counts, rows = true class, columns = predicted class."""
-    m = np.zeros((n_classes, n_classes), dtype=np.int64)
-    np.add.at(m, (np.asarray(y_true, np.int64), np.asarray(y_pred, np.int64)), 1)
-    return m
-
-
-def row_normalise(counts: np.ndarray) -> np.ndarray:
-    """Rows divided by their sums; a class with no samples keeps an all-zero row."""
-    c = np.asarray(counts, dtype=np.float64)
-    tot = c.sum(axis=1, keepdims=True)
-    return np.divide(c, tot, out=np.zeros_like(c), where=tot > 0)
-
-
-def per_class_topk(
-    scores: np.ndarray, y: np.ndarray, classes: Sequence[str], k: int = 1
-) -> dict[str, float | None]:
-    """Top-k per class name; ``None`` for classes without samples."""
-    out: dict[str, float | None] = {}
-    for c, name in enumerate(classes):
-        m = np.asarray(y) == c
-        out[name] = topk_accuracy(np.asarray(scores)[m], np.asarray(y)[m], k) if m.any() else None
-    return out
-
-
-def unit_rows(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, dtype=np.float32)
-    return x / np.linalg.norm(x, axis=-1, keepdims=True).clip(1e-12)
-
-
-def mean_unit(embs: np.ndarray, axis: int = 0) -> np.ndarray:
-    """Tactus pooling: average unit embeddings along ``axis``, then renormalise."""
-    return unit_rows(np.asarray(embs, dtype=np.float32).mean(axis=axis))
-
-
-def pad_window(idx: np.ndarray, k: int) -> np.ndarray:
-    """Frame indices (n,) with 1 <= n <= k -> (k,), repeating the last one (model.pad_frames)."""
-    a = np.asarray(idx, dtype=np.int64).reshape(-1)
-    if a.size == 0 or a.size > k:
-        raise InvalidInputError(f"a window needs 1..{k} frames, got {a.size}")
-    return np.concatenate([a, np.repeat(a[-1:], k - a.size)])
-
-
-def ksweep_windows(tuples: np.ndarray, n: int) -> np.ndarray:
-    """(T, K) tuple indices -> (T, K): the first ``n`` kept, the rest repeating the n-th."""
-    t = np.asarray(tuples, dtype=np.int64)
-    if not 1 <= n <= t.shape[1]:
-        raise InvalidInputError(f"n must be in 1..{t.shape[1]}, got {n}")
-    return np.concatenate([t[:, :n], np.repeat(t[:, n - 1 : n], t.shape[1] - n, axis=1)], axis=1)
-
-
-def recording_windows(frames: np.ndarray, k: int, pool: int = RECORDING_POOL) -> np.ndarray:
-    """A recording's valid frame indices (in order) -> (W, k) windows.
-
-    More than ``pool`` frames: ``pool`` evenly spaced ones are kept. They are tiled in order
-    into consecutive k-frame windows; the last, short one repeats its last frame.
-    """
-    fr = np.asarray(frames, dtype=np.int64).reshape(-1)
-    if fr.size == 0:
-        raise InvalidInputError("a recording needs at least one frame")
-    if fr.size > pool:
-        fr = fr[np.linspace(0, fr.size - 1, pool).round().astype(np.int64)]
-    return np.stack([pad_window(fr[s : s + k], k) for s in range(0, fr.size, k)])
-
-
-def _nan_to_none(x: float) -> float | None:
-    return None if x is None or not math.isfinite(float(x)) else float(x)
-
-
-def pair_spearman(confusion: np.ndarray, sim: np.ndarray) -> dict[str, Any]:
-    """Spearman rho between confusion rates and similarities over ordered off-diagonal pairs.
-
-    ``confusion``, ``sim``: (C, C). Returns rho, p and n_pairs (C * (C - 1)). A constant
-    input (e.g. a perfect model: no off-diagonal confusion) gives rho = None.
-    """
-    c, s = np.asarray(confusion, np.float64), np.asarray(sim, np.float64)
-    if c.shape != s.shape or c.ndim != 2 or c.shape[0] != c.shape[1]:
-        raise InvalidInputError(f"need two (C, C) matrices, got {c.shape} and {s.shape}")
-    off = ~np.eye(c.shape[0], dtype=bool)
-    a, b = c[off], s[off]
-    if np.ptp(a) == 0 or np.ptp(b) == 0:
-        return {"rho": None, "p": None, "n_pairs": int(a.size)}
-    res = spearmanr(a, b)
-    return {
-        "rho": _nan_to_none(res.statistic),
-        "p": _nan_to_none(res.pvalue),
-        "n_pairs": int(a.size),
-    }
-
-
-def text_confusion_correlation(
-    confusion: np.ndarray, raw: np.ndarray, centred: np.ndarray
-) -> dict[str, Any]:
-    """The paper's "text space is not the error source" test: Spearman between the confusion
-    rate of every ordered class pair and the cosine of the two class targets, uncentred and
-    centred. ``raw``/``centred``: (C, D) target rows."""
-    r, c = unit_rows(raw), unit_rows(centred)
-    return {
-        "uncentred": pair_spearman(confusion, r @ r.T),
-        "centred": pair_spearman(confusion, c @ c.T),
-    }
-
-
-def top_confusions(
-    confusion: np.ndarray, classes: Sequence[str], n: int = 10, min_rate: float = 0.0
-) -> list[dict[str, Any]]:
-    """The largest off-diagonal confusion rates, as (true, predicted, rate) rows."""
-    c = np.asarray(confusion, np.float64).copy()
-    np.fill_diagonal(c, -1.0)
-    order = np.argsort(-c, axis=None, kind="stable")[:n]
-    out = []
-    for flat in order:
-        i, j = divmod(int(flat), c.shape[1])
-        if c[i, j] <= min_rate:
-            break
-        out.append({"true": classes[i], "pred": classes[j], "rate": float(c[i, j])})
-    return out
-
-
-def mean_std(values: Sequence[float | None]) -> dict[str, Any]:
-    """Mean and sample standard deviation (ddof=1; None for a single run) of the finite values."""
-    v = np.array([x for x in values if x is not None and math.isfinite(x)], dtype=np.float64)
-    if v.size == 0:
-        return {"mean": None, "std": None, "n": 0, "values": list(values)}
-    return {
-        "mean": float(v.mean()),
-        "std": float(v.std(ddof=1)) if v.size > 1 else None,
-        "n": int(v.size),
-        "values": [None if x is None else float(x) for x in values],
-    }
-
-
-def aggregate_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Table-1 style: mean and sample std per scalar metric (and per K-sweep point)."""
-    keys = list(SCALAR_METRICS)
-    agg = {k: mean_std([r.get(k) for r in runs]) for k in keys}
-    for n in KSWEEP:
-        vals = [r.get("ksweep", {}).get(str(n)) for r in runs]
-        if any(v is not None for v in vals):
-            agg[f"ksweep_{n}"] = mean_std(vals)
-    return agg
 
 
 # --------------------------------------------------------------------------- scope
@@ -309,7 +154,7 @@ def select_eval_frames(
     ``holdout``: a ``tactus train --holdout`` spec; when given (and not ``none``) it replaces
     the split. ``calibrated``: precomputed (N, 32, 32) frames (default: the STAG_GLOVE affine).
     """
-    from tactus_memory.touch.data import STAG_GLOVE
+    from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.touch.train import holdout_recordings
 
     held = None
@@ -629,134 +474,3 @@ def analyse(
         np.abs(unit_rows(cons["ensemble_centred"]) - unit_rows(cen)).max()
     )
     return out
-
-
-# --------------------------------------------------------------------------- checkpoints
-
-
-def default_checkpoint_path() -> Path:
-    """The shipped checkpoint: ``TactusEncoder``'s default (``adapters.touch``), else the one
-    ``.safetensors`` file in ``tactus_memory/touch/checkpoints/``."""
-    try:
-        from tactus_memory.adapters.touch import default_checkpoint_path as shipped
-    except ImportError:
-        shipped = None
-    if shipped is not None:
-        return Path(shipped())
-    from importlib import resources
-
-    root = Path(str(resources.files("tactus_memory.touch") / "checkpoints"))
-    found = sorted(root.glob("*.safetensors")) if root.is_dir() else []
-    if not found:
-        raise FileNotFoundError(f"no shipped checkpoint (no .safetensors in {root})")
-    return found[0]
-
-
-def resolve_checkpoint(spec: str | Path) -> Path:
-    p = default_checkpoint_path() if str(spec) == "default" else Path(spec)
-    if not p.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {p}")
-    return p
-
-
-def load_scorer(path: str | Path, device: str = "cpu") -> tuple[Scorer, dict[str, Any]]:
-    """A Tactus or baseline checkpoint -> (scorer, provenance), by its embedded metadata."""
-    from safetensors import safe_open
-
-    from tactus_memory.touch.checkpoint import file_sha256, load_checkpoint
-
-    with safe_open(str(path), framework="pt") as f:
-        md = f.metadata() or {}
-    if "tactus" in md:
-        ckpt = load_checkpoint(path, device=device)
-        info = {
-            "path": str(path),
-            "sha256": ckpt.sha256,
-            "kind": "tactus",
-            "model": ckpt.meta.get("model", {}).get("name"),
-            "space": ckpt.meta.get("space"),
-            "steps": ckpt.meta.get("steps"),
-            "seed": ckpt.meta.get("seed"),
-            "train_holdout": ckpt.meta.get("train_args", {}).get("holdout"),
-            "train_data_fingerprint": ckpt.meta.get("data_fingerprint"),
-            "train_heldout_recordings": (
-                ckpt.meta.get("metrics", {}).get("heldout", {}).get("recordings_named", [])
-            ),
-        }
-        return tactus_scorer(ckpt, device=device), info
-    from tactus_memory.touch.baseline import BASELINE_META_KEY, load_baseline
-
-    if BASELINE_META_KEY in md:
-        net, meta = load_baseline(path, device=device)
-        from tactus_memory.touch.baseline import BaselineScorer
-
-        info = {
-            "path": str(path),
-            "sha256": file_sha256(path),
-            "kind": "baseline",
-            "model": "stag-cnn",
-            "epochs": meta.get("epochs"),
-            "seed": meta.get("seed"),
-            "train_holdout": meta.get("holdout"),
-            "train_data_fingerprint": meta.get("data_fingerprint"),
-            "train_heldout_recordings": meta.get("heldout_recordings", []),
-        }
-        return BaselineScorer(net, list(meta["classes"]), device=device), info
-    raise InvalidInputError(f"{path}: neither a Tactus nor a baseline checkpoint")
-
-
-def leakage_check(info: dict[str, Any], es: EvalSet) -> dict[str, Any]:
-    """Were the scored recordings in the checkpoint's training data?
-
-    Decidable when the checkpoint records the fingerprint of its training data and it equals
-    the evaluated data's (same files, same order): then every scored recording that the
-    training run did not hold out was trained on. Otherwise ``unknown``.
-    """
-    names = es.recording_names()
-    train_fp = info.get("train_data_fingerprint")
-    if not train_fp or not es.fingerprint or train_fp != es.fingerprint:
-        return {"status": "unknown", "reason": "training data fingerprint differs or is absent"}
-    held = set(info.get("train_heldout_recordings") or [])
-    overlap = [n for n in names if n not in held]
-    return {
-        "status": "overlap" if overlap else "clean",
-        "scored_recordings": len(names),
-        "trained_on": len(overlap),
-        "examples": overlap[:5],
-    }
-
-
-def space_for(scorer: Scorer) -> Space | None:
-    """The checkpoint's text space when it can be built here (None otherwise)."""
-    name = getattr(scorer, "space_name", None)
-    if not name:
-        return None
-    try:  # a Qwen3-VL checkpoint's space needs TACTUS_SPACE_PATH (or eval --space-path)
-        from tactus_memory.spaces.resolve import SpaceChoice, resolve_space
-
-        return resolve_space(SpaceChoice(name=name))
-    except Exception:  # unknown or unavailable space: the phrasing test is skipped
-        return None
-
-
-def evaluate_checkpoint(
-    path: str | Path,
-    es: EvalSet,
-    *,
-    votes: int = DEFAULT_VOTES,
-    seed: int = EVAL_SEED,
-    analysis: bool = True,
-    space: Space | None | str = "auto",
-    progress: bool = True,
-    device: str = "cpu",
-) -> tuple[dict[str, Any], EvalResult, Scorer]:
-    """Load, score, analyse. Returns (JSON metrics, raw result, scorer)."""
-    scorer, info = load_scorer(path, device=device)
-    res = evaluate_scorer(scorer, es, votes=votes, seed=seed, progress=progress)
-    m = dict(res.metrics)
-    m["checkpoint"] = info
-    m["leakage"] = leakage_check(info, es)
-    if analysis:
-        sp = space_for(scorer) if isinstance(space, str) else space
-        m["analysis"] = analyse(res, scorer, space=sp)
-    return m, res, scorer

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.data import STAG_GLOVE, SensorProfile, taxel_mask_from_spec
+from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile, taxel_mask_from_spec
 
 #: default pixels per taxel: a frame is 32*4 = 128 px square
 SCALE = 4

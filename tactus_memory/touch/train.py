@@ -142,7 +142,7 @@ def load_data(paths: Sequence[str | os.PathLike[str]]) -> Any:
 
 def prepare_data(data: Any, holdout: list[int]) -> TrainData:
     """Calibrate (STAG_GLOVE), gate the dynamic range, split off the held-out recordings."""
-    from tactus_memory.touch.data import STAG_GLOVE
+    from tactus_memory.touch.profile import STAG_GLOVE
 
     # per source file: a badly scaled file pooled with good ones must still fail loudly
     data.check_dynamic_range(STAG_GLOVE)  # raises DynamicRangeError naming the file

@@ -154,7 +154,7 @@ class TupleSampler:
     ) -> TupleSampler:
         """The reference protocol on a loaded subset: members from ``data.valid_mask(split)``,
         anchors ``data.anchor_mask(split)`` (valid, in the split, isBalanced)."""
-        from tactus_memory.touch.data import STAG_GLOVE
+        from tactus_memory.touch.profile import STAG_GLOVE
 
         return cls(
             data.calibrated(profile or STAG_GLOVE),

@@ -1,0 +1,28 @@
+"""One home for the library's limits and name/id patterns; the service imports these too.
+
+Every number here is a product decision (bounded work per call), not a measured constant.
+"""
+
+from __future__ import annotations
+
+import re
+
+#: the most hits / moments one search returns
+MAX_K = 1000
+#: the longest text item or query, in characters (MiniLM truncates at 256 tokens anyway)
+MAX_TEXT_CHARS = 8192
+#: the largest ``meta`` dict, as JSON bytes
+MAX_META_BYTES = 65_536
+#: the most items one ``add_many`` call writes
+MAX_BATCH = 100_000
+#: the longest session / item / source id
+MAX_ID_CHARS = 128
+
+#: sense names: 1-32 characters of [a-z0-9_], starting with a letter
+SENSE_NAME_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
+#: session, item and source ids
+ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$"
+ID_DESCRIPTION = "1-128 characters of [A-Za-z0-9._:-], starting with a letter or digit."
+
+SENSE_NAME_RE = re.compile(SENSE_NAME_PATTERN)
+ID_RE = re.compile(ID_PATTERN)

@@ -1,0 +1,160 @@
+"""The result models: what the memory and its temporal operators return (pydantic, so the
+service serves them as they are)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Side = Literal["before", "after"]
+
+
+# --------------------------------------------------------------------------- memory
+class Span(BaseModel):
+    """What every stored item has first: its id, session, sense and time span."""
+
+    id: str
+    session: str
+    sense: str
+    t: float
+    t_end: float
+
+
+class Hit(Span):
+    """One search result. ``score`` is the calibrated z-score, ``cosine`` the raw cosine."""
+
+    score: float
+    cosine: float
+    meta: dict[str, Any] = Field(default_factory=dict)
+    text: str | None = None
+    source: str = ""
+    episode: int | None = None
+
+
+class Item(Span):
+    """One stored row, with ``raw`` decoded by its sense (array or text) when possible."""
+
+    model_config = ConfigDict(arbitrary_types_allowed=True)
+
+    meta: dict[str, Any] = Field(default_factory=dict)
+    text: str | None = None
+    raw: Any = None
+    source: str = ""
+    episode: int | None = None
+    created: float
+    vector: list[float] | None = None
+
+
+class SessionSummary(BaseModel):
+    """Counts per sense and the time span of one session."""
+
+    id: str
+    n: int
+    counts: dict[str, int]
+    t_min: float
+    t_max: float
+
+
+class SenseInfo(BaseModel):
+    """A sense registered in the store (live or persisted only)."""
+
+    name: str
+    modality: str
+    dim: int
+    provenance: dict[str, Any]
+    live: bool
+    rows: int
+    mu: float | None = None
+    sigma: float | None = None
+
+
+def row_fields(row: dict[str, Any]) -> dict[str, Any]:
+    """The columns every hit and item carry, from a stored row (``meta`` decoded)."""
+    keys = ("id", "session", "sense", "t", "t_end", "text", "episode")
+    out = {k: row.get(k) for k in keys}
+    out.update(meta=json.loads(row["meta"] or "{}"), source=row.get("source") or "")
+    return out
+
+
+def hit_from_row(row: dict[str, Any], score: float, cos: float) -> Hit:
+    return Hit(**row_fields(row), score=score, cosine=cos)
+
+
+def item_from_row(row: dict[str, Any], raw: Any) -> Item:
+    """A stored row (with ``raw`` already decoded) -> :class:`Item`."""
+    return Item(**row_fields(row), raw=raw, created=row["created"], vector=row.get("vector"))
+
+
+# --------------------------------------------------------------------------- temporal
+class TimelineItem(BaseModel):
+    """One stored item placed on the session clock (``t_aligned = t + clock offset``)."""
+
+    id: str
+    session: str
+    sense: str
+    source: str = ""
+    t: float
+    t_end: float
+    t_aligned: float
+    t_end_aligned: float
+    text: str | None = None
+    meta: dict[str, Any] = Field(default_factory=dict)
+    episode: int | None = None
+
+
+class Evidence(TimelineItem):
+    """A scored item: ``score`` is the calibrated z-score, ``match`` whether it clears the
+    per-sense threshold and the relative gate for the query."""
+
+    score: float
+    cosine: float
+    match: bool = False
+
+
+class Moment(BaseModel):
+    """Hits of one session that happen together. ``t``/``t_end`` span the members on the
+    aligned clock; ``score`` = best member score + CORROBORATION_BONUS per other sense with a
+    matching member; ``hits`` (time order) is every sense's evidence."""
+
+    session: str
+    t: float
+    t_end: float
+    score: float
+    senses: list[str]
+    best: str
+    hits: list[Evidence]
+
+
+class Occurrences(BaseModel):
+    """Distinct occurrences of a query (``count == len(moments)``), in time order."""
+
+    query: str
+    count: int
+    capped: bool = Field(
+        description="True when a sense returned MATCH_CANDIDATES candidates that all matched: "
+        "the count is a lower bound (narrow with after/before)."
+    )
+    merge_gap: float
+    moments: list[Moment]
+
+
+class Context(BaseModel):
+    """What happened in ``window`` seconds before/after the anchor (same session)."""
+
+    side: Side
+    window: float
+    anchor: Evidence
+    t_from: float
+    t_to: float
+    items: list[TimelineItem]
+
+
+class ClockOffset(BaseModel):
+    """A stream's clock offset: its items are placed at ``t + offset`` on the session clock."""
+
+    session: str
+    sense: str
+    source: str = ""
+    offset: float

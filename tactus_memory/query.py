@@ -1,0 +1,130 @@
+"""What a search is asked with: the query checks, the k limit, one ``embed_query``, and the
+:class:`Scope` (session, senses, source, after, before) every search and temporal operator
+takes. ``Memory.search``, the temporal operators and both HTTP routers build one Scope and
+pass it down; nothing re-spells the five filters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict
+
+import numpy as np
+
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS
+from tactus_memory.store import Where, finite_float
+from tactus_memory.vectors import as_unit_rows
+
+if TYPE_CHECKING:
+    import threading
+
+    from tactus_memory.models import Hit
+    from tactus_memory.spaces.base import Space
+    from tactus_memory.store import Store
+
+
+def check_k(k: Any) -> int:
+    """An int in [1, MAX_K] (bools and floats rejected)."""
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= MAX_K:
+        raise InvalidInputError(f"k must be an int in [1, {MAX_K}], got {k!r}")
+    return int(k)
+
+
+def check_query_text(query: Any) -> str:
+    """A non-empty string of at most MAX_TEXT_CHARS characters."""
+    if not isinstance(query, str) or not query.strip():
+        raise InvalidInputError("query must be a non-empty string")
+    if len(query) > MAX_TEXT_CHARS:
+        raise InvalidInputError(f"query has {len(query)} characters, limit {MAX_TEXT_CHARS}")
+    return query
+
+
+def embed_query(space: Space, query: str) -> np.ndarray:
+    """The checked query text -> its (1, D) unit query embedding in ``space``."""
+    text = check_query_text(query)
+    return as_unit_rows(space.embed_texts([text], query=True), space.dim, what="query")
+
+
+class ScopeKwargs(TypedDict, total=False):
+    """The keyword spelling of a :class:`Scope` (``memory.search(q, session=..., ...)``)."""
+
+    scope: Scope | None
+    session: str | None
+    senses: Sequence[str] | None
+    source: str | None
+    after: float | None
+    before: float | None
+
+
+@dataclass(frozen=True)
+class Scope:
+    """Where a search or temporal question looks: a session, senses (None: every sense with
+    rows), a source (stream) id, and ``after``/``before`` with overlap semantics (an item
+    spanning ``[t, t_end]`` is in scope when ``t_end >= after`` and ``t <= before``)."""
+
+    session: str | None = None
+    senses: Sequence[str] | None = None
+    source: str | None = None
+    after: float | None = None
+    before: float | None = None
+
+    @classmethod
+    def of(cls, scope: Scope | None = None, **kw: Any) -> Scope:
+        """``scope`` (default: everything) with the filter keywords given (non-None) applied.
+        Unknown keywords raise TypeError, as a misspelt keyword argument would."""
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(kw) - names)
+        if unknown:
+            raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+        base = scope if scope is not None else cls()
+        given = {k: v for k, v in kw.items() if v is not None}
+        return replace(base, **given) if given else base
+
+    def bounds(self) -> tuple[float | None, float | None]:
+        """``(after, before)`` as finite floats, checked in order."""
+        after = None if self.after is None else finite_float(self.after, "after")
+        before = None if self.before is None else finite_float(self.before, "before")
+        if after is not None and before is not None and after > before:
+            raise InvalidInputError(f"after ({after}) is later than before ({before})")
+        return after, before
+
+    def where(self, pad: float = 0.0) -> Where:
+        """The non-sense conditions as a store filter; ``pad`` widens the time bounds (so a
+        stream placed on the session clock by a clock offset of at most ``pad`` is not
+        missed)."""
+        after, before = self.bounds()
+        return (
+            Where()
+            .session(self.session)
+            .overlaps(
+                None if after is None else after - pad, None if before is None else before + pad
+            )
+            .source(self.source)
+        )
+
+
+def split_scope(kw: Mapping[str, Any]) -> tuple[Scope, dict[str, Any]]:
+    """Keyword arguments -> (the Scope they describe, the remaining keywords)."""
+    names = {f.name for f in fields(Scope)} | {"scope"}
+    scope_kw = {k: v for k, v in kw.items() if k in names}
+    rest = {k: v for k, v in kw.items() if k not in names}
+    return Scope.of(**scope_kw), rest
+
+
+class RankedSearch(Protocol):
+    """What the temporal operators need from a memory (``Memory`` provides it): the store,
+    the space, the write lock, the sense resolver and the one ranked search path."""
+
+    store: Store
+    space: Space
+    lock: threading.RLock
+
+    def resolve_senses(self, senses: Sequence[str] | None) -> list[str]: ...
+
+    def rank(
+        self, q: np.ndarray, k: int, senses: Sequence[str], base: Where, *, transform: bool
+    ) -> list[Hit]: ...
+
+    def session_ids(self) -> list[str]: ...

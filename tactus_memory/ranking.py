@@ -1,0 +1,117 @@
+"""The one ranked search path: a (1, D) unit query -> per-sense query transform, prefiltered
+ANN (or exact flat) search in the store, calibrated scores, merged top k. ``Memory.search``,
+``search_vector``, ``search_like`` and every temporal operator end here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.models import Hit, hit_from_row
+from tactus_memory.registry import SenseRegistry
+from tactus_memory.scoring import Calibration
+from tactus_memory.store import Store, Where
+from tactus_memory.vectors import as_unit_rows
+
+
+class Ranker:
+    """Ranked search over one store, with the registry's transforms and calibrations."""
+
+    def __init__(self, store: Store, registry: SenseRegistry) -> None:
+        self.store = store
+        self.registry = registry
+        self.space = registry.space
+
+    def rank(
+        self,
+        q: np.ndarray,
+        k: int,
+        senses: Sequence[str],
+        base: Where,
+        *,
+        transform: bool,
+        build: Callable[[dict[str, Any], float, float], Hit] | None = None,
+    ) -> list[Hit]:
+        """The one search path: q (1, D) unit query -> per-sense query transform, prefiltered
+        ANN (or exact flat) search, calibrated scores, merged top k. ``base`` holds the
+        non-sense conditions (session, time, source, ...); temporal operators reuse this.
+
+        Senses whose transformed query vectors coincide (e.g. identity transforms) share one
+        LanceDB query fetching ``k * len(group)`` candidates; a sense with fewer than k of
+        them gets its own query unless its best possible missing z-score (bounded by the
+        lowest candidate cosine) cannot reach the current k-th score. The merge is therefore
+        the same as one query per sense, at a fraction of the cost.
+        """
+        counts = self.registry.counts()
+        active = [name for name in senses if counts.get(name, 0) > 0]
+        groups: list[tuple[np.ndarray, list[str]]] = []
+        for name in active:
+            qs = q
+            if transform:
+                s = self.registry.search_sense(name)
+                qs = as_unit_rows(s.query_transform(q), self.space.dim, what="query")
+            for vec, names in groups:
+                if np.array_equal(vec, qs):
+                    names.append(name)
+                    break
+            else:
+                groups.append((qs, [name]))
+        calib = {name: self.registry.calibration(name) for name in active}
+        scored: list[tuple[float, float, dict[str, Any]]] = []
+        for vec, names in groups:
+            scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
+        scored.sort(key=lambda x: -x[0])
+        make = build or hit_from_row
+        return [make(row, score, cos) for score, cos, row in scored[:k]]
+
+    def _search_group(
+        self,
+        vec: np.ndarray,
+        k: int,
+        names: list[str],
+        base: Where,
+        counts: dict[str, int],
+        calib: dict[str, Calibration],
+        found: list[tuple[float, float, dict[str, Any]]],
+    ) -> list[tuple[float, float, dict[str, Any]]]:
+        """One ANN query for senses sharing a query vector (D,), plus follow-ups if needed."""
+        total = sum(counts.values())
+        every = {name for name, c in counts.items() if c > 0}
+        where = Where(list(base.parts))
+        if set(names) != every:
+            where.senses(names)
+        sql = where.sql()
+        allowed = self.store.count(sql) if base.parts else sum(counts[n] for n in names)
+        if allowed == 0:
+            return []
+        want = k * len(names)
+        rows = self.store.vector_search(vec, want, sql, allowed=allowed, total=total)
+        out = [self._scored(row, calib) for row in rows.to_pylist()]
+        if len(names) == 1 or len(out) < want:
+            return out  # complete: every allowed row was a candidate or one sense only
+        floor = min(cos for _, cos, _ in out)
+        have = {name: sum(1 for _, _, r in out if r["sense"] == name) for name in names}
+        for name in names:
+            if have[name] >= k:
+                continue
+            ranked = sorted([z for z, _, _ in found] + [z for z, _, _ in out], reverse=True)
+            kth = ranked[k - 1] if len(ranked) >= k else -math.inf
+            if calib[name].score(floor) <= kth:
+                continue  # nothing of this sense below the floor can enter the top k
+            one = Where(list(base.parts)).sense(name).sql()
+            n_one = self.store.count(one) if base.parts else counts[name]
+            extra = self.store.vector_search(vec, k, one, allowed=n_one, total=total)
+            out = [x for x in out if x[2]["sense"] != name]
+            out.extend(self._scored(row, calib) for row in extra.to_pylist())
+        return out
+
+    @staticmethod
+    def _scored(
+        row: dict[str, Any], calib: dict[str, Calibration]
+    ) -> tuple[float, float, dict[str, Any]]:
+        cos = 1.0 - float(row.pop("_distance"))
+        return float(calib[row["sense"]].score(cos)), cos, row

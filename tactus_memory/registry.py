@@ -1,0 +1,267 @@
+"""The sense registry: live senses (can embed), senses known only from the store (can be
+searched: their vectors and query transform are stored), row counts per sense and each
+sense's score calibration. ``Memory`` owns one; nothing else writes the senses table.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.errors import SenseConflictError, UnknownSenseError
+from tactus_memory.models import SenseInfo
+from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
+from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
+from tactus_memory.spaces.base import Space
+from tactus_memory.store import Store, Where
+from tactus_memory.vectors import as_unit_rows
+
+log = logging.getLogger(__name__)
+
+
+class StoredSense(Sense):
+    """A sense known only from the store: searchable (vectors are stored), not embeddable."""
+
+    def __init__(
+        self,
+        name: str,
+        modality: str,
+        dim: int,
+        provenance: dict[str, Any],
+        centroid: np.ndarray | None,
+    ) -> None:
+        self.name = name
+        self.modality = modality
+        self.dim = dim
+        self._provenance = provenance
+        self.query_centroid = centroid
+
+    def _not_loaded(self) -> UnknownSenseError:
+        return UnknownSenseError(
+            f"sense {self.name!r} has rows in this store but is not loaded; "
+            f"call memory.add_sense(...) with its encoder to add or embed {self.name!r} items"
+        )
+
+    def validate(self, item: Any) -> Any:
+        raise self._not_loaded()
+
+    def embed(self, batch: Sequence[Any]) -> np.ndarray:
+        raise self._not_loaded()
+
+    def query_transform(self, queries: np.ndarray) -> np.ndarray:
+        if self.query_centroid is None:
+            return queries
+        return as_unit_rows(queries - self.query_centroid[None, :], self.dim, what="query")
+
+    def provenance(self) -> dict[str, Any]:
+        return dict(self._provenance)
+
+
+def _same_vector(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return a.shape == b.shape and bool(np.allclose(a, b))
+
+
+class SenseRegistry:
+    """Senses of one memory: live ones, stored ones, row counts and calibrations."""
+
+    def __init__(self, store: Store, space: Space, lock: threading.RLock) -> None:
+        self.store = store
+        self.space = space
+        self.lock = lock
+        self._live: dict[str, Sense] = {}
+        self._stored: dict[str, StoredSense] = {}
+        self._calib: dict[str, Calibration] = {}
+        self._counts: dict[str, int] | None = None
+        self._probes: np.ndarray | None = None
+        self.load()
+
+    def load(self) -> None:
+        for row in self.store.sense_rows():
+            centroid = None
+            if row.get("query_centroid") is not None:
+                centroid = bytes_to_array(row["query_centroid"]).astype(np.float32)
+            self._stored[row["name"]] = StoredSense(
+                row["name"],
+                row["modality"],
+                int(row["dim"]),
+                json.loads(row["provenance"]),
+                centroid,
+            )
+            if row.get("calib_n"):
+                self._calib[row["name"]] = Calibration(
+                    float(row["mu"]), float(row["sigma"]), int(row["calib_n"])
+                )
+
+    @property
+    def senses(self) -> dict[str, Sense]:
+        """Live senses (can embed new items), name -> Sense."""
+        return dict(self._live)
+
+    def add_sense(self, sense: Sense) -> None:
+        """Register a live sense. Raises SenseConflictError on a duplicate name or a space or
+        dimension mismatch (also against a persisted registration of the same name)."""
+        name = validate_sense_name(sense.name)
+        with self.lock:
+            if name in self._live:
+                raise SenseConflictError(f"a sense named {name!r} is already registered")
+            sense.bind(self.space)
+            stored = self._stored.get(name)
+            if stored is not None and (
+                stored.dim != sense.dim or stored.modality != sense.modality
+            ):
+                raise SenseConflictError(
+                    f"sense {name!r} is stored as a {stored.modality} sense of dimension "
+                    f"{stored.dim}; cannot register a {sense.modality} sense of dimension "
+                    f"{sense.dim}"
+                )
+            centroid = getattr(sense, "query_centroid", None)
+            if centroid is not None:
+                centroid = np.asarray(centroid, dtype=np.float32).reshape(-1)
+            prov_json = json.dumps(sense.provenance(), sort_keys=True, default=str)
+            provenance = json.loads(prov_json)
+            unchanged = (
+                stored is not None
+                and stored.provenance() == provenance
+                and _same_vector(stored.query_centroid, centroid)
+            )
+            if stored is not None and not unchanged:
+                log.warning("sense %r re-registered with a different encoder", name)
+                self._calib.pop(name, None)  # a new encoder: re-estimate the null
+            calib = self._calib.get(name)
+            if not unchanged:  # reopening with the same sense writes nothing
+                self.store.put_sense_row(
+                    {
+                        "name": name,
+                        "modality": sense.modality,
+                        "dim": int(sense.dim),
+                        "provenance": prov_json,
+                        "query_centroid": None if centroid is None else array_to_bytes(centroid),
+                        "mu": calib.mu if calib else None,
+                        "sigma": calib.sigma if calib else None,
+                        "calib_n": calib.n if calib else None,
+                        "updated": time.time(),
+                    }
+                )
+            self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
+            self._live[name] = sense
+
+    def live_sense(self, name: str) -> Sense:
+        validate_sense_name(name)
+        if name in self._live:
+            return self._live[name]
+        if name in self._stored:
+            raise self._stored[name]._not_loaded()
+        raise UnknownSenseError(f"unknown sense {name!r}; registered: {sorted(self._stored)}")
+
+    def search_sense(self, name: str) -> Sense:
+        validate_sense_name(name)
+        if name in self._live:
+            return self._live[name]
+        if name in self._stored:
+            return self._stored[name]
+        raise UnknownSenseError(f"unknown sense {name!r}; registered: {sorted(self._stored)}")
+
+    def sense_info(self) -> list[SenseInfo]:
+        """Every sense the store knows, live or not, with row counts and calibration."""
+        counts = self.counts()
+        out = []
+        for name, s in sorted(self._stored.items()):
+            c = self._calib.get(name)
+            out.append(
+                SenseInfo(
+                    name=name,
+                    modality=s.modality,
+                    dim=s.dim,
+                    provenance=s.provenance(),
+                    live=name in self._live,
+                    rows=counts.get(name, 0),
+                    mu=c.mu if c else None,
+                    sigma=c.sigma if c else None,
+                )
+            )
+        return out
+
+    def counts(self) -> dict[str, int]:
+        counts = self._counts
+        if counts is None:
+            import pyarrow.compute as pc
+
+            col = self.store.scan(None, ["sense"]).column("sense")
+            vc = pc.value_counts(col).to_pylist()
+            counts = {d["values"]: int(d["counts"]) for d in vc}
+            self._counts = counts
+        return counts
+
+    def probe_vectors(self) -> np.ndarray:
+        """(P, D) embedded probe bank, cached in the store per space."""
+        if self._probes is None:
+            key = f"probes:{self.space.name}:{len(PROBES)}"
+            cached = self.store.get_meta(key)
+            if cached is not None:
+                arr = np.asarray(json.loads(cached), dtype=np.float32)
+            else:
+                arr = as_unit_rows(self.space.embed_texts(list(PROBES), query=True), self.space.dim)
+                with self.lock:
+                    self.store.set_meta(key, json.dumps(arr.round(6).tolist()))
+            self._probes = as_unit_rows(arr, self.space.dim)
+        return self._probes
+
+    def calibration(self, sense: str) -> Calibration:
+        """The null statistics of a sense, re-estimated when its row count has doubled."""
+        rows = self.counts().get(sense, 0)
+        calib = self._calib.get(sense, Calibration())
+        if not calib.stale(rows):
+            return calib
+        s = self.search_sense(sense)
+        probes = s.query_transform(self.probe_vectors())
+        sample = self.store.scan(Where().sense(sense).sql(), ["vector"], limit=SAMPLE)
+        vecs = np.asarray(sample.column("vector").combine_chunks().flatten(), np.float32)
+        vecs = vecs.reshape(-1, self.space.dim)
+        calib = estimate(probes, vecs, rows)
+        self._calib[sense] = calib
+        with self.lock:
+            row = next((r for r in self.store.sense_rows() if r["name"] == sense), None)
+            if row is not None:
+                row.update(mu=calib.mu, sigma=calib.sigma, calib_n=calib.n, updated=time.time())
+                self.store.put_sense_row(row)
+        return calib
+
+    def resolve(self, senses: Sequence[str] | None) -> list[str]:
+        if senses is None:
+            counts = self.counts()
+            return [name for name in sorted(self._stored) if counts.get(name, 0) > 0]
+        if isinstance(senses, str):
+            senses = [senses]
+        names = []
+        for name in senses:
+            self.search_sense(name)
+            if name not in names:
+                names.append(name)
+        return names
+
+    def note_write(self, sense: str, n: int, replaced: Sequence[str]) -> None:
+        """Keep the cached counts right after writing n rows of ``sense`` (an upsert may have
+        moved the ``replaced`` ids' rows away from their old senses)."""
+        if self._counts is None:
+            return
+        counts = dict(self._counts)
+        for name in replaced:
+            counts[name] -= 1
+        counts[sense] = counts.get(sense, 0) + n
+        self._counts = counts
+
+    def forget_counts(self) -> None:
+        self._counts = None
+
+    @property
+    def counting(self) -> bool:
+        """Whether counts are cached (an upsert then reads which senses it replaces)."""
+        return self._counts is not None

@@ -1,0 +1,157 @@
+"""Rows in and out of the items table: the checks on a write batch (times, meta, ids), the
+Arrow table one commit writes, session summaries."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
+from tactus_memory.models import SessionSummary
+from tactus_memory.senses import Sense
+from tactus_memory.store import finite_float, validate_id
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+
+def meta_json(meta: Any) -> str:
+    if meta is None:
+        return "{}"
+    if not isinstance(meta, dict) or not all(isinstance(key, str) for key in meta):
+        raise InvalidInputError("meta must be a dict with string keys")
+    try:
+        out = json.dumps(meta, allow_nan=False, sort_keys=True, ensure_ascii=False)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"meta is not JSON-serialisable: {exc}") from None
+    if len(out.encode()) > MAX_META_BYTES:
+        raise InvalidInputError(f"meta is larger than {MAX_META_BYTES} bytes as JSON")
+    return out
+
+
+def per_item(value: Any, n: int, what: str) -> list[Any]:
+    """A list of n values, or a scalar/None broadcast to n."""
+    if isinstance(value, (list, tuple, np.ndarray)):
+        if len(value) != n:
+            raise InvalidInputError(f"{what} has {len(value)} entries for {n} items")
+        return list(value)
+    return [value] * n
+
+
+def options_for(sense: Sense, options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The options ``sense.validate`` takes (its ``validate_options``): an option a sense
+    does not declare does not apply to it (``calibrated`` means nothing to a text sense)."""
+    return {k: v for k, v in (options or {}).items() if k in sense.validate_options}
+
+
+@dataclass
+class Batch:
+    """A checked write batch of n items: times, meta JSON, ids, whether it upserts."""
+
+    t: list[float]
+    t_end: list[float]
+    meta: list[str]
+    ids: list[str]
+    upsert: bool
+    created: float
+
+
+def check_batch(
+    n: int,
+    t: Sequence[float | None] | float | None,
+    t_end: Sequence[float | None] | float | None,
+    meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None,
+    ids: Sequence[str] | None,
+) -> Batch:
+    """The per-item values of an ``add_many`` call, checked (``t`` defaults to now, ``t_end``
+    to ``t``; ids, when given, make the write an upsert)."""
+    if n > MAX_BATCH:
+        raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
+    now = time.time()
+    ts = [now if x is None else finite_float(x, "t") for x in per_item(t, n, "t")]
+    ends = [
+        ts[i] if x is None else finite_float(x, "t_end")
+        for i, x in enumerate(per_item(t_end, n, "t_end"))
+    ]
+    for a, b in zip(ts, ends, strict=True):
+        if b < a:
+            raise InvalidInputError(f"t_end ({b}) is before t ({a})")
+    metas = [meta_json(m) for m in per_item(meta, n, "meta")]
+    upsert = ids is not None
+    if ids is not None:
+        if isinstance(ids, str) or len(ids) != n:
+            raise InvalidInputError(f"ids must be a list of {n} ids")
+        id_list = [validate_id(i, "item id") for i in ids]
+        if len(set(id_list)) != n:
+            raise InvalidInputError("ids contain duplicates")
+    else:
+        id_list = [uuid.uuid4().hex for _ in range(n)]
+    return Batch(ts, ends, metas, id_list, upsert, now)
+
+
+def items_table(
+    schema: pa.Schema,
+    batch: Batch,
+    session: str,
+    sense: str,
+    source: str,
+    vectors: np.ndarray,
+    extras: Sequence[dict[str, Any]],
+) -> pa.Table:
+    """The Arrow table of one write: ``vectors`` (N, D) unit rows, ``extras`` the sense's
+    ``to_row`` columns per item."""
+    import pyarrow as pa
+
+    n, dim = vectors.shape
+    return pa.table(
+        {
+            "id": batch.ids,
+            "session": [session] * n,
+            "sense": [sense] * n,
+            "t": batch.t,
+            "t_end": batch.t_end,
+            "vector": pa.FixedSizeListArray.from_arrays(
+                pa.array(vectors.reshape(-1), pa.float32()), dim
+            ),
+            "meta": batch.meta,
+            "text": [e.get("text") for e in extras],
+            "raw": [e.get("raw") for e in extras],
+            "source": [source] * n,
+            "episode": pa.nulls(n, pa.int64()),
+            "created": [batch.created] * n,
+        },
+        schema=schema,
+    )
+
+
+def summarise(tbl: pa.Table) -> list[SessionSummary]:
+    """Rows (session, sense, t, t_end) -> one summary per session, sorted by id."""
+    if tbl.num_rows == 0:
+        return []
+    agg = tbl.group_by(["session", "sense"]).aggregate(
+        [("t", "min"), ("t_end", "max"), ("t", "count")]
+    )
+    by: dict[str, dict[str, Any]] = {}
+    for r in agg.to_pylist():
+        d = by.setdefault(r["session"], {"counts": {}, "t_min": math.inf, "t_max": -math.inf})
+        d["counts"][r["sense"]] = int(r["t_count"])
+        d["t_min"] = min(d["t_min"], r["t_min"])
+        d["t_max"] = max(d["t_max"], r["t_end_max"])
+    return [
+        SessionSummary(
+            id=sid,
+            n=sum(d["counts"].values()),
+            counts=dict(sorted(d["counts"].items())),
+            t_min=d["t_min"],
+            t_max=d["t_max"],
+        )
+        for sid, d in sorted(by.items())
+    ]

@@ -1,0 +1,141 @@
+"""Validated store filters: the id / source / number validators and :class:`Where`, the
+one builder of SQL ``WHERE`` fragments (every value passes a validator first; string
+literals are also quote-escaped; no user string reaches LanceDB any other way)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.errors import InvalidIdError, InvalidInputError
+from tactus_memory.limits import ID_RE
+from tactus_memory.senses import validate_sense_name
+
+
+# --------------------------------------------------------------------------- validation
+def validate_id(value: Any, what: str = "id") -> str:
+    """Session ids, item ids and source ids: 1-128 chars of ``[A-Za-z0-9._:-]``."""
+    if not isinstance(value, str) or not ID_RE.fullmatch(value):
+        shown = (
+            repr(value)
+            if not isinstance(value, str) or len(value) <= 60
+            else repr(value[:60]) + "..."
+        )
+        raise InvalidIdError(
+            f"invalid {what} {shown}: use 1-128 characters of [A-Za-z0-9._:-], "
+            "starting with a letter or digit"
+        )
+    return value
+
+
+def validate_source(value: Any) -> str:
+    """A source (stream) id is an id or the empty string."""
+    if value == "":
+        return ""
+    return validate_id(value, "source id")
+
+
+def finite_float(value: Any, what: str) -> float:
+    """A finite float (bools and non-numbers rejected)."""
+    if isinstance(value, bool):
+        raise InvalidInputError(f"{what} must be a number, got {value!r}")
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{what} must be a number, got {value!r}") from None
+    if not math.isfinite(out):
+        raise InvalidInputError(f"{what} must be finite, got {value!r}")
+    return out
+
+
+def _sql_str(value: str) -> str:
+    return "'" + value.replace("'", "''") + "'"
+
+
+def _sql_float(value: float) -> str:
+    # ``repr`` gives the shortest round-tripping form; DataFusion parses 1e+20 and -0.0 too.
+    return repr(float(value))
+
+
+def _session_id(value: Any) -> str:
+    return validate_id(value, "session id")
+
+
+def _item_id(value: Any) -> str:
+    return validate_id(value, "item id")
+
+
+@dataclass
+class Where:
+    """A conjunction of validated conditions, rendered to one LanceDB SQL filter.
+
+    Build with the methods (each validates its input) and render with :meth:`sql`.
+    Temporal operators reuse this: ``Where().session("s1").overlaps(10, 20).sql()``.
+    """
+
+    parts: list[str] = field(default_factory=list)
+
+    def _eq(self, column: str, value: str | None, check: Callable[[Any], str]) -> Where:
+        if value is not None:
+            self.parts.append(f"{column} = {_sql_str(check(value))}")
+        return self
+
+    def _in(self, column: str, values: Iterable[str] | None, check: Callable[[Any], str]) -> Where:
+        if values is not None:
+            vals = [_sql_str(check(v)) for v in values]
+            self.parts.append(f"{column} IN ({', '.join(vals)})" if vals else "false")
+        return self
+
+    def session(self, session: str | None) -> Where:
+        return self._eq("session", session, _session_id)
+
+    def sessions(self, sessions: Iterable[str] | None) -> Where:
+        return self._in("session", sessions, _session_id)
+
+    def sense(self, sense: str | None) -> Where:
+        return self._eq("sense", sense, validate_sense_name)
+
+    def senses(self, senses: Iterable[str] | None) -> Where:
+        return self._in("sense", senses, validate_sense_name)
+
+    def ids(self, ids: Iterable[str] | None) -> Where:
+        return self._in("id", ids, _item_id)
+
+    def source(self, source: str | None) -> Where:
+        return self._eq("source", source, validate_source)
+
+    def episode(self, episode: int | None) -> Where:
+        if episode is not None:
+            if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)):
+                raise InvalidInputError(f"episode must be an int, got {episode!r}")
+            self.parts.append(f"episode = {int(episode)}")
+        return self
+
+    def overlaps(self, after: float | None = None, before: float | None = None) -> Where:
+        """Items whose interval ``[t, t_end]`` overlaps ``[after, before]`` (ends inclusive).
+
+        ``after`` alone: items still going on at or after ``after`` (``t_end >= after``);
+        ``before`` alone: items that started at or before ``before`` (``t <= before``).
+        """
+        if after is not None:
+            self.parts.append(f"t_end >= {_sql_float(finite_float(after, 'after'))}")
+        if before is not None:
+            self.parts.append(f"t <= {_sql_float(finite_float(before, 'before'))}")
+        if after is not None and before is not None and float(after) > float(before):
+            raise InvalidInputError(f"after ({after}) is later than before ({before})")
+        return self
+
+    def t_range(self, start: float | None = None, end: float | None = None) -> Where:
+        """Items that *start* in ``[start, end)`` (for ordering-style temporal queries)."""
+        if start is not None:
+            self.parts.append(f"t >= {_sql_float(finite_float(start, 'start'))}")
+        if end is not None:
+            self.parts.append(f"t < {_sql_float(finite_float(end, 'end'))}")
+        return self
+
+    def sql(self) -> str | None:
+        return " AND ".join(f"({p})" for p in self.parts) if self.parts else None
