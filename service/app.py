@@ -15,6 +15,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+import anyio.to_thread
 from fastapi import Depends, FastAPI
 from starlette.concurrency import run_in_threadpool
 
@@ -95,12 +96,18 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # Reads (sync routes, run_in_threadpool) use the default thread pool; writes never
+        # do (the group committer has its own thread, prepares run on the writer's limiter),
+        # so bounding it bounds the reads alone.
+        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.read_threads
         # Load the text model before the first request instead of during it.
         try:
             await run_in_threadpool(memory.space.embed_texts, ["warm up"], query=True)
         except Exception:  # noqa: BLE001
             log.exception("warming up the space failed")
         yield
+        # Commit what is queued (its clients are waiting for their acks), then stop.
+        await run_in_threadpool(state.committer.close, 30.0)
 
     app = FastAPI(
         title="tactus-memory",

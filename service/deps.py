@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 from dataclasses import dataclass
 from typing import Annotated, Any
@@ -9,6 +10,7 @@ from typing import Annotated, Any
 from fastapi import Depends, HTTPException, Path, Request
 from starlette.requests import HTTPConnection
 
+from tactus_memory.ingest import GroupCommitter
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.settings import Settings
 from tactus_memory.service.writes import Writer
@@ -26,10 +28,24 @@ class ServiceState:
     memory: Any
     touch_unavailable: str | None = None
     writer: Writer | None = None
+    committer: GroupCommitter | None = None
 
     def __post_init__(self) -> None:
         if self.writer is None:
             self.writer = Writer(self.settings.write_threads)
+        if self.committer is None:
+            self.committer = GroupCommitter(
+                self.memory,
+                tick=self.settings.commit_tick_ms / 1000.0,
+                max_batch=self.settings.commit_max_batch,
+                max_pending=self.settings.commit_max_pending,
+                encode_threads=self.settings.encode_threads,
+            )
+
+    async def commit(self, write: Any) -> list[str]:
+        """Queue a prepared write for the next group commit; returns its ids after the
+        commit (raises OverloadedError at once when the queue is full: 503 + Retry-After)."""
+        return await asyncio.wrap_future(self.committer.submit_prepared(write))
 
 
 def get_state(conn: HTTPConnection) -> ServiceState:

@@ -36,6 +36,36 @@ class Settings(BaseSettings):
     write_threads: int = Field(
         2, ge=1, le=64, description="Worker threads for writes (commits are serialised)."
     )
+    read_threads: int = Field(
+        8,
+        ge=1,
+        le=256,
+        description="Worker threads for reads (search, sessions); writes never take them.",
+    )
+    commit_tick_ms: float = Field(
+        25.0,
+        ge=0.0,
+        le=1000.0,
+        description="Group commit: how long the oldest queued write waits for company (ms).",
+    )
+    commit_max_batch: int = Field(
+        512,
+        ge=1,
+        le=100_000,
+        description="Group commit: most items embedded and committed at once.",
+    )
+    commit_max_pending: int = Field(
+        2048,
+        ge=1,
+        le=1_000_000,
+        description="Group commit: items queued before writes are refused (503 + Retry-After).",
+    )
+    encode_threads: int | None = Field(
+        None,
+        ge=1,
+        le=256,
+        description="Torch threads of the write path's encoder calls (default: torch's own).",
+    )
     touch: bool = Field(
         True, description="Register the shipped touch encoder on startup when it is available."
     )

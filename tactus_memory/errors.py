@@ -49,3 +49,11 @@ class DataFormatError(TactusError, ValueError):
 
 class DynamicRangeError(TactusError, ValueError):
     """Calibrated pressure uses too few intensity levels or looks already normalised."""
+
+
+class OverloadedError(TactusError):
+    """A bounded write queue is full: retry after ``retry_after`` seconds (HTTP 503)."""
+
+    def __init__(self, message: str, retry_after: float = 1.0) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after

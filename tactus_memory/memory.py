@@ -38,6 +38,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
@@ -136,6 +137,29 @@ class SenseInfo(BaseModel):
     rows: int
     mu: float | None = None
     sigma: float | None = None
+
+
+@dataclass(eq=False)
+class PreparedWrite:
+    """One validated write (one session, one sense), ready for :meth:`Memory.commit_writes`.
+
+    ``vectors`` ((n, D) unit rows) is filled in when the write is embedded.
+    """
+
+    session: str
+    sense: Sense
+    canon: list[Any]
+    ids: list[str]
+    upsert: bool
+    t: list[float]
+    t_end: list[float]
+    meta: list[str]
+    source: str
+    created: float
+    vectors: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.canon)
 
 
 class StoredSense(Sense):
@@ -427,15 +451,33 @@ class Memory(TemporalMixin):
 
         Everything is validated and embedded before the write: a failure writes nothing.
         """
-        import pyarrow as pa
+        write = self.prepare_write(
+            session, sense, items, t=t, t_end=t_end, meta=meta, ids=ids, source=source
+        )
+        return self.commit_writes([write])[0]
 
+    def prepare_write(
+        self,
+        session: str,
+        sense: str,
+        items: Sequence[Any],
+        *,
+        t: Sequence[float | None] | float | None = None,
+        t_end: Sequence[float | None] | float | None = None,
+        meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None = None,
+        ids: Sequence[str] | None = None,
+        source: str = "",
+    ) -> PreparedWrite:
+        """Validate one write (``add_many``'s arguments) without embedding or storing it.
+
+        Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
+        alone or with the writes of other sessions (group commit, ``tactus_memory.ingest``).
+        """
         session = validate_id(session, "session id")
         source = validate_source(source)
         s = self._live_sense(sense)
         items = list(items)
         n = len(items)
-        if n == 0:
-            return []
         if n > MAX_BATCH:
             raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
         now = time.time()
@@ -458,43 +500,87 @@ class Memory(TemporalMixin):
         else:
             id_list = [uuid.uuid4().hex for _ in range(n)]
         canon = [s.validate(x) for x in items]
-        vectors = as_unit_rows(s.embed(canon), self.space.dim, what=f"{sense} embedding")
-        if vectors.shape[0] != n:
-            raise InvalidInputError(f"sense {sense!r} returned {vectors.shape[0]} vectors for {n}")
-        extras = [s.to_row(x) for x in canon]
-        data = pa.table(
-            {
-                "id": id_list,
-                "session": [session] * n,
-                "sense": [s.name] * n,
-                "t": ts,
-                "t_end": ends,
-                "vector": pa.FixedSizeListArray.from_arrays(
-                    pa.array(vectors.reshape(-1), pa.float32()), self.space.dim
-                ),
-                "meta": metas,
-                "text": [e.get("text") for e in extras],
-                "raw": [e.get("raw") for e in extras],
-                "source": [source] * n,
-                "episode": pa.nulls(n, pa.int64()),
-                "created": [now] * n,
-            },
-            schema=self.store.schema,
-        )
+        return PreparedWrite(session, s, canon, id_list, upsert, ts, ends, metas, source, now)
+
+    def commit_writes(self, writes: Sequence[PreparedWrite]) -> list[list[str]]:
+        """Embed prepared writes (ONE ``embed`` call per sense across all of them) and store
+        them all in ONE LanceDB commit; returns each write's ids, in order.
+
+        All-or-nothing: if embedding or the commit fails nothing is written (vectors already
+        computed stay on the writes, so a retry of fewer writes does not embed them again).
+        Appends are one append; if any write is an upsert, all rows go in one merge-insert.
+        """
+        import pyarrow as pa
+
+        live = [w for w in writes if len(w)]
+        if not live:
+            return [list(w.ids) for w in writes]
+        by_sense: dict[str, list[PreparedWrite]] = {}
+        for w in live:
+            if w.vectors is None:
+                by_sense.setdefault(w.sense.name, []).append(w)
+        for name, group in by_sense.items():
+            canon = [x for w in group for x in w.canon]
+            vectors = as_unit_rows(
+                group[0].sense.embed(canon), self.space.dim, what=f"{name} embedding"
+            )
+            if vectors.shape[0] != len(canon):
+                raise InvalidInputError(
+                    f"sense {name!r} returned {vectors.shape[0]} vectors for {len(canon)}"
+                )
+            at = 0
+            for w in group:
+                w.vectors = vectors[at : at + len(w)]
+                at += len(w)
+        upsert = any(w.upsert for w in live)
+        all_ids = [i for w in live for i in w.ids]
+        if upsert and len(set(all_ids)) != len(all_ids):
+            raise InvalidInputError("the same id appears in two writes of one commit")
+        data = pa.concat_tables([self._rows(w) for w in live])
+        added: dict[str, int] = {}
+        for w in live:
+            added[w.sense.name] = added.get(w.sense.name, 0) + len(w)
         with self._lock:
             replaced: list[str] = []
             if upsert and self._counts is not None:
-                where = Where().ids(id_list).sql()
+                where = Where().ids(all_ids).sql()
                 replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
             self.store.write(data, upsert=upsert)
             if self._counts is not None:
                 counts = dict(self._counts)
                 for name in replaced:  # an upsert may move an id to another sense
                     counts[name] -= 1
-                counts[s.name] = counts.get(s.name, 0) + n
+                for name, n in added.items():
+                    counts[name] = counts.get(name, 0) + n
                 self._counts = counts
         self._schedule_maintenance()
-        return id_list
+        return [list(w.ids) for w in writes]
+
+    def _rows(self, w: PreparedWrite) -> Any:
+        """A prepared, embedded write -> its rows as a pyarrow table of the store's schema."""
+        import pyarrow as pa
+
+        n = len(w)
+        extras = [w.sense.to_row(x) for x in w.canon]
+        return pa.table(
+            {
+                "id": w.ids,
+                "session": [w.session] * n,
+                "sense": [w.sense.name] * n,
+                "t": w.t,
+                "t_end": w.t_end,
+                "vector": pa.FixedSizeListArray.from_arrays(
+                    pa.array(np.asarray(w.vectors).reshape(-1), pa.float32()), self.space.dim
+                ),
+                "meta": w.meta,
+                "text": [e.get("text") for e in extras],
+                "raw": [e.get("raw") for e in extras],
+                "source": [w.source] * n,
+                "episode": pa.nulls(n, pa.int64()),
+                "created": [w.created] * n,
+            },
+            schema=self.store.schema,
+        )
 
     def delete(self, ids: Sequence[str] | str) -> int:
         """Delete items by id; returns how many rows were removed."""

@@ -16,7 +16,13 @@ from pydantic import ValidationError
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
-from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable, WriterDep
+from tactus_memory.service.deps import (
+    MemoryDep,
+    SessionId,
+    StateDep,
+    TouchAvailable,
+    WriterDep,
+)
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
 from tactus_memory.service.touch_items import touch_item
@@ -53,7 +59,7 @@ def _validate(model: type, obj: Any) -> Any:
         raise RequestValidationError(errs) from None
 
 
-def _store(
+def _prepare(
     memory: Any,
     session: str,
     windows: list[np.ndarray],
@@ -62,9 +68,10 @@ def _store(
     meta: Any,
     ids: list[str] | None,
     calibrated: bool,
-) -> list[str]:
+) -> Any:
+    """Validate and calibrate the windows -> the prepared write for the group committer."""
     items = [touch_item(memory, "touch", w, calibrated) for w in windows]
-    return memory.add_many(session, "touch", items, t=t, t_end=t_end, meta=meta, ids=ids)
+    return memory.prepare_write(session, "touch", items, t=t, t_end=t_end, meta=meta, ids=ids)
 
 
 def _times(values: list[float] | None, n: int, what: str) -> list[float] | None:
@@ -94,6 +101,7 @@ async def add_touch(
     request: Request,
     memory: MemoryDep,
     writer: WriterDep,
+    state: StateDep,
     t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
     t_end: Annotated[list[float] | None, Query(description="npy body only: end time(s).")] = None,
     calibrated: Annotated[bool, Query(description="npy body only.")] = False,
@@ -108,8 +116,8 @@ async def add_touch(
         if not t:
             raise InvalidInputError("query parameter 't' is required with an npy body")
         n = len(windows)
-        ids = await writer.run(
-            _store,
+        write = await writer.run(
+            _prepare,
             memory,
             session,
             windows,
@@ -119,6 +127,7 @@ async def add_touch(
             None,
             calibrated,
         )
+        ids = await state.commit(write)
         return StoredOut(ids=ids, count=len(ids))
     if ctype not in ("application/json", "") and not ctype.endswith("+json"):
         raise HTTPException(
@@ -131,8 +140,8 @@ async def add_touch(
         batch: TouchBatchIn = _validate(TouchBatchIn, obj)
         windows = list(as_windows(batch.windows, "windows"))
         n = len(windows)
-        ids = await writer.run(
-            _store,
+        write = await writer.run(
+            _prepare,
             memory,
             session,
             windows,
@@ -145,8 +154,8 @@ async def add_touch(
     else:
         one: TouchWindowIn = _validate(TouchWindowIn, obj)
         window = as_window(one.frames, "frames")
-        ids = await writer.run(
-            _store,
+        write = await writer.run(
+            _prepare,
             memory,
             session,
             [window],
@@ -156,4 +165,5 @@ async def add_touch(
             None if one.id is None else [one.id],
             one.calibrated,
         )
+    ids = await state.commit(write)
     return StoredOut(ids=ids, count=len(ids))
