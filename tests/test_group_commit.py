@@ -277,3 +277,43 @@ def test_websocket_full_queue_sends_error_frame(tmp_path):
     finally:
         touch.gate.set()
     assert len(memory) == 1
+
+
+def test_reads_do_not_wait_for_writes(tmp_path):
+    """A commit stuck in the encoder holds no thread that reads need: searches, session
+    listings and health answer meanwhile, on the bounded read pool."""
+    import anyio.to_thread
+
+    memory = make_memory(tmp_path / "mem", touch=False)
+    memory.add("s", "text", "a soft sponge", t=0.0)
+    touch = GatedTouch(memory.space.dim)
+    memory.add_sense(touch)
+    app = create_app(Settings(commit_tick_ms=0, read_threads=3), memory=memory)
+    with TestClient(app) as c:
+        tokens = c.portal.call(
+            lambda: anyio.to_thread.current_default_thread_limiter().total_tokens
+        )
+        assert tokens == 3
+        pending: dict[str, Any] = {}
+        writers = [
+            threading.Thread(
+                target=lambda i=i: pending.__setitem__(
+                    i, c.post(f"/sessions/g{i}/touch", json={"frames": window().tolist(), "t": 1})
+                )
+            )
+            for i in range(6)
+        ]
+        for th in writers:
+            th.start()
+        try:
+            assert touch.entered.wait(10)
+            for _ in range(5):  # more reads than read threads: none waits on the stuck commit
+                r = c.get("/search", params={"q": "soft sponge", "k": 1})
+                assert r.status_code == 200 and r.json()["hits"][0]["text"] == "a soft sponge"
+                assert c.get("/sessions").status_code == 200
+            assert all(th.is_alive() for th in writers)  # the writes are still waiting
+        finally:
+            touch.gate.set()
+            for th in writers:
+                th.join(30)
+    assert [pending[i].status_code for i in range(6)] == [201] * 6
