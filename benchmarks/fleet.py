@@ -301,7 +301,8 @@ async def soak_run(
 ) -> dict[str, Any]:
     data = work / f"store-{tag}"
     log = work / f"server-{tag}.log"
-    server = TactusServer(data, log, {})
+    env = dict(kv.split("=", 1) for kv in args.server_env)
+    server = TactusServer(data, log, env)
     port = server.port
     searchers = Searchers([server.base], args.searchers, args.search_pause, seed=gloves)
     result: dict[str, Any] = {
@@ -313,6 +314,7 @@ async def soak_run(
         "note_interval_s": args.note_interval,
         "searchers": args.searchers,
         "touch_encoder": server.health.get("touch"),
+        "server_env": env,
     }
     try:
         # Warm-up fill (not measured): every sense has rows, indexes/caches are warm.
@@ -412,7 +414,7 @@ async def soak_run(
             acked_rows_lost=len(acked - stored),
         )
         # Idle search again on the full store (restart after the kill).
-        server = TactusServer(data, log, {})
+        server = TactusServer(data, log, env)
         idle_after: list[float] = []
         await searchers_for(server, args, gloves).run(
             time.monotonic() + args.idle_seconds, idle_after
@@ -544,6 +546,7 @@ def main() -> None:
     ap.add_argument("--note-writers", type=int, default=2)
     ap.add_argument("--note-interval", type=float, default=1.0)
     ap.add_argument("--sample-seconds", type=float, default=10.0)
+    ap.add_argument("--server-env", nargs="*", default=[], help="KEY=VALUE for (a), (b)")
     ap.add_argument("--replica-env", nargs="*", default=["TACTUS_READ_CONSISTENCY=1"])
     ap.add_argument("--replica-gloves", type=int, default=16)
     ap.add_argument("--replica-seconds", type=float, default=30.0)

@@ -11,6 +11,7 @@ the touch routes answer 503 naming it.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -84,8 +85,28 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     return why
 
 
+def torch_threads(settings: Settings, own_memory: bool) -> int | None:
+    """Torch threads per call: the setting, else half the cores for a server that opens its
+    own memory (an injected memory, as in tests, leaves the process's torch alone).
+
+    ``torch.set_num_threads`` sets the count for threads that have not run torch yet, so it
+    is set here, before any worker thread exists: on 2 cores, the committer's encoder batch
+    and a search's query embedding then run one thread each instead of fighting over both
+    (oversubscribed OpenMP threads spin: measured 3x slower encoder batches on this box).
+    """
+    if settings.torch_threads is not None:
+        return settings.torch_threads
+    return max(1, (os.cpu_count() or 2) // 2) if own_memory else None
+
+
 def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     settings = settings or Settings()
+    threads = torch_threads(settings, own_memory=memory is None)
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+        settings = settings.model_copy(update={"torch_threads": threads})
     if memory is None:
         memory, touch_why = open_memory(settings)
     else:

@@ -39,7 +39,7 @@ class ServiceState:
                 tick=self.settings.commit_tick_ms / 1000.0,
                 max_batch=self.settings.commit_max_batch,
                 max_pending=self.settings.commit_max_pending,
-                encode_threads=self.settings.encode_threads,
+                encode_threads=self.settings.torch_threads,
             )
 
     async def commit(self, write: Any) -> list[str]:

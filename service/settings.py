@@ -55,16 +55,18 @@ class Settings(BaseSettings):
         description="Group commit: most items embedded and committed at once.",
     )
     commit_max_pending: int = Field(
-        2048,
+        1024,
         ge=1,
         le=1_000_000,
         description="Group commit: items queued before writes are refused (503 + Retry-After).",
     )
-    encode_threads: int | None = Field(
+    torch_threads: int | None = Field(
         None,
         ge=1,
         le=256,
-        description="Torch threads of the write path's encoder calls (default: torch's own).",
+        description="Torch threads per call (encoder batches, query embedding). Default: half "
+        "the CPU cores when the server opens its own memory (`tactus serve`), so the "
+        "committer's encoder and a search's MiniLM each get their own cores.",
     )
     touch: bool = Field(
         True, description="Register the shipped touch encoder on startup when it is available."

@@ -43,9 +43,9 @@ log = logging.getLogger(__name__)
 #: period (33 ms), so a glove's window never waits for more than about one frame
 DEFAULT_TICK_S = 0.025
 #: most items in one commit (a 64-glove tick at 30 Hz carries ~6-60 windows)
-DEFAULT_MAX_BATCH = 512
-#: most items queued or committing before submit pushes back (~8 s of 64 gloves)
-DEFAULT_MAX_PENDING = 2048
+DEFAULT_MAX_BATCH = 256
+#: most items queued or committing before submit pushes back (~4 s of 64 gloves at 30 Hz)
+DEFAULT_MAX_PENDING = 1024
 
 
 @dataclass
