@@ -49,7 +49,7 @@ class Settings(BaseSettings):
         description="Group commit: how long the oldest queued write waits for company (ms).",
     )
     commit_max_batch: int = Field(
-        512,
+        256,
         ge=1,
         le=100_000,
         description="Group commit: most items embedded and committed at once.",

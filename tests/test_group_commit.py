@@ -5,6 +5,7 @@ Real LanceDB files in tmp_path; the HashingSpace and a stand-in touch sense keep
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Sequence
 from typing import Any
@@ -317,3 +318,13 @@ def test_reads_do_not_wait_for_writes(tmp_path):
             for th in writers:
                 th.join(30)
     assert [pending[i].status_code for i in range(6)] == [201] * 6
+
+
+def test_torch_threads_policy():
+    from tactus_memory.service.app import torch_threads
+
+    assert torch_threads(Settings(torch_threads=3), own_memory=True) == 3
+    assert torch_threads(Settings(torch_threads=3), own_memory=False) == 3
+    assert torch_threads(Settings(), own_memory=False) is None  # injected memory: hands off
+    half = max(1, (os.cpu_count() or 2) // 2)
+    assert torch_threads(Settings(), own_memory=True) == half
