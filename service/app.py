@@ -121,6 +121,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         # do (the group committer has its own thread, prepares run on the writer's limiter),
         # so bounding it bounds the reads alone.
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.read_threads
+        state.open_committer()
         # Load the text model before the first request instead of during it.
         try:
             await run_in_threadpool(memory.space.embed_texts, ["warm up"], query=True)
@@ -128,7 +129,8 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
             log.exception("warming up the space failed")
         yield
         # Commit what is queued (its clients are waiting for their acks), then stop.
-        await run_in_threadpool(state.committer.close, 30.0)
+        if state.committer is not None:
+            await run_in_threadpool(state.committer.close, 30.0)
 
     app = FastAPI(
         title="tactus-memory",

@@ -33,7 +33,10 @@ class ServiceState:
     def __post_init__(self) -> None:
         if self.writer is None:
             self.writer = Writer(self.settings.write_threads)
-        if self.committer is None:
+
+    def open_committer(self) -> GroupCommitter:
+        """The running group committer (a new one after a shutdown closed the last)."""
+        if self.committer is None or self.committer.closed:
             self.committer = GroupCommitter(
                 self.memory,
                 tick=self.settings.commit_tick_ms / 1000.0,
@@ -41,11 +44,12 @@ class ServiceState:
                 max_pending=self.settings.commit_max_pending,
                 encode_threads=self.settings.torch_threads,
             )
+        return self.committer
 
     async def commit(self, write: Any) -> list[str]:
         """Queue a prepared write for the next group commit; returns its ids after the
         commit (raises OverloadedError at once when the queue is full: 503 + Retry-After)."""
-        return await asyncio.wrap_future(self.committer.submit_prepared(write))
+        return await asyncio.wrap_future(self.open_committer().submit_prepared(write))
 
 
 def get_state(conn: HTTPConnection) -> ServiceState:

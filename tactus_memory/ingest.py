@@ -152,6 +152,11 @@ class GroupCommitter:
         return self.submit(session, sense, items, **kw).result()
 
     @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called (submits are refused)."""
+        return self._closing
+
+    @property
     def pending(self) -> int:
         """Items queued or being committed."""
         return self._pending_items

@@ -328,3 +328,15 @@ def test_torch_threads_policy():
     assert torch_threads(Settings(), own_memory=False) is None  # injected memory: hands off
     half = max(1, (os.cpu_count() or 2) // 2)
     assert torch_threads(Settings(), own_memory=True) == half
+
+
+def test_app_restart_gets_a_fresh_committer(tmp_path):
+    """Shutdown drains and closes the committer; a second startup of the same app opens a
+    new one (TestClient and schemathesis run the lifespan once per client)."""
+    memory = make_memory(tmp_path / "mem", touch=False)
+    app = create_app(Settings(), memory=memory)
+    for i in range(2):
+        with TestClient(app) as c:
+            assert c.post("/sessions/s/text", json={"text": f"n{i}", "t": 0}).status_code == 201
+        assert app.state.tactus.committer.closed
+    assert len(memory) == 2

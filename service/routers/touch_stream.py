@@ -245,7 +245,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
                     write = memory.prepare_write(
                         session, "touch", [item], t=[t_first], t_end=[t_last], source=stream_id
                     )
-                    fut = asyncio.wrap_future(state.committer.submit_prepared(write))
+                    fut = asyncio.wrap_future(state.open_committer().submit_prepared(write))
                 except TactusError as exc:  # invalid window, or the write queue is full
                     await send(_window_error(exc, seq, stream_id))
                 else:
