@@ -85,28 +85,22 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     return why
 
 
-def torch_threads(settings: Settings, own_memory: bool) -> int | None:
-    """Torch threads per call: the setting, else half the cores for a server that opens its
-    own memory (an injected memory, as in tests, leaves the process's torch alone).
-
-    ``torch.set_num_threads`` sets the count for threads that have not run torch yet, so it
-    is set here, before any worker thread exists: on 2 cores, the committer's encoder batch
-    and a search's query embedding then run one thread each instead of fighting over both
-    (oversubscribed OpenMP threads spin: measured 3x slower encoder batches on this box).
+def serving_torch_threads() -> int:
+    """Torch threads per call for a server (``tactus serve`` without TACTUS_TORCH_THREADS):
+    half the cores, so the committer's encoder batch and a search's query embedding each get
+    their own instead of fighting over all of them (oversubscribed OpenMP threads spin: on
+    the shared 2-core box, encoder batches measured 3x slower with 2 threads than with 1).
     """
-    if settings.torch_threads is not None:
-        return settings.torch_threads
-    return max(1, (os.cpu_count() or 2) // 2) if own_memory else None
+    return max(1, (os.cpu_count() or 2) // 2)
 
 
 def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     settings = settings or Settings()
-    threads = torch_threads(settings, own_memory=memory is None)
-    if threads is not None:
+    if settings.torch_threads is not None:
+        # Before any worker thread exists: threads take the count when they first run torch.
         import torch
 
-        torch.set_num_threads(threads)
-        settings = settings.model_copy(update={"torch_threads": threads})
+        torch.set_num_threads(settings.torch_threads)
     if memory is None:
         memory, touch_why = open_memory(settings)
     else:

@@ -64,9 +64,9 @@ class Settings(BaseSettings):
         None,
         ge=1,
         le=256,
-        description="Torch threads per call (encoder batches, query embedding). Default: half "
-        "the CPU cores when the server opens its own memory (`tactus serve`), so the "
-        "committer's encoder and a search's MiniLM each get their own cores.",
+        description="Torch threads per call (encoder batches, query embedding). `tactus serve` "
+        "defaults to half the CPU cores, so the committer's encoder and a search's MiniLM each "
+        "get their own; unset elsewhere (torch's own default).",
     )
     touch: bool = Field(
         True, description="Register the shipped touch encoder on startup when it is available."

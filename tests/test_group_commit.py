@@ -320,14 +320,22 @@ def test_reads_do_not_wait_for_writes(tmp_path):
     assert [pending[i].status_code for i in range(6)] == [201] * 6
 
 
-def test_torch_threads_policy():
-    from tactus_memory.service.app import torch_threads
+def test_serve_sets_torch_threads_to_half_the_cores(monkeypatch):
+    """``tactus serve`` passes half the cores as torch threads (unless told otherwise)."""
+    from typer.testing import CliRunner
 
-    assert torch_threads(Settings(torch_threads=3), own_memory=True) == 3
-    assert torch_threads(Settings(torch_threads=3), own_memory=False) == 3
-    assert torch_threads(Settings(), own_memory=False) is None  # injected memory: hands off
-    half = max(1, (os.cpu_count() or 2) // 2)
-    assert torch_threads(Settings(), own_memory=True) == half
+    import tactus_memory.service.app as app_module
+    from tactus_memory.cli import app as cli_app
+
+    seen: list[Settings] = []
+    monkeypatch.setattr(app_module, "create_app", lambda settings: seen.append(settings))
+    monkeypatch.setattr("uvicorn.run", lambda *a, **kw: None)
+    monkeypatch.delenv("TACTUS_TORCH_THREADS", raising=False)
+    assert CliRunner().invoke(cli_app, ["serve"]).exit_code == 0
+    assert seen[-1].torch_threads == max(1, (os.cpu_count() or 2) // 2)
+    monkeypatch.setenv("TACTUS_TORCH_THREADS", "3")
+    assert CliRunner().invoke(cli_app, ["serve"]).exit_code == 0
+    assert seen[-1].torch_threads == 3
 
 
 def test_app_restart_gets_a_fresh_committer(tmp_path):

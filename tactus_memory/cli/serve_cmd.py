@@ -68,6 +68,10 @@ def serve(
     if no_touch:
         overrides["touch"] = False
     settings = Settings(**overrides)
+    if settings.torch_threads is None:
+        from tactus_memory.service.app import serving_torch_threads
+
+        settings = settings.model_copy(update={"torch_threads": serving_torch_threads()})
     application = create_app(settings)
     typer.echo(
         f"tactus-memory serving {settings.data} on http://{settings.host}:{settings.port} "
