@@ -34,7 +34,10 @@ class Settings(BaseSettings):
     window: int = Field(8, ge=1, le=512, description="Default frames per window on touch streams.")
     stride: int = Field(8, ge=1, le=512, description="Default frames between window starts.")
     write_threads: int = Field(
-        2, ge=1, le=64, description="Worker threads for writes (commits are serialised)."
+        2,
+        ge=1,
+        le=64,
+        description="Worker threads that validate write bodies (commits: the group committer).",
     )
     read_threads: int = Field(
         8,
