@@ -27,12 +27,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import io
 import json
 import os
 import platform
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -41,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from load import Barrier, GloveStats, free_port, pct, queries, raw_frames, stream_glove
 
 ROOT = Path(__file__).resolve().parents[1]
 DIM = 384
@@ -80,55 +79,9 @@ PHRASES = [
     "a warm laptop",
     "a cold can of soda",
 ]
-ADJ = [
-    "soft",
-    "hard",
-    "warm",
-    "cold",
-    "smooth",
-    "rough",
-    "heavy",
-    "light",
-    "wet",
-    "dry",
-    "squishy",
-    "sharp",
-    "round",
-    "flat",
-    "sticky",
-    "slippery",
-    "fragile",
-    "solid",
-]
-NOUN = [
-    "mug",
-    "ball",
-    "sponge",
-    "spoon",
-    "bottle",
-    "cup",
-    "towel",
-    "brick",
-    "plate",
-    "toy",
-    "glove",
-    "box",
-    "book",
-    "can",
-    "knife",
-    "apple",
-    "handle",
-    "bag",
-    "block",
-    "pen",
-]
 
 
 # ----------------------------------------------------------------------------- helpers
-def pct(xs: list[float], p: float) -> float:
-    return float(np.percentile(np.asarray(xs), p)) if xs else float("nan")
-
-
 def summary_ms(xs: list[float]) -> dict[str, float]:
     return {
         "n": len(xs),
@@ -136,28 +89,6 @@ def summary_ms(xs: list[float]) -> dict[str, float]:
         "p95_ms": round(pct(xs, 95) * 1e3, 2),
         "mean_ms": round(float(np.mean(xs)) * 1e3, 2) if xs else float("nan"),
     }
-
-
-def queries(n: int, seed: int) -> list[str]:
-    """n unique natural-language queries (unique so no cache can answer them)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for i in range(n):
-        a, b = rng.choice(ADJ, 2, replace=False)
-        out.append(f"something {a} and {b} like a {rng.choice(NOUN)} #{seed}-{i}")
-    return out
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def npy(arr: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, arr, allow_pickle=False)
-    return buf.getvalue()
 
 
 # ----------------------------------------------------------------------------- store
@@ -362,24 +293,12 @@ def search_latency(
 # ----------------------------------------------------------------------------- ingest
 async def ingest(port: int, clients: int, hz: float, seconds: float, window: int) -> dict:
     import httpx
-    from websockets.asyncio.client import connect
 
-    rng = np.random.default_rng(1)
-    frames = [npy((500 + 200 * rng.random((32, 32))).astype(np.uint16)) for _ in range(16)]
-    stats = {"sent_frames": 0, "stored": 0, "errors": 0, "lag": [], "error_samples": []}
+    frames = raw_frames()
+    stats = GloveStats()
     run_id = f"{int(time.time())}"
     # Every client connects first; the clock starts when all are ready.
-    ready = 0
-    go = asyncio.Event()
-    stop_at = float("inf")
-
-    async def arrived() -> None:
-        nonlocal ready, stop_at
-        ready += 1
-        if ready == clients + 1:
-            stop_at = time.monotonic() + seconds
-            go.set()
-        await go.wait()
+    clock = Barrier(clients + 1, seconds)
 
     async def glove(i: int) -> None:
         session = f"bench-glove-{run_id}-{i}"
@@ -387,52 +306,17 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
             f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream"
             f"?window={window}&stride={window}&hz={hz}&t0=0"
         )
-        sent_at: dict[int, float] = {}
-        async with connect(url, max_size=2**22, open_timeout=60) as ws:
-            assert json.loads(await ws.recv())["type"] == "ready"
-            await arrived()
-
-            async def receiver() -> None:
-                async for raw in ws:
-                    msg = json.loads(raw)
-                    if msg["type"] == "stored":
-                        stats["stored"] += 1
-                        now = time.monotonic()
-                        stats["last_ack"] = max(stats.get("last_ack", 0.0), now)
-                        if now <= stop_at:
-                            stats["stored_during"] = stats.get("stored_during", 0) + 1
-                        t_sent = sent_at.pop(msg["seq"], None)
-                        if t_sent is not None:
-                            stats["lag"].append(time.monotonic() - t_sent)
-                    elif msg["type"] == "error":
-                        stats["errors"] += 1
-                        if len(stats["error_samples"]) < 5:
-                            stats["error_samples"].append(msg)
-
-            recv_task = asyncio.create_task(receiver())
-            await asyncio.sleep(i / clients / hz)  # spread the gloves over one frame period
-            n = 0
-            nxt = time.monotonic()
-            while time.monotonic() < stop_at:
-                await ws.send(frames[n % len(frames)])
-                n += 1
-                stats["sent_frames"] += 1
-                if n % window == 0:
-                    sent_at[n // window - 1] = time.monotonic()
-                nxt += 1 / hz
-                delay = nxt - time.monotonic()
-                if delay > 0:
-                    await asyncio.sleep(delay)
-            expected = n // window
-            deadline = time.monotonic() + 60
-            while sent_at and time.monotonic() < deadline:
-                await asyncio.sleep(0.05)
-            stats.setdefault("late_windows", 0)
-            stats["late_windows"] += len(sent_at)
-            stats.setdefault("expected", 0)
-            stats["expected"] += expected
-            await ws.close()
-            recv_task.cancel()
+        await stream_glove(
+            url,
+            session,
+            stats,
+            hz=hz,
+            window=window,
+            frames=frames,
+            ready=clock.ready,
+            stop_at=clock.stop_at,
+            offset_s=i / clients / hz,  # spread the gloves over one frame period
+        )
 
     search_lat: list[float] = []
 
@@ -440,9 +324,9 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
         qs = queries(100_000, seed=7)
         async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", timeout=60) as c:
             await c.get("/health")
-            await arrived()
+            await clock.ready()
             i = 0
-            while time.monotonic() < stop_at:
+            while time.monotonic() < clock.stop:
                 t0 = time.perf_counter()
                 r = await c.get("/search", params={"q": qs[i], "k": K})
                 search_lat.append(time.perf_counter() - t0)
@@ -451,7 +335,8 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
                 await asyncio.sleep(0.1)
 
     await asyncio.gather(*(glove(i) for i in range(clients)), searcher())
-    wall = time.monotonic() - (stop_at - seconds)
+    wall = time.monotonic() - clock.start
+    stop_at = clock.stop
     return {
         "clients": clients,
         "hz": hz,
@@ -459,19 +344,19 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
         "stride": window,
         "seconds": seconds,
         "frame_format": "binary .npy (32, 32) uint16, raw units",
-        "sent_frames": stats["sent_frames"],
-        "frames_per_s": round(stats["sent_frames"] / seconds, 1),
+        "sent_frames": stats.sent_frames,
+        "frames_per_s": round(stats.sent_frames / seconds, 1),
         "target_frames_per_s": clients * hz,
-        "windows_expected": stats.get("expected", 0),
-        "windows_stored": stats["stored"],
-        "windows_per_s": round(stats["stored"] / seconds, 1),
-        "windows_stored_while_streaming": stats.get("stored_during", 0),
-        "windows_per_s_while_streaming": round(stats.get("stored_during", 0) / seconds, 1),
-        "drain_s_after_stop": round(max(0.0, stats.get("last_ack", stop_at) - stop_at), 2),
-        "errors": stats["errors"],
-        "error_samples": stats["error_samples"],
-        "windows_unacked_after_60s": stats.get("late_windows", 0),
-        "ack_lag": summary_ms(stats["lag"]),
+        "windows_expected": stats.expected,
+        "windows_stored": stats.stored,
+        "windows_per_s": round(stats.stored / seconds, 1),
+        "windows_stored_while_streaming": stats.stored_during,
+        "windows_per_s_while_streaming": round(stats.stored_during / seconds, 1),
+        "drain_s_after_stop": round(max(0.0, (stats.last_ack or stop_at) - stop_at), 2),
+        "errors": stats.errors,
+        "error_samples": stats.error_samples,
+        "windows_unacked_after_60s": stats.late_windows,
+        "ack_lag": summary_ms(stats.lag),
         "search_while_ingesting": summary_ms(search_lat),
         "wall_s": round(wall, 1),
     }

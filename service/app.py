@@ -12,10 +12,12 @@ the touch routes answer 503 naming it.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+import anyio.to_thread
 from fastapi import Depends, FastAPI
 from starlette.concurrency import run_in_threadpool
 
@@ -92,8 +94,22 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     return why
 
 
+def serving_torch_threads() -> int:
+    """Torch threads per call for a server (``tactus serve`` without TACTUS_TORCH_THREADS):
+    half the cores, so the committer's encoder batch and a search's query embedding each get
+    their own instead of fighting over all of them (oversubscribed OpenMP threads spin: on
+    the shared 2-core box, encoder batches measured 3x slower with 2 threads than with 1).
+    """
+    return max(1, (os.cpu_count() or 2) // 2)
+
+
 def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     settings = settings or Settings()
+    if settings.torch_threads is not None:
+        # Before any worker thread exists: threads take the count when they first run torch.
+        import torch
+
+        torch.set_num_threads(settings.torch_threads)
     if memory is None:
         memory, touch_why = open_memory(settings)
     else:
@@ -104,12 +120,20 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # Reads (sync routes, run_in_threadpool) use the default thread pool; writes never
+        # do (the group committer has its own thread, prepares run on the writer's limiter),
+        # so bounding it bounds the reads alone.
+        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.read_threads
+        state.open_committer()
         # Load the text model before the first request instead of during it.
         try:
             await run_in_threadpool(memory.space.embed_texts, ["warm up"], query=True)
         except Exception:  # noqa: BLE001
             log.exception("warming up the space failed")
         yield
+        # Commit what is queued (its clients are waiting for their acks), then stop.
+        if state.committer is not None:
+            await run_in_threadpool(state.committer.close, 30.0)
 
     app = FastAPI(
         title="tactus-memory",

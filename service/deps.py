@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 from dataclasses import dataclass, replace
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Path, Query, Request
 from starlette.requests import HTTPConnection
+
+from tactus_memory.ingest import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
@@ -17,7 +20,7 @@ from tactus_memory.limits import (
     MAX_TEXT_CHARS,
     SENSE_NAME_PATTERN,
 )
-from tactus_memory.memory import Memory
+from tactus_memory.memory import Memory, PreparedWrite
 from tactus_memory.query import Scope
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.settings import Settings
@@ -32,10 +35,28 @@ class ServiceState:
     memory: Memory
     touch_unavailable: str | None = None
     writer: Writer | None = None
+    committer: GroupCommitter | None = None
 
     def __post_init__(self) -> None:
         if self.writer is None:
             self.writer = Writer(self.settings.write_threads)
+
+    def open_committer(self) -> GroupCommitter:
+        """The running group committer (a new one after a shutdown closed the last)."""
+        if self.committer is None or self.committer.closed:
+            self.committer = GroupCommitter(
+                self.memory,
+                tick=self.settings.commit_tick_ms / 1000.0,
+                max_batch=self.settings.commit_max_batch,
+                max_pending=self.settings.commit_max_pending,
+                encode_threads=self.settings.torch_threads,
+            )
+        return self.committer
+
+    async def commit(self, write: PreparedWrite) -> list[str]:
+        """Queue a prepared write for the next group commit; returns its ids after the
+        commit (raises OverloadedError at once when the queue is full: 503 + Retry-After)."""
+        return await asyncio.wrap_future(self.open_committer().submit_prepared(write))
 
 
 def get_state(conn: HTTPConnection) -> ServiceState:

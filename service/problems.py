@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -41,6 +42,7 @@ ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {
     errors.CapabilityError: (400, "capability", "Not supported by this memory"),
     errors.DataFormatError: (422, "data-format", "Invalid data format"),
     errors.DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
+    errors.OverloadedError: (503, "overloaded", "Write queue full"),
 }
 
 HTTP_TITLES = {
@@ -172,7 +174,11 @@ def install_problem_handlers(app: FastAPI) -> None:
 
     async def tactus_error(request: Request, exc: errors.TactusError) -> JSONResponse:
         status, slug, title = error_status(exc) or (422, "invalid-input", "Invalid input")
-        return problem_response(status, str(exc), slug=slug, title=title, instance=request.url.path)
+        retry = getattr(exc, "retry_after", None)  # OverloadedError: tell when to come back
+        headers = None if retry is None else {"Retry-After": str(max(1, math.ceil(retry)))}
+        return problem_response(
+            status, str(exc), slug=slug, title=title, instance=request.url.path, headers=headers
+        )
 
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail = exc.detail if isinstance(exc.detail, str) else json.dumps(exc.detail)

@@ -49,7 +49,42 @@ class Settings(BaseSettings):
     window: int = Field(8, ge=1, le=512, description="Default frames per window on touch streams.")
     stride: int = Field(8, ge=1, le=512, description="Default frames between window starts.")
     write_threads: int = Field(
-        2, ge=1, le=64, description="Worker threads for writes (commits are serialised)."
+        2,
+        ge=1,
+        le=64,
+        description="Worker threads that validate write bodies (commits: the group committer).",
+    )
+    read_threads: int = Field(
+        8,
+        ge=1,
+        le=256,
+        description="Worker threads for reads (search, sessions); writes never take them.",
+    )
+    commit_tick_ms: float = Field(
+        25.0,
+        ge=0.0,
+        le=1000.0,
+        description="Group commit: how long the oldest queued write waits for company (ms).",
+    )
+    commit_max_batch: int = Field(
+        256,
+        ge=1,
+        le=100_000,
+        description="Group commit: most items embedded and committed at once.",
+    )
+    commit_max_pending: int = Field(
+        1024,
+        ge=1,
+        le=1_000_000,
+        description="Group commit: items queued before writes are refused (503 + Retry-After).",
+    )
+    torch_threads: int | None = Field(
+        None,
+        ge=1,
+        le=256,
+        description="Torch threads per call (encoder batches, query embedding). `tactus serve` "
+        "defaults to half the CPU cores, so the committer's encoder and a search's MiniLM each "
+        "get their own; unset elsewhere (torch's own default).",
     )
     touch: bool = Field(
         True, description="Register the shipped touch encoder on startup when it is available."

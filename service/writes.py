@@ -1,10 +1,9 @@
-"""The write path: every blocking library write runs here, in worker threads, few at a time.
+"""The write path's worker threads: parsing and validating large write bodies (touch batches,
+``.npy`` bodies, images) off the event loop, few at a time.
 
-``Memory`` serialises its commits with a lock, so many threads waiting on it buy nothing; they
-would only hold the threadpool that reads (search, sessions) need. Writes therefore get their
-own capacity limiter (``Settings.write_threads``, default 2: one embedding while one commits);
-reads keep the default threadpool. A write's coroutine resumes, and its 201 or WebSocket ack
-is sent, only after ``Memory.add_many`` returned, i.e. after the LanceDB commit.
+They are not the read pool: reads keep the default threadpool. The embedding and the LanceDB
+commit itself run on the group committer's own thread (``tactus_memory.ingest``); a write's
+coroutine resumes, and its 201 or WebSocket ack is sent, only after that commit returned.
 """
 
 from __future__ import annotations

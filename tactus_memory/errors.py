@@ -54,3 +54,11 @@ class DynamicRangeError(TactusError, ValueError):
 class SpaceConfigError(TactusError, ValueError):
     """A space cannot be built as asked: its model folder is missing, not given, or holds
     another model than the one a store was created with. One line naming the option to pass."""
+
+
+class OverloadedError(TactusError):
+    """A bounded write queue is full: retry after ``retry_after`` seconds (HTTP 503)."""
+
+    def __init__(self, message: str, retry_after: float = 1.0) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after

@@ -53,7 +53,14 @@ from tactus_memory.query import Scope, ScopeKwargs, check_k, check_query_text, e
 from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry, StoredSense
-from tactus_memory.rows import check_batch, items_table, options_for, summarise
+from tactus_memory.rows import (
+    PreparedWrite,
+    check_batch,
+    embed_groups,
+    options_for,
+    summarise,
+    writes_table,
+)
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
@@ -71,6 +78,7 @@ __all__ = [
     "Hit",
     "Item",
     "Memory",
+    "PreparedWrite",
     "Scope",
     "SenseInfo",
     "SessionSummary",
@@ -217,31 +225,73 @@ class Memory(TemporalQuestions):
         ``options`` go to the sense's ``validate`` (e.g. ``{"calibrated": True}`` for touch);
         the sense's ``embed`` then takes the validated items as they are.
         """
+        write = self.prepare_write(
+            session,
+            sense,
+            items,
+            t=t,
+            t_end=t_end,
+            meta=meta,
+            ids=ids,
+            source=source,
+            options=options,
+        )
+        return self.commit_writes([write])[0]
+
+    def prepare_write(
+        self,
+        session: str,
+        sense: str,
+        items: Sequence[Any],
+        *,
+        t: Sequence[float | None] | float | None = None,
+        t_end: Sequence[float | None] | float | None = None,
+        meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None = None,
+        ids: Sequence[str] | None = None,
+        source: str = "",
+        options: Mapping[str, Any] | None = None,
+    ) -> PreparedWrite:
+        """Validate one write (``add_many``'s arguments) without embedding or storing it.
+
+        Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
+        alone or with the writes of other sessions (group commit, ``tactus_memory.ingest``).
+        """
         session = validate_id(session, "session id")
         source = validate_source(source)
         s = self.registry.live_sense(sense)
         items = list(items)
-        if not items:
-            return []
         batch = check_batch(len(items), t, t_end, meta, ids)
         opts = options_for(s, options)
         canon = [s.validate(x, **opts) for x in items]
-        vectors = as_unit_rows(s.embed(canon), self.space.dim, what=f"{sense} embedding")
-        if vectors.shape[0] != len(items):
-            raise InvalidInputError(
-                f"sense {sense!r} returned {vectors.shape[0]} vectors for {len(items)}"
-            )
-        extras = [s.to_row(x) for x in canon]
-        data = items_table(self.store.schema, batch, session, s.name, source, vectors, extras)
+        return PreparedWrite(session, s, canon, batch, source)
+
+    def commit_writes(self, writes: Sequence[PreparedWrite]) -> list[list[str]]:
+        """Embed prepared writes (ONE ``embed`` call per sense across all of them) and store
+        them all in ONE LanceDB commit; returns each write's ids, in order.
+
+        All-or-nothing: if embedding or the commit fails nothing is written (vectors already
+        computed stay on the writes, so a retry of fewer writes does not embed them again).
+        Appends are one append; if any write is an upsert, all rows go in one merge-insert.
+        """
+        live = [w for w in writes if len(w)]
+        if not live:
+            return [list(w.ids) for w in writes]
+        embed_groups(live, self.space.dim)
+        upsert = any(w.batch.upsert for w in live)
+        all_ids = [i for w in live for i in w.ids]
+        if upsert and len(set(all_ids)) != len(all_ids):
+            raise InvalidInputError("the same id appears in two writes of one commit")
+        data = writes_table(self.store.schema, live)
         with self.lock:
             replaced: list[str] = []
-            if batch.upsert and self.registry.counting:
-                where = Where().ids(batch.ids).sql()
+            if upsert and self.registry.counting:
+                where = Where().ids(all_ids).sql()
                 replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
-            self.store.write(data, upsert=batch.upsert)
-            self.registry.note_write(s.name, len(items), replaced)
+            self.store.write(data, upsert=upsert)
+            for n, w in enumerate(live):
+                self.registry.note_write(w.sense.name, len(w), replaced if n == 0 else [])
         self._schedule_maintenance()
-        return batch.ids
+        return [list(w.ids) for w in writes]
 
     def delete(self, ids: Sequence[str] | str) -> int:
         """Delete items by id; returns how many rows were removed."""

@@ -18,6 +18,7 @@ from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
 from tactus_memory.models import SessionSummary
 from tactus_memory.senses import Sense
 from tactus_memory.store import finite_float, validate_id
+from tactus_memory.vectors import as_unit_rows
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -97,6 +98,48 @@ def check_batch(
     return Batch(ts, ends, metas, id_list, upsert, now)
 
 
+@dataclass(eq=False)
+class PreparedWrite:
+    """One validated write (one session, one sense), ready for ``Memory.commit_writes``.
+
+    ``vectors`` ((n, D) unit rows) is filled in when the write is embedded.
+    """
+
+    session: str
+    sense: Sense
+    canon: list[Any]
+    batch: Batch
+    source: str
+    vectors: np.ndarray | None = None
+
+    @property
+    def ids(self) -> list[str]:
+        return self.batch.ids
+
+    def __len__(self) -> int:
+        return len(self.canon)
+
+
+def embed_groups(writes: Sequence[PreparedWrite], dim: int) -> None:
+    """Embed the writes that have no vectors yet: ONE ``embed`` call per sense across all of
+    them; each write gets its slice of (n, ``dim``) unit rows."""
+    by_sense: dict[str, list[PreparedWrite]] = {}
+    for w in writes:
+        if w.vectors is None:
+            by_sense.setdefault(w.sense.name, []).append(w)
+    for name, group in by_sense.items():
+        canon = [x for w in group for x in w.canon]
+        vectors = as_unit_rows(group[0].sense.embed(canon), dim, what=f"{name} embedding")
+        if vectors.shape[0] != len(canon):
+            raise InvalidInputError(
+                f"sense {name!r} returned {vectors.shape[0]} vectors for {len(canon)}"
+            )
+        at = 0
+        for w in group:
+            w.vectors = vectors[at : at + len(w)]
+            at += len(w)
+
+
 def items_table(
     schema: pa.Schema,
     batch: Batch,
@@ -129,6 +172,26 @@ def items_table(
             "created": [batch.created] * n,
         },
         schema=schema,
+    )
+
+
+def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table:
+    """The Arrow table of several embedded writes (one commit)."""
+    import pyarrow as pa
+
+    return pa.concat_tables(
+        [
+            items_table(
+                schema,
+                w.batch,
+                w.session,
+                w.sense.name,
+                w.source,
+                np.asarray(w.vectors),
+                [w.sense.to_row(x) for x in w.canon],
+            )
+            for w in writes
+        ]
     )
 
 

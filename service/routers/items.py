@@ -1,11 +1,11 @@
 """Writes of text, images and precomputed vectors into a session.
 
-The write path (every write route, touch included): the body is parsed and validated on the
-event loop, then the blocking library call runs in a worker thread of the service's writer
-(``service/writes.py``, a few threads of its own so reads never wait behind writes).
-``Memory.add_many`` validates and embeds everything first, then writes ONE LanceDB commit
-under the memory's write lock; the 201 is sent only after that commit returned, so an
-acknowledged write survives a crash of the server.
+The write path (every write route, touch and the WebSocket stream included): the body is
+parsed and validated (``Memory.prepare_write``: a bad item fails its own request at once),
+then queued for the group committer (``tactus_memory.ingest``): writes of every session that
+arrive within one tick are embedded in one call per sense and stored in ONE LanceDB commit;
+the 201 is sent only after that commit returned, so an acknowledged write survives a crash
+of the server. A full queue answers 503 with ``Retry-After``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from fastapi import APIRouter, File, Form, UploadFile
 from tactus_memory.errors import CapabilityError, InvalidInputError
 from tactus_memory.limits import ID_PATTERN
 from tactus_memory.service.arrays import loads_strict
-from tactus_memory.service.deps import MemoryDep, SessionId, WriterDep
+from tactus_memory.service.deps import MemoryDep, SessionId, StateDep, WriterDep
 from tactus_memory.service.images import decode_image
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
@@ -33,19 +33,19 @@ router = APIRouter(prefix="/sessions/{session}", tags=["items"])
     responses=problem_responses(404, 413, 422),
 )
 async def add_text(
-    session: SessionId, body: TextIn, memory: MemoryDep, writer: WriterDep
+    session: SessionId, body: TextIn, memory: MemoryDep, state: StateDep
 ) -> StoredOut:
-    item_id = await writer.run(
-        memory.add,
+    write = memory.prepare_write(
         session,
         "text",
-        body.text,
-        t=body.t,
-        t_end=body.t_end,
-        meta=body.meta,
-        id=body.id,
+        [body.text],
+        t=[body.t],
+        t_end=[body.t_end],
+        meta=[body.meta],
+        ids=None if body.id is None else [body.id],
     )
-    return StoredOut(ids=[item_id], count=1)
+    ids = await state.commit(write)
+    return StoredOut(ids=ids, count=1)
 
 
 @router.post(
@@ -58,13 +58,13 @@ async def add_text(
     responses=problem_responses(404, 413, 422),
 )
 async def add_vectors(
-    session: SessionId, body: VectorsIn, memory: MemoryDep, writer: WriterDep
+    session: SessionId, body: VectorsIn, memory: MemoryDep, writer: WriterDep, state: StateDep
 ) -> StoredOut:
     n = len(body.vectors)
     if len(body.t) != n:
         raise InvalidInputError(f"t has {len(body.t)} entries for {n} vectors")
-    ids = await writer.run(
-        memory.add_many,
+    write = await writer.run(
+        memory.prepare_write,
         session,
         body.sense,
         body.vectors,
@@ -73,6 +73,7 @@ async def add_vectors(
         meta=body.meta,
         ids=body.ids,
     )
+    ids = await state.commit(write)
     return StoredOut(ids=ids, count=len(ids))
 
 
@@ -91,6 +92,7 @@ async def add_image(
     session: SessionId,
     memory: MemoryDep,
     writer: WriterDep,
+    state: StateDep,
     file: Annotated[UploadFile, File(description="PNG/JPEG/... image.")],
     t: Annotated[float, Form(allow_inf_nan=False)],
     t_end: Annotated[float | None, Form(allow_inf_nan=False)] = None,
@@ -108,7 +110,15 @@ async def add_image(
         if not isinstance(meta_obj, dict):
             raise InvalidInputError("meta must be a JSON object")
     image = await writer.run(decode_image, await file.read())
-    item_id = await writer.run(
-        memory.add, session, "image", image, t=t, t_end=t_end, meta=meta_obj, id=id
+    write = await writer.run(
+        memory.prepare_write,
+        session,
+        "image",
+        [image],
+        t=[t],
+        t_end=[t_end],
+        meta=[meta_obj],
+        ids=None if id is None else [id],
     )
-    return StoredOut(ids=[item_id], count=1)
+    ids = await state.commit(write)
+    return StoredOut(ids=ids, count=1)

@@ -16,9 +16,15 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.memory import Memory
+from tactus_memory.memory import Memory, PreparedWrite
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
-from tactus_memory.service.deps import MemoryDep, SessionId, TouchAvailable, WriterDep
+from tactus_memory.service.deps import (
+    MemoryDep,
+    SessionId,
+    StateDep,
+    TouchAvailable,
+    WriterDep,
+)
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
 
@@ -51,7 +57,7 @@ def _validate(model: type, obj: Any) -> Any:
         raise RequestValidationError(errs) from None
 
 
-def _store(
+def _prepare(
     memory: Memory,
     session: str,
     windows: list[np.ndarray],
@@ -60,9 +66,10 @@ def _store(
     meta: Any,
     ids: list[str] | None,
     calibrated: bool,
-) -> list[str]:
-    # the edge checked the shape; the touch sense checks range and calibration, once
-    return memory.add_many(
+) -> PreparedWrite:
+    """The prepared write for the group committer: the edge checked the shape; the touch
+    sense checks range and calibration, once."""
+    return memory.prepare_write(
         session,
         "touch",
         windows,
@@ -147,6 +154,7 @@ async def add_touch(
     request: Request,
     memory: MemoryDep,
     writer: WriterDep,
+    state: StateDep,
     t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
     t_end: Annotated[list[float] | None, Query(description="npy body only: end time(s).")] = None,
     calibrated: Annotated[bool, Query(description="npy body only.")] = False,
@@ -156,7 +164,8 @@ async def add_touch(
     up = _upload(ctype, raw, t, t_end, calibrated)
     n = len(up.windows)
     times = (_times(up.t, n, "t"), _times(up.t_end, n, "t_end"))
-    ids = await writer.run(
-        _store, memory, session, up.windows, *times, up.meta, up.ids, up.calibrated
+    write = await writer.run(
+        _prepare, memory, session, up.windows, *times, up.meta, up.ids, up.calibrated
     )
+    ids = await state.commit(write)
     return StoredOut(ids=ids, count=len(ids))

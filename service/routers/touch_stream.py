@@ -17,10 +17,15 @@ Protocol (all server messages are JSON objects with a ``type``):
   skipped; a window the touch sense refuses (e.g. values already in [0, 1] on a raw stream)
   gets ``{"type": "error", "error": {...}, "windows": [seq]}``. The connection stays open.
   A partial window left at disconnect is not stored.
+* when the server's write queue is full the window is refused, not stored:
+  ``{"type": "error", "error": {status 503...}, "windows": [seq], "retry_after": 1.0}``.
 
-Windows wait in a per-connection queue; a writer task stores whatever has piled up in one
-``add_many`` call (one commit) in the threadpool, so the receive loop keeps reading frames
-at glove rate while the previous windows commit.
+Each window is validated on arrival and handed to the service's group committer
+(``tactus_memory.ingest``): the windows of every glove and the HTTP writes that arrive within
+one tick are embedded in one encoder call and stored in one commit. An ack task per
+connection sends the ``stored`` messages in order, each after its commit; at most
+``QUEUE_WINDOWS`` windows per connection wait for their commit, beyond that the receive loop
+stops reading (TCP pushes back on the glove).
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ from typing import Any
 import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from tactus_memory.errors import InvalidInputError, TactusError
+from tactus_memory.errors import InvalidInputError, OverloadedError, TactusError
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
@@ -51,7 +56,6 @@ router = APIRouter(tags=["touch"])
 ID_RE = re.compile(ID_PATTERN)
 MAX_WINDOW = 512
 QUEUE_WINDOWS = 256
-BATCH_WINDOWS = 64
 POLICY_VIOLATION = 1008
 TRY_AGAIN_LATER = 1013
 
@@ -155,7 +159,10 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
 
     stream_id = "ws-" + uuid.uuid4().hex[:16]
     windower = WindowStream(params.window, params.stride)  # the library's stream windowing
-    queue: asyncio.Queue[tuple[int, Any, float, float] | None] = asyncio.Queue(QUEUE_WINDOWS)
+    # windows handed to the group committer, waiting for their commit (bounded: when full,
+    # the receive loop stops reading and TCP pushes back on the glove)
+    acks: asyncio.Queue[tuple[int, float, float, asyncio.Future[list[str]]] | None]
+    acks = asyncio.Queue(QUEUE_WINDOWS)
     await send(
         {
             "type": "ready",
@@ -167,56 +174,23 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
         }
     )
 
-    def store(batch: list[tuple[int, Any, float, float]]) -> list[str]:
-        return memory.add_many(
-            session,
-            "touch",
-            [b[1] for b in batch],
-            t=[b[2] for b in batch],
-            t_end=[b[3] for b in batch],
-            source=stream_id,
-        )
-
-    async def commit(batch: list[tuple[int, Any, float, float]]) -> None:
-        """Store a batch in one commit and ack each window; a failing batch is retried one
-        window at a time, so one bad window never costs its neighbours."""
-        try:
-            ids = await state.writer.run(store, batch)
-        except Exception as exc:  # noqa: BLE001  (report, keep the stream alive)
-            if len(batch) > 1:
-                for one in batch:
-                    await commit([one])
+    async def acker() -> None:
+        """Acknowledge windows in order, each after the group commit that stored it."""
+        while True:
+            entry = await acks.get()
+            if entry is None:
                 return
-            if isinstance(exc, TactusError):
-                problem = problem_for_exception(exc)
-            else:
-                log.exception("storing a touch window failed on stream %s", stream_id)
-                problem = problem_body(
-                    500, f"storing failed ({type(exc).__name__}); see the server log"
-                )
-            await _try_send(send, {"type": "error", "error": problem, "windows": [batch[0][0]]})
-            return
-        for (seq, _, t, t_end), item_id in zip(batch, ids, strict=True):
+            seq, t_first, t_last, fut = entry
+            try:
+                ids = await fut
+            except Exception as exc:  # noqa: BLE001  (report, keep the stream alive)
+                await _try_send(send, _window_error(exc, seq, stream_id))
+                continue
             await _try_send(
-                send, {"type": "stored", "id": item_id, "seq": seq, "t": t, "t_end": t_end}
+                send, {"type": "stored", "id": ids[0], "seq": seq, "t": t_first, "t_end": t_last}
             )
 
-    async def writer() -> None:
-        done = False
-        while not done:
-            first = await queue.get()
-            if first is None:
-                return
-            batch = [first]
-            while len(batch) < BATCH_WINDOWS and not queue.empty():
-                nxt = queue.get_nowait()
-                if nxt is None:
-                    done = True
-                    break
-                batch.append(nxt)
-            await commit(batch)
-
-    writer_task = asyncio.create_task(writer())
+    acker_task = asyncio.create_task(acker())
     frame_index = 0
     seq = 0
     try:
@@ -237,27 +211,48 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
                 done = windower.push(frame, [t])
                 for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
                     try:  # the sense's own checks (range, calibration), before queueing
-                        item = memory.validate_item("touch", win, {"calibrated": params.calibrated})
-                    except TactusError as exc:
-                        await send(
-                            {"type": "error", "error": problem_for_exception(exc), "windows": [seq]}
+                        write = memory.prepare_write(
+                            session,
+                            "touch",
+                            [win],
+                            t=[float(t_first)],
+                            t_end=[float(t_last)],
+                            source=stream_id,
+                            options={"calibrated": params.calibrated},
                         )
+                        fut = asyncio.wrap_future(state.open_committer().submit_prepared(write))
+                    except TactusError as exc:  # invalid window, or the write queue is full
+                        await send(_window_error(exc, seq, stream_id))
                     else:
-                        await queue.put((seq, item, float(t_first), float(t_last)))
+                        await acks.put((seq, float(t_first), float(t_last), fut))
                     seq += 1
-            if writer_task.done():
+            if acker_task.done():
                 break
     except WebSocketDisconnect:
         pass
     finally:
         try:
-            queue.put_nowait(None)
+            acks.put_nowait(None)
         except asyncio.QueueFull:
-            await queue.put(None)
+            await acks.put(None)
         with contextlib.suppress(Exception):
-            await writer_task
+            await acker_task
     with contextlib.suppress(Exception):
         await websocket.close()
+
+
+def _window_error(exc: BaseException, seq: int, stream_id: str) -> dict[str, Any]:
+    """The error message for window ``seq``: the problem, plus ``retry_after`` (seconds)
+    when the server's write queue was full (the window was not stored)."""
+    if isinstance(exc, TactusError):
+        problem = problem_for_exception(exc)
+    else:
+        log.error("storing a touch window failed on stream %s", stream_id, exc_info=exc)
+        problem = problem_body(500, f"storing failed ({type(exc).__name__}); see the server log")
+    message: dict[str, Any] = {"type": "error", "error": problem, "windows": [seq]}
+    if isinstance(exc, OverloadedError):
+        message["retry_after"] = exc.retry_after
+    return message
 
 
 async def _try_send(send: Any, message: dict[str, Any]) -> None:

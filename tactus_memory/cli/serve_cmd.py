@@ -80,6 +80,10 @@ def serve(
     from tactus_memory.errors import TactusError
 
     settings = Settings(**overrides)
+    if settings.torch_threads is None:
+        from tactus_memory.service.app import serving_torch_threads
+
+        settings = settings.model_copy(update={"torch_threads": serving_torch_threads()})
     try:
         application = load_app(settings, say=lambda line: typer.echo(line, err=True))
     except TactusError as exc:  # e.g. SpaceConfigError: the model folder is missing or other
