@@ -324,12 +324,12 @@ def test_serve_sets_torch_threads_to_half_the_cores(monkeypatch):
     """``tactus serve`` passes half the cores as torch threads (unless told otherwise)."""
     from typer.testing import CliRunner
 
-    import tactus_memory.service.app as app_module
+    import tactus_memory.cli.serve_cmd as serve_cmd
     from tactus_memory.cli import app as cli_app
 
     seen: list[Settings] = []
-    monkeypatch.setattr(app_module, "create_app", lambda settings: seen.append(settings))
-    monkeypatch.setattr("uvicorn.run", lambda *a, **kw: None)
+    monkeypatch.setattr(serve_cmd, "load_app", lambda settings, say: seen.append(settings))
+    monkeypatch.setattr(serve_cmd, "run_server", lambda application, settings: None)
     monkeypatch.delenv("TACTUS_TORCH_THREADS", raising=False)
     assert CliRunner().invoke(cli_app, ["serve"]).exit_code == 0
     assert seen[-1].torch_threads == max(1, (os.cpu_count() or 2) // 2)
