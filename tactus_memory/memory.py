@@ -50,6 +50,7 @@ from tactus_memory.errors import (
     SenseConflictError,
     UnknownSenseError,
 )
+from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import (
     MAX_TEXT_CHARS,
@@ -236,6 +237,7 @@ class Memory(TemporalMixin):
         self._stored: dict[str, StoredSense] = {}
         self._calib: dict[str, Calibration] = {}
         self._counts: dict[str, int] | None = None
+        self._seen_versions: tuple[int, int] = (-1, -1)  # (items, senses) the caches match
         self._probes: np.ndarray | None = None
         self._maint_thread: threading.Thread | None = None
         store.bind_space(space.name, int(space.dim))
@@ -252,8 +254,9 @@ class Memory(TemporalMixin):
         storage_options: dict[str, str] | None = None,
         index: IndexConfig | None = None,
         index_threshold: int | None = None,
-        read_consistency_interval: timedelta | None = None,
+        read_consistency_interval: timedelta | float | str | None = "env",
         background: bool = True,
+        maintenance: MaintenanceConfig | None = None,
     ) -> Memory:
         """Open (or create) a memory at ``path``: a local directory, ``file://``, or an
         object-storage URI (``s3://``, ``gs://``, ``az://``) with ``storage_options``.
@@ -261,6 +264,11 @@ class Memory(TemporalMixin):
         ``space`` defaults to the space the store records (MiniLM, ``get_space("minilm")``, for
         a new store); a store created with another space raises
         :class:`~tactus_memory.errors.SpaceMismatchError` naming both.
+
+        Several processes may open one store: each sees the others' commits within
+        ``read_consistency_interval`` (default ``TACTUS_READ_CONSISTENCY`` or 1 s), and only
+        the one whose ``maintenance.maintain`` is true compacts and cleans up
+        (:mod:`tactus_memory.maintenance`, :mod:`tactus_memory.connect`).
         """
         cfg = index or IndexConfig()
         if index_threshold is not None:
@@ -270,6 +278,7 @@ class Memory(TemporalMixin):
             storage_options=storage_options,
             read_consistency_interval=read_consistency_interval,
             index=cfg,
+            maintenance=maintenance,
         )
         if space is None:
             from tactus_memory.spaces import get_space
@@ -486,7 +495,13 @@ class Memory(TemporalMixin):
             if upsert and self._counts is not None:
                 where = Where().ids(id_list).sql()
                 replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
+            before = self.store.version()
             self.store.write(data, upsert=upsert)
+            if self._seen_versions[0] == before == self.store.version() - 1:
+                # nobody else committed in between: the count caches stay exact
+                self._seen_versions = (before + 1, self._seen_versions[1])
+            else:
+                self._counts = None
             if self._counts is not None:
                 counts = dict(self._counts)
                 for name in replaced:  # an upsert may move an id to another sense
@@ -517,6 +532,8 @@ class Memory(TemporalMixin):
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
+        if not self.store.maintenance.maintain:
+            return  # another process maintains this store (`tactus maintain`)
         if not (self.store.needs_maintenance() or self._index_due()):
             return
         if not self.background:
@@ -545,7 +562,21 @@ class Memory(TemporalMixin):
             self._maint_thread.join(timeout)
 
     # ----------------------------------------------------------- counts & calibration
+    def _refresh_caches(self) -> None:
+        """Drop the row-count cache when the items table moved on (another process's
+        commit, a compaction) and reload the sense registry and calibrations when the senses
+        table did: replicas agree within the store's read consistency interval."""
+        seen = (self.store.version(), self.store.senses_version())
+        if seen == self._seen_versions:
+            return
+        if seen[1] != self._seen_versions[1]:
+            self._load_registry()
+        if seen[0] != self._seen_versions[0]:
+            self._counts = None
+        self._seen_versions = seen
+
     def _sense_counts(self) -> dict[str, int]:
+        self._refresh_caches()
         counts = self._counts
         if counts is None:
             import pyarrow.compute as pc

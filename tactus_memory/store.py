@@ -23,6 +23,10 @@ BTREE/BITMAP indexes on id, session, sense, t from 10k rows; an IVF_SQ cosine in
 4x or incremental updates have left more than 8 index segments. Filters allowing at most
 20k rows are answered by an exact flat scan of those rows. ``optimize`` (compaction plus
 incremental index update) runs every 64 appends; rows not yet indexed are still searched.
+Compaction, index refresh and version retention follow :mod:`tactus_memory.maintenance`
+(size-tiered, bounded disk) and run only in the process that owns maintenance
+(``MaintenanceConfig.maintain``); connections re-read the latest version every
+``read_consistency`` seconds (:mod:`tactus_memory.connect`), so replicas see each other.
 """
 
 from __future__ import annotations
@@ -40,7 +44,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactus_memory.connect import read_consistency_interval as consistency_from
+from tactus_memory.connect import storage_options_for
 from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatchError
+from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
 from tactus_memory.senses import validate_sense_name
 
 if TYPE_CHECKING:  # heavy imports stay lazy
@@ -247,10 +254,9 @@ class IndexConfig:
     retrain_growth: float = 4.0
     #: retrain the ANN index when incremental updates have split it into more segments
     max_deltas: int = 8
-    #: run ``optimize`` (compaction + incremental index update) after this many appends
+    #: run maintenance (size-tiered compaction, incremental index update, version cleanup:
+    #: :mod:`tactus_memory.maintenance`) after this many appends by this process
     compact_every: int = 64
-    #: versions older than this are removed by ``optimize``
-    cleanup_older_than: timedelta = timedelta(hours=1)
     #: scalar index type per column
     scalar: dict[str, str] = field(
         default_factory=lambda: {"id": "BTREE", "session": "BTREE", "sense": "BITMAP", "t": "BTREE"}
@@ -312,19 +318,30 @@ class Store:
         uri: str,
         *,
         storage_options: dict[str, str] | None = None,
-        read_consistency_interval: timedelta | None = None,
+        read_consistency_interval: timedelta | float | str | None = "env",
         index: IndexConfig | None = None,
+        maintenance: MaintenanceConfig | None = None,
     ) -> None:
+        """``read_consistency_interval``: how stale reads may be against other processes'
+        commits (``"env"``: ``TACTUS_READ_CONSISTENCY``, default 1 s; None: never re-read).
+        ``storage_options``: LanceDB object-store options; for ``s3://`` the AWS environment
+        variables fill in what is not given (:func:`tactus_memory.connect.storage_options_for`).
+        ``maintenance``: the policy, and whether this process runs it (default from env)."""
         import lancedb
 
         self.uri = normalise_uri(uri)
         self.index = index or IndexConfig()
-        self.storage_options = dict(storage_options or {})
+        self.maintenance = maintenance or MaintenanceConfig()
+        self.storage_options = storage_options_for(self.uri, storage_options)
+        self.read_consistency = consistency_from(read_consistency_interval)
         self.db = lancedb.connect(
             self.uri,
-            storage_options=storage_options,
-            read_consistency_interval=read_consistency_interval,
+            storage_options=self.storage_options or None,
+            read_consistency_interval=self.read_consistency,
         )
+        self._maintainer: Maintainer | None = None
+        #: what the last maintenance run did, per table
+        self.last_maintenance: list[TableReport] = []
         self._items: Any = None
         self._senses: Any = None
         self._meta: Any = None
@@ -548,12 +565,36 @@ class Store:
     def dim(self) -> int:
         return int(self.items.schema.field("vector").type.list_size)
 
-    def maintain(self, *, force: bool = False) -> bool:
-        """Build/retrain indexes past the threshold and compact small appends.
+    def version(self) -> int:
+        """The items table's version as this connection sees it (changes on every commit,
+        ours or, within ``read_consistency``, another process's)."""
+        return 0 if self._items is None else int(self.items.version)
 
-        Returns True when something ran. Safe to call from a background thread: writes may
-        go on meanwhile (LanceDB commits are optimistic and compaction rebases).
+    def senses_version(self) -> int:
+        return 0 if self._senses is None else int(self._senses.version)
+
+    def maintainer(self) -> Maintainer:
+        """The maintenance runner for this store's tables (built on first use)."""
+        if self._maintainer is None:
+            tables = {
+                name: tbl.uri
+                for name, tbl in ((ITEMS, self._items), (SENSES, self._senses), (META, self._meta))
+                if tbl is not None
+            }
+            self._maintainer = Maintainer(tables, self.storage_options, self.maintenance)
+        return self._maintainer
+
+    def maintain(self, *, force: bool = False) -> bool:
+        """Build/retrain indexes past the threshold, then run the maintenance policy
+        (size-tiered compaction, incremental index refresh, version cleanup).
+
+        Returns True when something ran. Only the process that owns maintenance
+        (``maintenance.maintain``) runs it unless ``force``. Safe to call from a background
+        thread: writes may go on meanwhile (LanceDB commits are optimistic; compaction
+        rebases on concurrent appends).
         """
+        if not (force or self.maintenance.maintain):
+            return False
         if not self._maintenance.acquire(blocking=force):
             return False
         try:
@@ -566,11 +607,16 @@ class Store:
                 grown = n >= cfg.retrain_growth * int(info.get("rows", n))
                 if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
                     self.build_indexes()
-            self.items.optimize(cleanup_older_than=cfg.cleanup_older_than)
             self._appends = 0
+            self.last_maintenance = self.maintainer().run()
+            for tbl in (self._items, self._senses, self._meta):
+                if tbl is not None:  # our handles must not stay on versions cleanup removes
+                    tbl.checkout_latest()
+            for report in self.last_maintenance:
+                log.debug("maintenance: %s", report)
             return True
         finally:
             self._maintenance.release()
 
     def needs_maintenance(self) -> bool:
-        return self._appends >= self.index.compact_every
+        return self.maintenance.maintain and self._appends >= self.index.compact_every

@@ -1,0 +1,298 @@
+"""Maintenance for an always-on store: bounded disk while ingest runs.
+
+Three jobs, run by one process per store (the *maintainer*: ``tactus maintain``, or a
+``tactus serve`` without ``--no-maintain``), each on every table of the store:
+
+1. **Size-tiered compaction.** Streaming writes make one small fragment per commit. A fragment
+   is in tier 0 below ``tier_base_bytes`` and in tier ``k`` when it is about
+   ``tier_base_bytes * fan_in**(k-1)`` to ``fan_in`` times that. A run of at least
+   ``fan_in`` adjacent fragments of one tier is merged into one fragment of the next tier
+   (Lance ``compact_files`` with every other fragment excluded), so each row is rewritten
+   about ``log_fan_in(table bytes / tier_base_bytes)`` times in its life, and fragments of
+   ``settled_bytes`` or more are never rewritten again (only a fragment whose deleted share
+   passes ``deletion_threshold`` is rewritten alone, to drop the deleted rows). LanceDB's own
+   ``optimize()`` instead merges every fragment under 1M rows each time: with ~16 KB touch
+   rows that is the whole table, rewritten every 64 appends (issue 11: 30x disk).
+2. **Index refresh.** Rows appended since the last run are merged into the existing indices
+   incrementally (Lance ``optimize_indices``), never a rebuild. Retraining the ANN index is
+   the store's separate, rare decision (:meth:`tactus_memory.store.Store.maintain`).
+3. **Version retention.** Every commit is a version; a version's files go only when no
+   version still kept needs them. A version is removed once it was *superseded* more than
+   ``retain_seconds`` ago (not merely created that long ago), so a reader that opened it just
+   before a compaction or delete has ``retain_seconds`` to finish. The maintainer notes which
+   version was the latest at each run; the first run reads the version history once.
+
+Disk then stays near the live data: the extra is what compaction rewrote within the last
+``retain_seconds`` plus the small tier-0 tail (measured by ``benchmarks/disk.py``).
+
+Knobs: :class:`MaintenanceConfig` (pydantic-settings, env ``TACTUS_*``; README section
+"Always-on: disk, maintenance, replicas, object storage").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+log = logging.getLogger(__name__)
+
+MiB = 1024 * 1024
+
+
+class MaintenanceConfig(BaseSettings):
+    """The maintenance policy. Every field also reads ``TACTUS_<NAME>`` from the environment."""
+
+    model_config = SettingsConfigDict(env_prefix="TACTUS_", extra="ignore")
+
+    maintain: bool = Field(
+        True,
+        description="This process maintains the store (compaction, index refresh, cleanup). "
+        "Exactly one process per store should: replicas run with maintain=False.",
+    )
+    retain_seconds: float = Field(
+        120.0,
+        ge=0.0,
+        description="Keep a version until it has been superseded this long (readers in flight "
+        "finish within it; other replicas re-read the latest version every read_consistency).",
+    )
+    maintain_interval: float = Field(
+        10.0, gt=0.0, description="Seconds between runs of `tactus maintain` / serve's loop."
+    )
+    maintain_every_appends: int = Field(
+        64, ge=1, description="In-process trigger: a run after this many appends by this process."
+    )
+    fan_in: int = Field(
+        8, ge=2, description="Merge a tier once it has this many adjacent fragments."
+    )
+    tier_base_bytes: int = Field(
+        4 * MiB, ge=1, description="Fragments below this are tier 0 (the streaming tail)."
+    )
+    settled_bytes: int = Field(
+        512 * MiB, ge=1, description="Fragments of this size are never merged again."
+    )
+    deletion_threshold: float = Field(
+        0.1, gt=0.0, le=1.0, description="Rewrite a fragment alone once this share is deleted."
+    )
+    num_threads: int = Field(1, ge=1, description="Threads per compaction (2 cores: leave 1).")
+
+
+# --------------------------------------------------------------------------- planning
+@dataclass(frozen=True)
+class FragmentInfo:
+    """One fragment as the planner sees it."""
+
+    id: int
+    rows: int  # physical rows, deleted included
+    deleted: int
+    bytes: int  # data files on disk
+
+
+def tier_of(nbytes: int, cfg: MaintenanceConfig) -> int | None:
+    """The size tier of a fragment of ``nbytes`` (None: settled, never merged)."""
+    if nbytes >= cfg.settled_bytes:
+        return None
+    if nbytes < cfg.tier_base_bytes:
+        return 0
+    return 1 + int(math.log(nbytes / cfg.tier_base_bytes, cfg.fan_in))
+
+
+def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[list[int]]:
+    """Groups of fragment ids to rewrite, each group into one fragment (fragments in table
+    order). A run of >= ``fan_in`` adjacent fragments of one tier is a group; so is a lone
+    fragment whose deleted share passes ``deletion_threshold``. Settled fragments and runs
+    shorter than ``fan_in`` are left alone."""
+    groups: list[list[int]] = []
+    run: list[FragmentInfo] = []
+    run_tier: int | None = None
+
+    def close() -> None:
+        if run_tier is not None and len(run) >= cfg.fan_in:
+            groups.append([f.id for f in run])
+        else:
+            groups.extend(
+                [f.id]
+                for f in run
+                if f.rows and f.deleted / f.rows >= cfg.deletion_threshold and f.deleted < f.rows
+            )
+
+    for f in frags:
+        tier = tier_of(f.bytes, cfg)
+        if tier is None or tier != run_tier:
+            close()
+            run, run_tier = [], tier
+        run.append(f)
+    close()
+    return groups
+
+
+# --------------------------------------------------------------------------- running
+@dataclass
+class TableReport:
+    """What one maintenance run did to one table."""
+
+    table: str
+    version: int
+    fragments: int
+    compacted_groups: int = 0
+    fragments_removed: int = 0
+    indices_refreshed: bool = False
+    versions_removed: int = 0
+    bytes_removed: int = 0
+    seconds: float = 0.0
+
+
+def fragment_infos(ds: Any) -> list[FragmentInfo]:
+    """FragmentInfo per fragment of a Lance dataset, in table order."""
+    out = []
+    for frag in ds.get_fragments():
+        m = frag.metadata
+        nbytes = sum(int(f.file_size_bytes or 0) for f in m.files)
+        out.append(FragmentInfo(int(m.id), int(m.physical_rows), int(m.num_deletions), nbytes))
+    return out
+
+
+class TableMaintainer:
+    """Maintains one Lance table (by URI). Keeps the version history this process has seen,
+    for the superseded-since rule of version retention. Thread-safe (one run at a time)."""
+
+    def __init__(self, uri: str, storage_options: dict[str, str], cfg: MaintenanceConfig):
+        self.uri = uri
+        self.storage_options = dict(storage_options)
+        self.cfg = cfg
+        # (wall time, latest version then): every version below it was superseded by then
+        self._seen: deque[tuple[float, int]] = deque()
+        self._removed_below = 0
+        self._lock = threading.Lock()
+
+    def _dataset(self) -> Any:
+        import lance
+
+        return lance.dataset(self.uri, storage_options=self.storage_options or None)
+
+    def run(self, *, now: float | None = None) -> TableReport:
+        with self._lock:
+            t0 = time.perf_counter()
+            ds = self._dataset()
+            report = TableReport(self.uri.rstrip("/").rsplit("/", 1)[-1], ds.version, 0)
+            self._compact(ds, report)
+            ds = self._dataset()
+            self._refresh_indices(ds, report)
+            ds = self._dataset()
+            report.version = ds.version
+            report.fragments = len(ds.get_fragments())
+            self._cleanup(ds, report, time.time() if now is None else now)
+            report.seconds = time.perf_counter() - t0
+            return report
+
+    def _compact(self, ds: Any, report: TableReport) -> None:
+        frags = fragment_infos(ds)
+        for group in plan_compaction(frags, self.cfg):
+            keep = set(group)
+            rows = sum(f.rows for f in frags if f.id in keep)
+            metrics = ds.optimize.compact_files(
+                # every fragment of the group is a candidate (rows < target) and the group
+                # becomes one fragment; the rest are excluded (and act as boundaries)
+                target_rows_per_fragment=rows + 1,
+                max_bytes_per_file=max(sum(f.bytes for f in frags if f.id in keep) * 4, 64 * MiB),
+                excluded_fragment_ids=[f.id for f in frags if f.id not in keep],
+                materialize_deletions=True,
+                materialize_deletions_threshold=self.cfg.deletion_threshold,
+                num_threads=self.cfg.num_threads,
+            )
+            report.compacted_groups += 1
+            report.fragments_removed += int(metrics.fragments_removed)
+
+    def _refresh_indices(self, ds: Any, report: TableReport) -> None:
+        stale = any(
+            int(ds.stats.index_stats(ix.name).get("num_unindexed_rows", 0)) > 0
+            for ix in ds.describe_indices()
+        )
+        if stale:
+            ds.optimize.optimize_indices()
+            report.indices_refreshed = True
+
+    def _cleanup(self, ds: Any, report: TableReport, now: float) -> None:
+        cfg = self.cfg
+        if not self._seen:  # first run: read the history once (a version's successor's
+            # timestamp is when it was superseded)
+            history = ds.versions()
+            for v in history:
+                self._seen.append((v["timestamp"].timestamp(), int(v["version"])))
+            self._removed_below = min((int(v["version"]) for v in history), default=0)
+        self._seen.append((now, int(ds.version)))
+        cut = 0
+        while self._seen and self._seen[0][0] <= now - cfg.retain_seconds:
+            cut = max(cut, self._seen.popleft()[1])
+        if cut <= self._removed_below + 1:
+            return
+        doomed = list(range(max(self._removed_below, 1), cut))
+        stats = ds.cleanup_old_versions(versions=doomed, error_if_tagged_old_versions=False)
+        self._removed_below = cut
+        report.versions_removed = int(stats.old_versions)
+        report.bytes_removed = int(stats.bytes_removed)
+
+
+class Maintainer:
+    """Maintains every table of a store (items, senses, meta)."""
+
+    def __init__(
+        self, tables: dict[str, str], storage_options: dict[str, str], cfg: MaintenanceConfig
+    ):
+        self.cfg = cfg
+        self.tables = {
+            name: TableMaintainer(uri, storage_options, cfg) for name, uri in tables.items()
+        }
+
+    def run(self) -> list[TableReport]:
+        return [t.run() for t in self.tables.values()]
+
+
+# --------------------------------------------------------------------------- measuring
+@dataclass
+class Footprint:
+    """Disk use of one local table: everything on disk vs what the latest version needs."""
+
+    disk_bytes: int
+    live_bytes: int
+    versions: int
+    fragments: int
+    rows: int
+
+    @property
+    def ratio(self) -> float:
+        return self.disk_bytes / self.live_bytes if self.live_bytes else math.inf
+
+
+def dir_bytes(path: str) -> int:
+    total = 0
+    for root, _dirs, files in os.walk(path):
+        for name in files:
+            with contextlib.suppress(OSError):  # removed while walking (cleanup ran)
+                total += os.path.getsize(os.path.join(root, name))
+    return total
+
+
+def footprint(table_path: str) -> Footprint:
+    """Footprint of a local Lance table directory. Live bytes: the data files, deletion
+    files and index files the latest version references (manifests not counted)."""
+    import lance
+
+    ds = lance.dataset(table_path)
+    frags = fragment_infos(ds)
+    live = sum(f.bytes for f in frags)
+    live += sum(int(ix.total_size_bytes or 0) for ix in ds.describe_indices())
+    versions_dir = os.path.join(table_path, "_versions")
+    n_versions = len(os.listdir(versions_dir)) if os.path.isdir(versions_dir) else 0
+    return Footprint(
+        dir_bytes(table_path), live, n_versions, len(frags), sum(f.rows - f.deleted for f in frags)
+    )
