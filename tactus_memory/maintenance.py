@@ -60,7 +60,7 @@ class MaintenanceConfig(BaseSettings):
         "Exactly one process per store should: replicas run with maintain=False.",
     )
     retain_seconds: float = Field(
-        120.0,
+        60.0,
         ge=0.0,
         description="Keep a version until it has been superseded this long (readers in flight "
         "finish within it; other replicas re-read the latest version every read_consistency).",
@@ -75,7 +75,7 @@ class MaintenanceConfig(BaseSettings):
         8, ge=2, description="Merge a tier once it has this many adjacent fragments."
     )
     tier_base_bytes: int = Field(
-        4 * MiB, ge=1, description="Fragments below this are tier 0 (the streaming tail)."
+        1 * MiB, ge=1, description="Fragments below this are tier 0 (the streaming tail)."
     )
     settled_bytes: int = Field(
         512 * MiB, ge=1, description="Fragments of this size are never merged again."
