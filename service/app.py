@@ -55,10 +55,12 @@ def open_memory(settings: Settings) -> tuple[Any, str | None]:
 
     Returns (memory, why touch is unavailable or None).
     """
+    from tactus_memory.maintenance import MaintenanceConfig
     from tactus_memory.memory import Memory
     from tactus_memory.spaces import get_space
 
-    memory = Memory.open(settings.data, space=get_space(settings.space))
+    maintenance = MaintenanceConfig(maintain=settings.maintain)
+    memory = Memory.open(settings.data, space=get_space(settings.space), maintenance=maintenance)
     return memory, register_default_senses(memory, settings)
 
 

@@ -369,6 +369,11 @@ class Store:
             self._meta = self.db.open_table(META)
 
     @property
+    def exists(self) -> bool:
+        """Whether the store has its items table (a memory was created here)."""
+        return self._items is not None
+
+    @property
     def items(self) -> Any:
         if self._items is None:
             raise RuntimeError("store has no items table yet; call bind_space first")

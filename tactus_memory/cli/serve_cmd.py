@@ -39,6 +39,14 @@ def serve(
     no_touch: Annotated[
         bool, typer.Option("--no-touch", help="Do not load the touch encoder.")
     ] = False,
+    no_maintain: Annotated[
+        bool,
+        typer.Option(
+            "--no-maintain",
+            help="Leave compaction and cleanup to another process (`tactus maintain`): for "
+            "replicas sharing a store (env TACTUS_MAINTAIN=0).",
+        ),
+    ] = False,
     log_level: Annotated[str | None, typer.Option(help="uvicorn log level (default info).")] = None,
 ) -> None:
     """Serve the memory over HTTP: writes, search, sessions, live touch (WebSocket).
@@ -67,11 +75,14 @@ def serve(
     overrides = {k: v for k, v in given.items() if v is not None}
     if no_touch:
         overrides["touch"] = False
+    if no_maintain:
+        overrides["maintain"] = False
     settings = Settings(**overrides)
     application = create_app(settings)
     typer.echo(
         f"tactus-memory serving {settings.data} on http://{settings.host}:{settings.port} "
-        f"(docs at /docs; token {'required' if settings.token else 'off'})",
+        f"(docs at /docs; token {'required' if settings.token else 'off'}; "
+        f"maintenance {'on' if settings.maintain else 'off'})",
         err=True,
     )
     uvicorn.run(
