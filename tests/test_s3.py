@@ -271,7 +271,7 @@ def test_two_serve_replicas_on_s3_over_http(
         ).json()["hits"]
         assert [h["id"] for h in hits] == [item]
         r = httpx.post(
-            second.base + "/sessions/kitchen/text", json={"text": "a soft sponge"}, timeout=60
+            second.base + "/sessions/kitchen/text", json={"text": "a soft sponge", "t": 2.0}, timeout=60
         )
         assert r.status_code == 201, r.text
         _wait_for(
