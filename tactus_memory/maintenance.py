@@ -66,10 +66,13 @@ class MaintenanceConfig(BaseSettings):
         "finish within it; other replicas re-read the latest version every read_consistency).",
     )
     maintain_interval: float = Field(
-        10.0, gt=0.0, description="Seconds between runs of `tactus maintain` / serve's loop."
+        10.0, gt=0.0, description="Seconds between passes of `tactus maintain`."
     )
-    maintain_every_appends: int = Field(
-        64, ge=1, description="In-process trigger: a run after this many appends by this process."
+    cleanup_interval: float = Field(
+        10.0,
+        ge=0.0,
+        description="Least seconds between version cleanups (each reads every kept manifest, "
+        "so it runs in its own thread, not on every compaction).",
     )
     fan_in: int = Field(
         8, ge=2, description="Merge a tier once it has this many adjacent fragments."
@@ -163,54 +166,76 @@ def fragment_infos(ds: Any) -> list[FragmentInfo]:
 
 class TableMaintainer:
     """Maintains one Lance table (by URI). Keeps the version history this process has seen,
-    for the superseded-since rule of version retention. Thread-safe (one run at a time)."""
+    for the superseded-since rule of version retention. Compaction and cleanup may run in
+    different threads (each one at a time): cleanup reads every kept version's manifest, so
+    it must not hold compaction up."""
+
+    #: compactions per run at most (a cascade: a merged tail completes the next tier's run)
+    MAX_GROUPS_PER_RUN = 8
 
     def __init__(self, uri: str, storage_options: dict[str, str], cfg: MaintenanceConfig):
         self.uri = uri
+        self.name = uri.rstrip("/").rsplit("/", 1)[-1]
         self.storage_options = dict(storage_options)
         self.cfg = cfg
         # (wall time, latest version then): every version below it was superseded by then
         self._seen: deque[tuple[float, int]] = deque()
+        self._history_read = False
         self._removed_below = 0
-        self._lock = threading.Lock()
+        self._compact_lock = threading.Lock()
+        self._cleanup_lock = threading.Lock()
+        self._seen_lock = threading.Lock()
 
     def _dataset(self) -> Any:
         import lance
 
         return lance.dataset(self.uri, storage_options=self.storage_options or None)
 
-    def run(self, *, now: float | None = None) -> TableReport:
-        with self._lock:
+    def run(self, *, cleanup: bool = True) -> TableReport:
+        report = self.compact()
+        if cleanup:
+            self.cleanup(report)
+        return report
+
+    def compact(self) -> TableReport:
+        """Size-tiered compaction, then the incremental index refresh."""
+        with self._compact_lock:
             t0 = time.perf_counter()
             ds = self._dataset()
-            report = TableReport(self.uri.rstrip("/").rsplit("/", 1)[-1], ds.version, 0)
-            self._compact(ds, report)
-            ds = self._dataset()
+            report = TableReport(self.name, ds.version, 0)
+            for _ in range(self.MAX_GROUPS_PER_RUN):
+                frags = fragment_infos(ds)
+                groups = plan_compaction(frags, self.cfg)
+                if not groups:
+                    break
+                self._compact_group(ds, frags, groups[0], report)
+                ds = self._dataset()  # re-plan on the new layout (new fragment ids)
             self._refresh_indices(ds, report)
             ds = self._dataset()
             report.version = ds.version
             report.fragments = len(ds.get_fragments())
-            self._cleanup(ds, report, time.time() if now is None else now)
+            self._observe(time.time(), ds.version)
             report.seconds = time.perf_counter() - t0
             return report
 
-    def _compact(self, ds: Any, report: TableReport) -> None:
-        frags = fragment_infos(ds)
-        for group in plan_compaction(frags, self.cfg):
-            keep = set(group)
-            rows = sum(f.rows for f in frags if f.id in keep)
-            metrics = ds.optimize.compact_files(
-                # every fragment of the group is a candidate (rows < target) and the group
-                # becomes one fragment; the rest are excluded (and act as boundaries)
-                target_rows_per_fragment=rows + 1,
-                max_bytes_per_file=max(sum(f.bytes for f in frags if f.id in keep) * 4, 64 * MiB),
-                excluded_fragment_ids=[f.id for f in frags if f.id not in keep],
-                materialize_deletions=True,
-                materialize_deletions_threshold=self.cfg.deletion_threshold,
-                num_threads=self.cfg.num_threads,
-            )
-            report.compacted_groups += 1
-            report.fragments_removed += int(metrics.fragments_removed)
+    def _compact_group(
+        self, ds: Any, frags: list[FragmentInfo], group: list[int], report: TableReport
+    ) -> None:
+        keep = set(group)
+        rows = sum(f.rows for f in frags if f.id in keep)
+        nbytes = sum(f.bytes for f in frags if f.id in keep)
+        metrics = ds.optimize.compact_files(
+            # every fragment of the group is a candidate (rows < target) and the group
+            # becomes one fragment; the rest are excluded (and act as boundaries)
+            target_rows_per_fragment=rows + 1,
+            max_bytes_per_file=max(4 * nbytes, 64 * MiB),
+            excluded_fragment_ids=[f.id for f in frags if f.id not in keep],
+            materialize_deletions=True,
+            materialize_deletions_threshold=self.cfg.deletion_threshold,
+            num_threads=self.cfg.num_threads,
+        )
+        report.compacted_groups += 1
+        report.fragments_removed += int(metrics.fragments_removed)
 
     def _refresh_indices(self, ds: Any, report: TableReport) -> None:
         stale = any(
@@ -221,25 +246,40 @@ class TableMaintainer:
             ds.optimize.optimize_indices()
             report.indices_refreshed = True
 
-    def _cleanup(self, ds: Any, report: TableReport, now: float) -> None:
-        cfg = self.cfg
-        if not self._seen:  # first run: read the history once (a version's successor's
-            # timestamp is when it was superseded)
-            history = ds.versions()
-            for v in history:
-                self._seen.append((v["timestamp"].timestamp(), int(v["version"])))
-            self._removed_below = min((int(v["version"]) for v in history), default=0)
-        self._seen.append((now, int(ds.version)))
-        cut = 0
-        while self._seen and self._seen[0][0] <= now - cfg.retain_seconds:
-            cut = max(cut, self._seen.popleft()[1])
-        if cut <= self._removed_below + 1:
-            return
-        doomed = list(range(max(self._removed_below, 1), cut))
-        stats = ds.cleanup_old_versions(versions=doomed, error_if_tagged_old_versions=False)
-        self._removed_below = cut
-        report.versions_removed = int(stats.old_versions)
-        report.bytes_removed = int(stats.bytes_removed)
+    def _observe(self, when: float, version: int) -> None:
+        with self._seen_lock:
+            self._seen.append((when, int(version)))
+
+    def cleanup(self, report: TableReport | None = None) -> tuple[int, int]:
+        """Remove the versions superseded more than ``retain_seconds`` ago; returns
+        (versions removed, bytes removed) and adds them to ``report``."""
+        with self._cleanup_lock:
+            ds = self._dataset()
+            now = time.time()
+            if not self._history_read:  # first run: read the history once (a version's
+                # successor's timestamp is when it was superseded)
+                history = ds.versions()
+                with self._seen_lock:
+                    for v in history:
+                        self._seen.appendleft((v["timestamp"].timestamp(), int(v["version"])))
+                    self._seen = deque(sorted(self._seen))
+                self._removed_below = min((int(v["version"]) for v in history), default=0)
+                self._history_read = True
+            self._observe(now, ds.version)
+            cut = 0
+            with self._seen_lock:
+                while self._seen and self._seen[0][0] <= now - self.cfg.retain_seconds:
+                    cut = max(cut, self._seen.popleft()[1])
+            if cut <= self._removed_below + 1:
+                return 0, 0
+            doomed = list(range(max(self._removed_below, 1), cut))
+            stats = ds.cleanup_old_versions(versions=doomed, error_if_tagged_old_versions=False)
+            self._removed_below = cut
+            out = int(stats.old_versions), int(stats.bytes_removed)
+            if report is not None:
+                report.versions_removed += out[0]
+                report.bytes_removed += out[1]
+            return out
 
 
 class Maintainer:
@@ -253,8 +293,13 @@ class Maintainer:
             name: TableMaintainer(uri, storage_options, cfg) for name, uri in tables.items()
         }
 
-    def run(self) -> list[TableReport]:
-        return [t.run() for t in self.tables.values()]
+    def run(self, *, cleanup: bool = True) -> list[TableReport]:
+        return [t.run(cleanup=cleanup) for t in self.tables.values()]
+
+    def cleanup(self, reports: list[TableReport] | None = None) -> None:
+        by_name = {r.table: r for r in reports or []}
+        for t in self.tables.values():
+            t.cleanup(by_name.get(t.name))
 
 
 # --------------------------------------------------------------------------- measuring

@@ -340,6 +340,8 @@ class Store:
             read_consistency_interval=self.read_consistency,
         )
         self._maintainer: Maintainer | None = None
+        self._cleanup_thread: threading.Thread | None = None
+        self._last_cleanup = -math.inf
         #: what the last maintenance run did, per table
         self.last_maintenance: list[TableReport] = []
         self._items: Any = None
@@ -589,15 +591,17 @@ class Store:
             self._maintainer = Maintainer(tables, self.storage_options, self.maintenance)
         return self._maintainer
 
-    def maintain(self, *, force: bool = False) -> bool:
+    def maintain(self, *, force: bool = False, wait: bool | None = None) -> bool:
         """Build/retrain indexes past the threshold, then run the maintenance policy
         (size-tiered compaction, incremental index refresh, version cleanup).
 
         Returns True when something ran. Only the process that owns maintenance
         (``maintenance.maintain``) runs it unless ``force``. Safe to call from a background
         thread: writes may go on meanwhile (LanceDB commits are optimistic; compaction
-        rebases on concurrent appends).
+        rebases on concurrent appends). Version cleanup runs in its own thread at most every
+        ``cleanup_interval`` seconds; ``wait`` (default: ``force``) runs it now and waits.
         """
+        wait = force if wait is None else wait
         if not (force or self.maintenance.maintain):
             return False
         if not self._maintenance.acquire(blocking=force):
@@ -613,15 +617,42 @@ class Store:
                 if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
                     self.build_indexes()
             self._appends = 0
-            self.last_maintenance = self.maintainer().run()
+            maintainer = self.maintainer()
+            reports = maintainer.run(cleanup=False)
             for tbl in (self._items, self._senses, self._meta):
                 if tbl is not None:  # our handles must not stay on versions cleanup removes
                     tbl.checkout_latest()
-            for report in self.last_maintenance:
+            if wait:
+                self.wait_for_cleanup()
+                maintainer.cleanup(reports)
+                self._last_cleanup = time.monotonic()
+            else:
+                self._start_cleanup()
+            self.last_maintenance = reports
+            for report in reports:
                 log.debug("maintenance: %s", report)
             return True
         finally:
             self._maintenance.release()
+
+    def _start_cleanup(self) -> None:
+        busy = self._cleanup_thread is not None and self._cleanup_thread.is_alive()
+        due = time.monotonic() - self._last_cleanup >= self.maintenance.cleanup_interval
+        if busy or not due:
+            return
+        self._last_cleanup = time.monotonic()
+        self._cleanup_thread = threading.Thread(target=self._cleanup_quietly, daemon=True)
+        self._cleanup_thread.start()
+
+    def _cleanup_quietly(self) -> None:
+        try:
+            self.maintainer().cleanup()
+        except Exception:  # noqa: BLE001  (retried on the next run)
+            log.exception("version cleanup failed; it will be retried")
+
+    def wait_for_cleanup(self, timeout: float | None = None) -> None:
+        if self._cleanup_thread is not None:
+            self._cleanup_thread.join(timeout)
 
     def needs_maintenance(self) -> bool:
         return self.maintenance.maintain and self._appends >= self.index.compact_every

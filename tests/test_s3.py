@@ -270,9 +270,8 @@ def test_two_serve_replicas_on_s3_over_http(
             second.base + "/search", params={"q": "a mug on a shelf", "k": 1}, timeout=60
         ).json()["hits"]
         assert [h["id"] for h in hits] == [item]
-        r = httpx.post(
-            second.base + "/sessions/kitchen/text", json={"text": "a soft sponge", "t": 2.0}, timeout=60
-        )
+        note = {"text": "a soft sponge", "t": 2.0}
+        r = httpx.post(second.base + "/sessions/kitchen/text", json=note, timeout=60)
         assert r.status_code == 201, r.text
         _wait_for(
             lambda: httpx.get(first.base + "/sessions/kitchen", timeout=30).json()["n"] == 2,
