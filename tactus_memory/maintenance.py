@@ -185,6 +185,9 @@ class TableMaintainer:
         self._compact_lock = threading.Lock()
         self._cleanup_lock = threading.Lock()
         self._seen_lock = threading.Lock()
+        #: what cleanups in this process removed so far (cleanup may run in its own thread)
+        self.versions_removed_total = 0
+        self.bytes_removed_total = 0
 
     def _dataset(self) -> Any:
         import lance
@@ -276,6 +279,8 @@ class TableMaintainer:
             stats = ds.cleanup_old_versions(versions=doomed, error_if_tagged_old_versions=False)
             self._removed_below = cut
             out = int(stats.old_versions), int(stats.bytes_removed)
+            self.versions_removed_total += out[0]
+            self.bytes_removed_total += out[1]
             if report is not None:
                 report.versions_removed += out[0]
                 report.bytes_removed += out[1]

@@ -75,9 +75,17 @@ def maintain(
         while True:
             t0 = time.monotonic()
             try:
-                store.maintain(force=True)
+                # a pass compacts inline; cleanup runs in its own thread (every
+                # cleanup_interval) unless this is the only pass
+                store.maintain(force=True, wait=once)
+                tables = store.maintainer().tables
                 for report in store.last_maintenance:
-                    typer.echo(json.dumps({"pass": done, **asdict(report)}))
+                    t = tables[report.table.removesuffix(".lance")]
+                    totals = {
+                        "versions_removed_total": t.versions_removed_total,
+                        "bytes_removed_total": t.bytes_removed_total,
+                    }
+                    typer.echo(json.dumps({"pass": done, **asdict(report), **totals}))
             except Exception as exc:  # noqa: BLE001  (a conflict or a transient store error:
                 # logged, retried next pass; the maintainer must keep running)
                 typer.echo(f"maintenance pass failed (retried): {exc}", err=True)
@@ -87,3 +95,4 @@ def maintain(
             time.sleep(max(0.0, cfg.maintain_interval - (time.monotonic() - t0)))
     except KeyboardInterrupt:
         pass
+    store.wait_for_cleanup(60)
