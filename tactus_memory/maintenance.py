@@ -111,31 +111,36 @@ def tier_of(nbytes: int, cfg: MaintenanceConfig) -> int | None:
 
 def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[list[int]]:
     """Groups of fragment ids to rewrite, each group into one fragment (fragments in table
-    order). A run of >= ``fan_in`` adjacent fragments of one tier is a group; so is a lone
-    fragment whose deleted share passes ``deletion_threshold``. Settled fragments and runs
-    shorter than ``fan_in`` are left alone."""
-    groups: list[list[int]] = []
-    run: list[FragmentInfo] = []
-    run_tier: int | None = None
+    order), cheapest tier first.
 
-    def close() -> None:
-        if run_tier is not None and len(run) >= cfg.fan_in:
-            groups.append([f.id for f in run])
-        else:
-            groups.extend(
-                [f.id]
-                for f in run
-                if f.rows and f.deleted / f.rows >= cfg.deletion_threshold and f.deleted < f.rows
-            )
-
-    for f in frags:
-        tier = tier_of(f.bytes, cfg)
-        if tier is None or tier != run_tier:
-            close()
-            run, run_tier = [], tier
-        run.append(f)
-    close()
-    return groups
+    For tier T = 0, 1, ...: a maximal run of adjacent fragments all of tier <= T that holds at
+    least ``fan_in`` fragments *of tier T* is a group (smaller stragglers inside it, e.g. a
+    few appends that landed between a merge's inputs and its output, are absorbed rather than
+    stranded). The first tier with a group wins. Without any, each fragment whose deleted
+    share passes ``deletion_threshold`` is a group alone. Settled fragments (tier None) are
+    boundaries and never merged.
+    """
+    tiers = [tier_of(f.bytes, cfg) for f in frags]
+    top = max((t for t in tiers if t is not None), default=-1)
+    for level in range(top + 1):
+        groups: list[list[int]] = []
+        run: list[int] = []
+        at_level = 0
+        for f, tier in zip([*frags, None], [*tiers, None], strict=True):
+            if f is not None and tier is not None and tier <= level:
+                run.append(f.id)
+                at_level += tier == level
+                continue
+            if at_level >= cfg.fan_in:
+                groups.append(run)
+            run, at_level = [], 0
+        if groups:
+            return groups
+    return [
+        [f.id]
+        for f in frags
+        if f.rows and f.deleted / f.rows >= cfg.deletion_threshold and f.deleted < f.rows
+    ]
 
 
 # --------------------------------------------------------------------------- running
@@ -173,8 +178,17 @@ class TableMaintainer:
     #: compactions per run at most (a cascade: a merged tail completes the next tier's run)
     MAX_GROUPS_PER_RUN = 8
 
-    def __init__(self, uri: str, storage_options: dict[str, str], cfg: MaintenanceConfig):
+    def __init__(
+        self,
+        uri: str,
+        storage_options: dict[str, str],
+        cfg: MaintenanceConfig,
+        commit_lock: threading.Lock | None = None,
+    ):
         self.uri = uri
+        # held while a compaction commits, so this process's own appends (which take it too)
+        # do not race it; other processes' commits are resolved by Lance's retries
+        self.commit_lock = commit_lock
         self.name = uri.rstrip("/").rsplit("/", 1)[-1]
         self.storage_options = dict(storage_options)
         self.cfg = cfg
@@ -224,19 +238,27 @@ class TableMaintainer:
     def _compact_group(
         self, ds: Any, frags: list[FragmentInfo], group: list[int], report: TableReport
     ) -> None:
+        from lance.optimize import Compaction
+
         keep = set(group)
         rows = sum(f.rows for f in frags if f.id in keep)
         nbytes = sum(f.bytes for f in frags if f.id in keep)
-        metrics = ds.optimize.compact_files(
+        options = {
             # every fragment of the group is a candidate (rows < target) and the group
             # becomes one fragment; the rest are excluded (and act as boundaries)
-            target_rows_per_fragment=rows + 1,
-            max_bytes_per_file=max(4 * nbytes, 64 * MiB),
-            excluded_fragment_ids=[f.id for f in frags if f.id not in keep],
-            materialize_deletions=True,
-            materialize_deletions_threshold=self.cfg.deletion_threshold,
-            num_threads=self.cfg.num_threads,
-        )
+            "target_rows_per_fragment": rows + 1,
+            "max_bytes_per_file": max(4 * nbytes, 64 * MiB),
+            "excluded_fragment_ids": [f.id for f in frags if f.id not in keep],
+            "materialize_deletions": True,
+            "materialize_deletions_threshold": self.cfg.deletion_threshold,
+            "num_threads": self.cfg.num_threads,
+        }
+        plan = Compaction.plan(ds, options)
+        rewrites = [task.execute(ds) for task in plan.tasks]  # the slow part: no lock
+        if not rewrites:
+            return
+        with self.commit_lock or contextlib.nullcontext():
+            metrics = Compaction.commit(ds, rewrites, options)
         report.compacted_groups += 1
         report.fragments_removed += int(metrics.fragments_removed)
 
@@ -291,11 +313,16 @@ class Maintainer:
     """Maintains every table of a store (items, senses, meta)."""
 
     def __init__(
-        self, tables: dict[str, str], storage_options: dict[str, str], cfg: MaintenanceConfig
+        self,
+        tables: dict[str, str],
+        storage_options: dict[str, str],
+        cfg: MaintenanceConfig,
+        commit_lock: threading.Lock | None = None,
     ):
         self.cfg = cfg
         self.tables = {
-            name: TableMaintainer(uri, storage_options, cfg) for name, uri in tables.items()
+            name: TableMaintainer(uri, storage_options, cfg, commit_lock)
+            for name, uri in tables.items()
         }
 
     def run(self, *, cleanup: bool = True) -> list[TableReport]:

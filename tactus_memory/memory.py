@@ -570,6 +570,8 @@ class Memory(TemporalMixin):
         if seen == self._seen_versions:
             return
         if seen[1] != self._seen_versions[1]:
+            # fill copies: other threads may be iterating the current dicts
+            self._stored, self._calib = dict(self._stored), dict(self._calib)
             self._load_registry()
         if seen[0] != self._seen_versions[0]:
             self._counts = None

@@ -340,6 +340,8 @@ class Store:
             read_consistency_interval=self.read_consistency,
         )
         self._maintainer: Maintainer | None = None
+        #: this process's item commits and compaction commits take turns (no self-conflicts)
+        self.commit_lock = threading.Lock()
         self._cleanup_thread: threading.Thread | None = None
         self._last_cleanup = -math.inf
         #: what the last maintenance run did, per table
@@ -453,19 +455,21 @@ class Store:
     # ----------------------------------------------------------- writes
     def write(self, data: pa.Table, *, upsert: bool) -> None:
         """One LanceDB commit: append, or merge-insert on ``id`` (idempotent upsert)."""
-        if upsert:
-            (
-                self.items.merge_insert("id")
-                .when_matched_update_all()
-                .when_not_matched_insert_all()
-                .execute(data)
-            )
-        else:
-            self.items.add(data)
+        with self.commit_lock:
+            if upsert:
+                (
+                    self.items.merge_insert("id")
+                    .when_matched_update_all()
+                    .when_not_matched_insert_all()
+                    .execute(data)
+                )
+            else:
+                self.items.add(data)
         self._appends += 1
 
     def delete(self, where: str) -> None:
-        self.items.delete(where)
+        with self.commit_lock:
+            self.items.delete(where)
 
     def count(self, where: str | None = None) -> int:
         if self._items is None:
@@ -588,7 +592,9 @@ class Store:
                 for name, tbl in ((ITEMS, self._items), (SENSES, self._senses), (META, self._meta))
                 if tbl is not None
             }
-            self._maintainer = Maintainer(tables, self.storage_options, self.maintenance)
+            self._maintainer = Maintainer(
+                tables, self.storage_options, self.maintenance, self.commit_lock
+            )
         return self._maintainer
 
     def maintain(self, *, force: bool = False, wait: bool | None = None) -> bool:

@@ -243,3 +243,17 @@ def test_maintenance_config_reads_the_environment(monkeypatch: pytest.MonkeyPatc
     monkeypatch.setenv("TACTUS_FAN_IN", "1")
     with pytest.raises(ValueError, match="fan_in"):
         MaintenanceConfig()
+
+
+def test_plan_absorbs_stragglers_between_larger_fragments() -> None:
+    """Appends that land between a merge's inputs and its output must not be stranded."""
+    cfg = MaintenanceConfig(tier_base_bytes=1000, fan_in=3, settled_bytes=100_000)
+    frags = [
+        FragmentInfo(0, 10, 0, 3000),  # tier 1
+        FragmentInfo(1, 1, 0, 100),  # tier-0 straggler (a run of 1 < fan_in)
+        FragmentInfo(2, 10, 0, 3000),  # tier 1
+        FragmentInfo(3, 1, 0, 100),
+        FragmentInfo(4, 10, 0, 3000),  # the third tier-1 fragment completes the tier-1 run
+    ]
+    assert plan_compaction(frags, cfg) == [[0, 1, 2, 3, 4]]
+    assert plan_compaction(frags[:3], cfg) == []  # two tier-1 fragments: not yet
