@@ -197,6 +197,7 @@ def main() -> None:
     ap.add_argument("--warmup", type=float, default=30.0, help="ratio stats start after this")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "disk.json"))
     ap.add_argument("--dir", default=None, help="where the stores go (default: a temp dir)")
+    ap.add_argument("--label", default=None, help="result key (default: the policy name)")
     args = ap.parse_args()
     root = tempfile.mkdtemp(prefix="tactus-disk-", dir=args.dir)
     policies = ["legacy", "tiered"] if args.policy == "both" else [args.policy]
@@ -206,8 +207,9 @@ def main() -> None:
         result = json.loads(out_path.read_text())
     result.setdefault("policies", {})
     for policy in policies:
-        result["policies"][policy] = run_policy(policy, args, root)
-        result["policies"][policy]["args"] = vars(args)
+        key = args.label or policy
+        result["policies"][key] = run_policy(policy, args, root)
+        result["policies"][key]["args"] = vars(args)
         result["machine"] = {"cpus": os.cpu_count(), "platform": platform.platform()}
         out_path.parent.mkdir(parents=True, exist_ok=True)
         out_path.write_text(json.dumps(result, indent=1))

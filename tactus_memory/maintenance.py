@@ -83,6 +83,16 @@ class MaintenanceConfig(BaseSettings):
     settled_bytes: int = Field(
         512 * MiB, ge=1, description="Fragments of this size are never merged again."
     )
+    max_merge_share: float = Field(
+        0.25,
+        gt=0.0,
+        le=1.0,
+        description="A merge rewrites at most this share of the table (or free_merge_bytes): "
+        "its inputs stay on disk for retain_seconds, so this bounds the disk spike.",
+    )
+    free_merge_bytes: int = Field(
+        16 * MiB, ge=0, description="Merges up to this size are allowed whatever the share."
+    )
     deletion_threshold: float = Field(
         0.1, gt=0.0, le=1.0, description="Rewrite a fragment alone once this share is deleted."
     )
@@ -113,15 +123,20 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
     """Groups of fragment ids to rewrite, each group into one fragment (fragments in table
     order), cheapest tier first.
 
-    For tier T = 0, 1, ...: a maximal run of adjacent fragments all of tier <= T that holds at
-    least ``fan_in`` fragments *of tier T* is a group (smaller stragglers inside it, e.g. a
-    few appends that landed between a merge's inputs and its output, are absorbed rather than
-    stranded). The first tier with a group wins. Without any, each fragment whose deleted
-    share passes ``deletion_threshold`` is a group alone. Settled fragments (tier None) are
-    boundaries and never merged.
+    For tier T = 0, 1, ...: in a run of adjacent fragments all of tier <= T, the fragments up
+    to and including its ``fan_in``-th fragment *of tier T* are a group (tier 0: the whole
+    run once it has ``fan_in``; smaller stragglers
+    inside it, e.g. appends that landed between a merge's inputs and its output, are absorbed
+    rather than stranded). A group may rewrite at most ``max_merge_share`` of the table's
+    bytes (or ``free_merge_bytes``): a larger merge waits until the table has grown, which
+    bounds the disk spike of keeping its inputs for ``retain_seconds``. The first tier with
+    a group wins. Without any, each fragment whose deleted share passes
+    ``deletion_threshold`` is a group alone. Settled fragments (tier None) are boundaries.
     """
     tiers = [tier_of(f.bytes, cfg) for f in frags]
     top = max((t for t in tiers if t is not None), default=-1)
+    size = {f.id: f.bytes for f in frags}
+    budget = max(cfg.free_merge_bytes, cfg.max_merge_share * sum(size.values()))
     for level in range(top + 1):
         groups: list[list[int]] = []
         run: list[int] = []
@@ -130,8 +145,9 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
             if f is not None and tier is not None and tier <= level:
                 run.append(f.id)
                 at_level += tier == level
-                continue
-            if at_level >= cfg.fan_in:
+                if at_level < cfg.fan_in or level == 0:
+                    continue  # the tier-0 tail is merged whole (it is small)
+            if at_level >= cfg.fan_in and sum(size[i] for i in run) <= budget:
                 groups.append(run)
             run, at_level = [], 0
         if groups:

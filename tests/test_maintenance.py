@@ -257,3 +257,17 @@ def test_plan_absorbs_stragglers_between_larger_fragments() -> None:
     ]
     assert plan_compaction(frags, cfg) == [[0, 1, 2, 3, 4]]
     assert plan_compaction(frags[:3], cfg) == []  # two tier-1 fragments: not yet
+
+
+def test_plan_caps_a_merge_at_a_share_of_the_table() -> None:
+    """A merge's inputs stay on disk for retain_seconds: a merge of most of the table would
+    double the disk, so it waits until it is at most max_merge_share of the table."""
+    cfg = MaintenanceConfig(
+        tier_base_bytes=1000, fan_in=3, settled_bytes=10**9, max_merge_share=0.5, free_merge_bytes=0
+    )
+    tier2 = [FragmentInfo(i, 100, 0, 10_000) for i in range(4)]  # 40 KB in tier 2
+    assert plan_compaction(tier2, cfg) == []  # 3 x 10 KB = 75 % of the table: too big
+    big = [FragmentInfo(10, 10_000, 0, 10**6 - 1)]  # a large fragment (tier 4) in front
+    assert plan_compaction(big + tier2, cfg) == [[0, 1, 2]]  # now 3 % of the table
+    tail = [FragmentInfo(20 + i, 1, 0, 100) for i in range(5)]
+    assert plan_compaction(big + tail, cfg) == [[20, 21, 22, 23, 24]]  # tier 0: whole run
