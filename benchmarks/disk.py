@@ -203,13 +203,12 @@ def main() -> None:
     policies = ["legacy", "tiered"] if args.policy == "both" else [args.policy]
     out_path = Path(args.out)
     result: dict[str, Any] = {}
-    if out_path.exists():
-        result = json.loads(out_path.read_text())
-    result.setdefault("policies", {})
     for policy in policies:
         key = args.label or policy
-        result["policies"][key] = run_policy(policy, args, root)
-        result["policies"][key]["args"] = vars(args)
+        run = run_policy(policy, args, root) | {"args": vars(args)}
+        # merge into the file as it is now (another run may have written meanwhile)
+        result = json.loads(out_path.read_text()) if out_path.exists() else {}
+        result.setdefault("policies", {})[key] = run
         result["machine"] = {"cpus": os.cpu_count(), "platform": platform.platform()}
         out_path.parent.mkdir(parents=True, exist_ok=True)
         out_path.write_text(json.dumps(result, indent=1))
