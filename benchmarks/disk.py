@@ -161,6 +161,7 @@ def run_policy(policy: str, args: argparse.Namespace, root: str) -> dict[str, An
     stop.set()
     thread.join()
     mem.wait_for_maintenance(120)
+    mem.store.wait_for_cleanup(120)
     late = [s for s in samples if s["t"] >= args.warmup]
     ratios = [s["ratio"] for s in late] or [s["ratio"] for s in samples]
     out = {

@@ -881,6 +881,7 @@ class Memory(TemporalMixin):
     def close(self) -> None:
         """Let background maintenance finish (the store needs no other closing)."""
         self.wait_for_maintenance()
+        self.store.wait_for_cleanup()
 
     def __enter__(self) -> Memory:
         return self
