@@ -60,7 +60,7 @@ class MaintenanceConfig(BaseSettings):
         "Exactly one process per store should: replicas run with maintain=False.",
     )
     retain_seconds: float = Field(
-        60.0,
+        30.0,
         ge=0.0,
         description="Keep a version until it has been superseded this long (readers in flight "
         "finish within it; other replicas re-read the latest version every read_consistency).",

@@ -32,7 +32,7 @@ def maintain(
     retain: Annotated[
         float | None,
         typer.Option(
-            help="Keep versions until superseded this long, seconds (TACTUS_RETAIN_SECONDS, 60)."
+            help="Keep versions until superseded this long, seconds (TACTUS_RETAIN_SECONDS, 30)."
         ),
     ] = None,
     passes: Annotated[
