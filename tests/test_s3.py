@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -29,11 +30,17 @@ from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
 from tests.fakes import HashingSpace
 from tests.servers import wait_healthy
-from tests.test_service_uvicorn import STARTUP_S, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 BUCKET = "tactus-test"
 STALENESS = 0.5
+STARTUP_S = 180  # a server loads MiniLM first (slow on 2 shared cores)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
