@@ -60,6 +60,7 @@ def open_memory(settings: Settings) -> tuple[Any, str | None]:
 
     Returns (memory, why touch is unavailable or None).
     """
+    from tactus_memory.maintenance import MaintenanceConfig
     from tactus_memory.memory import Memory
 
     memory = Memory.open(
@@ -67,6 +68,7 @@ def open_memory(settings: Settings) -> tuple[Any, str | None]:
         space=settings.space,
         space_path=settings.space_path,
         space_dim=settings.space_dim,
+        maintenance=MaintenanceConfig(maintain=settings.maintain),
     )
     return memory, register_default_senses(memory, settings)
 

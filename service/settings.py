@@ -90,3 +90,8 @@ class Settings(BaseSettings):
         True, description="Register the shipped touch encoder on startup when it is available."
     )
     log_level: str = "info"
+    maintain: bool = Field(
+        True,
+        description="This server maintains the store (compaction, cleanup). Replicas sharing "
+        "a store run with maintain=False (`--no-maintain`) beside one `tactus maintain`.",
+    )

@@ -47,6 +47,7 @@ from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
+from tactus_memory.maintenance import Background, MaintenanceConfig
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, split_match
 from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, check_query_text, embed_query
@@ -100,9 +101,10 @@ class Memory(TemporalQuestions):
         self.space = space
         self.background = background
         self.lock = threading.RLock()
-        self._maint_thread: threading.Thread | None = None
         store.bind_space(space.name, int(space.dim), space.fingerprint())
         self.registry = SenseRegistry(store, space, self.lock)
+        rows = lambda: sum(self.registry.counts().values())  # noqa: E731
+        self._maintenance = Background(store, rows, background=background)
         self.ranker = Ranker(store, self.registry)
         self.temporal = Temporal(self)
         self.add_sense(TextSense(space))
@@ -119,8 +121,9 @@ class Memory(TemporalQuestions):
         storage_options: dict[str, str] | None = None,
         index: IndexConfig | None = None,
         index_threshold: int | None = None,
-        read_consistency_interval: timedelta | None = None,
+        read_consistency_interval: timedelta | float | str | None = "env",
         background: bool = True,
+        maintenance: MaintenanceConfig | None = None,
     ) -> Memory:
         """Open (or create) a memory at ``path``: a local directory, ``file://``, or an
         object-storage URI (``s3://``, ``gs://``, ``az://``) with ``storage_options``.
@@ -132,6 +135,13 @@ class Memory(TemporalQuestions):
         through :func:`~tactus_memory.spaces.resolve.resolve_space`: a Qwen3-VL store reopens
         with ``space_path=DIR``, and a missing or other model folder raises a one-line
         :class:`~tactus_memory.errors.SpaceConfigError`.
+
+        :class:`~tactus_memory.errors.SpaceMismatchError` naming both.
+
+        Several processes may open one store: each sees the others' commits within
+        ``read_consistency_interval`` (default ``TACTUS_READ_CONSISTENCY`` or 1 s), and only
+        the one whose ``maintenance.maintain`` is true compacts and cleans up
+        (:mod:`tactus_memory.maintenance`, :mod:`tactus_memory.connect`).
         """
         cfg = index or IndexConfig()
         if index_threshold is not None:
@@ -141,6 +151,7 @@ class Memory(TemporalQuestions):
             storage_options=storage_options,
             read_consistency_interval=read_consistency_interval,
             index=cfg,
+            maintenance=maintenance,
         )
         if not isinstance(space, Space):
             from tactus_memory.spaces.resolve import SpaceChoice, recorded_space, resolve_space
@@ -287,7 +298,9 @@ class Memory(TemporalQuestions):
             if upsert and self.registry.counting:
                 where = Where().ids(all_ids).sql()
                 replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
+            before = self.store.version()
             self.store.write(data, upsert=upsert)
+            self.registry.note_commit(before)
             for n, w in enumerate(live):
                 self.registry.note_write(w.sense.name, len(w), replaced if n == 0 else [])
         self._schedule_maintenance()
@@ -321,32 +334,14 @@ class Memory(TemporalQuestions):
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
-        if not (self.store.needs_maintenance() or self._index_due()):
-            return
-        if not self.background:
-            self.optimize()
-            return
-        if self._maint_thread is not None and self._maint_thread.is_alive():
-            return
-        self._maint_thread = threading.Thread(target=self._maintain_quietly, daemon=True)
-        self._maint_thread.start()
-
-    def _index_due(self) -> bool:
-        return self.store.index_due(sum(self.registry.counts().values()))
-
-    def _maintain_quietly(self) -> None:
-        try:
-            self.store.maintain()
-        except Exception:  # noqa: BLE001  (a background thread must not die loudly; retried)
-            log.exception("background maintenance failed; it will be retried")
+        self._maintenance.schedule()
 
     def optimize(self) -> None:
         """Build/retrain indexes if due and compact now (blocking)."""
         self.store.maintain(force=True)
 
     def wait_for_maintenance(self, timeout: float | None = None) -> None:
-        if self._maint_thread is not None:
-            self._maint_thread.join(timeout)
+        self._maintenance.wait(timeout)
 
     # ----------------------------------------------------------- search
     def search(
@@ -462,6 +457,7 @@ class Memory(TemporalQuestions):
     def close(self) -> None:
         """Let background maintenance finish (the store needs no other closing)."""
         self.wait_for_maintenance()
+        self.store.wait_for_cleanup()
 
     def __enter__(self) -> Memory:
         return self

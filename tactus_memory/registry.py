@@ -80,6 +80,7 @@ class SenseRegistry:
         self._stored: dict[str, StoredSense] = {}
         self._calib: dict[str, Calibration] = {}
         self._counts: dict[str, int] | None = None
+        self._seen_versions: tuple[int, int] = (-1, -1)  # (items, senses) the caches match
         self._probes: np.ndarray | None = None
         self.load()
 
@@ -189,7 +190,31 @@ class SenseRegistry:
             )
         return out
 
+    def refresh(self) -> None:
+        """Drop the row-count cache when the items table moved on (another process's
+        commit, a compaction) and reload the stored senses and calibrations when the senses
+        table did: replicas agree within the store's read consistency interval."""
+        seen = (self.store.version(), self.store.senses_version())
+        if seen == self._seen_versions:
+            return
+        if seen[1] != self._seen_versions[1]:
+            # fill copies: other threads may be iterating the current dicts
+            self._stored, self._calib = dict(self._stored), dict(self._calib)
+            self.load()
+        if seen[0] != self._seen_versions[0]:
+            self._counts = None
+        self._seen_versions = seen
+
+    def note_commit(self, before: int) -> None:
+        """After this process committed on top of table version ``before``: the count cache
+        stays exact when nobody else committed in between, else it is dropped."""
+        if self._seen_versions[0] == before == self.store.version() - 1:
+            self._seen_versions = (before + 1, self._seen_versions[1])
+        else:
+            self._counts = None
+
     def counts(self) -> dict[str, int]:
+        self.refresh()
         counts = self._counts
         if counts is None:
             import pyarrow.compute as pc

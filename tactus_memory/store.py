@@ -24,6 +24,10 @@ BTREE/BITMAP indexes on id, session, sense, t from 10k rows; an IVF_SQ cosine in
 4x or incremental updates have left more than 8 index segments. Filters allowing at most
 20k rows are answered by an exact flat scan of those rows. ``optimize`` (compaction plus
 incremental index update) runs every 64 appends; rows not yet indexed are still searched.
+Compaction, index refresh and version retention follow :mod:`tactus_memory.maintenance`
+(size-tiered, bounded disk) and run only in the process that owns maintenance
+(``MaintenanceConfig.maintain``); connections re-read the latest version every
+``read_consistency`` seconds (:mod:`tactus_memory.connect`), so replicas see each other.
 """
 
 from __future__ import annotations
@@ -34,13 +38,23 @@ import math
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactus_memory.connect import read_consistency_interval as consistency_from
+from tactus_memory.connect import storage_options_for
 from tactus_memory.errors import InvalidInputError, SpaceMismatchError
+from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
+from tactus_memory.tables import IndexConfig as IndexConfig  # re-exported: old import paths
+from tactus_memory.tables import (
+    items_schema,
+    meta_schema,
+    scalar_index_config,
+    senses_schema,
+    vector_index_config,
+)
 from tactus_memory.where import Where as Where  # re-exported (`X as X`): old import paths
 from tactus_memory.where import _sql_str
 from tactus_memory.where import finite_float as finite_float
@@ -60,108 +74,6 @@ CLOCK_KEY = "clock_offsets"
 REMOTE_SCHEMES = ("s3://", "s3+ddb://", "gs://", "az://", "abfs://", "memory://")
 #: columns returned by searches (everything except the vector and raw bytes)
 HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
-
-
-# --------------------------------------------------------------------------- schema
-def items_schema(dim: int) -> pa.Schema:
-    import pyarrow as pa
-
-    return pa.schema(
-        [
-            pa.field("id", pa.string(), nullable=False),
-            pa.field("session", pa.string(), nullable=False),
-            pa.field("sense", pa.string(), nullable=False),
-            pa.field("t", pa.float64(), nullable=False),
-            pa.field("t_end", pa.float64(), nullable=False),
-            pa.field("vector", pa.list_(pa.float32(), dim), nullable=False),
-            pa.field("meta", pa.string(), nullable=False),
-            pa.field("text", pa.string()),
-            pa.field("raw", pa.binary()),
-            pa.field("source", pa.string(), nullable=False),
-            pa.field("episode", pa.int64()),
-            pa.field("created", pa.float64(), nullable=False),
-        ]
-    )
-
-
-def senses_schema() -> pa.Schema:
-    import pyarrow as pa
-
-    return pa.schema(
-        [
-            pa.field("name", pa.string(), nullable=False),
-            pa.field("modality", pa.string(), nullable=False),
-            pa.field("dim", pa.int64(), nullable=False),
-            pa.field("provenance", pa.string(), nullable=False),
-            pa.field("query_centroid", pa.binary()),
-            pa.field("mu", pa.float64()),
-            pa.field("sigma", pa.float64()),
-            pa.field("calib_n", pa.int64()),
-            pa.field("updated", pa.float64(), nullable=False),
-        ]
-    )
-
-
-def meta_schema() -> pa.Schema:
-    import pyarrow as pa
-
-    return pa.schema([pa.field("key", pa.string(), nullable=False), pa.field("value", pa.string())])
-
-
-# --------------------------------------------------------------------------- index config
-@dataclass
-class IndexConfig:
-    """Vector/scalar index policy. Defaults chosen by ``benchmarks/memory.py`` (see README)."""
-
-    #: build the ANN index once the table has this many rows (flat search below it)
-    threshold: int = 20_000
-    #: build the scalar indexes (session, sense, t, id) from this many rows
-    scalar_threshold: int = 10_000
-    index_type: str = "IVF_SQ"
-    #: rows per IVF partition (num_partitions = rows / this)
-    rows_per_partition: int = 4096
-    nprobes: int = 20
-    refine_factor: int | None = 2
-    ef: int | None = None
-    #: filtered searches allowing at most this many rows scan them exactly (no ANN)
-    flat_max: int = 20_000
-    #: filtered ANN searches probe enough partitions to score about this many allowed rows
-    min_candidates: int = 4096
-    #: rebuild (retrain) the ANN index when the table has grown this many times since
-    retrain_growth: float = 4.0
-    #: retrain the ANN index when incremental updates have split it into more segments
-    max_deltas: int = 8
-    #: run ``optimize`` (compaction + incremental index update) after this many appends
-    compact_every: int = 64
-    #: versions older than this are removed by ``optimize``
-    cleanup_older_than: timedelta = timedelta(hours=1)
-    #: scalar index type per column
-    scalar: dict[str, str] = field(
-        default_factory=lambda: {"id": "BTREE", "session": "BTREE", "sense": "BITMAP", "t": "BTREE"}
-    )
-
-
-def vector_index_config(cfg: IndexConfig, partitions: int, dim: int) -> Any:
-    """The LanceDB index config for ``cfg.index_type`` (cosine metric)."""
-    from lancedb import index as ix
-
-    kind = cfg.index_type.upper()
-    common: dict[str, Any] = {"distance_type": "cosine", "num_partitions": partitions}
-    if kind == "IVF_PQ":
-        return ix.IvfPq(num_sub_vectors=max(1, dim // 8), **common)
-    if kind == "IVF_SQ":
-        return ix.IvfSq(**common)
-    if kind == "IVF_HNSW_SQ":
-        return ix.IvfHnswSq(**common)
-    if kind == "IVF_FLAT":
-        return ix.IvfFlat(**common)
-    raise InvalidInputError(f"unsupported vector index type {cfg.index_type!r}")
-
-
-def scalar_index_config(kind: str) -> Any:
-    from lancedb import index as ix
-
-    return {"BTREE": ix.BTree, "BITMAP": ix.Bitmap}[kind.upper()]()
 
 
 def is_remote_uri(uri: str) -> bool:
@@ -196,19 +108,34 @@ class Store:
         uri: str,
         *,
         storage_options: dict[str, str] | None = None,
-        read_consistency_interval: timedelta | None = None,
+        read_consistency_interval: timedelta | float | str | None = "env",
         index: IndexConfig | None = None,
+        maintenance: MaintenanceConfig | None = None,
     ) -> None:
+        """``read_consistency_interval``: how stale reads may be against other processes'
+        commits (``"env"``: ``TACTUS_READ_CONSISTENCY``, default 1 s; None: never re-read).
+        ``storage_options``: LanceDB object-store options; for ``s3://`` the AWS environment
+        variables fill in what is not given (:func:`tactus_memory.connect.storage_options_for`).
+        ``maintenance``: the policy, and whether this process runs it (default from env)."""
         import lancedb
 
         self.uri = normalise_uri(uri)
         self.index = index or IndexConfig()
-        self.storage_options = dict(storage_options or {})
+        self.maintenance = maintenance or MaintenanceConfig()
+        self.storage_options = storage_options_for(self.uri, storage_options)
+        self.read_consistency = consistency_from(read_consistency_interval)
         self.db = lancedb.connect(
             self.uri,
-            storage_options=storage_options,
-            read_consistency_interval=read_consistency_interval,
+            storage_options=self.storage_options or None,
+            read_consistency_interval=self.read_consistency,
         )
+        self._maintainer: Maintainer | None = None
+        #: this process's item commits and compaction commits take turns (no self-conflicts)
+        self.commit_lock = threading.Lock()
+        self._cleanup_thread: threading.Thread | None = None
+        self._last_cleanup = -math.inf
+        #: what the last maintenance run did, per table
+        self.last_maintenance: list[TableReport] = []
         self._items: Any = None
         self._senses: Any = None
         self._meta: Any = None
@@ -234,6 +161,11 @@ class Store:
             self._senses = self.db.open_table(SENSES)
         if META in names:
             self._meta = self.db.open_table(META)
+
+    @property
+    def exists(self) -> bool:
+        """Whether the store has its items table (a memory was created here)."""
+        return self._items is not None
 
     @property
     def items(self) -> Any:
@@ -343,19 +275,21 @@ class Store:
     # ----------------------------------------------------------- writes
     def write(self, data: pa.Table, *, upsert: bool) -> None:
         """One LanceDB commit: append, or merge-insert on ``id`` (idempotent upsert)."""
-        if upsert:
-            (
-                self.items.merge_insert("id")
-                .when_matched_update_all()
-                .when_not_matched_insert_all()
-                .execute(data)
-            )
-        else:
-            self.items.add(data)
+        with self.commit_lock:
+            if upsert:
+                (
+                    self.items.merge_insert("id")
+                    .when_matched_update_all()
+                    .when_not_matched_insert_all()
+                    .execute(data)
+                )
+            else:
+                self.items.add(data)
         self._appends += 1
 
     def delete(self, where: str) -> None:
-        self.items.delete(where)
+        with self.commit_lock:
+            self.items.delete(where)
 
     def count(self, where: str | None = None) -> int:
         if self._items is None:
@@ -462,12 +396,40 @@ class Store:
     def dim(self) -> int:
         return int(self.items.schema.field("vector").type.list_size)
 
-    def maintain(self, *, force: bool = False) -> bool:
-        """Build/retrain indexes past the threshold and compact small appends.
+    def version(self) -> int:
+        """The items table's version as this connection sees it (changes on every commit,
+        ours or, within ``read_consistency``, another process's)."""
+        return 0 if self._items is None else int(self.items.version)
 
-        Returns True when something ran. Safe to call from a background thread: writes may
-        go on meanwhile (LanceDB commits are optimistic and compaction rebases).
+    def senses_version(self) -> int:
+        return 0 if self._senses is None else int(self._senses.version)
+
+    def maintainer(self) -> Maintainer:
+        """The maintenance runner for this store's tables (built on first use)."""
+        if self._maintainer is None:
+            tables = {
+                name: tbl.uri
+                for name, tbl in ((ITEMS, self._items), (SENSES, self._senses), (META, self._meta))
+                if tbl is not None
+            }
+            self._maintainer = Maintainer(
+                tables, self.storage_options, self.maintenance, self.commit_lock
+            )
+        return self._maintainer
+
+    def maintain(self, *, force: bool = False, wait: bool | None = None) -> bool:
+        """Build/retrain indexes past the threshold, then run the maintenance policy
+        (size-tiered compaction, incremental index refresh, version cleanup).
+
+        Returns True when something ran. Only the process that owns maintenance
+        (``maintenance.maintain``) runs it unless ``force``. Safe to call from a background
+        thread: writes may go on meanwhile (LanceDB commits are optimistic; compaction
+        rebases on concurrent appends). Version cleanup runs in its own thread at most every
+        ``cleanup_interval`` seconds; ``wait`` (default: ``force``) runs it now and waits.
         """
+        wait = force if wait is None else wait
+        if not (force or self.maintenance.maintain):
+            return False
         if not self._maintenance.acquire(blocking=force):
             return False
         try:
@@ -480,11 +442,43 @@ class Store:
                 grown = n >= cfg.retrain_growth * int(info.get("rows", n))
                 if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
                     self.build_indexes()
-            self.items.optimize(cleanup_older_than=cfg.cleanup_older_than)
             self._appends = 0
+            maintainer = self.maintainer()
+            reports = maintainer.run(cleanup=False)
+            for tbl in (self._items, self._senses, self._meta):
+                if tbl is not None:  # our handles must not stay on versions cleanup removes
+                    tbl.checkout_latest()
+            if wait:
+                self.wait_for_cleanup()
+                maintainer.cleanup(reports)
+                self._last_cleanup = time.monotonic()
+            else:
+                self._start_cleanup()
+            self.last_maintenance = reports
+            for report in reports:
+                log.debug("maintenance: %s", report)
             return True
         finally:
             self._maintenance.release()
 
+    def _start_cleanup(self) -> None:
+        busy = self._cleanup_thread is not None and self._cleanup_thread.is_alive()
+        due = time.monotonic() - self._last_cleanup >= self.maintenance.cleanup_interval
+        if busy or not due:
+            return
+        self._last_cleanup = time.monotonic()
+        self._cleanup_thread = threading.Thread(target=self._cleanup_quietly, daemon=True)
+        self._cleanup_thread.start()
+
+    def _cleanup_quietly(self) -> None:
+        try:
+            self.maintainer().cleanup()
+        except Exception:  # noqa: BLE001  (retried on the next run)
+            log.exception("version cleanup failed; it will be retried")
+
+    def wait_for_cleanup(self, timeout: float | None = None) -> None:
+        if self._cleanup_thread is not None:
+            self._cleanup_thread.join(timeout)
+
     def needs_maintenance(self) -> bool:
-        return self._appends >= self.index.compact_every
+        return self.maintenance.maintain and self._appends >= self.index.compact_every

@@ -10,6 +10,7 @@ from __future__ import annotations
 from tactus_memory.cli import (  # noqa: F401  (imported for their registrations)
     data_cmds,
     eval_cmds,
+    maintain_cmd,
     memory_cmds,
     recording_cmds,
     serve_cmd,

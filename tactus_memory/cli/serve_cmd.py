@@ -49,6 +49,14 @@ def serve(
     no_touch: Annotated[
         bool, typer.Option("--no-touch", help="Do not load the touch encoder.")
     ] = False,
+    no_maintain: Annotated[
+        bool,
+        typer.Option(
+            "--no-maintain",
+            help="Leave compaction and cleanup to another process (`tactus maintain`): for "
+            "replicas sharing a store (env TACTUS_MAINTAIN=0).",
+        ),
+    ] = False,
     log_level: Annotated[str | None, typer.Option(help="uvicorn log level (default info).")] = None,
 ) -> None:
     """Serve the memory over HTTP: writes, search, sessions, live touch (WebSocket).
@@ -77,6 +85,8 @@ def serve(
     overrides = {k: v for k, v in given.items() if v is not None}
     if no_touch:
         overrides["touch"] = False
+    if no_maintain:
+        overrides["maintain"] = False
     from tactus_memory.errors import TactusError
 
     settings = Settings(**overrides)
@@ -161,6 +171,7 @@ def run_server(application: Any, settings: Any) -> None:
                     f"  memory browser: {url}\n"
                     f"  API docs:       {url}docs\n"
                     f"  token:          {'required' if settings.token else 'off'}\n"
+                    f"  maintenance:    {'on' if settings.maintain else 'off (tactus maintain)'}\n"
                     "  (Ctrl+C stops it)",
                     err=True,
                 )

@@ -1,0 +1,98 @@
+"""``tactus maintain``: the one process that maintains a shared store.
+
+Several ``tactus serve --no-maintain`` replicas (and scripts) may write to one store; exactly
+one process compacts it, refreshes its indexes and removes old versions
+(:mod:`tactus_memory.maintenance`), so replicas never compact against each other. The
+maintainer needs no embedding model: it opens the store's tables only.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict
+from typing import Annotated
+
+import typer
+
+from tactus_memory.cli.app import app
+
+
+@app.command()
+def maintain(
+    data: Annotated[
+        str | None,
+        typer.Option(help="Memory directory or URI (s3://, gs://, az://) (env TACTUS_DATA)."),
+    ] = None,
+    once: Annotated[bool, typer.Option("--once", help="Run one pass and exit.")] = False,
+    interval: Annotated[
+        float | None,
+        typer.Option(help="Seconds between passes (default TACTUS_MAINTAIN_INTERVAL or 10)."),
+    ] = None,
+    retain: Annotated[
+        float | None,
+        typer.Option(
+            help="Keep versions until superseded this long, seconds (TACTUS_RETAIN_SECONDS, 30)."
+        ),
+    ] = None,
+    passes: Annotated[
+        int | None, typer.Option(help="Stop after this many passes (default: run until killed).")
+    ] = None,
+) -> None:
+    """Maintain a store: size-tiered compaction, incremental index refresh, version cleanup.
+
+    Prints one JSON line per pass and table (version, fragments, what was compacted and
+    removed). Run exactly one per store; start the servers with ``--no-maintain``.
+    """
+    import os
+
+    from tactus_memory.errors import TactusError
+    from tactus_memory.maintenance import MaintenanceConfig
+    from tactus_memory.store import Store
+
+    location = data or os.environ.get("TACTUS_DATA") or "./memory"
+    given = {"maintain": True}
+    if interval is not None:
+        given["maintain_interval"] = interval
+    if retain is not None:
+        given["retain_seconds"] = retain
+    try:
+        cfg = MaintenanceConfig(**given)
+        store = Store(location, maintenance=cfg)
+    except (TactusError, ValueError, OSError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if not store.exists:
+        typer.echo(f"error: no memory at {location!r} (no items table)", err=True)
+        raise typer.Exit(2)
+    typer.echo(
+        f"maintaining {store.uri} every {cfg.maintain_interval:g}s "
+        f"(retain {cfg.retain_seconds:g}s, fan-in {cfg.fan_in})",
+        err=True,
+    )
+    done = 0
+    try:
+        while True:
+            t0 = time.monotonic()
+            try:
+                # a pass compacts inline; cleanup runs in its own thread (every
+                # cleanup_interval) unless this is the only pass
+                store.maintain(force=True, wait=once)
+                tables = store.maintainer().tables
+                for report in store.last_maintenance:
+                    t = tables[report.table.removesuffix(".lance")]
+                    totals = {
+                        "versions_removed_total": t.versions_removed_total,
+                        "bytes_removed_total": t.bytes_removed_total,
+                    }
+                    typer.echo(json.dumps({"pass": done, **asdict(report), **totals}))
+            except Exception as exc:  # noqa: BLE001  (a conflict or a transient store error:
+                # logged, retried next pass; the maintainer must keep running)
+                typer.echo(f"maintenance pass failed (retried): {exc}", err=True)
+            done += 1
+            if once or (passes is not None and done >= passes):
+                break
+            time.sleep(max(0.0, cfg.maintain_interval - (time.monotonic() - t0)))
+    except KeyboardInterrupt:
+        pass
+    store.wait_for_cleanup(60)

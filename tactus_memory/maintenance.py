@@ -1,0 +1,427 @@
+"""Maintenance for an always-on store: bounded disk while ingest runs.
+
+Three jobs, run by one process per store (the *maintainer*: ``tactus maintain``, or a
+``tactus serve`` without ``--no-maintain``), each on every table of the store:
+
+1. **Size-tiered compaction.** Streaming writes make one small fragment per commit. A fragment
+   is in tier 0 below ``tier_base_bytes`` and in tier ``k`` when it is about
+   ``tier_base_bytes * fan_in**(k-1)`` to ``fan_in`` times that. A run of at least
+   ``fan_in`` adjacent fragments of one tier is merged into one fragment of the next tier
+   (Lance ``compact_files`` with every other fragment excluded), so each row is rewritten
+   about ``log_fan_in(table bytes / tier_base_bytes)`` times in its life, and fragments of
+   ``settled_bytes`` or more are never rewritten again (only a fragment whose deleted share
+   passes ``deletion_threshold`` is rewritten alone, to drop the deleted rows). LanceDB's own
+   ``optimize()`` instead merges every fragment under 1M rows each time: with ~16 KB touch
+   rows that is the whole table, rewritten every 64 appends (issue 11: 30x disk).
+2. **Index refresh.** Rows appended since the last run are merged into the existing indices
+   incrementally (Lance ``optimize_indices``), never a rebuild. Retraining the ANN index is
+   the store's separate, rare decision (:meth:`tactus_memory.store.Store.maintain`).
+3. **Version retention.** Every commit is a version; a version's files go only when no
+   version still kept needs them. A version is removed once it was *superseded* more than
+   ``retain_seconds`` ago (not merely created that long ago), so a reader that opened it just
+   before a compaction or delete has ``retain_seconds`` to finish. The maintainer notes which
+   version was the latest at each run; the first run reads the version history once.
+
+Disk then stays near the live data: the extra is what compaction rewrote within the last
+``retain_seconds`` plus the small tier-0 tail (measured by ``benchmarks/disk.py``).
+
+Knobs: :class:`MaintenanceConfig` (pydantic-settings, env ``TACTUS_*``; README section
+"Always-on: disk, maintenance, replicas, object storage").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+log = logging.getLogger(__name__)
+
+MiB = 1024 * 1024
+
+
+class MaintenanceConfig(BaseSettings):
+    """The maintenance policy. Every field also reads ``TACTUS_<NAME>`` from the environment."""
+
+    model_config = SettingsConfigDict(env_prefix="TACTUS_", extra="ignore")
+
+    maintain: bool = Field(
+        True,
+        description="This process maintains the store (compaction, index refresh, cleanup). "
+        "Exactly one process per store should: replicas run with maintain=False.",
+    )
+    retain_seconds: float = Field(
+        30.0,
+        ge=0.0,
+        description="Keep a version until it has been superseded this long (readers in flight "
+        "finish within it; other replicas re-read the latest version every read_consistency).",
+    )
+    maintain_interval: float = Field(
+        10.0, gt=0.0, description="Seconds between passes of `tactus maintain`."
+    )
+    cleanup_interval: float = Field(
+        10.0,
+        ge=0.0,
+        description="Least seconds between version cleanups (each reads every kept manifest, "
+        "so it runs in its own thread, not on every compaction).",
+    )
+    fan_in: int = Field(
+        8, ge=2, description="Merge a tier once it has this many adjacent fragments."
+    )
+    tier_base_bytes: int = Field(
+        1 * MiB, ge=1, description="Fragments below this are tier 0 (the streaming tail)."
+    )
+    settled_bytes: int = Field(
+        512 * MiB, ge=1, description="Fragments of this size are never merged again."
+    )
+    max_merge_share: float = Field(
+        0.25,
+        gt=0.0,
+        le=1.0,
+        description="A merge rewrites at most this share of the table (or free_merge_bytes): "
+        "its inputs stay on disk for retain_seconds, so this bounds the disk spike.",
+    )
+    free_merge_bytes: int = Field(
+        16 * MiB, ge=0, description="Merges up to this size are allowed whatever the share."
+    )
+    deletion_threshold: float = Field(
+        0.1, gt=0.0, le=1.0, description="Rewrite a fragment alone once this share is deleted."
+    )
+    num_threads: int = Field(1, ge=1, description="Threads per compaction (2 cores: leave 1).")
+
+
+# --------------------------------------------------------------------------- planning
+@dataclass(frozen=True)
+class FragmentInfo:
+    """One fragment as the planner sees it."""
+
+    id: int
+    rows: int  # physical rows, deleted included
+    deleted: int
+    bytes: int  # data files on disk
+
+
+def tier_of(nbytes: int, cfg: MaintenanceConfig) -> int | None:
+    """The size tier of a fragment of ``nbytes`` (None: settled, never merged)."""
+    if nbytes >= cfg.settled_bytes:
+        return None
+    if nbytes < cfg.tier_base_bytes:
+        return 0
+    return 1 + int(math.log(nbytes / cfg.tier_base_bytes, cfg.fan_in))
+
+
+def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[list[int]]:
+    """Groups of fragment ids to rewrite, each group into one fragment (fragments in table
+    order), cheapest tier first.
+
+    For tier T = 0, 1, ...: in a run of adjacent fragments all of tier <= T, the fragments up
+    to and including its ``fan_in``-th fragment *of tier T* are a group (tier 0: the whole
+    run once it has ``fan_in``; smaller stragglers
+    inside it, e.g. appends that landed between a merge's inputs and its output, are absorbed
+    rather than stranded). A group may rewrite at most ``max_merge_share`` of the table's
+    bytes (or ``free_merge_bytes``): a larger merge waits until the table has grown, which
+    bounds the disk spike of keeping its inputs for ``retain_seconds``. The first tier with
+    a group wins. Without any, each fragment whose deleted share passes
+    ``deletion_threshold`` is a group alone. Settled fragments (tier None) are boundaries.
+    """
+    tiers = [tier_of(f.bytes, cfg) for f in frags]
+    top = max((t for t in tiers if t is not None), default=-1)
+    size = {f.id: f.bytes for f in frags}
+    budget = max(cfg.free_merge_bytes, cfg.max_merge_share * sum(size.values()))
+    for level in range(top + 1):
+        groups: list[list[int]] = []
+        run: list[int] = []
+        at_level = 0
+        for f, tier in zip([*frags, None], [*tiers, None], strict=True):
+            if f is not None and tier is not None and tier <= level:
+                run.append(f.id)
+                at_level += tier == level
+                if at_level < cfg.fan_in or level == 0:
+                    continue  # the tier-0 tail is merged whole (it is small)
+            if at_level >= cfg.fan_in and sum(size[i] for i in run) <= budget:
+                groups.append(run)
+            run, at_level = [], 0
+        if groups:
+            return groups
+    return [
+        [f.id]
+        for f in frags
+        if f.rows and f.deleted / f.rows >= cfg.deletion_threshold and f.deleted < f.rows
+    ]
+
+
+# --------------------------------------------------------------------------- running
+@dataclass
+class TableReport:
+    """What one maintenance run did to one table."""
+
+    table: str
+    version: int
+    fragments: int
+    compacted_groups: int = 0
+    fragments_removed: int = 0
+    indices_refreshed: bool = False
+    versions_removed: int = 0
+    bytes_removed: int = 0
+    seconds: float = 0.0
+
+
+def fragment_infos(ds: Any) -> list[FragmentInfo]:
+    """FragmentInfo per fragment of a Lance dataset, in table order."""
+    out = []
+    for frag in ds.get_fragments():
+        m = frag.metadata
+        nbytes = sum(int(f.file_size_bytes or 0) for f in m.files)
+        out.append(FragmentInfo(int(m.id), int(m.physical_rows), int(m.num_deletions), nbytes))
+    return out
+
+
+class TableMaintainer:
+    """Maintains one Lance table (by URI). Keeps the version history this process has seen,
+    for the superseded-since rule of version retention. Compaction and cleanup may run in
+    different threads (each one at a time): cleanup reads every kept version's manifest, so
+    it must not hold compaction up."""
+
+    #: compactions per run at most (a cascade: a merged tail completes the next tier's run)
+    MAX_GROUPS_PER_RUN = 8
+
+    def __init__(
+        self,
+        uri: str,
+        storage_options: dict[str, str],
+        cfg: MaintenanceConfig,
+        commit_lock: threading.Lock | None = None,
+    ):
+        self.uri = uri
+        # held while a compaction commits, so this process's own appends (which take it too)
+        # do not race it; other processes' commits are resolved by Lance's retries
+        self.commit_lock = commit_lock
+        self.name = uri.rstrip("/").rsplit("/", 1)[-1]
+        self.storage_options = dict(storage_options)
+        self.cfg = cfg
+        # (wall time, latest version then): every version below it was superseded by then
+        self._seen: deque[tuple[float, int]] = deque()
+        self._history_read = False
+        self._removed_below = 0
+        self._compact_lock = threading.Lock()
+        self._cleanup_lock = threading.Lock()
+        self._seen_lock = threading.Lock()
+        #: what cleanups in this process removed so far (cleanup may run in its own thread)
+        self.versions_removed_total = 0
+        self.bytes_removed_total = 0
+
+    def _dataset(self) -> Any:
+        import lance
+
+        return lance.dataset(self.uri, storage_options=self.storage_options or None)
+
+    def run(self, *, cleanup: bool = True) -> TableReport:
+        report = self.compact()
+        if cleanup:
+            self.cleanup(report)
+        return report
+
+    def compact(self) -> TableReport:
+        """Size-tiered compaction, then the incremental index refresh."""
+        with self._compact_lock:
+            t0 = time.perf_counter()
+            ds = self._dataset()
+            report = TableReport(self.name, ds.version, 0)
+            for _ in range(self.MAX_GROUPS_PER_RUN):
+                frags = fragment_infos(ds)
+                groups = plan_compaction(frags, self.cfg)
+                if not groups:
+                    break
+                self._compact_group(ds, frags, groups[0], report)
+                ds = self._dataset()  # re-plan on the new layout (new fragment ids)
+            self._refresh_indices(ds, report)
+            ds = self._dataset()
+            report.version = ds.version
+            report.fragments = len(ds.get_fragments())
+            self._observe(time.time(), ds.version)
+            report.seconds = time.perf_counter() - t0
+            return report
+
+    def _compact_group(
+        self, ds: Any, frags: list[FragmentInfo], group: list[int], report: TableReport
+    ) -> None:
+        from lance.optimize import Compaction
+
+        keep = set(group)
+        rows = sum(f.rows for f in frags if f.id in keep)
+        nbytes = sum(f.bytes for f in frags if f.id in keep)
+        options = {
+            # every fragment of the group is a candidate (rows < target) and the group
+            # becomes one fragment; the rest are excluded (and act as boundaries)
+            "target_rows_per_fragment": rows + 1,
+            "max_bytes_per_file": max(4 * nbytes, 64 * MiB),
+            "excluded_fragment_ids": [f.id for f in frags if f.id not in keep],
+            "materialize_deletions": True,
+            "materialize_deletions_threshold": self.cfg.deletion_threshold,
+            "num_threads": self.cfg.num_threads,
+        }
+        plan = Compaction.plan(ds, options)
+        rewrites = [task.execute(ds) for task in plan.tasks]  # the slow part: no lock
+        if not rewrites:
+            return
+        with self.commit_lock or contextlib.nullcontext():
+            metrics = Compaction.commit(ds, rewrites, options)
+        report.compacted_groups += 1
+        report.fragments_removed += int(metrics.fragments_removed)
+
+    def _refresh_indices(self, ds: Any, report: TableReport) -> None:
+        stale = any(
+            int(ds.stats.index_stats(ix.name).get("num_unindexed_rows", 0)) > 0
+            for ix in ds.describe_indices()
+        )
+        if stale:
+            ds.optimize.optimize_indices()
+            report.indices_refreshed = True
+
+    def _observe(self, when: float, version: int) -> None:
+        with self._seen_lock:
+            self._seen.append((when, int(version)))
+
+    def cleanup(self, report: TableReport | None = None) -> tuple[int, int]:
+        """Remove the versions superseded more than ``retain_seconds`` ago; returns
+        (versions removed, bytes removed) and adds them to ``report``."""
+        with self._cleanup_lock:
+            ds = self._dataset()
+            now = time.time()
+            if not self._history_read:  # first run: read the history once (a version's
+                # successor's timestamp is when it was superseded)
+                history = ds.versions()
+                with self._seen_lock:
+                    for v in history:
+                        self._seen.appendleft((v["timestamp"].timestamp(), int(v["version"])))
+                    self._seen = deque(sorted(self._seen))
+                self._removed_below = min((int(v["version"]) for v in history), default=0)
+                self._history_read = True
+            self._observe(now, ds.version)
+            cut = 0
+            with self._seen_lock:
+                while self._seen and self._seen[0][0] <= now - self.cfg.retain_seconds:
+                    cut = max(cut, self._seen.popleft()[1])
+            if cut <= self._removed_below + 1:
+                return 0, 0
+            doomed = list(range(max(self._removed_below, 1), cut))
+            stats = ds.cleanup_old_versions(versions=doomed, error_if_tagged_old_versions=False)
+            self._removed_below = cut
+            out = int(stats.old_versions), int(stats.bytes_removed)
+            self.versions_removed_total += out[0]
+            self.bytes_removed_total += out[1]
+            if report is not None:
+                report.versions_removed += out[0]
+                report.bytes_removed += out[1]
+            return out
+
+
+class Maintainer:
+    """Maintains every table of a store (items, senses, meta)."""
+
+    def __init__(
+        self,
+        tables: dict[str, str],
+        storage_options: dict[str, str],
+        cfg: MaintenanceConfig,
+        commit_lock: threading.Lock | None = None,
+    ):
+        self.cfg = cfg
+        self.tables = {
+            name: TableMaintainer(uri, storage_options, cfg, commit_lock)
+            for name, uri in tables.items()
+        }
+
+    def run(self, *, cleanup: bool = True) -> list[TableReport]:
+        return [t.run(cleanup=cleanup) for t in self.tables.values()]
+
+    def cleanup(self, reports: list[TableReport] | None = None) -> None:
+        by_name = {r.table: r for r in reports or []}
+        for t in self.tables.values():
+            t.cleanup(by_name.get(t.name))
+
+
+# --------------------------------------------------------------------------- measuring
+class Background:
+    """Runs a memory's store maintenance off the write path: :meth:`schedule` after each
+    commit starts one background pass when the store says one is due (compaction, cleanup, an
+    index build once ``rows()`` passes the threshold); never in a process that does not own
+    maintenance (``MaintenanceConfig.maintain`` false: ``tactus maintain`` does it)."""
+
+    def __init__(self, store: Any, rows: Any, *, background: bool = True) -> None:
+        self.store = store
+        self.rows = rows  # () -> int: the live row count (for the index threshold)
+        self.background = background
+        self._thread: threading.Thread | None = None
+
+    def schedule(self) -> None:
+        if not self.store.maintenance.maintain:
+            return  # another process maintains this store (`tactus maintain`)
+        if not (self.store.needs_maintenance() or self.store.index_due(self.rows())):
+            return
+        if not self.background:
+            self.store.maintain(force=True)
+            return
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._thread = threading.Thread(target=self._quietly, daemon=True)
+        self._thread.start()
+
+    def _quietly(self) -> None:
+        try:
+            self.store.maintain()
+        except Exception:  # noqa: BLE001  (a background thread must not die loudly; retried)
+            log.exception("background maintenance failed; it will be retried")
+
+    def wait(self, timeout: float | None = None) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+
+@dataclass
+class Footprint:
+    """Disk use of one local table: everything on disk vs what the latest version needs."""
+
+    disk_bytes: int
+    live_bytes: int
+    versions: int
+    fragments: int
+    rows: int
+
+    @property
+    def ratio(self) -> float:
+        return self.disk_bytes / self.live_bytes if self.live_bytes else math.inf
+
+
+def dir_bytes(path: str) -> int:
+    total = 0
+    for root, _dirs, files in os.walk(path):
+        for name in files:
+            with contextlib.suppress(OSError):  # removed while walking (cleanup ran)
+                total += os.path.getsize(os.path.join(root, name))
+    return total
+
+
+def footprint(table_path: str) -> Footprint:
+    """Footprint of a local Lance table directory. Live bytes: the data files, deletion
+    files and index files the latest version references (manifests not counted)."""
+    import lance
+
+    ds = lance.dataset(table_path)
+    frags = fragment_infos(ds)
+    live = sum(f.bytes for f in frags)
+    live += sum(int(ix.total_size_bytes or 0) for ix in ds.describe_indices())
+    versions_dir = os.path.join(table_path, "_versions")
+    n_versions = len(os.listdir(versions_dir)) if os.path.isdir(versions_dir) else 0
+    return Footprint(
+        dir_bytes(table_path), live, n_versions, len(frags), sum(f.rows - f.deleted for f in frags)
+    )

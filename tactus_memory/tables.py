@@ -1,0 +1,112 @@
+"""The store's tables: their Arrow schemas and the index settings (vector and scalar)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from tactus_memory.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+
+# --------------------------------------------------------------------------- schema
+def items_schema(dim: int) -> pa.Schema:
+    import pyarrow as pa
+
+    return pa.schema(
+        [
+            pa.field("id", pa.string(), nullable=False),
+            pa.field("session", pa.string(), nullable=False),
+            pa.field("sense", pa.string(), nullable=False),
+            pa.field("t", pa.float64(), nullable=False),
+            pa.field("t_end", pa.float64(), nullable=False),
+            pa.field("vector", pa.list_(pa.float32(), dim), nullable=False),
+            pa.field("meta", pa.string(), nullable=False),
+            pa.field("text", pa.string()),
+            pa.field("raw", pa.binary()),
+            pa.field("source", pa.string(), nullable=False),
+            pa.field("episode", pa.int64()),
+            pa.field("created", pa.float64(), nullable=False),
+        ]
+    )
+
+
+def senses_schema() -> pa.Schema:
+    import pyarrow as pa
+
+    return pa.schema(
+        [
+            pa.field("name", pa.string(), nullable=False),
+            pa.field("modality", pa.string(), nullable=False),
+            pa.field("dim", pa.int64(), nullable=False),
+            pa.field("provenance", pa.string(), nullable=False),
+            pa.field("query_centroid", pa.binary()),
+            pa.field("mu", pa.float64()),
+            pa.field("sigma", pa.float64()),
+            pa.field("calib_n", pa.int64()),
+            pa.field("updated", pa.float64(), nullable=False),
+        ]
+    )
+
+
+def meta_schema() -> pa.Schema:
+    import pyarrow as pa
+
+    return pa.schema([pa.field("key", pa.string(), nullable=False), pa.field("value", pa.string())])
+
+
+# --------------------------------------------------------------------------- index config
+@dataclass
+class IndexConfig:
+    """Vector/scalar index policy. Defaults chosen by ``benchmarks/memory.py`` (see README)."""
+
+    #: build the ANN index once the table has this many rows (flat search below it)
+    threshold: int = 20_000
+    #: build the scalar indexes (session, sense, t, id) from this many rows
+    scalar_threshold: int = 10_000
+    index_type: str = "IVF_SQ"
+    #: rows per IVF partition (num_partitions = rows / this)
+    rows_per_partition: int = 4096
+    nprobes: int = 20
+    refine_factor: int | None = 2
+    ef: int | None = None
+    #: filtered searches allowing at most this many rows scan them exactly (no ANN)
+    flat_max: int = 20_000
+    #: filtered ANN searches probe enough partitions to score about this many allowed rows
+    min_candidates: int = 4096
+    #: rebuild (retrain) the ANN index when the table has grown this many times since
+    retrain_growth: float = 4.0
+    #: retrain the ANN index when incremental updates have split it into more segments
+    max_deltas: int = 8
+    #: run maintenance (size-tiered compaction, incremental index update, version cleanup:
+    #: :mod:`tactus_memory.maintenance`) after this many appends by this process
+    compact_every: int = 64
+    #: scalar index type per column
+    scalar: dict[str, str] = field(
+        default_factory=lambda: {"id": "BTREE", "session": "BTREE", "sense": "BITMAP", "t": "BTREE"}
+    )
+
+
+def vector_index_config(cfg: IndexConfig, partitions: int, dim: int) -> Any:
+    """The LanceDB index config for ``cfg.index_type`` (cosine metric)."""
+    from lancedb import index as ix
+
+    kind = cfg.index_type.upper()
+    common: dict[str, Any] = {"distance_type": "cosine", "num_partitions": partitions}
+    if kind == "IVF_PQ":
+        return ix.IvfPq(num_sub_vectors=max(1, dim // 8), **common)
+    if kind == "IVF_SQ":
+        return ix.IvfSq(**common)
+    if kind == "IVF_HNSW_SQ":
+        return ix.IvfHnswSq(**common)
+    if kind == "IVF_FLAT":
+        return ix.IvfFlat(**common)
+    raise InvalidInputError(f"unsupported vector index type {cfg.index_type!r}")
+
+
+def scalar_index_config(kind: str) -> Any:
+    from lancedb import index as ix
+
+    return {"BTREE": ix.BTree, "BITMAP": ix.Bitmap}[kind.upper()]()
