@@ -37,6 +37,8 @@ ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {
     errors.UnknownSenseError: (404, "unknown-sense", "Unknown sense"),
     errors.NotFoundError: (404, "not-found", "Not found"),
     errors.SenseConflictError: (409, "sense-conflict", "Sense conflict"),
+    errors.IdConflictError: (409, "id-conflict", "Item id conflict"),
+    errors.ReadOnlyStoreError: (503, "read-only", "Store is read-only"),
     errors.SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
     errors.CapabilityError: (400, "capability", "Not supported by this memory"),
     errors.DataFormatError: (422, "data-format", "Invalid data format"),

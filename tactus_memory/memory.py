@@ -399,7 +399,9 @@ class Memory(TemporalMixin):
         source: str = "",
     ) -> str:
         """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
-        to ``t``. Passing ``id`` makes the call an idempotent upsert."""
+        to ``t``. Passing ``id`` makes the call an idempotent upsert of that session's item of
+        that sense; an id already used by another session or sense raises
+        :class:`~tactus_memory.errors.IdConflictError` (nothing is written)."""
         return self.add_many(
             session,
             sense,
@@ -483,9 +485,8 @@ class Memory(TemporalMixin):
         )
         with self._lock:
             replaced: list[str] = []
-            if upsert and self._counts is not None:
-                where = Where().ids(id_list).sql()
-                replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
+            if upsert:  # under the commit lock: no racing writer can slip in between
+                replaced = self.store.owned_ids(id_list, session, s.name)
             self.store.write(data, upsert=upsert)
             if self._counts is not None:
                 counts = dict(self._counts)
