@@ -20,8 +20,9 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.service.deps import ServiceState, require_token
-from tactus_memory.service.middleware import BodyLimitMiddleware
+from tactus_memory.service.middleware import BodyLimitMiddleware, ReadOnlyMiddleware
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
+from tactus_memory.service.readiness import store_read_only
 from tactus_memory.service.routers import (
     health,
     items,
@@ -91,7 +92,16 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         touch_why = (
             None if "touch" in memory.senses else ("no touch sense is registered in this memory")
         )
-    state = ServiceState(settings=settings, memory=memory, touch_unavailable=touch_why)
+    state = ServiceState(
+        settings=settings,
+        memory=memory,
+        touch_unavailable=touch_why,
+        read_only=store_read_only(memory.store.uri),
+    )
+    if state.read_only:
+        log.warning(
+            "the store at %s is read-only: serving reads, refusing writes", memory.store.uri
+        )
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -100,6 +110,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
             await run_in_threadpool(memory.space.embed_texts, ["warm up"], query=True)
         except Exception:  # noqa: BLE001
             log.exception("warming up the space failed")
+        state.warm = True
         yield
 
     app = FastAPI(
@@ -112,6 +123,9 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     app.state.tactus = state
     install_problem_handlers(app)
     app.add_middleware(BodyLimitMiddleware, max_body_bytes=settings.max_body_bytes)
+    app.add_middleware(
+        ReadOnlyMiddleware, read_only=lambda: state.read_only, where=memory.store.uri
+    )
 
     auth = [Depends(require_token)]
     app.include_router(health.router)

@@ -26,6 +26,10 @@ class ServiceState:
     memory: Any
     touch_unavailable: str | None = None
     writer: Writer | None = None
+    #: the store's directory cannot be written: write routes answer 503 (reads still work)
+    read_only: bool = False
+    #: the space has been warmed up (the lifespan ran): ``/ready`` answers 200
+    warm: bool = False
 
     def __post_init__(self) -> None:
         if self.writer is None:

@@ -10,6 +10,7 @@ middleware unhandled (no response started yet), it answers the 413 itself.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -84,3 +85,46 @@ class BodyLimitMiddleware:
             }
         )
         await send({"type": "http.response.body", "body": body})
+
+
+#: POST routes that only read (search by example, drawing a window): allowed on a read-only store
+READ_ONLY_POSTS = ("/search/like", "/render/touch.png")
+WRITE_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
+
+
+class ReadOnlyMiddleware:
+    """On a read-only store, writes (POST/PUT/PATCH/DELETE but the read-only POSTs) answer
+    503 before reaching a route; reads go through. ``read_only()`` is asked per request."""
+
+    def __init__(self, app: ASGIApp, read_only: Callable[[], bool], where: str) -> None:
+        self.app = app
+        self.read_only = read_only
+        self.where = where
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if (
+            scope["type"] == "http"
+            and scope["method"] in WRITE_METHODS
+            and scope["path"] not in READ_ONLY_POSTS
+            and self.read_only()
+        ):
+            detail = (
+                f"the store at {self.where} is read-only: writes and deletes are refused; "
+                "reads and searches work (serve a writable copy to write)"
+            )
+            body = json.dumps(
+                problem_body(503, detail, slug="read-only", title="Store is read-only")
+            ).encode()
+            await send(
+                {
+                    "type": "http.response.start",
+                    "status": 503,
+                    "headers": [
+                        (b"content-type", PROBLEM_JSON.encode()),
+                        (b"content-length", str(len(body)).encode()),
+                    ],
+                }
+            )
+            await send({"type": "http.response.body", "body": body})
+            return
+        await self.app(scope, receive, send)

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from tactus_memory import errors
+from tactus_memory.service.readiness import is_store_failure, short
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -38,7 +39,6 @@ ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {
     errors.NotFoundError: (404, "not-found", "Not found"),
     errors.SenseConflictError: (409, "sense-conflict", "Sense conflict"),
     errors.IdConflictError: (409, "id-conflict", "Item id conflict"),
-    errors.ReadOnlyStoreError: (503, "read-only", "Store is read-only"),
     errors.SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
     errors.CapabilityError: (400, "capability", "Not supported by this memory"),
     errors.DataFormatError: (422, "data-format", "Invalid data format"),
@@ -89,9 +89,10 @@ class Problem(BaseModel):
 class ServiceUnavailable(Exception):
     """A feature is not available in this server (e.g. no touch encoder): 503."""
 
-    def __init__(self, detail: str) -> None:
+    def __init__(self, detail: str, retry_after: int | None = None) -> None:
         super().__init__(detail)
         self.detail = detail
+        self.retry_after = retry_after
 
 
 def error_status(exc: BaseException) -> tuple[int, str, str] | None:
@@ -192,15 +193,26 @@ def install_problem_handlers(app: FastAPI) -> None:
         )
 
     async def unavailable(request: Request, exc: ServiceUnavailable) -> JSONResponse:
+        retry = None if exc.retry_after is None else {"Retry-After": str(exc.retry_after)}
         return problem_response(
             503,
             exc.detail,
             slug="unavailable",
             title="Service unavailable",
             instance=request.url.path,
+            headers=retry,
         )
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        if is_store_failure(exc):  # a damaged or vanished store file: say so, no traceback
+            log.error("store failure on %s %s: %s", request.method, request.url.path, short(exc))
+            return problem_response(
+                503,
+                f"the store could not be read or written: {short(exc)}",
+                slug="store-unavailable",
+                title="Service unavailable",
+                instance=request.url.path,
+            )
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return problem_response(
             500,

@@ -265,3 +265,13 @@ class HealthOut(BaseModel):
     senses: list[str]
     touch: bool
     touch_unavailable: str | None = None
+    read_only: bool = Field(False, description="The store cannot be written: writes get 503.")
+
+
+class LiveOut(BaseModel):
+    status: str = "ok"
+
+
+class ReadyOut(BaseModel):
+    status: str = "ready"
+    read_only: bool = False

@@ -44,10 +44,6 @@ class IdConflictError(TactusError, ValueError):
     """
 
 
-class ReadOnlyStoreError(TactusError, PermissionError):
-    """The store cannot be written (read-only files or mount) (HTTP 503)."""
-
-
 class SpaceMismatchError(TactusError, ValueError):
     """A store opened with a space other than the one it was created with (HTTP 409)."""
 

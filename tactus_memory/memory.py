@@ -220,6 +220,15 @@ def _check_query_text(query: Any) -> str:
     return query
 
 
+def _cache_write(write: Any, *args: Any) -> None:
+    """Persist a cache (probe embeddings, calibration): best effort, so that searching a
+    read-only store works; a failed write only costs recomputing the cache next time."""
+    try:
+        write(*args)
+    except Exception as exc:  # noqa: BLE001  (a cache: any failure is harmless)
+        log.warning("could not persist a search cache (read-only store?): %s", exc)
+
+
 # --------------------------------------------------------------------------- memory
 class Memory(TemporalMixin):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
@@ -567,7 +576,7 @@ class Memory(TemporalMixin):
             else:
                 arr = as_unit_rows(self.space.embed_texts(list(PROBES), query=True), self.space.dim)
                 with self._lock:
-                    self.store.set_meta(key, json.dumps(arr.round(6).tolist()))
+                    _cache_write(self.store.set_meta, key, json.dumps(arr.round(6).tolist()))
             self._probes = as_unit_rows(arr, self.space.dim)
         return self._probes
 
@@ -588,7 +597,7 @@ class Memory(TemporalMixin):
             row = next((r for r in self.store.sense_rows() if r["name"] == sense), None)
             if row is not None:
                 row.update(mu=calib.mu, sigma=calib.sigma, calib_n=calib.n, updated=time.time())
-                self.store.put_sense_row(row)
+                _cache_write(self.store.put_sense_row, row)
         return calib
 
     # ----------------------------------------------------------- search

@@ -20,7 +20,10 @@ def serve(
     token: Annotated[
         str | None,
         typer.Option(
-            help="Require 'Authorization: Bearer <token>' (all but /health) (env TACTUS_TOKEN)."
+            help="Require 'Authorization: Bearer <token>' on every route but the open ones "
+            "(/health, /live, /ready, /, /static, /docs, /redoc, /openapi.json) (env "
+            "TACTUS_TOKEN). Must not be empty. WebSocket clients may pass ?token= instead; "
+            "it is redacted in the logs."
         ),
     ] = None,
     space: Annotated[
@@ -40,6 +43,9 @@ def serve(
         bool, typer.Option("--no-touch", help="Do not load the touch encoder.")
     ] = False,
     log_level: Annotated[str | None, typer.Option(help="uvicorn log level (default info).")] = None,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the full traceback of a startup error.")
+    ] = False,
 ) -> None:
     """Serve the memory over HTTP: writes, search, sessions, live touch (WebSocket).
 
@@ -50,8 +56,8 @@ def serve(
     """
     import uvicorn
 
-    from tactus_memory.service.app import create_app
-    from tactus_memory.service.settings import Settings
+    from tactus_memory.service.logs import log_config
+    from tactus_memory.service.startup import check_location, explain
 
     given = {
         "host": host,
@@ -67,11 +73,25 @@ def serve(
     overrides = {k: v for k, v in given.items() if v is not None}
     if no_touch:
         overrides["touch"] = False
-    settings = Settings(**overrides)
-    application = create_app(settings)
+    where = data or "the memory"
+    try:
+        from tactus_memory.service.app import create_app
+        from tactus_memory.service.settings import Settings
+
+        settings = Settings(**overrides)
+        where = settings.data
+        check_location(settings.data)
+        application = create_app(settings)
+    except Exception as exc:  # noqa: BLE001  (startup: one line and exit 2, unless --debug)
+        if debug:
+            raise
+        typer.echo(f"tactus serve: {explain(exc, where)}", err=True)
+        raise typer.Exit(2) from None
+    read_only = application.state.tactus.read_only
     typer.echo(
         f"tactus-memory serving {settings.data} on http://{settings.host}:{settings.port} "
-        f"(docs at /docs; token {'required' if settings.token else 'off'})",
+        f"(docs at /docs; token {'required' if settings.token else 'off'}"
+        f"{'; READ-ONLY store: writes answer 503' if read_only else ''})",
         err=True,
     )
     uvicorn.run(
@@ -79,6 +99,7 @@ def serve(
         host=settings.host,
         port=settings.port,
         log_level=settings.log_level,
+        log_config=log_config(),
         ws_max_size=settings.max_ws_message_bytes,
         ws_per_message_deflate=False,  # noisy sensor frames hardly compress; save the CPU
         timeout_graceful_shutdown=5,
