@@ -87,7 +87,8 @@ def serve(
             raise
         typer.echo(f"tactus serve: {explain(exc, where)}", err=True)
         raise typer.Exit(2) from None
-    read_only = application.state.tactus.read_only
+    state = getattr(getattr(application, "state", None), "tactus", None)
+    read_only = bool(getattr(state, "read_only", False))
     typer.echo(
         f"tactus-memory serving {settings.data} on http://{settings.host}:{settings.port} "
         f"(docs at /docs; token {'required' if settings.token else 'off'}"
