@@ -301,6 +301,9 @@ def main() -> None:
         stats["ready_s"] = round(up, 2)
         cycles.append(stats)
         print(json.dumps(stats), f"total acked {ledger.acked}", flush=True)
+        partial = {"benchmark": "reliability", "partial": True, "cycles": cycles}
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(partial, indent=2) + "\n")  # kept if the run is cut
     up = server.start(args.startup_s)
     if up is None:
         failed_restarts += 1

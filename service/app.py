@@ -20,7 +20,12 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.service.deps import ServiceState, require_token
-from tactus_memory.service.middleware import BodyLimitMiddleware, ReadOnlyMiddleware
+from tactus_memory.service.middleware import (
+    AllowMiddleware,
+    BodyLimitMiddleware,
+    ReadOnlyMiddleware,
+)
+from tactus_memory.service.openapi import install_openapi
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
 from tactus_memory.service.readiness import store_read_only
 from tactus_memory.service.routers import (
@@ -126,6 +131,8 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     app.add_middleware(
         ReadOnlyMiddleware, read_only=lambda: state.read_only, where=memory.store.uri
     )
+    app.add_middleware(AllowMiddleware)
+    install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 
     auth = [Depends(require_token)]
     app.include_router(health.router)

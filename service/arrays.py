@@ -62,15 +62,29 @@ def _remember_header(raw: bytes, arr: np.ndarray) -> None:
     _HEADERS[raw[:offset]] = (arr.dtype, arr.shape, fortran, offset)
 
 
+#: the first bytes of every .npy file (numpy format spec)
+NPY_MAGIC = b"\x93NUMPY"
+
+
 def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
     """``.npy`` bytes -> a finite float32 array (no pickles, numeric dtypes only)."""
     if not raw:
         raise InvalidInputError(f"{what} is empty")
     arr = _npy_fast(raw)
     if arr is None:
+        if not raw.startswith(NPY_MAGIC):
+            raise InvalidInputError(
+                f"{what} is not a .npy array (it does not start with the .npy magic bytes): "
+                "send the output of numpy.save for a numeric array"
+            )
         try:
             arr = np.load(io.BytesIO(raw), allow_pickle=False)
         except Exception as exc:  # noqa: BLE001  (numpy raises many kinds on garbage)
+            if "pickle" in str(exc):  # numpy's wording for object arrays: name the real issue
+                raise InvalidInputError(
+                    f"{what} holds Python objects, not numbers: send a .npy array of a "
+                    "numeric dtype"
+                ) from None
             raise InvalidInputError(f"{what} is not a valid .npy array: {exc}") from None
         if not isinstance(arr, np.ndarray):
             raise InvalidInputError(f"{what} must hold one array, not an archive")

@@ -213,6 +213,9 @@ def install_problem_handlers(app: FastAPI) -> None:
                 title="Service unavailable",
                 instance=request.url.path,
             )
+        return await internal(request, exc)
+
+    async def internal(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return problem_response(
             500,
@@ -225,6 +228,11 @@ def install_problem_handlers(app: FastAPI) -> None:
     app.add_exception_handler(StarletteHTTPException, http_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(ServiceUnavailable, unavailable)  # type: ignore[arg-type]
+    # RuntimeError/OSError (LanceDB's I/O errors among them) are answered here, inside the
+    # app, so that they are logged once; the catch-all below is Starlette's last resort,
+    # which logs and then re-raises to the server.
+    app.add_exception_handler(RuntimeError, unexpected)
+    app.add_exception_handler(OSError, unexpected)
     app.add_exception_handler(Exception, unexpected)
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -12,18 +12,36 @@ from tactus_memory.temporal import Moment
 SENSE_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
 MAX_BATCH = 4096
 
-_FRAME_EXAMPLE = [[0.0] * 32 for _ in range(32)]
+#: largest finite float32 (frames and vectors are stored as float32: beyond it is inf)
+FLOAT32_MAX = 3.4028234663852886e38
+#: a valid raw STAG-like frame (values 500-690: a real dynamic range, never all-zero)
+_FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(32)] for r in range(32)]
+_FRAME_EXAMPLE_2 = [[500.0 + (11 * r + 5 * c) % 187 for c in range(32)] for r in range(32)]
 
 
 class Strict(BaseModel):
-    """Base: unknown fields are errors, NaN/inf are errors."""
+    """Base: unknown fields are errors, NaN/inf are errors, and types are strict: a JSON
+    boolean is not a number (``t: false`` is a 422, not 0), a string is not a number."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 Meta = dict[str, Any]
-Frame = list[list[float]]
+# The shape and float32 range are stated in the JSON schema here and enforced after parsing
+# (service/arrays.py: as_window / as_float_array), whose 422 names the whole shape, e.g.
+# "(8, 32, 31)", instead of listing up to 1,024 per-element errors.
+#: one pressure value or vector component (float32 range)
+Value = Annotated[float, Field(json_schema_extra={"minimum": -FLOAT32_MAX, "maximum": FLOAT32_MAX})]
+#: (32,) one row of a frame
+Row = Annotated[list[Value], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
+#: (32, 32) one frame
+Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
+#: (K, 32, 32) a window (K is bounded by each field)
 Window = list[Frame]
+#: an item id (the store's rule)
+ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=128)]
+#: a source (stream) id: an item id or '' for none
+SOURCE_PATTERN = r"^$|" + ID_PATTERN
 
 T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
 T_END_DESC = "End time in seconds (>= t); defaults to t."
@@ -37,7 +55,7 @@ class TouchWindowIn(Strict):
         json_schema_extra={
             "examples": [
                 {
-                    "frames": [_FRAME_EXAMPLE] * 2,
+                    "frames": [_FRAME_EXAMPLE, _FRAME_EXAMPLE_2],
                     "t": 12.5,
                     "t_end": 13.6,
                     "meta": {"object": "mug"},
@@ -76,7 +94,9 @@ class TouchBatchIn(Strict):
         None, description="One metadata object for all, or one per window."
     )
     calibrated: bool = False
-    ids: list[str] | None = Field(None, description="B item ids (default: generated).")
+    ids: list[ItemId] | None = Field(
+        None, description="B item ids (default: generated).", min_length=1, max_length=MAX_BATCH
+    )
 
 
 class TextIn(Strict):
@@ -100,18 +120,18 @@ class VectorsIn(Strict):
 
     model_config = ConfigDict(
         json_schema_extra={
-            "examples": [
-                {"sense": "motion", "vectors": [[0.1, 0.2, 0.3]], "t": [4.0], "t_end": [5.0]}
-            ]
+            # the example vector has the space's dimension: set per app (service/openapi.py)
         }
     )
 
     sense: str = Field(pattern=SENSE_PATTERN, description="A registered sense name.")
-    vectors: list[list[float]] = Field(min_length=1, max_length=MAX_BATCH)
+    vectors: list[Annotated[list[Value], Field(min_length=1)]] = Field(
+        min_length=1, max_length=MAX_BATCH, description="(N, D) vectors, D = the space's dim."
+    )
     t: list[float] = Field(min_length=1, max_length=MAX_BATCH)
     t_end: list[float] | None = None
     meta: Meta | list[Meta] | None = None
-    ids: list[str] | None = None
+    ids: list[ItemId] | None = Field(None, min_length=1, max_length=MAX_BATCH)
 
 
 class SenseIn(Strict):
@@ -187,12 +207,21 @@ class SearchLikeIn(Strict):
     """Find moments similar to an example: a touch window, a vector, or a text."""
 
     model_config = ConfigDict(
-        json_schema_extra={"examples": [{"sense": "touch", "frames": [_FRAME_EXAMPLE] * 2, "k": 5}]}
+        json_schema_extra={
+            "examples": [
+                {"sense": "touch", "frames": [_FRAME_EXAMPLE, _FRAME_EXAMPLE_2], "k": 5},
+                {"sense": "text", "text": "holding a mug", "k": 5},
+            ],
+            # exactly one of frames / vector / text (what _one_example enforces)
+            "oneOf": [{"required": [name]} for name in ("frames", "vector", "text")],
+        }
     )
 
     sense: str = Field(pattern=SENSE_PATTERN, description="The sense of the example.")
     frames: Window | None = Field(None, description="A (K, 32, 32) touch window.")
-    vector: list[float] | None = Field(None, description="A vector of that sense (dim D).")
+    vector: list[Value] | None = Field(
+        None, description="A vector of that sense (dim D).", min_length=1
+    )
     text: str | None = Field(None, min_length=1, max_length=8192)
     calibrated: bool = False
     k: int = Field(10, ge=1, le=1000)

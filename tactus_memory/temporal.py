@@ -72,6 +72,9 @@ from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import HIT_COLUMNS, Where, finite_float, validate_id, validate_source
 
+#: largest clock offset in seconds (about 317 years): keeps t_aligned = t + offset finite
+MAX_CLOCK_OFFSET = 1e10
+
 if TYPE_CHECKING:
     import threading
 
@@ -322,6 +325,11 @@ class TemporalMixin:
         sense = validate_sense_name(sense)
         source = validate_source(source)
         value = finite_float(offset, "offset")
+        if abs(value) > MAX_CLOCK_OFFSET:
+            raise InvalidInputError(
+                f"offset {value!r} is beyond +-{MAX_CLOCK_OFFSET:g} s; a clock offset is a "
+                "time shift, and t + offset must stay a finite number"
+            )
         with self._lock:
             table = self._offset_table()
             streams = table.setdefault(session, {})

@@ -88,3 +88,167 @@ def test_http_alice_bob_id_conflict_is_409(client):
     # the owner may still upsert it
     r = client.post("/sessions/alice/text", json={"text": "alice pin 4712", "t": 1, "id": "note-1"})
     assert r.status_code == 201, r.text
+
+
+# --------------------------------------------------------------------- B: lone surrogates
+@pytest.mark.parametrize(
+    "meta_json", ['{"k": "\\udfff"}', '{"\\udfff": 1}', '{"k": ["a", {"x": "\\ud800"}]}']
+)
+def test_lone_surrogate_in_meta_is_a_clean_422(client, caplog, meta_json):
+    body = '{"text": "a note", "t": 1, "meta": ' + meta_json + "}"
+    with caplog.at_level("INFO"):
+        r = client.post(
+            "/sessions/s1/text", content=body, headers={"content-type": "application/json"}
+        )
+    assert_problem(r, 422, "meta", "surrogate")
+    assert not [rec for rec in caplog.records if rec.exc_info], "no traceback for a 422"
+    frames = window(k=2).tolist()
+    touch = '{"frames": ' + str(frames) + ', "t": 1, "meta": ' + meta_json + "}"
+    r = client.post(
+        "/sessions/s1/touch", content=touch, headers={"content-type": "application/json"}
+    )
+    assert_problem(r, 422, "surrogate")
+
+
+def test_library_refuses_lone_surrogate_in_meta(memory):
+    from tactus_memory.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match="surrogate"):
+        memory.add("s1", "text", "x", t=1.0, meta={"k": "\udfff"})
+    assert len(memory) == 0
+
+
+# --------------------------------------------------------------------- E: health and ready
+def _damage_items(memory) -> None:
+    from pathlib import Path
+
+    for f in (Path(memory.store.uri) / "items.lance" / "data").glob("*.lance"):
+        f.write_bytes(f.read_bytes()[:10])
+
+
+def test_health_is_503_with_the_reason_when_the_store_is_unreadable(client, memory):
+    client.post("/sessions/s1/text", json={"text": "a red ball", "t": 1.0})
+    assert client.get("/health").status_code == 200
+    assert client.get("/ready").json()["status"] == "ready"
+    _damage_items(memory)
+    r = client.get("/health")
+    body = assert_problem(r, 503, "store", "cannot be read")
+    assert memory.store.uri in body["detail"]
+    assert_problem(client.get("/ready"), 503, "cannot be read")
+    assert client.get("/live").json() == {"status": "ok"}  # liveness does not touch the store
+    r = client.get("/search", params={"q": "red ball"})  # data routes: 503, not 500
+    assert_problem(r, 503, "store")
+
+
+def test_ready_waits_for_the_warm_up_and_probes_need_no_token(memory):
+    app = create_app(Settings(token="s3cret"), memory=memory)
+    c = TestClient(app)  # no lifespan yet: the text model is not warmed up
+    r = c.get("/ready")
+    assert_problem(r, 503, "starting")
+    assert r.headers["retry-after"] == "1"
+    with TestClient(app) as c:
+        for path in ("/live", "/ready", "/health", "/openapi.json", "/docs", "/redoc", "/"):
+            assert c.get(path).status_code == 200, path
+        assert c.get("/sessions").status_code == 401
+
+
+# --------------------------------------------------------------------- F: read-only (flag)
+def test_read_only_store_refuses_writes_and_serves_reads(client):
+    client.post("/sessions/s1/text", json={"text": "a red ball", "t": 1.0})
+    client.app.state.tactus.read_only = True
+    assert client.get("/health").json()["read_only"] is True
+    assert client.get("/search", params={"q": "red ball"}).status_code == 200
+    r = client.post("/search/like", json={"text": "red ball"})
+    assert r.status_code != 503, r.text
+    assert_problem(client.post("/sessions/s1/text", json={"text": "x", "t": 2}), 503, "read-only")
+    assert_problem(client.delete("/sessions/s1"), 503, "read-only")
+    assert_problem(
+        client.put("/sessions/s1/clock", json={"sense": "touch", "offset": 1.0}), 503, "read-only"
+    )
+    with client.websocket_connect("/sessions/s1/touch/stream") as ws:
+        msg = ws.receive_json()
+    assert msg["type"] == "error" and "read-only" in msg["error"]["detail"]
+
+
+# --------------------------------------------------------------------- G: empty token
+@pytest.mark.parametrize("token", ["", "   "])
+def test_empty_token_is_refused(token):
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="token is empty"):
+        Settings(token=token)
+
+
+# --------------------------------------------------------------------- H: redaction
+def test_redact_hides_query_tokens_and_bearer_credentials():
+    import logging
+
+    from tactus_memory.service.logs import RedactSecrets, redact
+
+    line = redact('127.0.0.1:5 - "GET /sessions/s/touch/stream?window=8&token=s3cr%2Bet&x=1"')
+    assert "s3cr" not in line and "token=***&x=1" in line
+    assert redact("Authorization: Bearer abc.def") == "Authorization: Bearer ***"
+    rec = logging.LogRecord(
+        "uvicorn.access", 20, "", 0, '%s - "%s %s"', ("1.2.3.4", "GET", "/x?token=abc"), None
+    )
+    assert RedactSecrets().filter(rec) and "abc" not in rec.getMessage()
+
+
+# --------------------------------------------------------------------- I: strictness
+@pytest.mark.parametrize(
+    ("path", "body"),
+    [
+        ("/sessions/s1/text", {"text": "x", "t": False}),
+        ("/sessions/s1/text", {"text": "x", "t": 1, "t_end": True}),
+        ("/sessions/s1/clock", {"sense": "touch", "offset": False}),
+        ("/sessions/s1/touch", {"frames": [[[True] * 32] * 32], "t": 1}),
+    ],
+)
+def test_booleans_are_not_numbers(client, path, body):
+    method = client.put if path.endswith("clock") else client.post
+    assert_problem(method(path, json=body), 422)
+
+
+def test_clock_offset_is_bounded_so_t_aligned_stays_finite(client, memory):
+    from tactus_memory.errors import InvalidInputError
+
+    client.post("/sessions/s1/text", json={"text": "a red ball", "t": 1.0})
+    r = client.put("/sessions/s1/clock", json={"sense": "text", "offset": 1e308})
+    assert_problem(r, 422, "offset")
+    with pytest.raises(InvalidInputError, match="offset"):
+        memory.set_clock_offset("s1", "text", 1e308)
+    r = client.put("/sessions/s1/clock", json={"sense": "text", "offset": 1e9})
+    assert r.status_code == 200, r.text
+    items = client.get("/sessions/s1/timeline").json()["items"]
+    assert items[0]["t_aligned"] == 1e9 + 1.0
+
+
+def test_binary_websocket_garbage_gets_a_clear_error_without_pickle(client):
+    import io
+    import os
+
+    import numpy as np
+
+    buf = io.BytesIO()
+    np.save(buf, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with client.websocket_connect("/sessions/s1/touch/stream") as ws:
+        assert ws.receive_json()["type"] == "ready"
+        for payload in (os.urandom(200), b"\x93NUMPY" + os.urandom(100), buf.getvalue()):
+            ws.send_bytes(payload)
+            msg = ws.receive_json()
+            assert msg["type"] == "error", msg
+            detail = msg["error"]["detail"]
+            assert "pickle" not in detail.lower() and ".npy" in detail, detail
+
+
+def test_options_and_405_name_every_method_of_the_path(client):
+    r = client.options("/sessions/s1")
+    assert r.status_code in (200, 204), r.text
+    allow = {m.strip() for m in r.headers["allow"].split(",")}
+    assert {"GET", "DELETE"} <= allow and "POST" not in allow
+    r = client.options("/sessions/s1/clock")
+    assert {"GET", "PUT"} <= {m.strip() for m in r.headers["allow"].split(",")}
+    r = client.patch("/sessions/s1/clock", json={})
+    assert_problem(r, 405)
+    assert {"GET", "PUT"} <= {m.strip() for m in r.headers["allow"].split(",")}
+    assert client.options("/no/such/route").status_code == 404
