@@ -62,6 +62,8 @@ def _remember_header(raw: bytes, arr: np.ndarray) -> None:
     _HEADERS[raw[:offset]] = (arr.dtype, arr.shape, fortran, offset)
 
 
+#: largest absolute pressure value accepted (raw ADC units are < 65536; calibrated 0-1)
+MAX_FRAME_VALUE = 1e6
 #: the first bytes of every .npy file (numpy format spec)
 NPY_MAGIC = b"\x93NUMPY"
 
@@ -95,7 +97,16 @@ def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
     out = arr.astype(np.float32, copy=False)
     if not np.isfinite(out).all():
         raise InvalidInputError(f"{what} contains NaN or inf")
-    return out
+    return _in_range(out, what)
+
+
+def _in_range(arr: np.ndarray, what: str) -> np.ndarray:
+    if arr.size and float(np.abs(arr).max()) > MAX_FRAME_VALUE:
+        raise InvalidInputError(
+            f"{what} has values beyond +-{MAX_FRAME_VALUE:g}: frames are raw sensor units "
+            "(a glove ADC reads < 65536) or calibrated 0-1"
+        )
+    return arr
 
 
 def as_float_array(value: Any, what: str) -> np.ndarray:
@@ -108,7 +119,7 @@ def as_float_array(value: Any, what: str) -> np.ndarray:
         ) from None
     if not np.isfinite(arr).all():
         raise InvalidInputError(f"{what} contains NaN or inf")
-    return arr
+    return _in_range(arr, what)
 
 
 def as_window(value: Any, what: str = "touch window") -> np.ndarray:

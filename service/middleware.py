@@ -17,6 +17,7 @@ import json
 from collections.abc import Callable
 from typing import Any
 
+import anyio
 from starlette.exceptions import HTTPException
 from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -34,16 +35,22 @@ class BodyTooLarge(HTTPException):
 DRAIN_FACTOR = 4
 
 
+#: ... and for at most this many seconds (a client may declare more than it sends)
+DRAIN_SECONDS = 5.0
+
+
 async def drain(receive: Receive, budget: int) -> None:
-    """Read and drop the request body until its end, a disconnect, or ``budget`` bytes."""
+    """Read and drop the request body until its end, a disconnect, ``budget`` bytes or
+    :data:`DRAIN_SECONDS`."""
     seen = 0
-    while seen <= budget:
-        message = await receive()
-        if message["type"] != "http.request":
-            return
-        seen += len(message.get("body", b""))
-        if not message.get("more_body", False):
-            return
+    with anyio.move_on_after(DRAIN_SECONDS):
+        while seen <= budget:
+            message = await receive()
+            if message["type"] != "http.request":
+                return
+            seen += len(message.get("body", b""))
+            if not message.get("more_body", False):
+                return
 
 
 class BodyLimitMiddleware:

@@ -6,14 +6,14 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from tactus_memory.service.arrays import MAX_FRAME_VALUE
 from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN
 from tactus_memory.temporal import Moment
+from tactus_memory.vectors import MAX_COMPONENT
 
 SENSE_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
 MAX_BATCH = 4096
 
-#: largest finite float32 (frames and vectors are stored as float32: beyond it is inf)
-FLOAT32_MAX = 3.4028234663852886e38
 #: a valid raw STAG-like frame (values 500-690: a real dynamic range, never all-zero)
 _FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(32)] for r in range(32)]
 _FRAME_EXAMPLE_2 = [[500.0 + (11 * r + 5 * c) % 187 for c in range(32)] for r in range(32)]
@@ -30,14 +30,23 @@ Meta = dict[str, Any]
 # The shape and float32 range are stated in the JSON schema here and enforced after parsing
 # (service/arrays.py: as_window / as_float_array), whose 422 names the whole shape, e.g.
 # "(8, 32, 31)", instead of listing up to 1,024 per-element errors.
-#: one pressure value or vector component (float32 range)
-Value = Annotated[float, Field(json_schema_extra={"minimum": -FLOAT32_MAX, "maximum": FLOAT32_MAX})]
+#: one pressure value (service/arrays.py: MAX_FRAME_VALUE)
+Value = Annotated[
+    float, Field(json_schema_extra={"minimum": -MAX_FRAME_VALUE, "maximum": MAX_FRAME_VALUE})
+]
+#: one vector component (tactus_memory/vectors.py: MAX_COMPONENT)
+Component = Annotated[
+    float, Field(json_schema_extra={"minimum": -MAX_COMPONENT, "maximum": MAX_COMPONENT})
+]
+#: a vector: at least one component of magnitude >= 1e-11 (an all-zero vector has no
+#: direction; tactus_memory/vectors.py refuses norms below 1e-12)
+NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
 #: (32,) one row of a frame
 Row = Annotated[list[Value], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
 #: (32, 32) one frame
 Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
-#: (K, 32, 32) a window (K is bounded by each field)
-Window = list[Frame]
+#: (K, 32, 32) a window, 1 <= K <= 512
+Window = Annotated[list[Frame], Field(min_length=1, max_length=512)]
 #: an item id (the store's rule)
 ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=128)]
 #: a source (stream) id: an item id or '' for none
@@ -95,7 +104,11 @@ class TouchBatchIn(Strict):
     )
     calibrated: bool = False
     ids: list[ItemId] | None = Field(
-        None, description="B item ids (default: generated).", min_length=1, max_length=MAX_BATCH
+        None,
+        description="B item ids (default: generated), all different.",
+        min_length=1,
+        max_length=MAX_BATCH,
+        json_schema_extra={"uniqueItems": True},
     )
 
 
@@ -125,13 +138,17 @@ class VectorsIn(Strict):
     )
 
     sense: str = Field(pattern=SENSE_PATTERN, description="A registered sense name.")
-    vectors: list[Annotated[list[Value], Field(min_length=1)]] = Field(
-        min_length=1, max_length=MAX_BATCH, description="(N, D) vectors, D = the space's dim."
+    vectors: list[Annotated[list[Component], Field(min_length=1, json_schema_extra=NONZERO)]] = (
+        Field(
+            min_length=1, max_length=MAX_BATCH, description="(N, D) vectors, D = the space's dim."
+        )
     )
     t: list[float] = Field(min_length=1, max_length=MAX_BATCH)
     t_end: list[float] | None = None
     meta: Meta | list[Meta] | None = None
-    ids: list[ItemId] | None = Field(None, min_length=1, max_length=MAX_BATCH)
+    ids: list[ItemId] | None = Field(
+        None, min_length=1, max_length=MAX_BATCH, json_schema_extra={"uniqueItems": True}
+    )
 
 
 class SenseIn(Strict):
@@ -212,15 +229,20 @@ class SearchLikeIn(Strict):
                 {"sense": "touch", "frames": [_FRAME_EXAMPLE, _FRAME_EXAMPLE_2], "k": 5},
                 {"sense": "text", "text": "holding a mug", "k": 5},
             ],
-            # exactly one of frames / vector / text (what _one_example enforces)
-            "oneOf": [{"required": [name]} for name in ("frames", "vector", "text")],
+            # exactly one of frames (a touch window, sense 'touch'), vector (any sense) or
+            # text (sense 'text'): what _one_example and the senses enforce
+            "oneOf": [
+                {"required": ["frames"], "properties": {"sense": {"const": "touch"}}},
+                {"required": ["vector"]},
+                {"required": ["text"], "properties": {"sense": {"const": "text"}}},
+            ],
         }
     )
 
     sense: str = Field(pattern=SENSE_PATTERN, description="The sense of the example.")
     frames: Window | None = Field(None, description="A (K, 32, 32) touch window.")
-    vector: list[Value] | None = Field(
-        None, description="A vector of that sense (dim D).", min_length=1
+    vector: list[Component] | None = Field(
+        None, description="A vector of that sense (dim D).", min_length=1, json_schema_extra=NONZERO
     )
     text: str | None = Field(None, min_length=1, max_length=8192)
     calibrated: bool = False

@@ -15,11 +15,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
 from tactus_memory.service.deps import ID_PATTERN, MemoryDep, SessionId
 from tactus_memory.service.problems import problem_responses
-from tactus_memory.service.schemas import SENSE_PATTERN, Strict
+from tactus_memory.service.schemas import SENSE_PATTERN, SOURCE_PATTERN, Strict
 from tactus_memory.temporal import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
+    MAX_CLOCK_OFFSET,
     RELATIVE_KEEP,
     ClockOffset,
     Evidence,
@@ -43,7 +44,12 @@ Senses = Annotated[
 ]
 SessionQ = Annotated[str | None, Query(pattern=ID_PATTERN, max_length=128)]
 SourceQ = Annotated[
-    str | None, Query(max_length=128, description="Only this stream (source id; '' for none).")
+    str | None,
+    Query(
+        max_length=128,
+        pattern=SOURCE_PATTERN,
+        description="Only this stream (source id; '' for none).",
+    ),
 ]
 After = Annotated[float | None, Query(description="Items still going on at or after (aligned).")]
 Before = Annotated[float | None, Query(description="Items started at or before (aligned).")]
@@ -92,9 +98,13 @@ class ClockIn(Strict):
     )
 
     sense: str = Field(pattern=SENSE_PATTERN)
-    source: str = Field("", max_length=128, description="Stream id ('' for none).")
+    source: str = Field(
+        "", max_length=128, pattern=SOURCE_PATTERN, description="Stream id ('' for none)."
+    )
     offset: float = Field(
-        description="Seconds added to the stream's t to put it on the session clock (0 clears)."
+        ge=-MAX_CLOCK_OFFSET,
+        le=MAX_CLOCK_OFFSET,
+        description="Seconds added to the stream's t to put it on the session clock (0 clears).",
     )
 
 
