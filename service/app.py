@@ -52,7 +52,11 @@ in natural language.
 * Read: `GET /search?q=...`, `POST /search/like`, `GET /sessions`, `GET /senses`.
 * Errors are RFC 9457 problem details (`application/problem+json`).
 * Every write is acknowledged (201) only after its LanceDB commit.
-* With a token configured, send `Authorization: Bearer <token>` (all routes but /health).
+* With a token configured, send `Authorization: Bearer <token>` on every route but the open
+  ones: `/live`, `/health`, `/ready`, `/`, `/static/*`, `/docs`, `/redoc`, `/openapi.json`.
+* Item ids belong to their session and sense: reusing another session's id is a 409.
+* Cross-field rules JSON Schema cannot state (422 when broken): `t_end >= t`,
+  `after <= before`, one `t`/`t_end`/`meta`/`ids` entry per window or vector.
 """
 
 

@@ -13,6 +13,9 @@ from tactus_memory.vectors import MAX_COMPONENT
 
 SENSE_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
 MAX_BATCH = 4096
+#: windows in one JSON touch batch (64 x K=8 frames is ~2.6 MB of JSON; send larger
+#: batches as .npy, which has no such limit besides the body size)
+MAX_JSON_WINDOWS = 64
 
 #: a valid raw STAG-like frame (values 500-690: a real dynamic range, never all-zero)
 _FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(32)] for r in range(32)]
@@ -93,11 +96,14 @@ class TouchBatchIn(Strict):
     """Several touch windows of one session, stored in one commit."""
 
     windows: list[Window] = Field(
-        description="(B, K, 32, 32) windows, raw sensor units unless calibrated=true.",
+        description="(B, K, 32, 32) windows, raw sensor units unless calibrated=true; every "
+        "window of a batch has the same K (422 else).",
         min_length=1,
-        max_length=MAX_BATCH,
+        max_length=MAX_JSON_WINDOWS,
     )
-    t: list[float] = Field(description="B start times.", min_length=1, max_length=MAX_BATCH)
+    t: list[float] = Field(
+        description="B start times (one per window).", min_length=1, max_length=MAX_JSON_WINDOWS
+    )
     t_end: list[float] | None = Field(None, description="B end times (default: t).")
     meta: Meta | list[Meta] | None = Field(
         None, description="One metadata object for all, or one per window."
@@ -143,8 +149,10 @@ class VectorsIn(Strict):
             min_length=1, max_length=MAX_BATCH, description="(N, D) vectors, D = the space's dim."
         )
     )
-    t: list[float] = Field(min_length=1, max_length=MAX_BATCH)
-    t_end: list[float] | None = None
+    t: list[float] = Field(
+        min_length=1, max_length=MAX_BATCH, description="One start time per vector (422 else)."
+    )
+    t_end: list[float] | None = Field(None, description="One end time (>= t) per vector.")
     meta: Meta | list[Meta] | None = None
     ids: list[ItemId] | None = Field(
         None, min_length=1, max_length=MAX_BATCH, json_schema_extra={"uniqueItems": True}
@@ -249,8 +257,8 @@ class SearchLikeIn(Strict):
     k: int = Field(10, ge=1, le=1000)
     senses: list[str] | None = Field(None, description="Search these senses (default: sense).")
     session: str | None = Field(None, pattern=ID_PATTERN)
-    after: float | None = None
-    before: float | None = None
+    after: float | None = Field(None, description="Only items at or after; <= before (422).")
+    before: float | None = Field(None, description="Only items at or before; >= after (422).")
 
     @model_validator(mode="after")
     def _one_example(self) -> SearchLikeIn:

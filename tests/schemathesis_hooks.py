@@ -3,9 +3,10 @@
 The OpenAPI document states every rule JSON Schema can express. The cross-field rules it
 cannot are written in the operations' descriptions and enforced by the server with a 422
 naming the rule: ``t_end >= t``, ``after <= before``, and one ``t`` (``t_end``, ``meta``,
-``ids``) entry per vector or window. A generated request that only breaks one of those is
-schema-valid but rightly refused, so exactly that failure (ST202 answered by a 422 whose
-detail names one of these rules) is set aside; every other failure counts.
+``ids``) entry per vector or window, one K for all windows of a batch. A generated
+request that only breaks one of those is schema-valid but rightly refused, so exactly that
+failure (ST202 answered by a 422 whose detail names one of these rules) is set aside; every
+other failure counts.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ CROSS_FIELD = re.compile(
     r"|after \(.*\) is later than before \("
     r"|has \d+ entries for \d+ (items|vectors|windows)"
     r"|ids must be a list of \d+ ids"
+    r"|windows is ragged"  # windows of one batch with different K (frame shapes are in the schema)
 )
 
 

@@ -183,12 +183,13 @@ def test_read_only_store_serves_reads_and_refuses_writes(store_template):
         r = httpx.delete(server.base + "/sessions/s1")
         assert r.status_code == 503 and "read-only" in r.json()["detail"], r.text
         assert httpx.get(server.base + "/sessions/s1").json()["n"] == 2
+        server.stop()
+        assert "Traceback" not in log.read_text()
     finally:
         server.stop()
         for p in [data, *data.rglob("*")]:
             p.chmod(stat.S_IRWXU)
         shutil.rmtree(base, ignore_errors=True)
-    assert "Traceback" not in log.read_text()
 
 
 # --------------------------------------------------------------------- H, I, A over HTTP

@@ -51,8 +51,14 @@ SourceQ = Annotated[
         description="Only this stream (source id; '' for none).",
     ),
 ]
-After = Annotated[float | None, Query(description="Items still going on at or after (aligned).")]
-Before = Annotated[float | None, Query(description="Items started at or before (aligned).")]
+After = Annotated[
+    float | None,
+    Query(description="Items still going on at or after (aligned); must be <= before (422)."),
+]
+Before = Annotated[
+    float | None,
+    Query(description="Items started at or before (aligned); must be >= after (422)."),
+]
 Threshold = Annotated[
     float | None,
     Query(description="Match bar on the calibrated score for every sense (default per sense)."),

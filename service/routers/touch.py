@@ -129,8 +129,7 @@ async def add_touch(
         raise InvalidInputError("body must be a JSON object with 'frames' or 'windows'")
     if "windows" in obj:
         batch: TouchBatchIn = _validate(TouchBatchIn, obj)
-        # one window at a time: the windows of a batch may differ in K
-        windows = [as_window(w, f"windows[{i}]") for i, w in enumerate(batch.windows)]
+        windows = list(as_windows(batch.windows, "windows"))
         n = len(windows)
         ids = await writer.run(
             _store,
