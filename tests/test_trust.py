@@ -252,3 +252,14 @@ def test_options_and_405_name_every_method_of_the_path(client):
     assert_problem(r, 405)
     assert {"GET", "PUT"} <= {m.strip() for m in r.headers["allow"].split(",")}
     assert client.options("/no/such/route").status_code == 404
+
+
+def test_deleting_a_session_removes_its_clock_offsets(client):
+    """schemathesis ST301: after DELETE /sessions/{id}, its clock offsets were still served."""
+    client.post("/sessions/s1/text", json={"text": "a red ball", "t": 1.0})
+    r = client.put(
+        "/sessions/s1/clock", json={"sense": "touch", "source": "glove-l", "offset": 2.5}
+    )
+    assert r.json()["offsets"], r.text
+    assert client.delete("/sessions/s1").status_code == 200
+    assert client.get("/sessions/s1/clock").json()["offsets"] == []

@@ -38,7 +38,8 @@ REQUEST_BODY: dict[str, Any] = {
                     TouchWindowIn.model_json_schema(),
                     TouchBatchIn.model_json_schema(),
                 ]
-            }
+            },
+            "example": TouchWindowIn.model_config["json_schema_extra"]["examples"][0],  # type: ignore[index]
         },
         "application/x-npy": {"schema": {"type": "string", "format": "binary"}},
     },
