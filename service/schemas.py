@@ -143,7 +143,12 @@ class VectorsIn(Strict):
         }
     )
 
-    sense: str = Field(pattern=SENSE_PATTERN, description="A registered sense name.")
+    sense: str = Field(
+        pattern=SENSE_PATTERN,
+        description="A registered vector sense (POST /senses); text, touch and image take "
+        "their raw input on their own routes (422 here).",
+        json_schema_extra={"not": {"enum": ["text", "touch", "image"]}},
+    )
     vectors: list[Annotated[list[Component], Field(min_length=1, json_schema_extra=NONZERO)]] = (
         Field(
             min_length=1, max_length=MAX_BATCH, description="(N, D) vectors, D = the space's dim."
