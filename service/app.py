@@ -23,8 +23,14 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.service.deps import ServiceState, require_token
-from tactus_memory.service.middleware import BodyLimitMiddleware
+from tactus_memory.service.middleware import (
+    AllowMiddleware,
+    BodyLimitMiddleware,
+    ReadOnlyMiddleware,
+)
+from tactus_memory.service.openapi import install_openapi
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
+from tactus_memory.service.readiness import store_read_only
 from tactus_memory.service.routers import (
     health,
     images,
@@ -51,7 +57,11 @@ in natural language.
 * Read: `GET /search?q=...`, `POST /search/like`, `GET /sessions`, `GET /senses`.
 * Errors are RFC 9457 problem details (`application/problem+json`).
 * Every write is acknowledged (201) only after its LanceDB commit.
-* With a token configured, send `Authorization: Bearer <token>` (all routes but /health).
+* With a token configured, send `Authorization: Bearer <token>` on every route but the open
+  ones: `/live`, `/health`, `/ready`, `/`, `/static/*`, `/docs`, `/redoc`, `/openapi.json`.
+* Item ids belong to their session and sense: reusing another session's id is a 409.
+* Cross-field rules JSON Schema cannot state (422 when broken): `t_end >= t`,
+  `after <= before`, one `t`/`t_end`/`meta`/`ids` entry per window or vector.
 """
 
 
@@ -118,7 +128,16 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         touch_why = (
             None if "touch" in memory.senses else ("no touch sense is registered in this memory")
         )
-    state = ServiceState(settings=settings, memory=memory, touch_unavailable=touch_why)
+    state = ServiceState(
+        settings=settings,
+        memory=memory,
+        touch_unavailable=touch_why,
+        read_only=store_read_only(memory.store.uri),
+    )
+    if state.read_only:
+        log.warning(
+            "the store at %s is read-only: serving reads, refusing writes", memory.store.uri
+        )
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -132,6 +151,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
             await run_in_threadpool(memory.space.embed_texts, ["warm up"], query=True)
         except Exception:  # noqa: BLE001
             log.exception("warming up the space failed")
+        state.warm = True
         yield
         # Commit what is queued (its clients are waiting for their acks), then stop.
         if state.committer is not None:
@@ -147,6 +167,11 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     app.state.tactus = state
     install_problem_handlers(app)
     app.add_middleware(BodyLimitMiddleware, max_body_bytes=settings.max_body_bytes)
+    app.add_middleware(
+        ReadOnlyMiddleware, read_only=lambda: state.read_only, where=memory.store.uri
+    )
+    app.add_middleware(AllowMiddleware)
+    install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 
     auth = [Depends(require_token)]
     app.include_router(health.router)

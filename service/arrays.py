@@ -62,15 +62,31 @@ def _remember_header(raw: bytes, arr: np.ndarray) -> None:
     _HEADERS[raw[:offset]] = (arr.dtype, arr.shape, fortran, offset)
 
 
+#: largest absolute pressure value accepted (raw ADC units are < 65536; calibrated 0-1)
+MAX_FRAME_VALUE = 1e6
+#: the first bytes of every .npy file (numpy format spec)
+NPY_MAGIC = b"\x93NUMPY"
+
+
 def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
     """``.npy`` bytes -> a finite float32 array (no pickles, numeric dtypes only)."""
     if not raw:
         raise InvalidInputError(f"{what} is empty")
     arr = _npy_fast(raw)
     if arr is None:
+        if not raw.startswith(NPY_MAGIC):
+            raise InvalidInputError(
+                f"{what} is not a .npy array (it does not start with the .npy magic bytes): "
+                "send the output of numpy.save for a numeric array"
+            )
         try:
             arr = np.load(io.BytesIO(raw), allow_pickle=False)
         except Exception as exc:  # noqa: BLE001  (numpy raises many kinds on garbage)
+            if "pickle" in str(exc):  # numpy's wording for object arrays: name the real issue
+                raise InvalidInputError(
+                    f"{what} holds Python objects, not numbers: send a .npy array of a "
+                    "numeric dtype"
+                ) from None
             raise InvalidInputError(f"{what} is not a valid .npy array: {exc}") from None
         if not isinstance(arr, np.ndarray):
             raise InvalidInputError(f"{what} must hold one array, not an archive")
@@ -81,7 +97,16 @@ def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
     out = arr.astype(np.float32, copy=False)
     if not np.isfinite(out).all():
         raise InvalidInputError(f"{what} contains NaN or inf")
-    return out
+    return _in_range(out, what)
+
+
+def _in_range(arr: np.ndarray, what: str) -> np.ndarray:
+    if arr.size and float(np.abs(arr).max()) > MAX_FRAME_VALUE:
+        raise InvalidInputError(
+            f"{what} has values beyond +-{MAX_FRAME_VALUE:g}: frames are raw sensor units "
+            "(a glove ADC reads < 65536) or calibrated 0-1"
+        )
+    return arr
 
 
 def as_float_array(value: Any, what: str) -> np.ndarray:
@@ -94,7 +119,7 @@ def as_float_array(value: Any, what: str) -> np.ndarray:
         ) from None
     if not np.isfinite(arr).all():
         raise InvalidInputError(f"{what} contains NaN or inf")
-    return arr
+    return _in_range(arr, what)
 
 
 def as_window(value: Any, what: str = "touch window") -> np.ndarray:

@@ -19,6 +19,7 @@ from tactus_memory.limits import (
     MAX_ID_CHARS,
     MAX_TEXT_CHARS,
     SENSE_NAME_PATTERN,
+    SOURCE_PATTERN,
 )
 from tactus_memory.memory import Memory, PreparedWrite
 from tactus_memory.query import Scope
@@ -36,6 +37,10 @@ class ServiceState:
     touch_unavailable: str | None = None
     writer: Writer | None = None
     committer: GroupCommitter | None = None
+    #: the store's directory cannot be written: write routes answer 503 (reads still work)
+    read_only: bool = False
+    #: the space has been warmed up (the lifespan ran): ``/ready`` answers 200
+    warm: bool = False
 
     def __post_init__(self) -> None:
         if self.writer is None:
@@ -154,10 +159,20 @@ SensesQ = Annotated[
 SessionQ = Annotated[str | None, Query(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
 SourceQ = Annotated[
     str | None,
-    Query(max_length=MAX_ID_CHARS, description="Only this stream (source id; '' for none)."),
+    Query(
+        max_length=MAX_ID_CHARS,
+        pattern=SOURCE_PATTERN,
+        description="Only this stream (source id; '' for none).",
+    ),
 ]
-AfterQ = Annotated[float | None, Query(description="Items still going on at or after.")]
-BeforeQ = Annotated[float | None, Query(description="Items started at or before.")]
+AfterQ = Annotated[
+    float | None,
+    Query(description="Items still going on at or after (aligned); must be <= before (422)."),
+]
+BeforeQ = Annotated[
+    float | None,
+    Query(description="Items started at or before (aligned); must be >= after (422)."),
+]
 
 
 def stream_scope(

@@ -5,13 +5,21 @@ while the body streams in for requests without it (chunked transfer): the wrappe
 counts bytes and raises a 413 ``HTTPException`` as soon as the limit is passed, which the
 problem handlers turn into ``application/problem+json``. Should the exception reach this
 middleware unhandled (no response started yet), it answers the 413 itself.
+
+Before answering a 413 the rest of the body is read and dropped (up to :data:`DRAIN_FACTOR`
+times the limit): a client that sends the whole body before it reads the answer (Python's
+urllib does) would otherwise see its connection reset instead of the 413.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
+from typing import Any
 
+import anyio
 from starlette.exceptions import HTTPException
+from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from tactus_memory.service.problems import PROBLEM_JSON, problem_body
@@ -21,6 +29,28 @@ class BodyTooLarge(HTTPException):
     def __init__(self, limit: int, seen: int | None = None) -> None:
         what = f"{seen} bytes" if seen is not None else f"more than {limit} bytes"
         super().__init__(413, f"request body is {what}; the limit is {limit} bytes")
+
+
+#: a too-large body is drained (read and dropped) up to this many times the limit
+DRAIN_FACTOR = 4
+
+
+#: ... and for at most this many seconds (a client may declare more than it sends)
+DRAIN_SECONDS = 5.0
+
+
+async def drain(receive: Receive, budget: int) -> None:
+    """Read and drop the request body until its end, a disconnect, ``budget`` bytes or
+    :data:`DRAIN_SECONDS`."""
+    seen = 0
+    with anyio.move_on_after(DRAIN_SECONDS):
+        while seen <= budget:
+            message = await receive()
+            if message["type"] != "http.request":
+                return
+            seen += len(message.get("body", b""))
+            if not message.get("more_body", False):
+                return
 
 
 class BodyLimitMiddleware:
@@ -41,6 +71,7 @@ class BodyLimitMiddleware:
                     await self._reply(send, 400, "Content-Length header is not an integer")
                     return
                 if declared > limit:
+                    await drain(receive, DRAIN_FACTOR * limit)
                     await self._reply(send, 413, str(BodyTooLarge(limit, declared).detail))
                     return
         received = 0
@@ -52,6 +83,8 @@ class BodyLimitMiddleware:
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > limit:
+                    if message.get("more_body", False):
+                        await drain(receive, DRAIN_FACTOR * limit)
                     raise BodyTooLarge(limit)
             return message
 
@@ -66,6 +99,7 @@ class BodyLimitMiddleware:
         except BodyTooLarge as exc:
             if started:
                 raise
+            await drain(receive, DRAIN_FACTOR * limit)
             await self._reply(send, 413, str(exc.detail))
 
     @staticmethod
@@ -80,6 +114,114 @@ class BodyLimitMiddleware:
                     (b"content-type", PROBLEM_JSON.encode()),
                     (b"content-length", str(len(body)).encode()),
                     (b"connection", b"close"),
+                ],
+            }
+        )
+        await send({"type": "http.response.body", "body": body})
+
+
+#: POST routes that only read (search by example, drawing a window): allowed on a read-only store
+READ_ONLY_POSTS = ("/search/like", "/render/touch.png")
+WRITE_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
+
+
+class ReadOnlyMiddleware:
+    """On a read-only store, writes (POST/PUT/PATCH/DELETE but the read-only POSTs) answer
+    503 before reaching a route; reads go through. ``read_only()`` is asked per request."""
+
+    def __init__(self, app: ASGIApp, read_only: Callable[[], bool], where: str) -> None:
+        self.app = app
+        self.read_only = read_only
+        self.where = where
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if (
+            scope["type"] == "http"
+            and scope["method"] in WRITE_METHODS
+            and scope["path"] not in READ_ONLY_POSTS
+            and self.read_only()
+        ):
+            detail = (
+                f"the store at {self.where} is read-only: writes and deletes are refused; "
+                "reads and searches work (serve a writable copy to write)"
+            )
+            body = json.dumps(
+                problem_body(503, detail, slug="read-only", title="Store is read-only")
+            ).encode()
+            await send(
+                {
+                    "type": "http.response.start",
+                    "status": 503,
+                    "headers": [
+                        (b"content-type", PROBLEM_JSON.encode()),
+                        (b"content-length", str(len(body)).encode()),
+                    ],
+                }
+            )
+            await send({"type": "http.response.body", "body": body})
+            return
+        await self.app(scope, receive, send)
+
+
+CANDIDATE_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
+
+
+class AllowMiddleware:
+    """``OPTIONS`` and 405 answers name every method the path takes (RFC 9110 ``Allow``).
+
+    Starlette stops at the first route whose path matches, so on a path served by several
+    routes (``GET`` and ``DELETE /sessions/{id}``) its 405 said ``Allow: GET``. Here the
+    methods of every matching route are collected: ``OPTIONS`` answers 204 with them, any
+    other method the path does not take answers a 405 problem with them.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    @staticmethod
+    def _methods(routes: Any, scope: Scope) -> set[str]:
+        """The methods some route fully matches for this path (Starlette's own matching)."""
+        methods: set[str] = set()
+        for method in CANDIDATE_METHODS:
+            probe = {**scope, "method": method}
+            if any(route.matches(probe)[0] == Match.FULL for route in routes):
+                methods.add(method)
+        return methods
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        routes = scope["app"].router.routes
+        method = scope["method"]
+        if method != "OPTIONS" and any(r.matches(scope)[0] == Match.FULL for r in routes):
+            await self.app(scope, receive, send)  # the common case: one pass over the routes
+            return
+        methods = self._methods(routes, scope)
+        if not methods or method in methods:
+            await self.app(scope, receive, send)
+            return
+        allow = ", ".join(sorted(methods | {"OPTIONS"}))
+        if method == "OPTIONS":
+            await send(
+                {
+                    "type": "http.response.start",
+                    "status": 204,
+                    "headers": [(b"allow", allow.encode())],
+                }
+            )
+            await send({"type": "http.response.body", "body": b""})
+            return
+        detail = f"{method} is not allowed on {scope['path']}; allowed: {allow}"
+        body = json.dumps(problem_body(405, detail, instance=scope["path"])).encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": 405,
+                "headers": [
+                    (b"content-type", PROBLEM_JSON.encode()),
+                    (b"content-length", str(len(body)).encode()),
+                    (b"allow", allow.encode()),
                 ],
             }
         )

@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from tactus_memory import errors
+from tactus_memory.service.readiness import is_store_failure, short
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -38,6 +39,7 @@ ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {
     errors.UnknownSenseError: (404, "unknown-sense", "Unknown sense"),
     errors.NotFoundError: (404, "not-found", "Not found"),
     errors.SenseConflictError: (409, "sense-conflict", "Sense conflict"),
+    errors.IdConflictError: (409, "id-conflict", "Item id conflict"),
     errors.SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
     errors.CapabilityError: (400, "capability", "Not supported by this memory"),
     errors.DataFormatError: (422, "data-format", "Invalid data format"),
@@ -89,9 +91,10 @@ class Problem(BaseModel):
 class ServiceUnavailable(Exception):
     """A feature is not available in this server (e.g. no touch encoder): 503."""
 
-    def __init__(self, detail: str) -> None:
+    def __init__(self, detail: str, retry_after: int | None = None) -> None:
         super().__init__(detail)
         self.detail = detail
+        self.retry_after = retry_after
 
 
 def error_status(exc: BaseException) -> tuple[int, str, str] | None:
@@ -196,15 +199,29 @@ def install_problem_handlers(app: FastAPI) -> None:
         )
 
     async def unavailable(request: Request, exc: ServiceUnavailable) -> JSONResponse:
+        retry = None if exc.retry_after is None else {"Retry-After": str(exc.retry_after)}
         return problem_response(
             503,
             exc.detail,
             slug="unavailable",
             title="Service unavailable",
             instance=request.url.path,
+            headers=retry,
         )
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        if is_store_failure(exc):  # a damaged or vanished store file: say so, no traceback
+            log.error("store failure on %s %s: %s", request.method, request.url.path, short(exc))
+            return problem_response(
+                503,
+                f"the store could not be read or written: {short(exc)}",
+                slug="store-unavailable",
+                title="Service unavailable",
+                instance=request.url.path,
+            )
+        return await internal(request, exc)
+
+    async def internal(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return problem_response(
             500,
@@ -217,6 +234,11 @@ def install_problem_handlers(app: FastAPI) -> None:
     app.add_exception_handler(StarletteHTTPException, http_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(ServiceUnavailable, unavailable)  # type: ignore[arg-type]
+    # RuntimeError/OSError (LanceDB's I/O errors among them) are answered here, inside the
+    # app, so that they are logged once; the catch-all below is Starlette's last resort,
+    # which logs and then re-raises to the server.
+    app.add_exception_handler(RuntimeError, unexpected)
+    app.add_exception_handler(OSError, unexpected)
     app.add_exception_handler(Exception, unexpected)
 
 

@@ -2,29 +2,65 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from tactus_memory.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS, Episode
-from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS, MAX_K, MAX_TEXT_CHARS
+from tactus_memory.limits import (
+    ID_DESCRIPTION,
+    ID_PATTERN,
+    MAX_CLOCK_OFFSET,
+    MAX_ID_CHARS,
+    MAX_K,
+    MAX_TEXT_CHARS,
+    SOURCE_PATTERN,
+)
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
+from tactus_memory.service.arrays import MAX_FRAME_VALUE
 from tactus_memory.temporal import ClockOffset, Evidence, Moment, TimelineItem
+from tactus_memory.vectors import MAX_COMPONENT
 
 MAX_BATCH = 4096
+#: windows in one JSON touch batch (64 x K=8 frames is ~2.6 MB of JSON; send larger
+#: batches as .npy, which has no such limit besides the body size)
+MAX_JSON_WINDOWS = 64
 
-_FRAME_EXAMPLE = [[0.0] * 32 for _ in range(32)]
+#: a valid raw STAG-like frame (values 500-690: a real dynamic range, never all-zero)
+_FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(32)] for r in range(32)]
+_FRAME_EXAMPLE_2 = [[500.0 + (11 * r + 5 * c) % 187 for c in range(32)] for r in range(32)]
 
 
 class Strict(BaseModel):
-    """Base: unknown fields are errors, NaN/inf are errors."""
+    """Base: unknown fields are errors, NaN/inf are errors, and types are strict: a JSON
+    boolean is not a number (``t: false`` is a 422, not 0), a string is not a number."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 Meta = dict[str, Any]
-Frame = list[list[float]]
-Window = list[Frame]
+# The shape and float32 range are stated in the JSON schema here and enforced after parsing
+# (service/arrays.py: as_window / as_float_array), whose 422 names the whole shape, e.g.
+# "(8, 32, 31)", instead of listing up to 1,024 per-element errors.
+#: one pressure value (service/arrays.py: MAX_FRAME_VALUE)
+Value = Annotated[
+    float, Field(json_schema_extra={"minimum": -MAX_FRAME_VALUE, "maximum": MAX_FRAME_VALUE})
+]
+#: one vector component (tactus_memory/vectors.py: MAX_COMPONENT)
+Component = Annotated[
+    float, Field(json_schema_extra={"minimum": -MAX_COMPONENT, "maximum": MAX_COMPONENT})
+]
+#: a vector: at least one component of magnitude >= 1e-11 (an all-zero vector has no
+#: direction; tactus_memory/vectors.py refuses norms below 1e-12)
+NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
+#: (32,) one row of a frame
+Row = Annotated[list[Value], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
+#: (32, 32) one frame
+Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
+#: (K, 32, 32) a window, 1 <= K <= 512
+Window = Annotated[list[Frame], Field(min_length=1, max_length=512)]
+#: an item id (the store's rule)
+ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=128)]
 
 T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
 T_END_DESC = "End time in seconds (>= t); defaults to t."
@@ -38,7 +74,7 @@ class TouchWindowIn(Strict):
         json_schema_extra={
             "examples": [
                 {
-                    "frames": [_FRAME_EXAMPLE] * 2,
+                    "frames": [_FRAME_EXAMPLE, _FRAME_EXAMPLE_2],
                     "t": 12.5,
                     "t_end": 13.6,
                     "meta": {"object": "mug"},
@@ -67,17 +103,26 @@ class TouchBatchIn(Strict):
     """Several touch windows of one session, stored in one commit."""
 
     windows: list[Window] = Field(
-        description="(B, K, 32, 32) windows, raw sensor units unless calibrated=true.",
+        description="(B, K, 32, 32) windows, raw sensor units unless calibrated=true; every "
+        "window of a batch has the same K (422 else).",
         min_length=1,
-        max_length=MAX_BATCH,
+        max_length=MAX_JSON_WINDOWS,
     )
-    t: list[float] = Field(description="B start times.", min_length=1, max_length=MAX_BATCH)
+    t: list[float] = Field(
+        description="B start times (one per window).", min_length=1, max_length=MAX_JSON_WINDOWS
+    )
     t_end: list[float] | None = Field(None, description="B end times (default: t).")
     meta: Meta | list[Meta] | None = Field(
         None, description="One metadata object for all, or one per window."
     )
     calibrated: bool = False
-    ids: list[str] | None = Field(None, description="B item ids (default: generated).")
+    ids: list[ItemId] | None = Field(
+        None,
+        description="B item ids (default: generated), all different.",
+        min_length=1,
+        max_length=MAX_BATCH,
+        json_schema_extra={"uniqueItems": True},
+    )
 
 
 class TextIn(Strict):
@@ -101,18 +146,29 @@ class VectorsIn(Strict):
 
     model_config = ConfigDict(
         json_schema_extra={
-            "examples": [
-                {"sense": "motion", "vectors": [[0.1, 0.2, 0.3]], "t": [4.0], "t_end": [5.0]}
-            ]
+            # the example vector has the space's dimension: set per app (service/openapi.py)
         }
     )
 
-    sense: str = Field(pattern=SENSE_PATTERN, description="A registered sense name.")
-    vectors: list[list[float]] = Field(min_length=1, max_length=MAX_BATCH)
-    t: list[float] = Field(min_length=1, max_length=MAX_BATCH)
-    t_end: list[float] | None = None
+    sense: str = Field(
+        pattern=SENSE_PATTERN,
+        description="A registered vector sense (POST /senses); text, touch and image take "
+        "their raw input on their own routes (422 here).",
+        json_schema_extra={"not": {"enum": ["text", "touch", "image"]}},
+    )
+    vectors: list[Annotated[list[Component], Field(min_length=1, json_schema_extra=NONZERO)]] = (
+        Field(
+            min_length=1, max_length=MAX_BATCH, description="(N, D) vectors, D = the space's dim."
+        )
+    )
+    t: list[float] = Field(
+        min_length=1, max_length=MAX_BATCH, description="One start time per vector (422 else)."
+    )
+    t_end: list[float] | None = Field(None, description="One end time (>= t) per vector.")
     meta: Meta | list[Meta] | None = None
-    ids: list[str] | None = None
+    ids: list[ItemId] | None = Field(
+        None, min_length=1, max_length=MAX_BATCH, json_schema_extra={"uniqueItems": True}
+    )
 
 
 class SenseIn(Strict):
@@ -188,20 +244,36 @@ class SearchLikeIn(Strict):
     """Find moments similar to an example: a touch window, a vector, or a text."""
 
     model_config = ConfigDict(
-        json_schema_extra={"examples": [{"sense": "touch", "frames": [_FRAME_EXAMPLE] * 2, "k": 5}]}
+        json_schema_extra={
+            "examples": [
+                {"sense": "touch", "frames": [_FRAME_EXAMPLE, _FRAME_EXAMPLE_2], "k": 5},
+                {"sense": "text", "text": "holding a mug", "k": 5},
+            ],
+            # exactly one of frames (a touch window, sense 'touch'), vector (any sense) or
+            # text (sense 'text'): what _one_example and the senses enforce
+            "oneOf": [
+                {"required": ["frames"], "properties": {"sense": {"const": "touch"}}},
+                {"required": ["vector"]},
+                {"required": ["text"], "properties": {"sense": {"const": "text"}}},
+            ],
+        }
     )
 
     sense: str = Field(pattern=SENSE_PATTERN, description="The sense of the example.")
     frames: Window | None = Field(None, description="A (K, 32, 32) touch window.")
-    vector: list[float] | None = Field(None, description="A vector of that sense (dim D).")
+    vector: list[Component] | None = Field(
+        None, description="A vector of that sense (dim D).", min_length=1, json_schema_extra=NONZERO
+    )
     text: str | None = Field(None, min_length=1, max_length=MAX_TEXT_CHARS)
     calibrated: bool = False
     k: int = Field(10, ge=1, le=MAX_K)
     senses: list[str] | None = Field(None, description="Search these senses (default: sense).")
     session: str | None = Field(None, pattern=ID_PATTERN)
-    source: str | None = Field(None, max_length=MAX_ID_CHARS, description="Only this stream.")
-    after: float | None = None
-    before: float | None = None
+    source: str | None = Field(
+        None, max_length=MAX_ID_CHARS, pattern=SOURCE_PATTERN, description="Only this stream."
+    )
+    after: float | None = Field(None, description="Only items at or after; <= before (422).")
+    before: float | None = Field(None, description="Only items at or before; >= after (422).")
 
     @model_validator(mode="after")
     def _one_example(self) -> SearchLikeIn:
@@ -267,6 +339,16 @@ class HealthOut(BaseModel):
     senses: list[str]
     touch: bool
     touch_unavailable: str | None = None
+    read_only: bool = Field(False, description="The store cannot be written: writes get 503.")
+
+
+class LiveOut(BaseModel):
+    status: str = "ok"
+
+
+class ReadyOut(BaseModel):
+    status: str = "ready"
+    read_only: bool = False
 
 
 # --------------------------------------------------------------------------- temporal
@@ -303,9 +385,13 @@ class ClockIn(Strict):
     )
 
     sense: str = Field(pattern=SENSE_PATTERN)
-    source: str = Field("", max_length=MAX_ID_CHARS, description="Stream id ('' for none).")
+    source: str = Field(
+        "", max_length=MAX_ID_CHARS, pattern=SOURCE_PATTERN, description="Stream id ('' for none)."
+    )
     offset: float = Field(
-        description="Seconds added to the stream's t to put it on the session clock (0 clears)."
+        ge=-MAX_CLOCK_OFFSET,
+        le=MAX_CLOCK_OFFSET,
+        description="Seconds added to the stream's t to put it on the session clock (0 clears).",
     )
 
 

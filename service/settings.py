@@ -6,7 +6,7 @@
 
 from __future__ import annotations
 
-from pydantic import Field, SecretStr
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -38,7 +38,9 @@ class Settings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     token: SecretStr | None = Field(
-        None, description="When set, every route but /health needs 'Authorization: Bearer <token>'."
+        None,
+        description="When set, every route but the open ones (/health, /live, /ready, /, "
+        "/static, /docs, /redoc, /openapi.json) needs 'Authorization: Bearer <token>'.",
     )
     max_body_bytes: int = Field(
         16 * 1024 * 1024, ge=1024, description="Largest request body accepted (413 beyond it)."
@@ -95,3 +97,14 @@ class Settings(BaseSettings):
         description="This server maintains the store (compaction, cleanup). Replicas sharing "
         "a store run with maintain=False (`--no-maintain`) beside one `tactus maintain`.",
     )
+
+    @field_validator("token")
+    @classmethod
+    def _token_not_empty(cls, value: SecretStr | None) -> SecretStr | None:
+        """An empty token would lock every client out while looking like 'no token'."""
+        if value is not None and not value.get_secret_value().strip():
+            raise ValueError(
+                "the token is empty: give a non-empty --token (or TACTUS_TOKEN), or leave it "
+                "unset to serve without one"
+            )
+        return value

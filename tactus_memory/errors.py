@@ -35,6 +35,15 @@ class SenseConflictError(TactusError, ValueError):
     """``add_sense`` with a duplicate name, or a sense bound to another space (HTTP 409)."""
 
 
+class IdConflictError(TactusError, ValueError):
+    """An explicit item id already names a row of another session or another sense (HTTP 409).
+
+    Ids are global in a store, but a write may only replace its own rows: re-adding an id
+    in the same session and sense is an idempotent upsert; the same id in another session
+    or sense is refused, so no writer can overwrite or move another session's items.
+    """
+
+
 class SpaceMismatchError(TactusError, ValueError):
     """A store opened with a space other than the one it was created with (HTTP 409)."""
 

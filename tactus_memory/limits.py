@@ -22,7 +22,12 @@ MAX_ID_CHARS = 128
 SENSE_NAME_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
 #: session, item and source ids
 ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$"
+#: a source (stream) id: an id, or '' for none
+SOURCE_PATTERN = r"^$|" + ID_PATTERN
 ID_DESCRIPTION = "1-128 characters of [A-Za-z0-9._:-], starting with a letter or digit."
 
 SENSE_NAME_RE = re.compile(SENSE_NAME_PATTERN)
 ID_RE = re.compile(ID_PATTERN)
+
+#: largest clock offset in seconds (about 317 years): keeps t_aligned = t + offset finite
+MAX_CLOCK_OFFSET = 1e10

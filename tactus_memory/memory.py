@@ -89,6 +89,15 @@ _check_k = check_k  # old private names, still imported by other branches
 _check_query_text = check_query_text
 
 
+def _cache_write(write: Any, *args: Any) -> None:
+    """Persist a cache (probe embeddings, calibration): best effort, so that searching a
+    read-only store works; a failed write only costs recomputing the cache next time."""
+    try:
+        write(*args)
+    except Exception as exc:  # noqa: BLE001  (a cache: any failure is harmless)
+        log.warning("could not persist a search cache (read-only store?): %s", exc)
+
+
 # --------------------------------------------------------------------------- memory
 class Memory(TemporalQuestions):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
@@ -204,7 +213,9 @@ class Memory(TemporalQuestions):
         options: Mapping[str, Any] | None = None,
     ) -> str:
         """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
-        to ``t``. Passing ``id`` makes the call an idempotent upsert."""
+        to ``t``. Passing ``id`` makes the call an idempotent upsert of that session's item of
+        that sense; an id already used by another session or sense raises
+        :class:`~tactus_memory.errors.IdConflictError` (nothing is written)."""
         return self.add_many(
             session,
             sense,
@@ -295,9 +306,10 @@ class Memory(TemporalQuestions):
         data = writes_table(self.store.schema, live)
         with self.lock:
             replaced: list[str] = []
-            if upsert and self.registry.counting:
-                where = Where().ids(all_ids).sql()
-                replaced = self.store.scan(where, ["sense"]).column("sense").to_pylist()
+            if upsert:  # under the commit lock: no racing writer can slip in between
+                for w in live:
+                    if w.batch.upsert:
+                        replaced += self.store.owned_ids(w.ids, w.session, w.sense.name)
             before = self.store.version()
             self.store.write(data, upsert=upsert)
             self.registry.note_commit(before)

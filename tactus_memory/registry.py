@@ -69,6 +69,15 @@ def _same_vector(a: np.ndarray | None, b: np.ndarray | None) -> bool:
     return a.shape == b.shape and bool(np.allclose(a, b))
 
 
+def _cache_write(write: Any, *args: Any) -> None:
+    """Persist a cache (probe embeddings, calibration): best effort, so that searching a
+    read-only store works; a failed write only costs recomputing the cache next time."""
+    try:
+        write(*args)
+    except Exception as exc:  # noqa: BLE001  (a cache: any failure is harmless)
+        log.warning("could not persist a search cache (read-only store?): %s", exc)
+
+
 class SenseRegistry:
     """Senses of one memory: live ones, stored ones, row counts and calibrations."""
 
@@ -235,7 +244,7 @@ class SenseRegistry:
             else:
                 arr = as_unit_rows(self.space.embed_texts(list(PROBES), query=True), self.space.dim)
                 with self.lock:
-                    self.store.set_meta(key, json.dumps(arr.round(6).tolist()))
+                    _cache_write(self.store.set_meta, key, json.dumps(arr.round(6).tolist()))
             self._probes = as_unit_rows(arr, self.space.dim)
         return self._probes
 
@@ -256,7 +265,7 @@ class SenseRegistry:
             row = next((r for r in self.store.sense_rows() if r["name"] == sense), None)
             if row is not None:
                 row.update(mu=calib.mu, sigma=calib.sigma, calib_n=calib.n, updated=time.time())
-                self.store.put_sense_row(row)
+                _cache_write(self.store.put_sense_row, row)
         return calib
 
     def resolve(self, senses: Sequence[str] | None) -> list[str]:

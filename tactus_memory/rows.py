@@ -31,9 +31,14 @@ def meta_json(meta: Any) -> str:
         raise InvalidInputError("meta must be a dict with string keys")
     try:
         out = json.dumps(meta, allow_nan=False, sort_keys=True, ensure_ascii=False)
+        size = len(out.encode())
+    except UnicodeEncodeError:
+        raise InvalidInputError(
+            "meta contains a lone surrogate (e.g. '\\udfff'), which is not valid Unicode"
+        ) from None
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"meta is not JSON-serialisable: {exc}") from None
-    if len(out.encode()) > MAX_META_BYTES:
+    if size > MAX_META_BYTES:
         raise InvalidInputError(f"meta is larger than {MAX_META_BYTES} bytes as JSON")
     return out
 

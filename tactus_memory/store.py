@@ -45,7 +45,7 @@ import numpy as np
 
 from tactus_memory.connect import read_consistency_interval as consistency_from
 from tactus_memory.connect import storage_options_for
-from tactus_memory.errors import InvalidInputError, SpaceMismatchError
+from tactus_memory.errors import IdConflictError, InvalidInputError, SpaceMismatchError
 from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
 from tactus_memory.tables import IndexConfig as IndexConfig  # re-exported: old import paths
 from tactus_memory.tables import (
@@ -286,6 +286,25 @@ class Store:
             else:
                 self.items.add(data)
         self._appends += 1
+
+    def owned_ids(self, ids: Sequence[str], session: str, sense: str) -> list[str]:
+        """The senses of the rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
+
+        Raises IdConflictError, naming the first offending id, when any id already belongs to
+        another session or another sense: an upsert never overwrites or moves another
+        session's row. Call it under the memory's commit lock, just before :meth:`write`.
+        """
+        if self._items is None or not ids:
+            return []
+        rows = self.scan(Where().ids(ids).sql(), ["id", "session", "sense"]).to_pylist()
+        for row in rows:
+            if row["session"] != session or row["sense"] != sense:
+                raise IdConflictError(
+                    f"item id {row['id']!r} already belongs to another session or sense "
+                    f"(not {sense!r} in session {session!r}); use another id, or delete "
+                    "that item first"
+                )
+        return [row["sense"] for row in rows]
 
     def delete(self, where: str) -> None:
         with self.commit_lock:

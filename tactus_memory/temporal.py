@@ -32,7 +32,7 @@ from tactus_memory.episodes import (
     segment,
 )
 from tactus_memory.errors import InvalidInputError, NotFoundError
-from tactus_memory.limits import MAX_K
+from tactus_memory.limits import MAX_CLOCK_OFFSET, MAX_K
 from tactus_memory.matching import (  # re-exported: `from tactus_memory.temporal import ...`
     CORROBORATION_BONUS,
     DEFAULT_MATCH_Z,
@@ -77,6 +77,7 @@ __all__ = [
     "DEFAULT_WINDOW",
     "MATCH_CANDIDATES",
     "MATCH_Z",
+    "MAX_CLOCK_OFFSET",
     "MOMENT_MIN_Z",
     "MOMENT_POOL_FACTOR",
     "MOMENT_POOL_MIN",
@@ -161,6 +162,11 @@ class Temporal:
         sense = validate_sense_name(sense)
         source = _validate_source(source)
         value = finite_float(offset, "offset")
+        if abs(value) > MAX_CLOCK_OFFSET:
+            raise InvalidInputError(
+                f"offset {value!r} is beyond +-{MAX_CLOCK_OFFSET:g} s; a clock offset is a "
+                "time shift, and t + offset must stay a finite number"
+            )
         with self.memory.lock:
             table = self.store.clock_table()
             streams = table.setdefault(session, {})

@@ -7,6 +7,8 @@ import numpy as np
 from tactus_memory.errors import DimensionMismatchError, InvalidInputError
 
 EPS = 1e-12
+#: largest absolute vector component: the float32 norm of 65536 of them stays finite
+MAX_COMPONENT = 1e15
 
 
 def as_unit_rows(
@@ -32,6 +34,10 @@ def as_unit_rows(
         raise DimensionMismatchError(f"{what} has dimension {arr.shape[1]}, expected {dim}")
     if not np.isfinite(arr).all():
         raise InvalidInputError(f"{what} contains NaN or inf")
+    if arr.size and float(np.abs(arr).max()) > MAX_COMPONENT:
+        raise InvalidInputError(
+            f"{what} has components beyond +-{MAX_COMPONENT:g} (its norm would overflow)"
+        )
     norms = np.linalg.norm(arr, axis=1, keepdims=True)
     if (norms < EPS).any():
         raise InvalidInputError(f"{what} has an all-zero row; it has no direction")

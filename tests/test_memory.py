@@ -499,11 +499,15 @@ def test_index_deltas_are_bounded(tmp_path) -> None:
     assert len(mem) == 270
 
 
-def test_upsert_moving_an_id_between_senses_keeps_counts(mem: Memory) -> None:
+def test_upsert_cannot_move_an_id_between_senses_and_keeps_counts(mem: Memory) -> None:
+    from tactus_memory.errors import IdConflictError
+
     mem.add_sense(VectorSense("motion", dim=64))
     mem.add("s1", "text", "a note", id="x1")
     mem.search("note", k=1)  # counts cached
-    mem.add("s1", "motion", np.ones(64), id="x1")  # same id, now a motion row
-    assert mem._sense_counts() == {"text": 0, "motion": 1}
-    assert [s.name for s in mem.sense_info() if s.rows] == ["motion"]
-    assert mem.search("note", k=5, senses=["text"]) == []
+    with pytest.raises(IdConflictError, match="x1"):  # same id as a motion row: refused
+        mem.add("s1", "motion", np.ones(64), id="x1")
+    mem.add("s1", "text", "a new note", id="x1")  # same session and sense: upsert
+    assert mem._sense_counts() == {"text": 1}
+    assert [s.name for s in mem.sense_info() if s.rows] == ["text"]
+    assert mem.get_item("x1").text == "a new note"

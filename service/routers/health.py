@@ -1,19 +1,43 @@
-"""GET /health: liveness, the space, the live senses. Never needs a token."""
+"""Probes, never behind the token:
+
+* ``GET /live``: liveness. The process and its event loop answer; touches nothing else.
+* ``GET /health``: the store is readable (manifests and one row, see
+  :mod:`tactus_memory.service.readiness`) plus the configuration (space, senses, touch);
+  503 problem naming the reason when the store cannot be read.
+* ``GET /ready``: readiness for traffic: the store is readable and the text model is loaded;
+  503 with the reason otherwise (e.g. while the space warms up after start).
+"""
 
 from __future__ import annotations
 
 from fastapi import APIRouter
+from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.service.deps import StateDep
-from tactus_memory.service.schemas import HealthOut
+from tactus_memory.service.problems import ServiceUnavailable, problem_responses
+from tactus_memory.service.readiness import store_problem
+from tactus_memory.service.schemas import HealthOut, LiveOut, ReadyOut
 
 router = APIRouter(tags=["health"])
 
 
-@router.get("/health", summary="Liveness and configuration", response_model=HealthOut)
-def health(state: StateDep) -> HealthOut:
+@router.get("/live", summary="Liveness: the process answers", response_model=LiveOut)
+async def live() -> LiveOut:
+    return LiveOut()
+
+
+@router.get(
+    "/health",
+    summary="Health: the store is readable, and the configuration",
+    response_model=HealthOut,
+    responses=problem_responses(503),
+)
+async def health(state: StateDep) -> HealthOut:
     memory = state.memory
+    why = await run_in_threadpool(store_problem, memory)
+    if why is not None:
+        raise ServiceUnavailable(why)
     senses = sorted(memory.senses)
     return HealthOut(
         version=tactus_memory.__version__,
@@ -21,4 +45,20 @@ def health(state: StateDep) -> HealthOut:
         senses=senses,
         touch="touch" in senses,
         touch_unavailable=None if "touch" in senses else state.touch_unavailable,
+        read_only=state.read_only,
     )
+
+
+@router.get(
+    "/ready",
+    summary="Readiness: the store is readable and the text model is loaded",
+    response_model=ReadyOut,
+    responses=problem_responses(503),
+)
+async def ready(state: StateDep) -> ReadyOut:
+    if not state.warm:
+        raise ServiceUnavailable("starting: the text model is still loading", retry_after=1)
+    why = await run_in_threadpool(store_problem, state.memory)
+    if why is not None:
+        raise ServiceUnavailable(why)
+    return ReadyOut(read_only=state.read_only)

@@ -249,7 +249,10 @@ def segment_episodes(
     response_model=ClockOut,
 )
 def get_clock(session: SessionId, memory: MemoryDep) -> ClockOut:
-    return ClockOut(offsets=memory.clock_offsets(session))
+    offsets = memory.clock_offsets(session)
+    if not offsets:
+        memory.session(session)  # 404 for a session that has neither items nor offsets
+    return ClockOut(offsets=offsets)
 
 
 @router.put(

@@ -41,8 +41,12 @@ REQUEST_BODY: dict[str, Any] = {
     "content": {
         "application/json": {
             "schema": {
-                "oneOf": [TouchWindowIn.model_json_schema(), TouchBatchIn.model_json_schema()]
-            }
+                "oneOf": [
+                    TouchWindowIn.model_json_schema(),
+                    TouchBatchIn.model_json_schema(),
+                ]
+            },
+            "example": TouchWindowIn.model_config["json_schema_extra"]["examples"][0],  # type: ignore[index]
         },
         "application/x-npy": {"schema": {"type": "string", "format": "binary"}},
     },

@@ -147,6 +147,9 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
             POLICY_VIOLATION,
         )
         return
+    if state.read_only:
+        await refuse(503, "the store is read-only: writes are refused", TRY_AGAIN_LATER)
+        return
     if "touch" not in memory.senses:
         why = state.touch_unavailable or "no sense named 'touch' is registered in this memory"
         await refuse(503, f"touch is not available on this server: {why}", TRY_AGAIN_LATER)

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 
 
 @app.command()
@@ -23,7 +23,10 @@ def serve(
     token: Annotated[
         str | None,
         typer.Option(
-            help="Require 'Authorization: Bearer <token>' (all but /health) (env TACTUS_TOKEN)."
+            help="Require 'Authorization: Bearer <token>' on every route but the open ones "
+            "(/health, /live, /ready, /, /static, /docs, /redoc, /openapi.json) (env "
+            "TACTUS_TOKEN). Must not be empty. WebSocket clients may pass ?token= instead; "
+            "it is redacted in the logs."
         ),
     ] = None,
     space: SpaceName = None,
@@ -58,6 +61,9 @@ def serve(
         ),
     ] = False,
     log_level: Annotated[str | None, typer.Option(help="uvicorn log level (default info).")] = None,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the full traceback of a startup error.")
+    ] = False,
 ) -> None:
     """Serve the memory over HTTP: writes, search, sessions, live touch (WebSocket).
 
@@ -67,6 +73,7 @@ def serve(
     touch with the shipped checkpoint.
     """
     from tactus_memory.service.settings import Settings
+    from tactus_memory.service.startup import check_location, explain
 
     given = {
         "host": host,
@@ -87,19 +94,21 @@ def serve(
         overrides["touch"] = False
     if no_maintain:
         overrides["maintain"] = False
-    from tactus_memory.errors import TactusError
-
-    settings = Settings(**overrides)
-    if settings.torch_threads is None:
-        from tactus_memory.service.app import serving_torch_threads
-
-        settings = settings.model_copy(update={"torch_threads": serving_torch_threads()})
+    where = data or "the memory"
     try:
+        settings = Settings(**overrides)
+        where = settings.data
+        check_location(settings.data)
+        if settings.torch_threads is None:
+            from tactus_memory.service.app import serving_torch_threads
+
+            settings = settings.model_copy(update={"torch_threads": serving_torch_threads()})
         application = load_app(settings, say=lambda line: typer.echo(line, err=True))
-    except TactusError as exc:  # e.g. SpaceConfigError: the model folder is missing or other
-        fail(str(exc))
-    except OSError as exc:  # e.g. --touch-checkpoint names no file
-        fail(f"cannot start: {exc}")
+    except Exception as exc:  # noqa: BLE001  (startup: one line and exit 2, unless --debug)
+        if debug:
+            raise
+        typer.echo(f"tactus serve: {explain(exc, where)}", err=True)
+        raise typer.Exit(2) from None
     run_server(application, settings)
 
 
@@ -113,6 +122,7 @@ def page_url(settings: Any, port: int | None = None) -> str:
 def load_app(settings: Any, say: Callable[[str], None]) -> Any:
     """Open the store and load the models step by step, saying what is loading and how long
     each step took (the text model and the touch encoder take seconds on a CPU)."""
+    from tactus_memory.maintenance import MaintenanceConfig
     from tactus_memory.memory import Memory
     from tactus_memory.service.app import create_app, register_default_senses
 
@@ -133,6 +143,7 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
             space=settings.space,
             space_path=settings.space_path,
             space_dim=settings.space_dim,
+            maintenance=MaintenanceConfig(maintain=settings.maintain),
         ),
     )
     name = getattr(memory.space, "name", settings.space)
@@ -146,14 +157,20 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
 
 
 def run_server(application: Any, settings: Any) -> None:
-    """uvicorn; once it listens, print the page's URL."""
+    """uvicorn (tokens redacted in its logs); once it listens, print the page's URL."""
     import uvicorn
+
+    from tactus_memory.service.logs import log_config
+
+    state = getattr(getattr(application, "state", None), "tactus", None)
+    read_only = bool(getattr(state, "read_only", False))
 
     config = uvicorn.Config(
         application,
         host=settings.host,
         port=settings.port,
         log_level=settings.log_level,
+        log_config=log_config(),
         ws_max_size=settings.max_ws_message_bytes,
         ws_per_message_deflate=False,  # noisy sensor frames hardly compress; save the CPU
         timeout_graceful_shutdown=5,
@@ -172,7 +189,8 @@ def run_server(application: Any, settings: Any) -> None:
                     f"  API docs:       {url}docs\n"
                     f"  token:          {'required' if settings.token else 'off'}\n"
                     f"  maintenance:    {'on' if settings.maintain else 'off (tactus maintain)'}\n"
-                    "  (Ctrl+C stops it)",
+                    + ("  READ-ONLY store: writes answer 503\n" if read_only else "")
+                    + "  (Ctrl+C stops it)",
                     err=True,
                 )
 

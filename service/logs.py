@@ -1,0 +1,51 @@
+"""Logging for ``tactus serve``: secrets never reach a log line.
+
+uvicorn's access log prints the request line with its query string, and its WebSocket lines
+print the path with the query: a token passed as ``?token=`` would be written verbatim.
+:class:`RedactSecrets` (a ``logging.Filter`` on every uvicorn handler, see
+:func:`log_config`) replaces the value of ``token``/``access_token`` query parameters and of
+``Bearer`` credentials with ``***`` before a record is formatted.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import re
+from typing import Any
+
+REDACTED = "***"
+#: ``token=...`` / ``access_token=...`` query values, and ``Bearer <credential>``
+SECRET_RE = re.compile(r"(?i)((?:[?&;]|\b)(?:access_)?token=)[^&\s\"';]*|(bearer\s+)[^\s\"',]+")
+
+
+def redact(text: str) -> str:
+    return SECRET_RE.sub(lambda m: (m.group(1) or m.group(2)) + REDACTED, text)
+
+
+def _clean(value: Any) -> Any:
+    return redact(value) if isinstance(value, str) else value
+
+
+class RedactSecrets(logging.Filter):
+    """Redacts tokens in a record's message and string arguments (never drops a record)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.msg, str):
+            record.msg = redact(record.msg)
+        if isinstance(record.args, tuple):
+            record.args = tuple(_clean(a) for a in record.args)
+        elif isinstance(record.args, dict):
+            record.args = {k: _clean(v) for k, v in record.args.items()}
+        return True
+
+
+def log_config() -> dict[str, Any]:
+    """uvicorn's default logging config with :class:`RedactSecrets` on every handler."""
+    from uvicorn.config import LOGGING_CONFIG
+
+    config = copy.deepcopy(LOGGING_CONFIG)
+    config.setdefault("filters", {})["redact_secrets"] = {"()": f"{__name__}.RedactSecrets"}
+    for handler in config["handlers"].values():
+        handler.setdefault("filters", []).append("redact_secrets")
+    return config

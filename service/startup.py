@@ -1,0 +1,74 @@
+"""Startup checks for ``tactus serve``: every mistake is ONE line that says what is wrong and
+what to do (the command exits with status 2; ``--debug`` shows the traceback instead).
+
+:func:`check_location` runs before the store is opened (local paths only): a ``--data`` that
+is a regular file, or a new/empty directory this process cannot write. :func:`explain`
+turns what opening the memory raised (a damaged manifest or table, a space mismatch, a bad
+setting) into that one line.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from tactus_memory.errors import TactusError
+from tactus_memory.service.readiness import is_store_failure, short
+
+
+class StartupError(Exception):
+    """A configuration or store problem found at startup; ``str()`` is the one line."""
+
+
+def check_location(data: str) -> None:
+    """Refuse a local ``--data`` that cannot be a memory directory (before opening it)."""
+    if "://" in data and not data.startswith("file://"):
+        return  # object storage: the open itself reports
+    path = Path(data.removeprefix("file://"))
+    if path.exists() and not path.is_dir():
+        raise StartupError(
+            f"--data {data} is a regular file, not a memory directory: pass a directory "
+            "(it is created when missing)"
+        )
+    if path.is_dir():
+        if not os.access(path, os.R_OK | os.X_OK):
+            raise StartupError(
+                f"--data {data} cannot be read by this user: fix its permissions "
+                f"(e.g. chmod u+rx {data}) or run as its owner"
+            )
+        empty = not any(path.iterdir())
+        if empty and not os.access(path, os.W_OK):
+            raise StartupError(
+                f"--data {data} is an empty directory this user cannot write, so no memory "
+                f"can be created there: fix its permissions (chmod u+w {data}) or choose "
+                "another directory"
+            )
+        return
+    parent = next((p for p in path.absolute().parents if p.exists()), None)
+    if parent is not None and not os.access(parent, os.W_OK | os.X_OK):
+        raise StartupError(
+            f"--data {data} does not exist and cannot be created ({parent} is not writable): "
+            "create it, fix the permissions, or choose another directory"
+        )
+
+
+def explain(exc: BaseException, data: str) -> str:
+    """One line for an exception raised while opening the memory or building the app."""
+    if isinstance(exc, StartupError):
+        return str(exc)
+    if isinstance(exc, ValidationError):
+        parts = [
+            f"{'.'.join(str(p) for p in err['loc']) or 'setting'}: {err['msg']}"
+            for err in exc.errors()
+        ]
+        return "invalid setting: " + "; ".join(parts)
+    if isinstance(exc, TactusError):
+        return f"cannot open the memory at {data}: {exc}"
+    if is_store_failure(exc):
+        return (
+            f"the memory at {data} is damaged or unreadable ({short(exc, 200)}): restore it "
+            "from a backup, or point --data at another directory"
+        )
+    return f"could not start ({type(exc).__name__}: {short(exc, 200)}); rerun with --debug"
