@@ -82,3 +82,30 @@ def storage_options_for(uri: str, given: dict[str, str] | None = None) -> dict[s
     if endpoint.startswith("http://") and "allow_http" not in out:
         out["allow_http"] = "true"
     return out
+
+
+# --------------------------------------------------------------------------- locations
+#: object-storage schemes a memory may live under
+REMOTE_SCHEMES = ("s3://", "s3+ddb://", "gs://", "az://", "abfs://", "memory://")
+
+
+def is_remote_uri(uri: str) -> bool:
+    return uri.startswith(REMOTE_SCHEMES)
+
+
+def normalise_uri(uri: str) -> str:
+    """Local paths and ``file://`` URIs -> a local path; object-storage URIs pass through.
+
+    Unknown ``scheme://`` prefixes are rejected (InvalidInputError).
+    """
+    if not isinstance(uri, str) or not uri.strip():
+        raise InvalidInputError(f"memory location must be a non-empty string, got {uri!r}")
+    if uri.startswith("file://"):
+        return uri[len("file://") :]
+    if "://" in uri:
+        if is_remote_uri(uri) and len(uri.split("://", 1)[1].strip("/")) > 0:
+            return uri
+        raise InvalidInputError(
+            f"unsupported memory location {uri!r}: use a local path, file://, s3://, gs:// or az://"
+        )
+    return uri

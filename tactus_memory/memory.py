@@ -85,17 +85,6 @@ __all__ = [
     "SessionSummary",
     "StoredSense",
 ]
-_check_k = check_k  # old private names, still imported by other branches
-_check_query_text = check_query_text
-
-
-def _cache_write(write: Any, *args: Any) -> None:
-    """Persist a cache (probe embeddings, calibration): best effort, so that searching a
-    read-only store works; a failed write only costs recomputing the cache next time."""
-    try:
-        write(*args)
-    except Exception as exc:  # noqa: BLE001  (a cache: any failure is harmless)
-        log.warning("could not persist a search cache (read-only store?): %s", exc)
 
 
 # --------------------------------------------------------------------------- memory
@@ -435,8 +424,6 @@ class Memory(TemporalQuestions):
         unit query ``q``, the senses searched, ``base`` the non-sense conditions; keywords
         ``transform`` (apply each sense's query transform) and ``build`` (the hit maker)."""
         return self.ranker.rank(q, k, senses, base, **kw)
-
-    _query = rank  # the old private name
 
     # ----------------------------------------------------------- reads
     def get_item(self, id: str, *, vector: bool = False) -> Item:  # noqa: A002

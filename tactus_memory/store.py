@@ -43,9 +43,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactus_memory.connect import REMOTE_SCHEMES as REMOTE_SCHEMES  # re-exported
+from tactus_memory.connect import is_remote_uri as is_remote_uri
+from tactus_memory.connect import normalise_uri as normalise_uri
 from tactus_memory.connect import read_consistency_interval as consistency_from
 from tactus_memory.connect import storage_options_for
-from tactus_memory.errors import IdConflictError, InvalidInputError, SpaceMismatchError
+from tactus_memory.errors import IdConflictError, SpaceMismatchError
 from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
 from tactus_memory.tables import IndexConfig as IndexConfig  # re-exported: old import paths
 from tactus_memory.tables import (
@@ -71,31 +74,8 @@ SENSES = "senses"
 META = "meta"
 #: meta key holding every clock offset as JSON
 CLOCK_KEY = "clock_offsets"
-REMOTE_SCHEMES = ("s3://", "s3+ddb://", "gs://", "az://", "abfs://", "memory://")
 #: columns returned by searches (everything except the vector and raw bytes)
 HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
-
-
-def is_remote_uri(uri: str) -> bool:
-    return uri.startswith(REMOTE_SCHEMES)
-
-
-def normalise_uri(uri: str) -> str:
-    """Local paths and ``file://`` URIs -> a local path; object-storage URIs pass through.
-
-    Unknown ``scheme://`` prefixes are rejected (InvalidInputError).
-    """
-    if not isinstance(uri, str) or not uri.strip():
-        raise InvalidInputError(f"memory location must be a non-empty string, got {uri!r}")
-    if uri.startswith("file://"):
-        return uri[len("file://") :]
-    if "://" in uri:
-        if is_remote_uri(uri) and len(uri.split("://", 1)[1].strip("/")) > 0:
-            return uri
-        raise InvalidInputError(
-            f"unsupported memory location {uri!r}: use a local path, file://, s3://, gs:// or az://"
-        )
-    return uri
 
 
 # --------------------------------------------------------------------------- store
