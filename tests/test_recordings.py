@@ -197,6 +197,17 @@ def test_export_rerun_reads_back(tmp_path) -> None:
     assert any("picked up the red mug" in m for m in moments)
 
 
+def test_export_skips_times_rerun_cannot_hold(tmp_path) -> None:
+    """Found by schemathesis: a note at t=1e300 (any finite time is a valid item) made the
+    export a 500 (OverflowError in Rerun's int64 nanoseconds); it is now skipped, with why."""
+    mem = make_memory(tmp_path / "mem")
+    mem.add("far", "text", "a note from the far future", t=1e300)
+    mem.add("far", "text", "a note from now", t=3.0)
+    out = mem.export_rerun("far", tmp_path / "far.rrd")
+    assert out.entities == {"text/text": 1}
+    assert list(out.skipped.values()) == [1] and "Rerun" in next(iter(out.skipped))
+
+
 class VisionHashingSpace(HashingSpace):
     """The hashing text space plus a toy vision tower (mean colour -> a fixed projection)."""
 

@@ -39,6 +39,8 @@ MOMENTS_K = 20
 #: pixels per taxel in the exported heat maps: 1 keeps a K=8 window at 32 x 263 RGBA (34 kB;
 #: a 10-minute 30 Hz session is 2250 windows); the viewer scales images up itself
 EXPORT_SCALE = 1
+#: Rerun keeps durations as int64 nanoseconds: |t| beyond this many seconds cannot be placed
+MAX_RERUN_SECONDS = 9.2e9
 
 
 class ExportSummary(BaseModel):
@@ -46,6 +48,7 @@ class ExportSummary(BaseModel):
     path: str
     entities: dict[str, int]  # entity path -> rows logged
     moments: int
+    skipped: dict[str, int] = {}  # reason -> items not exported
 
 
 def _entity(part: str) -> str:
@@ -81,8 +84,13 @@ def export_rerun(
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"{session}")
     rec.save(str(out))
     counts: dict[str, int] = {}
+    skipped: dict[str, int] = {}
 
     def log(entity: str, t: float, value: Any) -> None:
+        if not abs(t) <= MAX_RERUN_SECONDS:  # the store takes any finite time; Rerun does not
+            why = f"time beyond Rerun's range (|t| > {MAX_RERUN_SECONDS:g} s)"
+            skipped[why] = skipped.get(why, 0) + 1
+            return
         rec.set_time(TIMELINE, duration=float(t))
         rec.log(entity, value)
         counts[entity] = counts.get(entity, 0) + 1
@@ -117,4 +125,6 @@ def export_rerun(
     finally:
         rec.flush()
         rec.disconnect()
-    return ExportSummary(session=session, path=str(out), entities=counts, moments=len(found))
+    return ExportSummary(
+        session=session, path=str(out), entities=counts, moments=len(found), skipped=skipped
+    )
