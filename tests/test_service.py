@@ -102,10 +102,19 @@ def test_search_filters_by_sense_session_and_time(client):
     assert [h["session"] for h in hits] == ["b"]
     hits = client.get("/search", params={"q": "red ball", "after": 5, "before": 20}).json()["hits"]
     assert [h["t"] for h in hits] == [10.0]
-    hits = client.get("/search", params=[("q", "red"), ("sense", "touch")]).json()["hits"]
-    assert [h["sense"] for h in hits] == ["touch"]
-    hits = client.get("/search", params=[("q", "x"), ("sense", "touch"), ("sense", "text")])
-    assert {h["sense"] for h in hits.json()["hits"]} == {"touch", "text"}
+    client.post("/senses", json={"name": "motion", "dim": 64})
+    vec = {"sense": "motion", "vectors": [np.ones(64).tolist()], "t": [3.0]}
+    assert client.post("/sessions/a/vectors", json=vec).status_code == 201
+    everything = client.get("/search", params={"q": "red", "k": 50}).json()["hits"]
+    assert {h["sense"] for h in everything} == {"touch", "text", "motion"}
+    n_touch = sum(h["sense"] == "touch" for h in everything)
+    hits = client.get("/search", params=[("q", "red"), ("sense", "touch"), ("k", 50)])
+    assert [h["sense"] for h in hits.json()["hits"]] == ["touch"] * n_touch
+    hits = client.get(
+        "/search", params=[("q", "x"), ("sense", "touch"), ("sense", "text"), ("k", 50)]
+    )
+    senses = [h["sense"] for h in hits.json()["hits"]]
+    assert set(senses) == {"touch", "text"} and len(senses) == len(everything) - 1
 
 
 def test_search_like_frames_vector_and_text(client):
