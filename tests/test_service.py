@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import threading
 from typing import Any
 
 import numpy as np
@@ -15,6 +14,7 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
 from tests.test_service_helpers import make_memory, npy_bytes, window
+from tests.threads import run_threads
 
 PROBLEM = "application/problem+json"
 
@@ -566,11 +566,7 @@ def test_concurrent_writers_lose_nothing(client):
             if r.status_code != 201:
                 errors.append(r.text)
 
-    threads = [threading.Thread(target=work, args=(i,)) for i in range(n_threads)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    run_threads(work, [(i,) for i in range(n_threads)])  # exceptions re-raised here
     assert not errors
     total = sum(s["n"] for s in client.get("/sessions").json()["sessions"])
     assert total == n_threads * per_thread
@@ -587,11 +583,7 @@ def test_concurrent_streams_lose_nothing(client):
                 ws.send_json({"frame": f.tolist(), "t": j / 30})
             counts.append(sum(ws.receive_json()["type"] == "stored" for _ in range(4)))
 
-    threads = [threading.Thread(target=stream, args=(i,)) for i in range(n_streams)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    run_threads(stream, [(i,) for i in range(n_streams)])  # exceptions re-raised here
     assert counts == [4] * n_streams
     sessions = client.get("/sessions").json()["sessions"]
     assert sum(s["n"] for s in sessions) == n_streams * n_frames // 4
