@@ -78,3 +78,17 @@ def test_mixed_senses_rank_the_right_object_first(store, obj) -> None:
     # items lead with z >= 5.3, the best irrelevant one is at z <= 1.8)
     n_relevant = 2 + (note is not None)
     assert [o for _, o in ranked[:n_relevant]] == [obj] * n_relevant, ranked[: n_relevant + 1]
+
+
+@pytest.mark.parametrize("obj", sorted(OBJECTS))
+def test_match_bar_holds_on_windows_it_was_not_tuned_on(store, obj) -> None:
+    """MATCH_Z and the relative keep were set on tests/test_temporal_real.py's windows and
+    queries; here they must still pick exactly the object's items (each its own occurrence:
+    they lie 10 s apart, beyond merge_gap)."""
+    mem, kind = store
+    query, note = OBJECTS[obj]
+    occ = mem.occurrences(query, session=S)
+    matched = [kind[h.id] for m in occ.moments for h in m.hits if h.match]
+    print(query, "->", occ.count, matched)
+    assert sorted(o for _, o in matched) == [obj] * (2 + (note is not None))
+    assert occ.count == 2 + (note is not None)
