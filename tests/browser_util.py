@@ -3,9 +3,8 @@ through Python Playwright, real STAG touch windows.
 
 The server runs in a subprocess (``python -m tests.browser_util serve ...``): uvicorn on
 127.0.0.1 at a free port, the real MiniLM space, a LanceDB store under the test's tmp dir,
-and the shipped ``TactusEncoder`` when it imports and loads, otherwise the stand-in touch
-sense of the service tests (``StandInTouch``, a fixed random projection). It writes which one
-it used to ``touch.json`` beside the store.
+and the shipped ``TactusEncoder`` (no stand-in fallback: a checkpoint that does not load
+fails the server start). It writes which encoder it used to ``touch.json`` beside the store.
 
 Chromium is Debian's package (``apt-get install -y chromium``: /usr/bin/chromium), driven by
 the ``playwright`` PyPI package's driver with ``executable_path``; Playwright's own browser
@@ -115,19 +114,14 @@ class Server:
 
 
 def _touch_sense(dim: int) -> tuple[Any, str]:
-    """The shipped TactusEncoder when it loads, else the service tests' stand-in."""
-    try:
-        from tactus_memory.adapters import TactusEncoder
+    """The shipped TactusEncoder. No fallback: the browser tests promise the real touch
+    sense, so a checkpoint that fails to load (or a space mismatch) fails them loudly."""
+    from tactus_memory.adapters import TactusEncoder
 
-        enc = TactusEncoder()
-        if int(enc.dim) == dim:
-            return enc, "TactusEncoder (shipped checkpoint)"
-        why = f"TactusEncoder dim {enc.dim} != space dim {dim}"
-    except Exception as exc:  # noqa: BLE001  (any failure: fall back, say why)
-        why = f"{type(exc).__name__}: {exc}"
-    from tests.test_service_helpers import StandInTouch
-
-    return StandInTouch(dim), f"StandInTouch (TactusEncoder unavailable: {why})"
+    enc = TactusEncoder()
+    if int(enc.dim) != dim:
+        raise RuntimeError(f"TactusEncoder dim {enc.dim} != space dim {dim}")
+    return enc, "TactusEncoder (shipped checkpoint)"
 
 
 def serve(data: str, port: int, token: str | None) -> None:

@@ -150,3 +150,6 @@ def test_cli_baseline_train_and_eval(tmp_path: Path):
     for key in ("top1", "top3", "top1_vote", "top3_vote", "recording_top1", "confusion"):
         assert key in m
     assert m["n_recordings"] == 2
+    from tests.metric_checks import check_metrics
+
+    check_metrics(m)  # values consistent, not only present

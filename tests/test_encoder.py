@@ -147,9 +147,16 @@ def test_memory_with_touch_sense(tmp_path, enc) -> None:
 
     mem = Memory.open(str(tmp_path / "m"), space=HashingSpace())
     mem.add_sense(enc)
-    ids = [mem.add("s1", "touch", raw_window(seed=s), t=float(s)) for s in range(3)]
+    wins = [raw_window(seed=s) for s in range(8)]
+    ids = [mem.add("s1", "touch", w, t=float(s)) for s, w in enumerate(wins)]
     hits = mem.search("holding a screwdriver", senses=["touch"], k=3)
-    assert {h.id for h in hits} == set(ids)
+    # the ranking, from an independent reference: normalize(text query - query centroid)
+    # against the stored touch vectors (k=3 of 8 rows, so the order and the cut both count)
+    q = HashingSpace().embed_texts(["holding a screwdriver"], query=True)[0]
+    q = q - enc.query_centroid
+    v = enc.embed([enc.validate(w) for w in wins])
+    cos = (v / np.linalg.norm(v, axis=1, keepdims=True)) @ (q / np.linalg.norm(q))
+    assert [h.id for h in hits] == [ids[i] for i in np.argsort(-cos)[:3]]
     item = mem.get_item(ids[0])
     assert item.sense == "touch"
 
@@ -183,7 +190,10 @@ def test_shipped_default_in_a_minilm_memory(tmp_path, shipped, minilm_space, sta
         names[mem.add("s1", "touch", d.pressure[fr], t=1.0)] = obj
     hits = mem.search("holding a screwdriver", senses=["touch"], k=3)
     assert len(hits) == 3 and all(h.sense == "touch" for h in hits)
-    print("screwdriver query ->", [names[h.id] for h in hits])
+    ranked = [names[h.id] for h in hits]
+    print("screwdriver query ->", ranked)
+    assert ranked[0] == "screw_driver", ranked  # measured: screw_driver, mug, ball
+    assert hits[0].score > hits[1].score
 
 
 def test_shipped_default_classifies_real_windows_above_chance(shipped, stag_subset) -> None:
@@ -203,4 +213,6 @@ def test_shipped_default_classifies_real_windows_above_chance(shipped, stag_subs
     top = shipped.classify([w[:8] for w in wins], k=1)
     acc = float(np.mean([t[0] == OBJECTS[y] for t, y in zip(top, labels, strict=True)]))
     print(f"shipped top-1 on {len(labels)} real blindfolded windows: {acc:.3f}")
-    assert acc > 3 / 27
+    # in-sample, so it must be near perfect: measured 1.000 (52/52); a broken pipeline or a
+    # half-trained model falls below. The held-out gate is tests/test_touch_heldout.py.
+    assert acc >= 0.95

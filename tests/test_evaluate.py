@@ -222,6 +222,7 @@ def test_cli_eval_end_to_end(tmp_path: Path):
     from typer.testing import CliRunner
 
     from tactus_memory.cli import app
+    from tests.metric_checks import check_metrics
     from tests.stag_synth import make_fields, write_subset
 
     folder = write_subset(tmp_path, "cls", make_fields("classification", [16, 14, 12, 3, 10, 9]))
@@ -263,6 +264,7 @@ def test_cli_eval_end_to_end(tmp_path: Path):
         "data",
     ):
         assert key in m, key
+    check_metrics(m)  # values consistent, not only present
     assert m["checkpoint"]["sha256"] and m["data"][0]["fingerprint"]
     assert m["n_recordings"] == 3 and m["split"] == "test"  # odd recordings are 'test'
     assert len(m["confusion"]) == 27 and m["chance"] == pytest.approx(1 / 27)

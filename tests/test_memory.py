@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from tactus_memory.errors import (
 from tactus_memory.memory import Memory
 from tactus_memory.senses import Sense, VectorSense
 from tests.fakes import HashingSpace
+from tests.threads import run_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -256,11 +256,7 @@ def test_concurrent_writers_lose_nothing(mem: Memory) -> None:
         for j in range(5):
             mem.add_many(f"s{k}", "text", [f"note {k} {j} a", f"note {k} {j} b"], t=[j, j])
 
-    threads = [threading.Thread(target=writer, args=(k,)) for k in range(4)]
-    for th in threads:
-        th.start()
-    for th in threads:
-        th.join()
+    run_threads(writer, [(k,) for k in range(4)])  # a writer's exception fails the test
     assert len(mem) == 40
     assert {s.id: s.n for s in mem.sessions()} == {f"s{k}": 10 for k in range(4)}
 

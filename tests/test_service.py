@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import threading
 from typing import Any
 
 import numpy as np
@@ -15,6 +14,7 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
 from tests.test_service_helpers import make_memory, npy_bytes, window
+from tests.threads import run_threads
 
 PROBLEM = "application/problem+json"
 
@@ -102,10 +102,19 @@ def test_search_filters_by_sense_session_and_time(client):
     assert [h["session"] for h in hits] == ["b"]
     hits = client.get("/search", params={"q": "red ball", "after": 5, "before": 20}).json()["hits"]
     assert [h["t"] for h in hits] == [10.0]
-    hits = client.get("/search", params=[("q", "red"), ("sense", "touch")]).json()["hits"]
-    assert [h["sense"] for h in hits] == ["touch"]
-    hits = client.get("/search", params=[("q", "x"), ("sense", "touch"), ("sense", "text")])
-    assert {h["sense"] for h in hits.json()["hits"]} == {"touch", "text"}
+    client.post("/senses", json={"name": "motion", "dim": 64})
+    vec = {"sense": "motion", "vectors": [np.ones(64).tolist()], "t": [3.0]}
+    assert client.post("/sessions/a/vectors", json=vec).status_code == 201
+    everything = client.get("/search", params={"q": "red", "k": 50}).json()["hits"]
+    assert {h["sense"] for h in everything} == {"touch", "text", "motion"}
+    n_touch = sum(h["sense"] == "touch" for h in everything)
+    hits = client.get("/search", params=[("q", "red"), ("sense", "touch"), ("k", 50)])
+    assert [h["sense"] for h in hits.json()["hits"]] == ["touch"] * n_touch
+    hits = client.get(
+        "/search", params=[("q", "x"), ("sense", "touch"), ("sense", "text"), ("k", 50)]
+    )
+    senses = [h["sense"] for h in hits.json()["hits"]]
+    assert set(senses) == {"touch", "text"} and len(senses) == len(everything) - 1
 
 
 def test_search_like_frames_vector_and_text(client):
@@ -557,11 +566,7 @@ def test_concurrent_writers_lose_nothing(client):
             if r.status_code != 201:
                 errors.append(r.text)
 
-    threads = [threading.Thread(target=work, args=(i,)) for i in range(n_threads)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    run_threads(work, [(i,) for i in range(n_threads)])  # exceptions re-raised here
     assert not errors
     total = sum(s["n"] for s in client.get("/sessions").json()["sessions"])
     assert total == n_threads * per_thread
@@ -578,11 +583,7 @@ def test_concurrent_streams_lose_nothing(client):
                 ws.send_json({"frame": f.tolist(), "t": j / 30})
             counts.append(sum(ws.receive_json()["type"] == "stored" for _ in range(4)))
 
-    threads = [threading.Thread(target=stream, args=(i,)) for i in range(n_streams)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    run_threads(stream, [(i,) for i in range(n_streams)])  # exceptions re-raised here
     assert counts == [4] * n_streams
     sessions = client.get("/sessions").json()["sessions"]
     assert sum(s["n"] for s in sessions) == n_streams * n_frames // 4

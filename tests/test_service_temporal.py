@@ -32,6 +32,17 @@ def client(kitchen):
         yield c
 
 
+@pytest.fixture
+def fresh_client(tmp_path):
+    """A store of its own, for tests that write (re-segmenting the shared one made the
+    episode counts of other tests depend on the order they ran in)."""
+    mem = Memory.open(str(tmp_path / "mem"), space=HashingSpace(dim=384), background=False)
+    mem.add_sense(VectorSense("touch", dim=384))
+    fill_kitchen(mem)
+    with TestClient(create_app(Settings(), memory=mem)) as c:
+        yield c
+
+
 def problem(r: Any, status: int, word: str = "") -> dict[str, Any]:
     assert r.status_code == status, r.text
     assert r.headers["content-type"].startswith(PROBLEM)
@@ -76,7 +87,8 @@ def test_before_after(client) -> None:
     assert none["anchor"] is None and none["items"] == []
 
 
-def test_timeline_items_and_episodes(client) -> None:
+def test_timeline_items_and_episodes(fresh_client) -> None:
+    client = fresh_client
     r = client.get(f"/sessions/{S}/timeline")
     assert r.status_code == 200, r.text
     items = r.json()["items"]
@@ -92,6 +104,9 @@ def test_timeline_items_and_episodes(client) -> None:
     assert [(e["t"], e["n"]) for e in eps if e["t"] in MUG_GRASPS] == [(t, 2) for t in MUG_GRASPS]
     r = client.post(f"/sessions/{S}/episodes", json={"max_gap": 1000.0})
     assert r.status_code == 200 and r.json()["episodes"] > 0
+    # the re-segmentation is what the timeline now shows (no time gap splits any more)
+    r2 = client.get(f"/sessions/{S}/timeline", params={"sense": "touch", "episodes": "true"})
+    assert len(r2.json()["episodes"]) < len(eps)
     problem(client.get("/sessions/nope/timeline"), 404, "nope")
     problem(client.post("/sessions/nope/episodes"), 404, "nope")
 

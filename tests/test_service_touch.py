@@ -94,9 +94,17 @@ def test_too_many_frames_and_no_signal_are_422(client):
 
 
 def test_text_search_reaches_touch_rows(client):
-    client.post("/sessions/g/touch", json={"frames": raw_window().tolist(), "t": 1.0})
-    r = client.get("/search", params={"q": "holding a mug", "sense": "touch"})
-    assert r.status_code == 200 and r.json()["hits"][0]["sense"] == "touch"
+    touch_id = client.post(
+        "/sessions/g/touch", json={"frames": raw_window().tolist(), "t": 1.0}
+    ).json()["ids"][0]
+    # other senses in the store, so the filter has something to exclude
+    for note in ("holding a mug", "a mug on the table"):
+        assert client.post("/sessions/g/text", json={"text": note, "t": 2.0}).status_code == 201
+    r = client.get("/search", params={"q": "holding a mug", "sense": "touch", "k": 10})
+    assert r.status_code == 200
+    assert [(h["id"], h["sense"]) for h in r.json()["hits"]] == [(touch_id, "touch")]
+    r = client.get("/search", params={"q": "holding a mug", "k": 10})
+    assert {h["sense"] for h in r.json()["hits"]} == {"touch", "text"}
 
 
 def test_stream_with_real_encoder(client):

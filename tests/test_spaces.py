@@ -84,21 +84,40 @@ def test_rejects_bad_input(minilm_space: MiniLMSpace) -> None:
         minilm_space.embed_texts(["ok", 3])  # type: ignore[list-item]
 
 
-def test_concurrent_first_use_loads_once() -> None:
+def test_concurrent_first_use_loads_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sentence_transformers
+
+    real = sentence_transformers.SentenceTransformer
+    loads: list[str] = []
+
+    def counting(*args: object, **kwargs: object) -> object:  # the real model, counted
+        loads.append(threading.current_thread().name)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sentence_transformers, "SentenceTransformer", counting)
     space = MiniLMSpace()
     results: list[np.ndarray] = []
+    errors: list[BaseException] = []
     lock = threading.Lock()
+    start = threading.Barrier(4)
 
     def work() -> None:
-        v = space.embed_texts(["a warm cup"])
-        with lock:
-            results.append(v)
+        try:
+            start.wait(30)  # all four hit the first use together
+            v = space.embed_texts(["a warm cup"])
+            with lock:
+                results.append(v)
+        except BaseException as exc:  # noqa: BLE001  (re-raised in the main thread below)
+            errors.append(exc)
 
     threads = [threading.Thread(target=work) for _ in range(4)]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
+    if errors:
+        raise errors[0]
+    assert len(loads) == 1, loads
     assert len(results) == 4
     for v in results[1:]:
         np.testing.assert_allclose(v, results[0], atol=1e-6)
