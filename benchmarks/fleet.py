@@ -15,11 +15,14 @@ TactusEncoder; the run stops if touch does not load).
     soak the server is SIGKILLed while the gloves are still streaming, and every
     acknowledged row is looked up in the store: ``acked_rows_lost``.
 (b) scales: the same at ``--scales`` gloves (8 256) for ``--scale-seconds`` (120) each.
-(c) replicas: two servers on one local store (each started with ``--replica-env``, default
+(c) replicas: two servers on one store (each started with ``--replica-env``, default
     ``TACTUS_READ_CONSISTENCY=1``: the read-consistency setting of the store half of issue
     11). Visibility lag: a note acknowledged by one replica, polled on the other
     (``GET /sessions/{id}``) until it shows (null when not within ``--lag-timeout``). Then
     gloves and notes on both replicas; one is SIGKILLed halfway; acknowledged rows lost.
+    Once per ``--replica-stores`` kind: ``local`` (a temp folder; JSON key ``replicas``) and
+    ``s3`` (``s3://tactus-fleet/fleet`` on moto's S3 server, started here on a free port of
+    127.0.0.1, the AWS_* variables passed to both servers; JSON key ``replicas_s3``).
 
     nohup nice .venv/bin/python benchmarks/fleet.py --soak-seconds 600 &      # full (lead)
     .venv/bin/python benchmarks/fleet.py --parts soak --soak-seconds 90       # quick check
@@ -60,6 +63,7 @@ TARGETS = {
     "disk_over_live": 2.0,
     "replica_visibility_s": 2.0,
 }
+S3_BUCKET = "tactus-fleet"  # on moto's server, started by (c) for --replica-stores s3
 
 
 def summary(xs: list[float]) -> dict[str, float | int | None]:
@@ -78,7 +82,7 @@ def summary(xs: list[float]) -> dict[str, float | int | None]:
 class TactusServer:
     """``tactus serve`` in a subprocess on a free port of 127.0.0.1."""
 
-    def __init__(self, data: Path, log: Path, env: dict[str, str]) -> None:
+    def __init__(self, data: Path | str, log: Path, env: dict[str, str]) -> None:
         import httpx
 
         self.port = free_port()
@@ -165,10 +169,10 @@ def store_sample(path: Path) -> dict[str, Any]:
     return out
 
 
-def stored_ids(path: Path) -> set[str]:
+def stored_ids(path: Path | str, options: dict[str, str] | None = None) -> set[str]:
     import lancedb
 
-    tbl = lancedb.connect(str(path)).open_table("items")
+    tbl = lancedb.connect(str(path), storage_options=options).open_table("items")
     return set(tbl.to_lance().to_table(columns=["id"]).column("id").to_pylist())
 
 
@@ -452,14 +456,32 @@ def _per_minute(lag_at: list[tuple[float, float]], start: float, stop: float) ->
 
 
 # ----------------------------------------------------------------------------- (c)
-async def replicas_run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
+def replicas_part(args: argparse.Namespace, work: Path, kind: str) -> dict[str, Any]:
+    """(c) on one store kind: ``local`` (a temp folder) or ``s3`` (moto's server)."""
+    if kind == "local":
+        return asyncio.run(replicas_run(args, work, work / "store-replicas", {}, None))
+    from s3local import moto_s3, storage_options
+
+    with moto_s3(S3_BUCKET) as aws:
+        uri = f"s3://{S3_BUCKET}/fleet"
+        return asyncio.run(replicas_run(args, work, uri, aws, storage_options(aws)))
+
+
+async def replicas_run(
+    args: argparse.Namespace,
+    work: Path,
+    data: Path | str,
+    store_env: dict[str, str],
+    options: dict[str, str] | None,
+) -> dict[str, Any]:
     import httpx
 
-    data = work / "store-replicas"
     env = dict(kv.split("=", 1) for kv in args.replica_env)
-    a = TactusServer(data, work / "replica-a.log", env)
-    b = TactusServer(data, work / "replica-b.log", env)
-    result: dict[str, Any] = {"store": "local folder", "env": env}
+    tag = "local" if isinstance(data, Path) else "s3"
+    a = TactusServer(data, work / f"replica-{tag}-a.log", {**store_env, **env})
+    b = TactusServer(data, work / f"replica-{tag}-b.log", {**store_env, **env})
+    store = "local folder" if tag == "local" else f"{data} on moto's S3 server (127.0.0.1)"
+    result: dict[str, Any] = {"store": store, "env": env}
     result["lag_timeout_s"] = args.lag_timeout
     try:
         lags: list[float | None] = []
@@ -502,7 +524,7 @@ async def replicas_run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
         await asyncio.gather(fleet, rest())
         b.stop()
         acked = {i for ids in stats.acked.values() for i in ids} | set(notes.acked)
-        stored = await asyncio.to_thread(stored_ids, data)
+        stored = await asyncio.to_thread(stored_ids, data, options)
         result.update(
             gloves=args.replica_gloves,
             seconds=seconds,
@@ -519,7 +541,7 @@ async def replicas_run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
     finally:
         a.stop()
         b.stop()
-        if not args.keep_stores:
+        if isinstance(data, Path) and not args.keep_stores:
             shutil.rmtree(data, ignore_errors=True)
     return result
 
@@ -550,6 +572,13 @@ def main() -> None:
     ap.add_argument("--replica-env", nargs="*", default=["TACTUS_READ_CONSISTENCY=1"])
     ap.add_argument("--replica-gloves", type=int, default=16)
     ap.add_argument("--replica-seconds", type=float, default=30.0)
+    ap.add_argument(
+        "--replica-stores",
+        nargs="+",
+        choices=["local", "s3"],
+        default=["local", "s3"],
+        help="(c) once per store kind; s3 = moto's S3 server started here",
+    )
     ap.add_argument("--lag-samples", type=int, default=10)
     ap.add_argument("--lag-timeout", type=float, default=10.0)
     ap.add_argument("--workdir", default=None, help="default: a fresh temp folder")
@@ -587,8 +616,11 @@ def main() -> None:
             result["scales"].append(run)
             save()
     if "replicas" in args.parts:
-        result["replicas"] = asyncio.run(replicas_run(args, work))
-        save()
+        for kind in args.replica_stores:  # local -> "replicas", s3 -> "replicas_s3"
+            key = "replicas" if kind == "local" else f"replicas_{kind}"
+            print(f"[replicas] {kind} store", flush=True)
+            result[key] = replicas_part(args, work, kind)
+            save()
     save()
     print(f"wrote {out}")
 
