@@ -15,9 +15,18 @@ from tests.test_service import assert_problem
 from tests.test_service_helpers import make_memory
 
 TOKEN = "s3cret"
-#: the documented open routes (README "Service notes"): /health and the static page, plus
+#: the documented open routes (README "Trust"): /live, /health, /ready, the static page, plus
 #: FastAPI's own schema/doc pages (no data: they describe the routes, not the memory)
-OPEN = {"/health", "/", "/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc"}
+OPEN = {
+    "/live",
+    "/health",
+    "/ready",
+    "/",
+    "/openapi.json",
+    "/docs",
+    "/docs/oauth2-redirect",
+    "/redoc",
+}
 OPEN_PREFIXES = ("/static",)
 BAD = ({}, {"Authorization": "Bearer nope"}, {"Authorization": f"Basic {TOKEN}"})
 

@@ -31,7 +31,7 @@ def test_background_thread_compacts_and_indexes(tmp_path) -> None:
     assert not mem.store.has_vector_index()
     # the eighth append triggers the background thread: compaction merges the fragments
     mem.add("s1", "motion", vecs[7], t=7.0)
-    assert mem._maint_thread is not None  # scheduled on the background thread, not inline
+    assert mem._maintenance._thread is not None  # scheduled on the background thread
     mem.wait_for_maintenance(120)
     after = _fragments(mem)
     assert after < before, (before, after)

@@ -13,7 +13,7 @@ Example counts are modest (the file runs in well under a minute)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -106,7 +106,16 @@ class Mirror:
 
     def upsert(self, n: int) -> None:
         ids = self.rng.choice(sorted(self.rows), size=min(n, len(self.rows)), replace=False)
-        self.put({str(i): self._new_row() for i in ids})  # same id, new everything
+        # same id, new time, source and vector; an id stays in its session and sense (an
+        # upsert that would move it is an IdConflictError: issue 12's tenant isolation)
+        self.put(
+            {
+                str(i): replace(
+                    self._new_row(), session=self.rows[i].session, sense=self.rows[i].sense
+                )
+                for i in ids
+            }
+        )
 
     def delete(self, n: int) -> None:
         ids = [str(i) for i in self.rng.choice(sorted(self.rows), size=n, replace=False)]
