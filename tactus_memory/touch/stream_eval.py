@@ -321,13 +321,19 @@ def run_stream_eval(
         raise InvalidInputError(str(exc)) from exc
     if not recs:
         raise InvalidInputError(f"holdout {holdout!r} names no recordings to stream")
+    queries = load_queries(queries_path)
     if limit > 0:
+        # a shortened run asks about its own classes and about the classes that no recording
+        # of the whole split has (the absent-class check), not about the cut-off ones
+        whole = {data.objects[int(data.object_id[data.recording_id == r][0])] for r in recs}
         recs = recs[:limit]
+        mine = {data.objects[int(data.object_id[data.recording_id == r][0])] for r in recs}
+        queries = {c: q for c, q in queries.items() if c in mine or c not in whole}
     stream = build_stream(data, recs, span=span)
     out = evaluate_stream(
         checkpoint,
         stream,
-        load_queries(queries_path),
+        queries,
         space=space,
         data_fingerprint=data.fingerprint(),
     )
