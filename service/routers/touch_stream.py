@@ -17,6 +17,8 @@ Protocol (all server messages are JSON objects with a ``type``):
   skipped; a window the touch sense refuses (e.g. values already in [0, 1] on a raw stream)
   gets ``{"type": "error", "error": {...}, "windows": [seq]}``. The connection stays open.
   A partial window left at disconnect is not stored.
+* an idle window (no contact, ``tactus_memory.touch.windows``) is not stored (an idle hand
+  must never match "holding a ..."): ``{"type": "idle", "seq": n, "t": ..., "t_end": ...}``.
 
 Windows wait in a per-connection queue; a writer task stores whatever has piled up in one
 ``add_many`` call (one commit) in the threadpool, so the receive loop keeps reading frames
@@ -236,7 +238,20 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
             for frame, t in frames:
                 frame_index += 1
                 done = windower.push(frame, [t])
-                for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
+                for win, t_first, t_last, idle in zip(
+                    done.frames, done.t, done.t_end, done.idle, strict=True
+                ):
+                    if idle:  # no contact: never embedded as a grasp (touch/windows.py)
+                        await send(
+                            {
+                                "type": "idle",
+                                "seq": seq,
+                                "t": float(t_first),
+                                "t_end": float(t_last),
+                            }
+                        )
+                        seq += 1
+                        continue
                     try:  # the sense's own checks (range, calibration), before queueing
                         item = touch_item(memory, "touch", win, params.calibrated)
                     except TactusError as exc:
