@@ -87,6 +87,9 @@ def train_cmd(
     half: bool = typer.Option(False, "--half", help="store float16 weights"),
     threads: int = typer.Option(2, "--threads", help="torch CPU threads (0: torch default)"),
     resume: bool = typer.Option(False, "--resume", help="continue from OUT.resume.pt"),
+    positives: str = typer.Option(
+        "valid", "--positives", help="valid (labelled frames) | contact (+ every contact frame)"
+    ),
 ) -> None:
     """Train the touch encoder against centred class-phrase targets; report held-out accuracy."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
@@ -102,7 +105,7 @@ def train_cmd(
     )
 
     d = load_data(data)
-    td = prepare_data(d, holdout_recordings(d, holdout))
+    td = prepare_data(d, holdout_recordings(d, holdout), positives=positives)
     sp = get_space(space)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
