@@ -681,7 +681,10 @@ def test_stream_idle_windows_are_acknowledged_not_stored(memory):
     rest = np.full((32, 32), 512, np.int16)  # raw resting reading, no taxel in contact
     press = rest.copy()
     press[:4, :4] = 620
-    with TestClient(app) as c, c.websocket_connect("/sessions/idle/touch/stream?window=2") as ws:
+    with (
+        TestClient(app) as c,
+        c.websocket_connect("/sessions/idle/touch/stream?window=2&stride=2") as ws,
+    ):
         ws.receive_json()
         for f in (rest, rest, press, press):
             ws.send_bytes(npy_bytes(f))
