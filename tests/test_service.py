@@ -596,7 +596,7 @@ def test_stream_oversized_message_is_an_error_not_a_drop(memory):
         ws.send_bytes(npy_bytes(np.zeros((4, 32, 32), np.float32)))  # 16 KiB
         err = ws.receive_json()
         assert err["error"]["status"] == 422 and "limit" in err["error"]["detail"]
-        ws.send_bytes(npy_bytes(np.zeros((32, 32), np.float16)))
+        ws.send_bytes(npy_bytes(np.full((32, 32), 0.5, np.float16)))  # a touching frame
         assert ws.receive_json()["type"] == "stored"
 
 
@@ -676,7 +676,7 @@ def test_stream_bad_window_in_a_batch_does_not_sink_its_neighbours(client, memor
     with client.websocket_connect("/sessions/mix/touch/stream?window=1&stride=1") as ws:
         ws.receive_json()
         for i in range(6):
-            frame = np.full((32, 32), 20_000.0 if i == 3 else 500.0 + i)
+            frame = np.full((32, 32), 20_000.0 if i == 3 else 600.0 + i)  # in contact
             ws.send_bytes(npy_bytes(frame))
         msgs = [ws.receive_json() for _ in range(6)]
     assert sorted(m["seq"] for m in msgs if m["type"] == "stored") == [0, 1, 2, 4, 5]
@@ -689,3 +689,22 @@ def test_search_reports_library_time_in_server_timing(client):
     r = client.get("/search", params={"q": "red"})
     name, _, dur = r.headers["server-timing"].partition(";dur=")
     assert name == "library" and float(dur) > 0
+
+
+def test_stream_idle_windows_are_acknowledged_not_stored(memory):
+    """A resting glove (no contact) gives "idle" acks; only the touching window is stored."""
+    app = create_app(Settings(), memory=memory)
+    rest = np.full((32, 32), 512, np.int16)  # raw resting reading, no taxel in contact
+    press = rest.copy()
+    press[:4, :4] = 620
+    with (
+        TestClient(app) as c,
+        c.websocket_connect("/sessions/idle/touch/stream?window=2&stride=2") as ws,
+    ):
+        ws.receive_json()
+        for f in (rest, rest, press, press):
+            ws.send_bytes(npy_bytes(f))
+        first, second = ws.receive_json(), ws.receive_json()
+    assert first["type"] == "idle" and first["seq"] == 0
+    assert second["type"] == "stored" and second["seq"] == 1
+    assert [it.sense for it in memory.timeline("idle")] == ["touch"]

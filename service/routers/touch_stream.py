@@ -19,6 +19,8 @@ Protocol (all server messages are JSON objects with a ``type``):
   A partial window left at disconnect is not stored.
 * when the server's write queue is full the window is refused, not stored:
   ``{"type": "error", "error": {status 503...}, "windows": [seq], "retry_after": 1.0}``.
+* an idle window (no contact, ``tactus_memory.touch.windows``) is not stored (an idle hand
+  must never match "holding a ..."): ``{"type": "idle", "seq": n, "t": ..., "t_end": ...}``.
 
 Each window is validated on arrival and handed to the service's group committer
 (``tactus_memory.ingest``): the windows of every glove and the HTTP writes that arrive within
@@ -212,7 +214,20 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
             for frame, t in frames:
                 frame_index += 1
                 done = windower.push(frame, [t])
-                for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
+                for win, t_first, t_last, idle in zip(
+                    done.frames, done.t, done.t_end, done.idle, strict=True
+                ):
+                    if idle:  # no contact: never embedded as a grasp (touch/windows.py)
+                        await send(
+                            {
+                                "type": "idle",
+                                "seq": seq,
+                                "t": float(t_first),
+                                "t_end": float(t_last),
+                            }
+                        )
+                        seq += 1
+                        continue
                     try:  # the sense's own checks (range, calibration), before queueing
                         write = memory.prepare_write(
                             session,

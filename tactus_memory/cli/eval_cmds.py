@@ -81,6 +81,13 @@ def eval_cmd(
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
+    stream: bool = typer.Option(
+        False,
+        "--stream",
+        help="also score the memory as used: whole --holdout recordings as one session of "
+        "consecutive windows, natural queries, match bar, last/count (touch/stream_eval.py)",
+    ),
+    stream_limit: int = typer.Option(0, "--stream-limit", help="stream only the first N (0: all)"),
 ) -> None:
     """Score checkpoints on STAG: top-1/3, voting, recording level, per class, confusion.
     The analyses embed phrasings in each checkpoint's space: a Qwen3-VL checkpoint needs
@@ -88,9 +95,11 @@ def eval_cmd(
     logging.basicConfig(level=logging.WARNING)
     if split not in ("test", "all"):
         raise typer.BadParameter("--split must be 'test' or 'all'")
+    if stream and not holdout:
+        raise typer.BadParameter("--stream needs --holdout (the recordings to stream)")
     set_threads(threads)
     from tactus_memory.errors import SpaceConfigError
-    from tactus_memory.touch.eval_runs import run_eval
+    from tactus_memory.touch.eval_runs import load_eval_data, run_eval
 
     given = space is not None or space_path is not None or space_dim is not None
     scope = {"split": split, "holdout": holdout, "votes": votes, "seed": seed}
@@ -105,6 +114,25 @@ def eval_cmd(
         )
     except SpaceConfigError as exc:
         fail(str(exc))
+    if stream:
+        from tactus_memory.touch.stream_eval import run_stream_eval, stream_markdown
+
+        sdata, _ = load_eval_data(data)
+        runs = [
+            run_stream_eval(None if c == "default" else c, sdata, holdout or "", limit=stream_limit)
+            for c in checkpoint
+        ]
+        payload["stream"] = runs[0] if len(runs) == 1 else runs
+        if report is not None:
+            report.mkdir(parents=True, exist_ok=True)
+            (report / "stream.md").write_text("\n".join(stream_markdown(r) for r in runs))
+        for r in runs:
+            s, a = r.get("served", {}), r.get("all_windows", {})
+            typer.echo(
+                f"stream {r['checkpoint']}: R@1 {s.get('r@1')} R@5 {s.get('r@5')} "
+                f"MRR {s.get('mrr')} idle-pass(all windows) {a.get('match_idle_rate')} "
+                f"leakage {r['leakage']['status']}"
+            )
     _write_outputs(payload, first, es, json_out, report, compare)
 
 

@@ -83,6 +83,9 @@ def train_cmd(
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
+    positives: str = typer.Option(
+        "valid", "--positives", help="valid (labelled frames) | contact (+ every contact frame)"
+    ),
 ) -> None:
     """Train the touch encoder against centred class-phrase targets embedded in the frozen
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
@@ -100,7 +103,7 @@ def train_cmd(
     )
 
     d = load_data(data)
-    td = prepare_data(d, holdout_recordings(d, holdout))
+    td = prepare_data(d, holdout_recordings(d, holdout), positives=positives)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
     warmup = _warmup(steps)

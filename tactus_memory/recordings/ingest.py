@@ -148,8 +148,10 @@ class _Ingest:
         stride: int | None,
         batch: int,
         progress: bool,
+        keep_idle: bool = False,
     ) -> None:
         self.memory = memory
+        self.keep_idle = keep_idle
         self.recs = recordings
         self.session = validate_id(session, "session id")
         self.absolute = absolute
@@ -339,6 +341,10 @@ class _Ingest:
                 done = ws.push(frame, [t])
                 for w in range(len(done)):
                     window = done.frames[w]  # (K, H, W)
+                    if done.idle[w] and not self.keep_idle:
+                        # no contact: never embedded as a grasp (touch/windows.py)
+                        self.skipped[f"{topic.sense}: idle window (no contact)"] += 1
+                        continue
                     item = self._accept(topic, window)
                     if item is None:
                         continue
@@ -364,11 +370,14 @@ def ingest_recording(
     stride: int | None = None,
     batch: int = DEFAULT_BATCH,
     progress: bool = False,
+    keep_idle: bool = False,
 ) -> IngestSummary:
     """Ingest MCAP files / ROS 2 bag folders into ``session`` (see the module doc).
 
     ``topics`` maps topic -> sense name. ``window`` defaults to the touch sense's K (8 for the
     shipped encoder), ``stride`` to ``window``. ``progress`` shows a tqdm bar (messages/s).
+    Idle touch windows (no contact, ``touch/windows.py``) are skipped and counted in
+    ``skipped`` unless ``keep_idle``.
     Raises :class:`RecordingError` (unreadable file, unknown topic, unsupported type) and
     :class:`~tactus_memory.errors.UnknownSenseError` (a sense the memory does not have).
     """
@@ -376,7 +385,8 @@ def ingest_recording(
     if not recs:
         raise RecordingError("no recordings given")
     job = _Ingest(memory, recs, session, dict(topics), absolute=absolute, window=window,
-                  stride=stride, batch=batch, progress=progress)  # fmt: skip
+                  stride=stride, batch=batch, progress=progress,
+                  keep_idle=keep_idle)  # fmt: skip
     return job.run()
 
 

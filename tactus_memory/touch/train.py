@@ -140,9 +140,20 @@ def load_data(paths: Sequence[str | os.PathLike[str]]) -> Any:
     return parts[0] if len(parts) == 1 else combine(parts)
 
 
-def prepare_data(data: Any, holdout: list[int]) -> TrainData:
-    """Calibrate (STAG_GLOVE), gate the dynamic range, split off the held-out recordings."""
+POSITIVES = ("valid", "contact")
+
+
+def prepare_data(data: Any, holdout: list[int], positives: str = "valid") -> TrainData:
+    """Calibrate (STAG_GLOVE), gate the dynamic range, split off the held-out recordings.
+
+    ``positives``: ``valid`` trains on the dataset's valid-labelled frames; ``contact`` adds
+    every frame in contact (``touch/windows.py`` rule) of the training recordings (each
+    recording is one object). Held-out scoring always uses the valid frames."""
     from tactus_memory.touch.profile import STAG_GLOVE
+    from tactus_memory.touch.windows import CONTACT_MIN_TAXELS, contact_taxels
+
+    if positives not in POSITIVES:
+        raise ValueError(f"positives must be one of {POSITIVES}, got {positives!r}")
 
     # per source file: a badly scaled file pooled with good ones must still fail loudly
     data.check_dynamic_range(STAG_GLOVE)  # raises DynamicRangeError naming the file
@@ -152,7 +163,12 @@ def prepare_data(data: Any, holdout: list[int]) -> TrainData:
         calibrated=cal,
         labels=np.asarray(data.object_id, dtype=np.int64),
         recording_id=np.asarray(data.recording_id, dtype=np.int64),
-        train_valid=data.valid & ~held,
+        train_valid=(
+            data.valid | (contact_taxels(cal) >= CONTACT_MIN_TAXELS)
+            if positives == "contact"
+            else data.valid
+        )
+        & ~held,
         heldout_valid=data.valid & held,
         classes=list(data.objects),
         fingerprint=data.fingerprint(),

@@ -11,6 +11,21 @@ WebSocket stream, in chunks from a recording) and gives exactly the windows that
 :func:`cut_windows` would give on the whole run at once. The live stream
 (``service/routers/touch_stream.py``) and recording ingest (``tactus_memory.recordings``) both
 window through here, so a recording and a live glove are cut the same way.
+
+**Contact and idle.** Every window carries ``contact`` (Wn,): the most taxels at or above
+:data:`CONTACT_LEVEL` (calibrated) in any one of its frames. A window whose ``contact`` is below
+:data:`CONTACT_MIN_TAXELS` is *idle*: the hand touched nothing worth naming. Decision: idle
+windows are **not embedded as grasps**. Callers that store windows drop them (or store them
+only when asked, for diagnostics), so an idle hand can never match "holding a ..." (the
+stream evaluation, ``tactus eval --stream``, measures how often idle windows pass the match bar
+when they *are* embedded: that is the failure this rule removes). Raw frames are calibrated with
+the STAG glove profile for this test; calibrated frames (float, all in [0, 1]) are used as is.
+
+**Contact-aware frame selection.** With ``span > window`` a window is cut from ``span``
+consecutive frames and keeps the ``window`` frames with the most contact (ties: earliest), in
+time order; its time span covers the whole ``span``. This is the stream-side counterpart of the
+paper's cluster-sampled tuples (distinct, informative frames instead of K near-duplicates);
+``span == window`` (the default) is plain consecutive windowing.
 """
 
 from __future__ import annotations
@@ -21,42 +36,109 @@ from dataclasses import dataclass
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.touch.data import STAG_GLOVE, SensorProfile
+
+#: calibrated level a taxel must reach to count as touching: 1/6 = raw 525 on the STAG glove,
+#: ~10 raw above its resting pedestal (stag-format.md "The sensor": rest 510-516). Measured on
+#: the real files: the blindfolded subset's labelled grasp frames have a median of 8 taxels at
+#: this level, its unlabelled frames a median of 0, the weights subset's empty hand at most 3
+#: (95th percentile 2.8).
+CONTACT_LEVEL = 1.0 / 6.0
+#: a window is idle when none of its frames has this many taxels at CONTACT_LEVEL
+CONTACT_MIN_TAXELS = 2
 
 
 @dataclass(frozen=True)
 class Windows:
     """``frames`` (Wn, K, H, W); ``t``/``t_end`` (Wn,) float64 span of each window;
-    ``start`` (Wn,) int64 index of each window's first frame in the run."""
+    ``start`` (Wn,) int64 index of each window's first frame in the run; ``contact`` (Wn,)
+    int64 peak contact taxels per window (see the module docstring)."""
 
     frames: np.ndarray
     t: np.ndarray
     t_end: np.ndarray
     start: np.ndarray
+    contact: np.ndarray
 
     def __len__(self) -> int:
         return int(self.frames.shape[0])
 
+    @property
+    def idle(self) -> np.ndarray:
+        """(Wn,) bool: windows with no contact (never embedded as grasps)."""
+        return self.contact < CONTACT_MIN_TAXELS
 
-def _check(window: int, stride: int) -> tuple[int, int]:
-    for name, v in (("window", window), ("stride", stride)):
+    def take(self, mask: np.ndarray) -> Windows:
+        """The windows where ``mask`` (Wn,) bool is True."""
+        m = np.asarray(mask, dtype=bool)
+        return Windows(self.frames[m], self.t[m], self.t_end[m], self.start[m], self.contact[m])
+
+
+def calibrated_frames(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
+    """(..., H, W) raw or calibrated -> calibrated float32. Float arrays all in [0, 1] are
+    taken as calibrated (the touch sense's auto rule); anything else is raw for ``profile``."""
+    arr = np.asarray(frames)
+    if arr.size == 0 or (
+        np.issubdtype(arr.dtype, np.floating) and arr.min() >= 0 and arr.max() <= 1
+    ):
+        return arr.astype(np.float32, copy=False)
+    # the profile's formula, without its frame-shape check (windowing takes any H x W)
+    out = (arr.astype(np.float32) - np.float32(profile.offset)) / np.float32(profile.span)
+    return np.clip(out, 0.0, 1.0)
+
+
+def contact_taxels(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
+    """(..., H, W) frames -> (...) int64 taxels at or above :data:`CONTACT_LEVEL`."""
+    cal = calibrated_frames(frames, profile)
+    return (cal >= np.float32(CONTACT_LEVEL)).sum(axis=(-2, -1)).astype(np.int64)
+
+
+def _select(spans: np.ndarray, counts: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """spans (Wn, S, H, W), counts (Wn, S) -> the K most-contact frames of each span in time
+    order (Wn, K, H, W), and their counts (Wn, K)."""
+    s = spans.shape[1]
+    if s == k:
+        return spans, counts
+    # stable sort on -count keeps the earliest of tied frames
+    order = np.argsort(-counts, axis=1, kind="stable")[:, :k]
+    order.sort(axis=1)
+    rows = np.arange(spans.shape[0])[:, None]
+    return spans[rows, order], counts[rows, order]
+
+
+def _check(window: int, stride: int, span: int | None = None) -> tuple[int, int, int]:
+    span = window if span is None else span
+    for name, v in (("window", window), ("stride", stride), ("span", span)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise InvalidInputError(f"{name} must be a positive int, got {v!r}")
-    return int(window), int(stride)
+    if span < window:
+        raise InvalidInputError(f"span ({span}) must be >= window ({window})")
+    return int(window), int(stride), int(span)
 
 
 def _empty(shape: tuple[int, ...], k: int, dtype: np.dtype) -> Windows:
     z = np.zeros(0, np.float64)
-    return Windows(np.zeros((0, k, *shape), dtype), z, z.copy(), np.zeros(0, np.int64))
+    i = np.zeros(0, np.int64)
+    return Windows(np.zeros((0, k, *shape), dtype), z, z.copy(), i, i.copy())
 
 
 def cut_windows(
-    frames: np.ndarray, times: Sequence[float] | np.ndarray, *, window: int, stride: int
+    frames: np.ndarray,
+    times: Sequence[float] | np.ndarray,
+    *,
+    window: int,
+    stride: int,
+    span: int | None = None,
+    profile: SensorProfile = STAG_GLOVE,
 ) -> Windows:
     """frames (N, H, W) + times (N,) -> :class:`Windows` (Wn, K, H, W), K = ``window``.
 
-    Wn = 0 when N < K, else ``(N - K) // S + 1``. ``times`` must be as long as ``frames``.
+    Each window is cut from ``span`` (default K) consecutive frames starting every ``stride``
+    frames; with ``span > K`` it keeps the K frames with the most contact. Wn = 0 when N < span,
+    else ``(N - span) // stride + 1``. ``times`` must be as long as ``frames``. ``profile``
+    calibrates raw frames for the contact test only; the frames are returned as given.
     """
-    k, s = _check(window, stride)
+    k, s, span = _check(window, stride, span)
     arr = np.asarray(frames)
     if arr.ndim != 3:
         raise InvalidInputError(f"frames must be (N, H, W), got shape {arr.shape}")
@@ -64,19 +146,29 @@ def cut_windows(
     if ts.shape[0] != arr.shape[0]:
         raise InvalidInputError(f"{ts.shape[0]} times for {arr.shape[0]} frames")
     n = arr.shape[0]
-    if n < k:
+    if n < span:
         return _empty(arr.shape[1:], k, arr.dtype)
-    starts = np.arange(0, n - k + 1, s, dtype=np.int64)
-    idx = starts[:, None] + np.arange(k, dtype=np.int64)[None, :]  # (Wn, K)
-    return Windows(arr[idx], ts[starts], ts[starts + k - 1], starts)
+    starts = np.arange(0, n - span + 1, s, dtype=np.int64)
+    idx = starts[:, None] + np.arange(span, dtype=np.int64)[None, :]  # (Wn, span)
+    counts = contact_taxels(arr, profile)[idx]  # (Wn, span)
+    frames_out, kept = _select(arr[idx], counts, k)
+    return Windows(frames_out, ts[starts], ts[starts + span - 1], starts, kept.max(axis=1))
 
 
 class WindowStream:
     """Incremental :func:`cut_windows`: ``push`` frames as they come, get the windows that
     completed (``start`` counts frames since the stream began)."""
 
-    def __init__(self, window: int, stride: int) -> None:
-        self.window, self.stride = _check(window, stride)
+    def __init__(
+        self,
+        window: int,
+        stride: int,
+        *,
+        span: int | None = None,
+        profile: SensorProfile = STAG_GLOVE,
+    ) -> None:
+        self.window, self.stride, self.span = _check(window, stride, span)
+        self.profile = profile
         self._frames: np.ndarray | None = None  # (B, H, W) buffered frames
         self._times = np.zeros(0, np.float64)
         self._offset = 0  # stream index of the buffer's first frame
@@ -109,11 +201,13 @@ class WindowStream:
                 )
             arr = np.concatenate([self._frames, arr])
             ts = np.concatenate([self._times, ts])
-        out = cut_windows(arr, ts, window=self.window, stride=self.stride)
+        out = cut_windows(
+            arr, ts, window=self.window, stride=self.stride, span=self.span, profile=self.profile
+        )
         consumed = len(out) * self.stride  # the next window starts here
         keep_from = min(consumed, arr.shape[0])
         self._skip += consumed - keep_from
         self._frames, self._times = arr[keep_from:], ts[keep_from:]
         starts = out.start + self._offset
         self._offset += keep_from
-        return Windows(out.frames, out.t, out.t_end, starts)
+        return Windows(out.frames, out.t, out.t_end, starts, out.contact)
