@@ -147,8 +147,20 @@ def disk_bytes(path: Path) -> int:
     return total
 
 
-def store_sample(path: Path) -> dict[str, Any]:
-    """One look at the store from outside the server (a reader of its own)."""
+def store_sample(path: Path, tries: int = 5) -> dict[str, Any]:
+    """One look at the store from outside the server (a reader of its own). Listing versions
+    races the server's cleanup (a manifest deleted between the listing and its read): such a
+    look is taken again."""
+    for _ in range(tries - 1):
+        try:
+            return _store_sample(path)
+        except RuntimeError as exc:  # lance "Not found: ..._versions/N.manifest"
+            if "Not found" not in str(exc):
+                raise
+    return _store_sample(path)
+
+
+def _store_sample(path: Path) -> dict[str, Any]:
     import lancedb
 
     db = lancedb.connect(str(path))
