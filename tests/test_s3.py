@@ -13,7 +13,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,15 +24,12 @@ import pytest
 from benchmarks.s3local import moto_s3
 from benchmarks.serving import free_port, start_serve
 from tactus_memory.errors import NotFoundError
-from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
-from tests.fakes import HashingSpace
+from tests.replicas import STALENESS, open_replica, start_writer, wait_for
 from tests.servers import stop_process, wait_healthy
 
-ROOT = Path(__file__).resolve().parents[1]
 BUCKET = "tactus-test"
-STALENESS = 0.5
 STARTUP_S = 180  # a server loads MiniLM first (slow on 2 shared cores)
 
 
@@ -61,33 +57,15 @@ def uri(aws_env: dict[str, str]) -> str:
 
 
 def _open(uri: str, *, maintain: bool = True, **kw) -> Memory:
-    return Memory.open(
-        uri,
-        HashingSpace(),
-        read_consistency_interval=STALENESS,
-        maintenance=MaintenanceConfig(maintain=maintain, retain_seconds=5.0),
-        **kw,
-    )
+    return open_replica(uri, maintain=maintain, **kw)
 
 
 def _wait_for(check, timeout: float = 15.0) -> float:
-    t0 = time.monotonic()
-    while not check():
-        if time.monotonic() - t0 > timeout:
-            pytest.fail(f"not visible after {timeout}s")
-        time.sleep(0.05)
-    return time.monotonic() - t0
+    return wait_for(check, timeout)
 
 
 def _writer(uri: str, prefix: str, n: int, env: dict[str, str], *extra: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "tests.replica_worker", uri, prefix, str(n), *extra],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, **env, "OMP_NUM_THREADS": "1"},
-    )
+    return start_writer(uri, prefix, n, *extra, env=env)
 
 
 # ------------------------------------------------------------------ the contract on s3://
