@@ -114,33 +114,28 @@ def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, Se
     return window, calibrated, _profile(memory, item.sense)
 
 
+def _item_view(
+    memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """The item's window and the keywords :func:`draw_window_png` and :func:`window_values`
+    share (calibrated, profile, scale, max_frames, columns)."""
+    window, calibrated, profile = _item_window(memory, item_id)
+    view = {"calibrated": calibrated, "profile": profile, "scale": scale}
+    return window, {**view, "max_frames": max_frames, "columns": columns}
+
+
 def _item_png(
     memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None, legend: bool
 ) -> bytes:
-    window, calibrated, profile = _item_window(memory, item_id)
-    return draw_window_png(
-        window,
-        calibrated=calibrated,
-        profile=profile,
-        scale=scale,
-        max_frames=max_frames,
-        columns=columns,
-        legend=legend,
-    )
+    window, view = _item_view(memory, item_id, scale, max_frames, columns)
+    return draw_window_png(window, legend=legend, **view)
 
 
 def _item_values(
     memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
 ) -> dict[str, Any]:
-    window, calibrated, profile = _item_window(memory, item_id)
-    return window_values(
-        window,
-        calibrated=calibrated,
-        profile=profile,
-        scale=scale,
-        max_frames=max_frames,
-        columns=columns,
-    )
+    window, view = _item_view(memory, item_id, scale, max_frames, columns)
+    return window_values(window, **view)
 
 
 @router.get(
