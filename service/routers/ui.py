@@ -27,7 +27,7 @@ from tactus_memory.service.deps import MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
-from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png, window_values
+from tactus_memory.touch.render import MAX_FRAMES, SCALE, View, draw_window_png, window_values
 
 STATIC = FsPath(__file__).resolve().parent.parent / "static"
 STATIC_TYPES = {
@@ -116,12 +116,11 @@ def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, Se
 
 def _item_view(
     memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
-) -> tuple[np.ndarray, dict[str, Any]]:
-    """The item's window and the keywords :func:`draw_window_png` and :func:`window_values`
-    share (calibrated, profile, scale, max_frames, columns)."""
+) -> tuple[np.ndarray, View]:
+    """The item's window and how to draw it (for draw_window_png and window_values)."""
     window, calibrated, profile = _item_window(memory, item_id)
-    view = {"calibrated": calibrated, "profile": profile, "scale": scale}
-    return window, {**view, "max_frames": max_frames, "columns": columns}
+    view = View(calibrated=calibrated, profile=profile, scale=scale, max_frames=max_frames)
+    return window, View(**view, columns=columns)
 
 
 def _item_png(
