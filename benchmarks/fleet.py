@@ -38,18 +38,23 @@ import asyncio
 import contextlib
 import json
 import os
-import platform
 import shutil
 import signal
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from load import Barrier, GloveStats, free_port, pct, queries, raw_frames, stream_glove
+from load import (
+    Barrier,
+    GloveStats,
+    pct,
+    queries,
+    run_header,
+    stream_gloves,
+)
+from serving import free_port, start_serve, stop_process, wait_ok
 
 ROOT = Path(__file__).resolve().parents[1]
 K = 10
@@ -83,41 +88,16 @@ class TactusServer:
     """``tactus serve`` in a subprocess on a free port of 127.0.0.1."""
 
     def __init__(self, data: Path | str, log: Path, env: dict[str, str]) -> None:
-        import httpx
-
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        cmd = [
-            sys.executable,
-            "-c",
-            "from tactus_memory.cli import main; main()",
-            "serve",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(self.port),
-            "--data",
-            str(data),
-        ]
-        full_env = {**os.environ, "TACTUS_LOG_LEVEL": "warning", **env}
-        self.proc = subprocess.Popen(
-            cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT, env=full_env
-        )
-        deadline = time.monotonic() + STARTUP_S
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise SystemExit(f"server died:\n{log.read_text()[-3000:]}")
-            try:
-                r = httpx.get(self.base + "/health", timeout=2)
-                if r.status_code == 200:
-                    self.health = r.json()
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.3)
-        else:
+        self.proc = start_serve(self.port, data, log, env=env)
+        r = wait_ok(self.proc, self.base + "/health", STARTUP_S)
+        if r is None and self.proc.poll() is not None:
+            raise SystemExit(f"server died:\n{log.read_text()[-3000:]}")
+        if r is None:
             self.kill9()
             raise SystemExit(f"server did not start in {STARTUP_S}s")
+        self.health = r.json()
         if not self.health.get("touch"):
             self.stop()
             raise SystemExit(f"touch did not load: {self.health.get('touch_unavailable')}")
@@ -128,12 +108,7 @@ class TactusServer:
             self.proc.wait(30)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.kill9()
+        stop_process(self.proc, 60)
 
 
 # ----------------------------------------------------------------------------- the store
@@ -271,13 +246,6 @@ class Notes:
                 await asyncio.sleep(self.interval)
 
 
-def glove_url(port: int, session: str, hz: float) -> str:
-    return (
-        f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream"
-        f"?window={WINDOW}&stride={WINDOW}&hz={hz}&t0=0"
-    )
-
-
 async def stream_fleet(
     ports: list[int],
     gloves: int,
@@ -290,24 +258,9 @@ async def stream_fleet(
 ) -> None:
     """``gloves`` gloves spread over the servers' ``ports``, streaming from the moment
     ``clock`` has all its parties (the gloves, plus whoever else waits on it) until its stop."""
-    frames = raw_frames()
-    await asyncio.gather(
-        *(
-            stream_glove(
-                glove_url(ports[g % len(ports)], f"glove-{tag}-{g}", hz),
-                f"glove-{tag}-{g}",
-                stats,
-                hz=hz,
-                window=WINDOW,
-                frames=frames,
-                ready=clock.ready,
-                stop_at=clock.stop_at,
-                offset_s=g / gloves / hz,
-                drain_s=drain_s,
-                keep_ids=True,
-            )
-            for g in range(gloves)
-        )
+    sessions = [f"glove-{tag}-{g}" for g in range(gloves)]
+    await stream_gloves(
+        ports, sessions, stats, hz=hz, window=WINDOW, clock=clock, drain_s=drain_s, keep_ids=True
     )
 
 
@@ -376,27 +329,20 @@ async def soak_run(
             killed_at.append(time.monotonic())
 
         clock = Barrier(gloves, seconds)
-        frames = raw_frames()
-        await asyncio.gather(
-            *(
-                stream_glove(
-                    glove_url(port, f"glove-{tag}-{g}", args.hz),
-                    f"glove-{tag}-{g}",
-                    stats,
-                    hz=args.hz,
-                    window=WINDOW,
-                    frames=frames,
-                    ready=clock.ready,
-                    # keep streaming until the kill, then the connection drops
-                    stop_at=lambda: clock.stop + 3600 if not killed_at else 0.0,
-                    offset_s=g / gloves / args.hz,
-                    drain_s=0,
-                    keep_ids=True,
-                )
-                for g in range(gloves)
-            ),
-            others(clock),
+        sessions = [f"glove-{tag}-{g}" for g in range(gloves)]
+        streams = stream_gloves(
+            [port],
+            sessions,
+            stats,
+            hz=args.hz,
+            window=WINDOW,
+            clock=clock,
+            # keep streaming until the kill, then the connection drops
+            stop_at=lambda: clock.stop + 3600 if not killed_at else 0.0,
+            drain_s=0,
+            keep_ids=True,
         )
+        await asyncio.gather(streams, others(clock))
         ack_during = [lag for at, lag in stats.lag_at if at <= clock.stop]
         acked = {i for ids in stats.acked.values() for i in ids} | set(notes.acked)
         stored = await asyncio.to_thread(stored_ids, data)
@@ -600,14 +546,7 @@ def main() -> None:
     work = Path(args.workdir or tempfile.mkdtemp(prefix="tactus-fleet-"))
     work.mkdir(parents=True, exist_ok=True)
     result: dict[str, Any] = {
-        "benchmark": "fleet",
-        "machine": {
-            "cpus": os.cpu_count(),
-            "python": platform.python_version(),
-            "platform": platform.platform(),
-        },
-        "command": " ".join([Path(sys.executable).name, *sys.argv]),
-        "load_average_at_start": os.getloadavg(),
+        **run_header("fleet"),
         "targets": TARGETS,
         "workdir": str(work),
     }

@@ -12,10 +12,13 @@ from __future__ import annotations
 import asyncio
 import io
 import json
-import socket
+import os
+import platform
+import sys
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -64,6 +67,21 @@ NOUN = [
 ]
 
 
+def run_header(benchmark: str) -> dict[str, Any]:
+    """The head of a benchmark's JSON result: its name, the machine, the command line and
+    the load average at the start."""
+    return {
+        "benchmark": benchmark,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+        },
+        "command": " ".join([Path(sys.executable).name, *sys.argv]),
+        "load_average_at_start": os.getloadavg(),
+    }
+
+
 def pct(xs: list[float], p: float) -> float:
     return float(np.percentile(np.asarray(xs), p)) if xs else float("nan")
 
@@ -76,12 +94,6 @@ def queries(n: int, seed: int) -> list[str]:
         a, b = rng.choice(ADJ, 2, replace=False)
         out.append(f"something {a} and {b} like a {rng.choice(NOUN)} #{seed}-{i}")
     return out
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def npy(arr: np.ndarray) -> bytes:
@@ -220,3 +232,45 @@ class Barrier:
 
     def stop_at(self) -> float:
         return self.stop
+
+
+def glove_url(port: int, session: str, hz: float, window: int) -> str:
+    """A glove's stream: windows of ``window`` frames, no overlap, times from 0."""
+    return (
+        f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream"
+        f"?window={window}&stride={window}&hz={hz}&t0=0"
+    )
+
+
+async def stream_gloves(
+    ports: list[int],
+    sessions: list[str],
+    stats: GloveStats,
+    *,
+    hz: float,
+    window: int,
+    clock: Barrier,
+    stop_at: Callable[[], float] | None = None,
+    **kw: Any,
+) -> None:
+    """One glove per session, spread over the servers' ``ports`` and over one frame period,
+    streaming from the moment ``clock`` has all its parties until its stop (or ``stop_at``;
+    ``kw`` go to :func:`stream_glove`)."""
+    frames = raw_frames()
+    await asyncio.gather(
+        *(
+            stream_glove(
+                glove_url(ports[g % len(ports)], session, hz, window),
+                session,
+                stats,
+                hz=hz,
+                window=window,
+                frames=frames,
+                ready=clock.ready,
+                stop_at=stop_at or clock.stop_at,
+                offset_s=g / len(sessions) / hz,
+                **kw,
+            )
+            for g, session in enumerate(sessions)
+        )
+    )

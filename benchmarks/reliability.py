@@ -26,14 +26,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import io
 import json
 import os
 import platform
 import signal
-import socket
 import subprocess
-import sys
 import tempfile
 import time
 from collections import Counter
@@ -41,21 +38,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from load import npy
+from serving import free_port, start_serve, wait_ok
 
 ROOT = Path(__file__).resolve().parents[1]
 WINDOW = 8  # frames per touch window (the stream default, Settings.window)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def npy(arr: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, arr, allow_pickle=False)
-    return buf.getvalue()
 
 
 class Server:
@@ -67,38 +54,15 @@ class Server:
         self.port = 0
 
     def start(self, startup_s: float) -> float | None:
-        import httpx
-
         self.port = free_port()
-        cmd = [
-            sys.executable,
-            "-c",
-            "from tactus_memory.cli import main; main()",
-            "serve",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(self.port),
-            "--data",
-            str(self.data),
-            "--token",
-            self.token,
-            *([] if self.touch else ["--no-touch"]),
-        ]
-        env = {**os.environ, "TACTUS_LOG_LEVEL": "warning", "OMP_NUM_THREADS": "1"}
+        token = ["--token", self.token, *([] if self.touch else ["--no-touch"])]
         t0 = time.monotonic()
-        with self.log.open("ab") as fh:
-            self.proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env)
+        self.proc = start_serve(
+            self.port, self.data, self.log, *token, env={"OMP_NUM_THREADS": "1"}
+        )
         base = f"http://127.0.0.1:{self.port}"
-        while time.monotonic() - t0 < startup_s:
-            if self.proc.poll() is not None:
-                return None
-            try:
-                if httpx.get(base + "/ready", timeout=2).status_code == 200:
-                    return time.monotonic() - t0
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
+        if wait_ok(self.proc, base + "/ready", startup_s, interval=0.2) is not None:
+            return time.monotonic() - t0
         self.kill()
         return None
 

@@ -29,8 +29,6 @@ import argparse
 import asyncio
 import json
 import os
-import platform
-import signal
 import subprocess
 import sys
 import time
@@ -39,7 +37,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from load import Barrier, GloveStats, free_port, pct, queries, raw_frames, stream_glove
+from load import Barrier, GloveStats, pct, queries, run_header, stream_gloves
+from serving import free_port, stop_process, wait_ok
 
 ROOT = Path(__file__).resolve().parents[1]
 DIM = 384
@@ -165,29 +164,16 @@ class Child:
             touch,
         ]
         self.proc = subprocess.Popen(cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT)
-        import httpx
-
-        deadline = time.monotonic() + 300
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise SystemExit(f"server died:\n{log.read_text()[-3000:]}")
-            try:
-                if httpx.get(self.base + "/health", timeout=2).status_code == 200:
-                    self.health = httpx.get(self.base + "/health").json()
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.3)
-        self.stop()
-        raise SystemExit("server did not start")
+        r = wait_ok(self.proc, self.base + "/health", 300)
+        if r is None and self.proc.poll() is not None:
+            raise SystemExit(f"server died:\n{log.read_text()[-3000:]}")
+        if r is None:
+            self.stop()
+            raise SystemExit("server did not start")
+        self.health = r.json()
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
+        stop_process(self.proc, 30)
 
 
 def child_main(data: str, port: int, touch: str) -> None:
@@ -294,29 +280,10 @@ def search_latency(
 async def ingest(port: int, clients: int, hz: float, seconds: float, window: int) -> dict:
     import httpx
 
-    frames = raw_frames()
     stats = GloveStats()
     run_id = f"{int(time.time())}"
     # Every client connects first; the clock starts when all are ready.
     clock = Barrier(clients + 1, seconds)
-
-    async def glove(i: int) -> None:
-        session = f"bench-glove-{run_id}-{i}"
-        url = (
-            f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream"
-            f"?window={window}&stride={window}&hz={hz}&t0=0"
-        )
-        await stream_glove(
-            url,
-            session,
-            stats,
-            hz=hz,
-            window=window,
-            frames=frames,
-            ready=clock.ready,
-            stop_at=clock.stop_at,
-            offset_s=i / clients / hz,  # spread the gloves over one frame period
-        )
 
     search_lat: list[float] = []
 
@@ -334,7 +301,9 @@ async def ingest(port: int, clients: int, hz: float, seconds: float, window: int
                 i += 1
                 await asyncio.sleep(0.1)
 
-    await asyncio.gather(*(glove(i) for i in range(clients)), searcher())
+    sessions = [f"bench-glove-{run_id}-{i}" for i in range(clients)]
+    gloves = stream_gloves([port], sessions, stats, hz=hz, window=window, clock=clock)
+    await asyncio.gather(gloves, searcher())
     wall = time.monotonic() - clock.start
     stop_at = clock.stop
     return {
@@ -403,14 +372,7 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     log = work / "server.log"
     result: dict[str, Any] = {
-        "benchmark": "service",
-        "machine": {
-            "cpus": os.cpu_count(),
-            "python": platform.python_version(),
-            "platform": platform.platform(),
-        },
-        "command": " ".join([Path(sys.executable).name, *sys.argv]),
-        "load_average_at_start": os.getloadavg(),
+        **run_header("service"),
         "search": [],
     }
     for rows in args.rows:

@@ -14,7 +14,7 @@ urllib does) would otherwise see its connection reset instead of the 413.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import anyio
@@ -23,6 +23,25 @@ from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from tactus_memory.service.problems import PROBLEM_JSON, problem_body
+
+
+async def send_problem(
+    send: Send, status: int, problem: dict[str, Any], headers: Sequence[tuple[bytes, bytes]] = ()
+) -> None:
+    """Answer with a problem+json body straight from ASGI (before any route), plus ``headers``."""
+    body = json.dumps(problem).encode()
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", PROBLEM_JSON.encode()),
+                (b"content-length", str(len(body)).encode()),
+                *headers,
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": body})
 
 
 class BodyTooLarge(HTTPException):
@@ -105,19 +124,8 @@ class BodyLimitMiddleware:
     @staticmethod
     async def _reply(send: Send, status: int, detail: str) -> None:
         title = "Content too large" if status == 413 else "Bad request"
-        body = json.dumps(problem_body(status, detail, title=title)).encode()
-        await send(
-            {
-                "type": "http.response.start",
-                "status": status,
-                "headers": [
-                    (b"content-type", PROBLEM_JSON.encode()),
-                    (b"content-length", str(len(body)).encode()),
-                    (b"connection", b"close"),
-                ],
-            }
-        )
-        await send({"type": "http.response.body", "body": body})
+        problem = problem_body(status, detail, title=title)
+        await send_problem(send, status, problem, [(b"connection", b"close")])
 
 
 #: POST routes that only read (search by example, drawing a window): allowed on a read-only store
@@ -145,20 +153,8 @@ class ReadOnlyMiddleware:
                 f"the store at {self.where} is read-only: writes and deletes are refused; "
                 "reads and searches work (serve a writable copy to write)"
             )
-            body = json.dumps(
-                problem_body(503, detail, slug="read-only", title="Store is read-only")
-            ).encode()
-            await send(
-                {
-                    "type": "http.response.start",
-                    "status": 503,
-                    "headers": [
-                        (b"content-type", PROBLEM_JSON.encode()),
-                        (b"content-length", str(len(body)).encode()),
-                    ],
-                }
-            )
-            await send({"type": "http.response.body", "body": body})
+            problem = problem_body(503, detail, slug="read-only", title="Store is read-only")
+            await send_problem(send, 503, problem)
             return
         await self.app(scope, receive, send)
 
@@ -213,16 +209,5 @@ class AllowMiddleware:
             await send({"type": "http.response.body", "body": b""})
             return
         detail = f"{method} is not allowed on {scope['path']}; allowed: {allow}"
-        body = json.dumps(problem_body(405, detail, instance=scope["path"])).encode()
-        await send(
-            {
-                "type": "http.response.start",
-                "status": 405,
-                "headers": [
-                    (b"content-type", PROBLEM_JSON.encode()),
-                    (b"content-length", str(len(body)).encode()),
-                    (b"allow", allow.encode()),
-                ],
-            }
-        )
-        await send({"type": "http.response.body", "body": body})
+        problem = problem_body(405, detail, instance=scope["path"])
+        await send_problem(send, 405, problem, [(b"allow", allow.encode())])

@@ -15,13 +15,14 @@ from __future__ import annotations
 import json
 import logging
 import math
-from typing import Any
+from typing import Any, TypedDict
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from typing_extensions import Unpack
 
 from tactus_memory import errors
 from tactus_memory.service.readiness import is_store_failure, short
@@ -123,17 +124,23 @@ def problem_body(
     return body
 
 
+class ProblemFields(TypedDict, total=False):
+    """The optional members of a problem body (:func:`problem_body`'s keywords)."""
+
+    slug: str | None
+    title: str | None
+    instance: str | None
+
+
 def problem_response(
     status: int,
     detail: str,
     *,
-    slug: str | None = None,
-    title: str | None = None,
-    instance: str | None = None,
     headers: dict[str, str] | None = None,
+    **fields: Unpack[ProblemFields],
 ) -> JSONResponse:
     return JSONResponse(
-        problem_body(status, detail, slug=slug, title=title, instance=instance),
+        problem_body(status, detail, **fields),
         status_code=status,
         media_type=PROBLEM_JSON,
         headers=headers,

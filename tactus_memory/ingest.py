@@ -34,8 +34,11 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
 
+from typing_extensions import Unpack
+
 from tactus_memory.errors import OverloadedError
 from tactus_memory.memory import Memory, PreparedWrite
+from tactus_memory.rows import BatchKwargs
 
 log = logging.getLogger(__name__)
 
@@ -106,22 +109,11 @@ class GroupCommitter:
 
     # ------------------------------------------------------------------ submit
     def submit(
-        self,
-        session: str,
-        sense: str,
-        items: Sequence[Any],
-        *,
-        t: Sequence[float | None] | float | None = None,
-        t_end: Sequence[float | None] | float | None = None,
-        meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None = None,
-        ids: Sequence[str] | None = None,
-        source: str = "",
+        self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[BatchKwargs]
     ) -> Future[list[str]]:
         """Validate a write now (``Memory.add_many``'s arguments; typed errors raise here) and
         queue it; the future gives its ids after the commit that stored it."""
-        write = self.memory.prepare_write(
-            session, sense, items, t=t, t_end=t_end, meta=meta, ids=ids, source=source
-        )
+        write = self.memory.prepare_write(session, sense, items, **kw)
         return self.submit_prepared(write)
 
     def submit_prepared(self, write: PreparedWrite) -> Future[list[str]]:

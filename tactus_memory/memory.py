@@ -56,6 +56,7 @@ from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry, StoredSense
 from tactus_memory.rows import (
     PreparedWrite,
+    WriteKwargs,
     check_batch,
     embed_groups,
     options_for,
@@ -218,35 +219,16 @@ class Memory(TemporalQuestions):
         )[0]
 
     def add_many(
-        self,
-        session: str,
-        sense: str,
-        items: Sequence[Any],
-        *,
-        t: Sequence[float | None] | float | None = None,
-        t_end: Sequence[float | None] | float | None = None,
-        meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None = None,
-        ids: Sequence[str] | None = None,
-        source: str = "",
-        options: Mapping[str, Any] | None = None,
+        self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[WriteKwargs]
     ) -> list[str]:
         """Remember N items of one sense in one commit; returns their ids (in order).
 
         Everything is validated and embedded before the write: a failure writes nothing.
         ``options`` go to the sense's ``validate`` (e.g. ``{"calibrated": True}`` for touch);
-        the sense's ``embed`` then takes the validated items as they are.
+        the sense's ``embed`` then takes the validated items as they are. The keywords are
+        :meth:`prepare_write`'s.
         """
-        write = self.prepare_write(
-            session,
-            sense,
-            items,
-            t=t,
-            t_end=t_end,
-            meta=meta,
-            ids=ids,
-            source=source,
-            options=options,
-        )
+        write = self.prepare_write(session, sense, items, **kw)
         return self.commit_writes([write])[0]
 
     def prepare_write(

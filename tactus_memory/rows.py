@@ -9,7 +9,7 @@ import time
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -22,6 +22,22 @@ from tactus_memory.vectors import as_unit_rows
 
 if TYPE_CHECKING:
     import pyarrow as pa
+
+
+class BatchKwargs(TypedDict, total=False):
+    """The keywords of one write batch (``Memory.add_many``, ``GroupCommitter.submit``)."""
+
+    t: Sequence[float | None] | float | None
+    t_end: Sequence[float | None] | float | None
+    meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None
+    ids: Sequence[str] | None
+    source: str
+
+
+class WriteKwargs(BatchKwargs, total=False):
+    """:class:`BatchKwargs` plus the sense's ``validate`` options (``Memory.add_many``)."""
+
+    options: Mapping[str, Any] | None
 
 
 def meta_json(meta: Any) -> str:

@@ -67,20 +67,20 @@ def rgb8(topic: str, log_ns: int, image: np.ndarray) -> Msg:
     })  # fmt: skip
 
 
-def int16_array(topic: str, log_ns: int, frame: np.ndarray) -> Msg:
+def _multi_array(topic: str, log_ns: int, frame: np.ndarray, msgtype: str, dtype: type) -> Msg:
     h, w = frame.shape
     layout = {"dim": [{"label": "rows", "size": h, "stride": h * w},
                       {"label": "cols", "size": w, "stride": w}], "data_offset": 0}  # fmt: skip
-    values = [int(v) for v in np.asarray(frame, np.int16).reshape(-1)]
-    return Msg(topic, INT16_ARRAY, log_ns, {"layout": layout, "data": values})
+    values = np.asarray(frame, dtype).reshape(-1).tolist()  # Python ints / floats
+    return Msg(topic, msgtype, log_ns, {"layout": layout, "data": values})
+
+
+def int16_array(topic: str, log_ns: int, frame: np.ndarray) -> Msg:
+    return _multi_array(topic, log_ns, frame, INT16_ARRAY, np.int16)
 
 
 def float32_array(topic: str, log_ns: int, frame: np.ndarray) -> Msg:
-    h, w = frame.shape
-    layout = {"dim": [{"label": "rows", "size": h, "stride": h * w},
-                      {"label": "cols", "size": w, "stride": w}], "data_offset": 0}  # fmt: skip
-    values = [float(v) for v in np.asarray(frame, np.float32).reshape(-1)]
-    return Msg(topic, FLOAT32_ARRAY, log_ns, {"layout": layout, "data": values})
+    return _multi_array(topic, log_ns, frame, FLOAT32_ARRAY, np.float32)
 
 
 def vector3(topic: str, log_ns: int) -> Msg:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
-import time
 from collections.abc import Callable
 
-import httpx
 import pytest
+
+from benchmarks.serving import stop_process, wait_ok
+
+__all__ = ["stop_process", "wait_healthy"]
 
 
 def wait_healthy(
@@ -20,26 +21,9 @@ def wait_healthy(
 ) -> None:
     """Poll ``base/health`` until it answers 200; fail with the server's log tail if the
     process exits or ``startup_s`` passes (then ``stop`` it)."""
-    deadline = time.monotonic() + startup_s
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            pytest.fail(f"server exited ({proc.returncode}):\n{tail()}")
-        try:
-            if httpx.get(base + "/health", timeout=2).status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        time.sleep(0.3)
+    if wait_ok(proc, base + "/health", startup_s) is not None:
+        return
+    if proc.poll() is not None:
+        pytest.fail(f"server exited ({proc.returncode}):\n{tail()}")
     stop()
     pytest.fail(f"server did not start in {startup_s}s:\n{tail()}")
-
-
-def stop_process(proc: subprocess.Popen, wait_s: float = 20) -> None:
-    """SIGTERM, wait ``wait_s``, then SIGKILL (and reap) if the server is still there."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(wait_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)

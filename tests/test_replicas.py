@@ -23,28 +23,11 @@ from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
 from tactus_memory.store import IndexConfig
 from tests.fakes import HashingSpace
-
-ROOT = Path(__file__).resolve().parents[1]
-STALENESS = 0.5  # seconds: the read consistency the replicas here connect with
+from tests.replicas import STALENESS, open_replica, start_writer, wait_for
 
 
 def _replica(path: Path, *, maintain: bool = False) -> Memory:
-    return Memory.open(
-        str(path),
-        HashingSpace(),
-        read_consistency_interval=STALENESS,
-        maintenance=MaintenanceConfig(maintain=maintain, retain_seconds=5.0),
-    )
-
-
-def _wait_for(check, timeout: float = 10.0) -> float:
-    """Poll ``check()`` until true; return the seconds it took (fail after ``timeout``)."""
-    t0 = time.monotonic()
-    while not check():
-        if time.monotonic() - t0 > timeout:
-            pytest.fail(f"not visible after {timeout}s")
-        time.sleep(0.05)
-    return time.monotonic() - t0
+    return open_replica(str(path), maintain=maintain)
 
 
 # ------------------------------------------------------------------ settings
@@ -87,20 +70,20 @@ def test_replicas_see_each_others_rows_and_senses_within_the_bound(tmp_path: Pat
     b = _replica(tmp_path / "m")
     assert b.sense_info()[0].rows == 0  # b's count cache is primed (and empty)
     a.add("s1", "text", "the red mug is on the shelf")
-    lag = _wait_for(lambda: {s.name: s.rows for s in b.sense_info()}.get("text") == 1)
+    lag = wait_for(lambda: {s.name: s.rows for s in b.sense_info()}.get("text") == 1)
     assert lag <= STALENESS + 1.5
     assert [h.text for h in b.search("red mug", k=1)] == ["the red mug is on the shelf"]
     # a sense registered and written by the other replica shows up with its rows
     a.add_sense(VectorSense("motion", dim=a.space.dim))
     a.add_many("s1", "motion", list(np.random.default_rng(0).standard_normal((3, 64))))
-    _wait_for(lambda: {s.name: s.rows for s in b.sense_info()}.get("motion") == 3)
+    wait_for(lambda: {s.name: s.rows for s in b.sense_info()}.get("motion") == 3)
     assert {h.sense for h in b.search("red mug", k=10)} == {"text", "motion"}
     # b's own writes and a's interleave; both count everything
     b.add("s1", "text", "a note from b")
     a.add("s1", "text", "a note from a")
-    _wait_for(lambda: len(a) == len(b) == 6)
-    _wait_for(lambda: {s.name: s.rows for s in a.sense_info()}["text"] == 3)
-    _wait_for(lambda: {s.name: s.rows for s in b.sense_info()}["text"] == 3)
+    wait_for(lambda: len(a) == len(b) == 6)
+    wait_for(lambda: {s.name: s.rows for s in a.sense_info()}["text"] == 3)
+    wait_for(lambda: {s.name: s.rows for s in b.sense_info()}["text"] == 3)
 
 
 def test_a_replica_reads_on_through_the_maintainers_compaction_and_cleanup(
@@ -113,7 +96,7 @@ def test_a_replica_reads_on_through_the_maintainers_compaction_and_cleanup(
     reader = _replica(tmp_path / "m")
     for i in range(12):
         owner.add("s1", "text", f"note {i} about the mug")
-    _wait_for(lambda: len(reader) == 12)
+    wait_for(lambda: len(reader) == 12)
     assert reader.search("mug", k=3)
     owner.optimize()
     time.sleep(1.0)
@@ -121,28 +104,17 @@ def test_a_replica_reads_on_through_the_maintainers_compaction_and_cleanup(
     owner.optimize()  # the versions the reader saw are superseded > 0.5 s: removed
     assert owner.store.last_maintenance[0].versions_removed > 0
     # the reader moves to the latest version within its staleness bound and reads on
-    _wait_for(lambda: len(reader) == 13)
+    wait_for(lambda: len(reader) == 13)
     assert len(reader.search("mug", k=20)) == 13
 
 
 # ------------------------------------------------------------------ processes
-def _writer(data: str, prefix: str, n: int, *extra: str, env: dict | None = None):
-    return subprocess.Popen(
-        [sys.executable, "-m", "tests.replica_worker", data, prefix, str(n), *extra],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "OMP_NUM_THREADS": "1", **(env or {})},
-    )
-
-
 def test_two_processes_appending_concurrently_lose_nothing(tmp_path: Path) -> None:
     data = str(tmp_path / "m")
     Memory.open(data, HashingSpace()).close()  # create the tables once
     n = 40
     # two replicas writing, one of them also the maintainer (compacting under the other)
-    procs = [_writer(data, "a", n, "--maintain"), _writer(data, "b", n)]
+    procs = [start_writer(data, "a", n, "--maintain"), start_writer(data, "b", n)]
     acked = []
     for p in procs:
         out, err = p.communicate(timeout=300)

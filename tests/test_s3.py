@@ -9,13 +9,10 @@ replicas over real HTTP."""
 
 from __future__ import annotations
 
-import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,57 +21,31 @@ import httpx
 import numpy as np
 import pytest
 
+from benchmarks.s3local import moto_s3
+from benchmarks.serving import free_port, start_serve
 from tactus_memory.errors import NotFoundError
-from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
-from tests.fakes import HashingSpace
-from tests.servers import wait_healthy
+from tests.replicas import STALENESS, open_replica, start_writer, wait_for
+from tests.servers import stop_process, wait_healthy
 
-ROOT = Path(__file__).resolve().parents[1]
 BUCKET = "tactus-test"
-STALENESS = 0.5
 STARTUP_S = 180  # a server loads MiniLM first (slow on 2 shared cores)
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
-def s3_endpoint() -> Iterator[str]:
-    """moto's S3 server on a free port of 127.0.0.1 with one bucket; stopped afterwards."""
-    import boto3
-    from moto.server import ThreadedMotoServer
-
-    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # one log line per request
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-    server.start()
-    host, port = server.get_host_and_port()
-    endpoint = f"http://{host}:{port}"
-    s3 = boto3.client(
-        "s3",
-        endpoint_url=endpoint,
-        aws_access_key_id="test-key",
-        aws_secret_access_key="test-secret",
-        region_name="us-east-1",
-    )
-    s3.create_bucket(Bucket=BUCKET)
-    yield endpoint
-    server.stop()
+def s3_endpoint() -> Iterator[dict[str, str]]:
+    """moto's S3 server on a free port of 127.0.0.1 with one bucket (benchmarks/s3local.py);
+    its AWS_* variables; stopped afterwards."""
+    with moto_s3(BUCKET) as env:
+        yield env
 
 
 @pytest.fixture
-def aws_env(s3_endpoint: str, monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+def aws_env(s3_endpoint: dict[str, str], monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
     """The standard AWS variables pointing at the local server (read by the store)."""
-    env = {
-        "AWS_ENDPOINT_URL": s3_endpoint,
-        "AWS_ACCESS_KEY_ID": "test-key",
-        "AWS_SECRET_ACCESS_KEY": "test-secret",
-        "AWS_REGION": "us-east-1",
-    }
+    keys = ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_REGION")
+    env = {key: s3_endpoint[key] for key in keys}
     for key, value in env.items():
         monkeypatch.setenv(key, value)
     return env
@@ -86,33 +57,15 @@ def uri(aws_env: dict[str, str]) -> str:
 
 
 def _open(uri: str, *, maintain: bool = True, **kw) -> Memory:
-    return Memory.open(
-        uri,
-        HashingSpace(),
-        read_consistency_interval=STALENESS,
-        maintenance=MaintenanceConfig(maintain=maintain, retain_seconds=5.0),
-        **kw,
-    )
+    return open_replica(uri, maintain=maintain, **kw)
 
 
 def _wait_for(check, timeout: float = 15.0) -> float:
-    t0 = time.monotonic()
-    while not check():
-        if time.monotonic() - t0 > timeout:
-            pytest.fail(f"not visible after {timeout}s")
-        time.sleep(0.05)
-    return time.monotonic() - t0
+    return wait_for(check, timeout)
 
 
 def _writer(uri: str, prefix: str, n: int, env: dict[str, str], *extra: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "tests.replica_worker", uri, prefix, str(n), *extra],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, **env, "OMP_NUM_THREADS": "1"},
-    )
+    return start_writer(uri, prefix, n, *extra, env=env)
 
 
 # ------------------------------------------------------------------ the contract on s3://
@@ -218,37 +171,13 @@ class _Serve:
     def __init__(self, uri: str, env: dict[str, str], log: Path, *extra: str) -> None:
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        cmd = [
-            sys.executable,
-            "-c",
-            "from tactus_memory.cli import main; main()",
-            "serve",
-            "--port",
-            str(self.port),
-            "--data",
-            uri,
-            "--no-touch",
-            *extra,
-        ]
-        full = {
-            **os.environ,
-            **env,
-            "TACTUS_LOG_LEVEL": "warning",
-            "OMP_NUM_THREADS": "1",
-            "TACTUS_READ_CONSISTENCY": str(STALENESS),
-        }
-        self.proc = subprocess.Popen(cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT, env=full)
+        full = {**env, "OMP_NUM_THREADS": "1", "TACTUS_READ_CONSISTENCY": str(STALENESS)}
+        self.proc = start_serve(self.port, uri, log, "--no-touch", *extra, env=full)
         self.log = log
         wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.stop)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
+        stop_process(self.proc)
 
 
 @pytest.mark.slow

@@ -5,17 +5,14 @@ a real WebSocket; then SIGKILLed after acknowledged writes and restarted: nothin
 from __future__ import annotations
 
 import json
-import os
 import signal
-import socket
-import subprocess
-import sys
 import threading
 from pathlib import Path
 
 import httpx
 import pytest
 
+from benchmarks.serving import free_port, start_serve
 from tests.servers import stop_process, wait_healthy
 from tests.test_service_helpers import window
 
@@ -24,32 +21,13 @@ pytestmark = pytest.mark.slow
 STARTUP_S = 180
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Server:
     def __init__(self, data: Path, log: Path, *extra: str) -> None:
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         self.log = log
-        cmd = [
-            sys.executable,
-            "-c",
-            "from tactus_memory.cli import main; main()",
-            "serve",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(self.port),
-            "--data",
-            str(data),
-            *extra,
-        ]
-        env = {**os.environ, "TACTUS_LOG_LEVEL": "warning", "OMP_NUM_THREADS": "1"}
-        self.proc = subprocess.Popen(cmd, stdout=log.open("ab"), stderr=subprocess.STDOUT, env=env)
+        env = {"OMP_NUM_THREADS": "1"}
+        self.proc = start_serve(self.port, data, log, *extra, env=env)
         wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.kill)
 
     def kill(self) -> None:

@@ -12,19 +12,13 @@ from fastapi.testclient import TestClient
 from tactus_memory.errors import IdConflictError
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
+from tests import test_service
 from tests.test_service import assert_problem
-from tests.test_service_helpers import make_memory, window
+from tests.test_service_helpers import window
 
-
-@pytest.fixture
-def memory(tmp_path):
-    return make_memory(tmp_path / "mem")
-
-
-@pytest.fixture
-def client(memory):
-    with TestClient(create_app(Settings(max_body_bytes=2 * 1024 * 1024), memory=memory)) as c:
-        yield c
+# test_service's fixtures: a memory in tmp_path, a TestClient over it
+memory = test_service.memory
+client = test_service.client
 
 
 # --------------------------------------------------------------------- A: ids per session

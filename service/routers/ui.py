@@ -27,7 +27,7 @@ from tactus_memory.service.deps import MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
-from tactus_memory.touch.render import MAX_FRAMES, SCALE, draw_window_png, window_values
+from tactus_memory.touch.render import MAX_FRAMES, SCALE, View, draw_window_png, window_values
 
 STATIC = FsPath(__file__).resolve().parent.parent / "static"
 STATIC_TYPES = {
@@ -114,33 +114,27 @@ def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, Se
     return window, calibrated, _profile(memory, item.sense)
 
 
+def _item_view(
+    memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
+) -> tuple[np.ndarray, View]:
+    """The item's window and how to draw it (for draw_window_png and window_values)."""
+    window, calibrated, profile = _item_window(memory, item_id)
+    view = View(calibrated=calibrated, profile=profile, scale=scale, max_frames=max_frames)
+    return window, View(**view, columns=columns)
+
+
 def _item_png(
     memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None, legend: bool
 ) -> bytes:
-    window, calibrated, profile = _item_window(memory, item_id)
-    return draw_window_png(
-        window,
-        calibrated=calibrated,
-        profile=profile,
-        scale=scale,
-        max_frames=max_frames,
-        columns=columns,
-        legend=legend,
-    )
+    window, view = _item_view(memory, item_id, scale, max_frames, columns)
+    return draw_window_png(window, legend=legend, **view)
 
 
 def _item_values(
     memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
 ) -> dict[str, Any]:
-    window, calibrated, profile = _item_window(memory, item_id)
-    return window_values(
-        window,
-        calibrated=calibrated,
-        profile=profile,
-        scale=scale,
-        max_frames=max_frames,
-        columns=columns,
-    )
+    window, view = _item_view(memory, item_id, scale, max_frames, columns)
+    return window_values(window, **view)
 
 
 @router.get(

@@ -127,15 +127,8 @@ function metaList(meta) {
 // calibrated value, from GET /items/{id}/touch.json (same query, fetched on first hover).
 const HEATMAP_QUERY = "scale=5&columns=4";
 
-function heatmap(itemId, label) {
-  const base = `/items/${encodeURIComponent(itemId)}`;
-  const src = `${base}/touch.png?${HEATMAP_QUERY}`;
-  const img = h("img", {
-    class: "heatmap",
-    alt: label,
-    loading: "lazy",
-    decoding: "async",
-  });
+// Point img at src; with a token the image is fetched with it (an <img> sends no header).
+function loadImage(img, src, label) {
   if (state.token) {
     api(src, { raw: true })
       .then((res) => res.blob())
@@ -148,6 +141,18 @@ function heatmap(itemId, label) {
   } else {
     img.src = src;
   }
+}
+
+function heatmap(itemId, label) {
+  const base = `/items/${encodeURIComponent(itemId)}`;
+  const src = `${base}/touch.png?${HEATMAP_QUERY}`;
+  const img = h("img", {
+    class: "heatmap",
+    alt: label,
+    loading: "lazy",
+    decoding: "async",
+  });
+  loadImage(img, src, label);
   const readout = h("output", { class: "taxel-value", "aria-live": "off" }, "");
   let values = null; // the touch.json answer, once fetched
   let loading = null;
@@ -210,18 +215,7 @@ function isImage(hit) {
 function thumbnail(itemId, label) {
   const src = `/items/${encodeURIComponent(itemId)}/image.png?size=160`;
   const img = h("img", { class: "thumb", alt: label, loading: "lazy", decoding: "async" });
-  if (state.token) {
-    api(src, { raw: true })
-      .then((res) => res.blob())
-      .then((blob) => {
-        img.src = URL.createObjectURL(blob);
-      })
-      .catch((err) => {
-        img.alt = `${label} (could not load: ${err.message})`;
-      });
-  } else {
-    img.src = src;
-  }
+  loadImage(img, src, label);
   return h("figure", { class: "thumb-figure" }, img);
 }
 

@@ -18,6 +18,7 @@ import typer
 
 from tactus_memory.cli.app import app
 from tactus_memory.cli.memory_cmds import DATA_HELP, _data_dir, _fail, _print_json
+from tactus_memory.cli.space_opts import fail
 
 if TYPE_CHECKING:
     from tactus_memory.memory import Memory
@@ -110,8 +111,7 @@ def ingest(
             progress=not as_json,
         )
     except (TactusError, ImportError) as exc:
-        _fail(str(exc))
-        return
+        fail(str(exc))  # exits
     if as_json:
         _print_json(summary.model_dump())
         return
@@ -145,8 +145,7 @@ def export_rerun_cmd(
     try:
         summary = Memory.open(location).export_rerun(session, out, query=query)
     except (TactusError, ImportError) as exc:
-        _fail(str(exc))
-        return
+        fail(str(exc))  # exits
     if as_json:
         _print_json(summary.model_dump())
         return

@@ -45,7 +45,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from tactus_memory import __version__
-from tactus_memory.touch.model import BasicBlock
+from tactus_memory.touch.model import BasicBlock, batched_forward
 
 if TYPE_CHECKING:
     from tactus_memory.touch.train import TrainData
@@ -119,11 +119,11 @@ def predict_proba(
 ) -> np.ndarray:
     """(B, N, 32, 32) calibrated -> (B, C) float32 softmax probabilities (eval mode)."""
     net.eval()
-    outs = []
-    for s in range(0, len(windows), batch):
-        x = torch.from_numpy(np.ascontiguousarray(windows[s : s + batch], np.float32))
-        outs.append(F.softmax(net(x.to(device)).float(), dim=-1).cpu().numpy())
-    return np.concatenate(outs) if outs else np.zeros((0, net.n_classes), np.float32)
+
+    def probs(x: torch.Tensor) -> torch.Tensor:
+        return F.softmax(net(x).float(), dim=-1)
+
+    return batched_forward(probs, windows, batch, device, net.n_classes)
 
 
 @dataclass

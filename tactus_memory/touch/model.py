@@ -25,10 +25,12 @@ stride-2 3x3 stem (stages at 16, 8, 4, 2 px), chosen by measurement (benchmarks/
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -210,3 +212,19 @@ if __name__ == "__main__":  # python -m tactus_memory.touch.model
     for n in list_models():
         for d in (384, 2048):
             print(n, d, param_report(create_model(n, d)))
+
+
+def batched_forward(
+    forward: Callable[[torch.Tensor], torch.Tensor],
+    windows: np.ndarray,
+    batch: int,
+    device: str,
+    width: int,
+) -> np.ndarray:
+    """(B, ...) windows -> (B, width) float32: ``forward`` over consecutive slices of
+    ``batch`` windows (float32, on ``device``); the caller sets eval and inference mode."""
+    outs = []
+    for s in range(0, len(windows), batch):
+        x = torch.from_numpy(np.ascontiguousarray(windows[s : s + batch], np.float32))
+        outs.append(forward(x.to(device)).float().cpu().numpy())
+    return np.concatenate(outs) if outs else np.zeros((0, width), np.float32)

@@ -26,9 +26,10 @@ from __future__ import annotations
 
 import io
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
+from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile, taxel_mask_from_spec
@@ -195,22 +196,40 @@ def _prepare(
     return frames, picked, taxels, touch_scale(frames, taxels, profile), layout
 
 
+class View(TypedDict, total=False):
+    """How a window is drawn (the keywords of :func:`window_rgba`, :func:`draw_window_png`,
+    :func:`window_values`): ``calibrated`` (None: decided from the values), ``profile``
+    (default STAG_GLOVE), ``scale`` (px per taxel, default SCALE), ``max_frames`` (default
+    MAX_FRAMES), ``columns`` (frames per row; None: one row)."""
+
+    calibrated: bool | None
+    profile: SensorProfile
+    scale: int
+    max_frames: int
+    columns: int | None
+
+
+def _prepare_view(
+    window: Any, view: View, gap: int = GAP, mask: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, TouchScale, Layout]:
+    return _prepare(
+        window,
+        view.get("calibrated"),
+        view.get("profile", STAG_GLOVE),
+        view.get("scale", SCALE),
+        view.get("max_frames", MAX_FRAMES),
+        gap,
+        view.get("columns"),
+        mask,
+    )
+
+
 def window_rgba(
-    window: Any,
-    *,
-    calibrated: bool | None = None,
-    profile: SensorProfile = STAG_GLOVE,
-    scale: int = SCALE,
-    max_frames: int = MAX_FRAMES,
-    gap: int = GAP,
-    columns: int | None = None,
-    mask: np.ndarray | None = None,
+    window: Any, *, gap: int = GAP, mask: np.ndarray | None = None, **view: Unpack[View]
 ) -> np.ndarray:
     """(H, W, 4) uint8, opaque: the frames (one row, or ``columns`` per row) with grey lines
     between them, unused taxels in the background colour. No colour bar."""
-    frames, _, taxels, ts, layout = _prepare(
-        window, calibrated, profile, scale, max_frames, gap, columns, mask
-    )
+    frames, _, taxels, ts, layout = _prepare_view(window, view, gap, mask)
     return _paint(frames, taxels, ts, layout)
 
 
@@ -270,25 +289,14 @@ def encode_png(rgba: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def draw_window_png(
-    window: Any,
-    *,
-    calibrated: bool | None = None,
-    profile: SensorProfile = STAG_GLOVE,
-    scale: int = SCALE,
-    max_frames: int = MAX_FRAMES,
-    columns: int | None = None,
-    legend: bool = True,
-) -> bytes:
+def draw_window_png(window: Any, *, legend: bool = True, **view: Unpack[View]) -> bytes:
     """A touch window as a PNG heat map: one ``32*scale`` px image per frame (in one row, or
     ``columns`` per row), and with ``legend`` a colour bar under them.
 
     ``window``: (K, 32, 32) (or one (32, 32) frame), raw sensor units or calibrated 0..1
     (``calibrated=None`` decides from the values). See the module docstring for the scale.
     """
-    cal, _, taxels, ts, layout = _prepare(
-        window, calibrated, profile, scale, max_frames, GAP, columns, None
-    )
+    cal, _, taxels, ts, layout = _prepare_view(window, view)
     frames = _paint(cal, taxels, ts, layout)
     if not legend:
         return encode_png(frames)
@@ -301,22 +309,12 @@ def draw_window_png(
     return encode_png(out)
 
 
-def window_values(
-    window: Any,
-    *,
-    calibrated: bool | None = None,
-    profile: SensorProfile = STAG_GLOVE,
-    scale: int = SCALE,
-    max_frames: int = MAX_FRAMES,
-    columns: int | None = None,
-) -> dict[str, Any]:
+def window_values(window: Any, **view: Unpack[View]) -> dict[str, Any]:
     """The numbers behind :func:`draw_window_png` (JSON-ready): ``values`` (K', 32, 32)
     calibrated, rounded to 1e-4, of the drawn frames; ``frames`` their indices in the window;
     ``taxels`` the (32, 32) mask; ``scale`` (lo, hi, gamma, colormap); ``layout`` (columns,
     scale, gap, frame size in taxels) so a pointer position maps to (frame, row, column)."""
-    frames, picked, taxels, ts, layout = _prepare(
-        window, calibrated, profile, scale, max_frames, GAP, columns, None
-    )
+    frames, picked, taxels, ts, layout = _prepare_view(window, view)
     return {
         "values": np.round(frames, 4).tolist(),
         "frames": picked.tolist(),

@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 
 from tactus_memory.touch.augment import AugmentConfig, augment
 from tactus_memory.touch.checkpoint import load_resume, resume_path, save_checkpoint, save_resume
-from tactus_memory.touch.model import TactusModel, create_model, param_report
+from tactus_memory.touch.model import TactusModel, batched_forward, create_model, param_report
 from tactus_memory.touch.pretrain import load_pretrained_trunk, lr_at
 from tactus_memory.touch.targets import Targets, target_report
 from tactus_memory.touch.tuples import RESAMPLE_EVERY, TupleSampler
@@ -186,12 +186,7 @@ def embed_windows(
 ) -> np.ndarray:
     """windows: (B, K, 32, 32) calibrated -> (B, D) float32 unit rows."""
     model.eval()
-    outs = []
-    for s in range(0, len(windows), batch):
-        x = torch.from_numpy(np.ascontiguousarray(windows[s : s + batch], np.float32))
-        outs.append(model(x.to(device)).float().cpu().numpy())
-    d = model.cfg.out_dim
-    return np.concatenate(outs) if outs else np.zeros((0, d), np.float32)
+    return batched_forward(model, windows, batch, device, model.cfg.out_dim)
 
 
 def _topk(sim: np.ndarray, y: np.ndarray, k: int) -> float:

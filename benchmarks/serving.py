@@ -1,0 +1,76 @@
+"""``tactus serve`` in a subprocess on a free port of 127.0.0.1, shared by the benchmarks
+(``from serving import ...``, run as scripts from ``benchmarks/``) and the tests that start a
+real server (``from benchmarks.serving import ...``, the repository root on ``sys.path``)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+import httpx
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_serve(
+    port: int, data: Path | str, log: Path, *extra: str, env: Mapping[str, str] | None = None
+) -> subprocess.Popen:
+    """Start ``tactus serve --host 127.0.0.1 --port PORT --data DATA *extra`` (the installed
+    package, this interpreter), its output appended to ``log``; ``env`` is added to this
+    process's environment, after ``TACTUS_LOG_LEVEL=warning``."""
+    cmd = [
+        sys.executable,
+        "-c",
+        "from tactus_memory.cli import main; main()",
+        "serve",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--data",
+        str(data),
+        *extra,
+    ]
+    full_env = {**os.environ, "TACTUS_LOG_LEVEL": "warning", **(env or {})}
+    with log.open("ab") as fh:
+        return subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=full_env)
+
+
+def wait_ok(
+    proc: subprocess.Popen, url: str, seconds: float, interval: float = 0.3
+) -> httpx.Response | None:
+    """Poll ``GET url`` until it answers 200 and return that response; None if the process
+    exits first or ``seconds`` pass (the caller says which, and stops the process)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return None
+        try:
+            r = httpx.get(url, timeout=2)
+            if r.status_code == 200:
+                return r
+        except httpx.TransportError:
+            pass
+        time.sleep(interval)
+    return None
+
+
+def stop_process(proc: subprocess.Popen, wait_s: float = 20) -> None:
+    """SIGTERM, wait ``wait_s``, then SIGKILL (and reap) if the server is still there."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
