@@ -297,8 +297,11 @@ class Memory(TemporalQuestions):
         return self._delete(where)
 
     def delete_session(self, session: str) -> int:
-        """Delete every item of a session; returns how many rows were removed."""
-        return self._delete(Where().session(session).sql())
+        """Delete every item of a session and its clock offsets; returns the rows removed."""
+        deleted = self._delete(Where().session(session).sql())
+        for offset in self.clock_offsets(session):
+            self.set_clock_offset(session, offset.sense, 0.0, source=offset.source)
+        return deleted
 
     def _delete(self, where: str | None) -> int:
         with self.lock:

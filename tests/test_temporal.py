@@ -355,6 +355,18 @@ def test_clock_offset_aligns_streams_and_persists(tmp_path) -> None:
         mem.set_clock_offset("bad id!", "text", 1.0)
 
 
+def test_delete_session_removes_its_clock_offsets(mem: Memory) -> None:
+    """A deleted session leaves nothing behind, its clock offsets included (the library
+    does it, not only the HTTP route), and other sessions keep theirs."""
+    mem.add("gone", "text", "a note", t=1.0)
+    mem.add("kept", "text", "another note", t=1.0)
+    mem.set_clock_offset("gone", "text", 5.0)
+    mem.set_clock_offset("kept", "text", 7.0)
+    assert mem.delete_session("gone") == 1
+    assert mem.clock_offsets("gone") == []
+    assert [(o.session, o.offset) for o in mem.clock_offsets()] == [("kept", 7.0)]
+
+
 def test_clock_offset_per_source(mem: Memory) -> None:
     space = mem.space
     left = touch_vectors(space, "mug", 1, seed=1)

@@ -38,7 +38,5 @@ def get_session(session: SessionId, memory: MemoryDep) -> SessionOut:
 )
 def delete_session(session: SessionId, memory: MemoryDep) -> DeletedOut:
     memory.session(session)  # 404 when it does not exist
-    deleted = memory.delete_session(session)
-    for offset in memory.clock_offsets(session):  # everything in it: its clock offsets too
-        memory.set_clock_offset(session, offset.sense, 0.0, source=offset.source)
+    deleted = memory.delete_session(session)  # its items and its clock offsets
     return DeletedOut(id=session, deleted=deleted)
