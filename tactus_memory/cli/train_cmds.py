@@ -86,6 +86,20 @@ def train_cmd(
     positives: str = typer.Option(
         "valid", "--positives", help="valid (labelled frames) | contact (+ every contact frame)"
     ),
+    balance: str = typer.Option(
+        "none", "--balance", help="none | recording | class: how batches draw training windows"
+    ),
+    consecutive: float = typer.Option(
+        0.0, "--consecutive", help="share of training windows cut as K consecutive frames"
+    ),
+    augment: str = typer.Option("default", "--augment", help="default | strong"),
+    weight_decay: float = typer.Option(0.05, "--weight-decay", help="AdamW weight decay"),
+    input_gamma: float | None = typer.Option(
+        None, "--input-gamma", help="model input: pressure ** gamma (default: the config's)"
+    ),
+    input_blur: float | None = typer.Option(
+        None, "--input-blur", help="model input: Gaussian blur sigma, px (default: the config's)"
+    ),
 ) -> None:
     """Train the touch encoder against centred class-phrase targets embedded in the frozen
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
@@ -93,6 +107,7 @@ def train_cmd(
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
     sp = resolve_or_exit(space, space_path, space_dim)
+    from tactus_memory.touch.augment import augment_preset
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.touch.train import (
         TrainConfig,
@@ -108,7 +123,22 @@ def train_cmd(
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
     warmup = _warmup(steps)
     cfg = TrainConfig(
-        model=model, steps=steps, batch=batch, lr=lr, seed=seed, half=half, warmup=warmup
+        model=model,
+        steps=steps,
+        batch=batch,
+        lr=lr,
+        seed=seed,
+        half=half,
+        warmup=warmup,
+        balance=balance,
+        consecutive=consecutive,
+        augment=augment_preset(augment),
+        weight_decay=weight_decay,
+        model_overrides={
+            k: v
+            for k, v in (("input_gamma", input_gamma), ("input_blur", input_blur))
+            if v is not None
+        },
     )
     summary = fit(
         td, targets, cfg, out, space_dim=sp.dim, pretrained=pretrained, device=device, resume=resume

@@ -30,6 +30,28 @@ class AugmentConfig:
     shuffle: bool = True  # permute frame order within each window
     p_drop: float = 0.3  # probability a window loses frames (replaced by repeats of others)
     max_drop: int = 4  # at most this many frames replaced in a dropped window
+    taxel_drop: float = 0.0  # share of pixels zeroed per window (dead or lifted taxels)
+    # noise on unpressed (zero) pixels too; False for models that compress pressure
+    # (input_gamma < 1 turns noise of 0.015 on an empty taxel into ~0.28)
+    noise_on_zero: bool = True
+
+
+#: named settings for ``tactus train --augment``: "default" (above) and "strong" (against
+#: memorising two recordings per class: larger shifts and gain, more noise, taxel dropout)
+AUGMENT_PRESETS: dict[str, AugmentConfig] = {
+    "default": AugmentConfig(),
+    "strong": AugmentConfig(
+        max_shift=2, p_shift=0.8, gain=0.3, noise_std=0.03, p_drop=0.5, taxel_drop=0.1
+    ),
+    "pressed-noise": AugmentConfig(noise_on_zero=False),
+}
+
+
+def augment_preset(name: str) -> AugmentConfig:
+    """The named preset (a fresh copy); ValueError naming the choices for an unknown name."""
+    if name not in AUGMENT_PRESETS:
+        raise ValueError(f"augment must be one of {sorted(AUGMENT_PRESETS)}, got {name!r}")
+    return AugmentConfig(**vars(AUGMENT_PRESETS[name]))
 
 
 def _shift(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:
@@ -67,6 +89,9 @@ def augment(x: torch.Tensor, cfg: AugmentConfig, gen: torch.Generator) -> torch.
             src = kept[torch.randint(0, len(kept), (n,), generator=gen)]
             out[i, lost.to(dev)] = out[i, src.to(dev)]
     if cfg.noise_std > 0:
-        noise = torch.randn(out.shape, generator=gen) * cfg.noise_std
-        out = out + noise.to(dev)
+        noise = (torch.randn(out.shape, generator=gen) * cfg.noise_std).to(dev)
+        out = out + (noise if cfg.noise_on_zero else noise * (out > 0))
+    if cfg.taxel_drop > 0:
+        lost = torch.rand(b, 1, *out.shape[2:], generator=gen) < cfg.taxel_drop
+        out = out.masked_fill(lost.to(dev), 0.0)
     return out.clamp_(min=0.0)

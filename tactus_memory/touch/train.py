@@ -36,7 +36,7 @@ from tactus_memory.touch.checkpoint import load_resume, resume_path, save_checkp
 from tactus_memory.touch.model import TactusModel, batched_forward, create_model, param_report
 from tactus_memory.touch.pretrain import load_pretrained_trunk, lr_at
 from tactus_memory.touch.targets import Targets, target_report
-from tactus_memory.touch.tuples import RESAMPLE_EVERY, TupleSampler
+from tactus_memory.touch.tuples import RESAMPLE_EVERY, TupleSampler, consecutive_windows
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +58,13 @@ class TrainConfig:
     sampling: str = "cluster"  # "cluster" (paper) or "random" tuple companions
     resample_every: int = RESAMPLE_EVERY  # redraw training tuples every this many steps
     save_every: int = 250  # write the resume state every this many steps
+    # which training windows a batch draws: "none" = uniform over tuples (the paper), "recording"
+    # = every recording equally often, "class" = every class equally often (the weights_lite
+    # file has ~17x more labelled frames per recording than the blindfolded one)
+    balance: str = "none"
+    consecutive: float = 0.0  # share of training windows cut as K consecutive frames (stream-like)
+    model_overrides: dict[str, Any] = field(default_factory=dict)  # TactusConfig fields, e.g.
+    # {"input_gamma": 0.3, "input_blur": 1.0}; recorded in the checkpoint's model config
     half: bool = False  # store float16 weights in the final checkpoint
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
@@ -141,6 +148,13 @@ def load_data(paths: Sequence[str | os.PathLike[str]]) -> Any:
 
 
 POSITIVES = ("valid", "contact")
+BALANCE = ("none", "recording", "class")
+
+
+def draw_weights(anchor_key: np.ndarray) -> np.ndarray:
+    """(T,) group key per tuple (recording or class) -> (T,) weights, each group summing to 1."""
+    _, inv, counts = np.unique(anchor_key, return_inverse=True, return_counts=True)
+    return 1.0 / counts[inv].astype(np.float64)
 
 
 def prepare_data(data: Any, holdout: list[int], positives: str = "valid") -> TrainData:
@@ -277,10 +291,15 @@ def fit(
 
     Returns the summary written into the checkpoint's ``metrics``.
     """
+    if cfg.balance not in BALANCE:
+        raise ValueError(f"balance must be one of {BALANCE}, got {cfg.balance!r}")
+    if not 0.0 <= cfg.consecutive <= 1.0:
+        raise ValueError(f"consecutive must be in [0, 1], got {cfg.consecutive}")
     device = _resolve_device(device)
     rank, world = _ddp_setup(device)
     torch.manual_seed(cfg.seed)
-    model = create_model(cfg.model, out_dim=space_dim, frames=cfg.k).to(device)
+    model = create_model(cfg.model, out_dim=space_dim, frames=cfg.k, **cfg.model_overrides)
+    model = model.to(device)
     mae_meta = None
     if pretrained:
         mae_meta = load_pretrained_trunk(model.trunk, pretrained, model.cfg)
@@ -312,7 +331,7 @@ def fit(
         step, history = load_resume(state_path, module=model, opt=opt, gen=gen, device=device)
         log.info("resumed training at step %d", step)
 
-    tuples, epoch = None, -1
+    tuples, weights, epoch = None, None, -1
     t0, ema_loss, ema_acc = time.perf_counter(), None, None
     steps_this_run = 0
     bar = tqdm(total=cfg.steps, initial=step, desc="train", disable=not progress or rank != 0)
@@ -320,10 +339,21 @@ def fit(
     while step < cfg.steps:
         if step // cfg.resample_every != epoch:  # redraw tuples (deterministic per epoch)
             epoch = step // cfg.resample_every
-            tuples = torch.from_numpy(sampler.sample(np.random.default_rng([cfg.seed, epoch])))
+            rng = np.random.default_rng([cfg.seed, epoch])
+            drawn = sampler.sample(rng)  # (T, K)
+            if cfg.consecutive > 0:
+                swap = rng.random(len(drawn)) < cfg.consecutive
+                drawn[swap] = consecutive_windows(drawn[swap, 0], data.recording_id, cfg.k, rng)
+            tuples = torch.from_numpy(drawn)
+            if cfg.balance != "none":
+                key = data.labels if cfg.balance == "class" else data.recording_id
+                weights = torch.from_numpy(draw_weights(key[drawn[:, 0]]))
         for g in opt.param_groups:
             g["lr"] = lr_at(step, cfg.steps, cfg.warmup, cfg.lr)
-        rows = torch.randint(0, len(tuples), (cfg.batch,), generator=gen)
+        if cfg.balance == "none":
+            rows = torch.randint(0, len(tuples), (cfg.batch,), generator=gen)
+        else:
+            rows = torch.multinomial(weights, cfg.batch, replacement=True, generator=gen)
         idx = tuples[rows]  # (B, K)
         x = augment(frames[idx], cfg.augment, gen).to(device)  # (B, K, 32, 32)
         y = labels[idx[:, 0]].to(device)

@@ -234,3 +234,26 @@ class TupleSampler:
         if n_take == need:
             return comp
         return np.concatenate([comp, self._fill(members, t, need - n_take, rng)], axis=1)
+
+
+def consecutive_windows(
+    anchors: np.ndarray, recording_id: np.ndarray, k: int, rng: np.random.Generator
+) -> np.ndarray:
+    """(T,) anchor frame indices -> (T, k) runs of k consecutive frames that hold the anchor.
+
+    The stream's kind of window (``touch/windows.py``: consecutive frames of one recording),
+    drawn for training. Frames must be stored recording by recording in time order (as
+    ``StagData`` keeps them); the run is placed at a random offset around its anchor and
+    clipped to the anchor's recording; a recording shorter than k repeats its last frame.
+    """
+    rec = np.asarray(recording_id, dtype=np.int64).reshape(-1)
+    a = np.asarray(anchors, dtype=np.int64).reshape(-1)
+    # first/last frame index of each anchor's recording (recordings are contiguous runs)
+    starts = np.searchsorted(rec, rec[a], side="left")
+    ends = np.searchsorted(rec, rec[a], side="right") - 1
+    if np.any(rec[starts] != rec[a]) or np.any(np.diff(rec) < 0):
+        raise InvalidInputError("consecutive windows need frames sorted by recording")
+    s = a - rng.integers(0, k, size=a.size)
+    s = np.clip(s, starts, np.maximum(starts, ends - k + 1))
+    out = s[:, None] + np.arange(k)[None, :]
+    return np.minimum(out, ends[:, None])
