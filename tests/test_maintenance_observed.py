@@ -7,9 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
 from tactus_memory.store import IndexConfig
-from tests.fakes import HashingSpace
+from tests.motion import MOTION_DIM, motion_memory
 
 
 def _fragments(mem: Memory) -> int:
@@ -18,10 +17,9 @@ def _fragments(mem: Memory) -> int:
 
 def test_background_thread_compacts_and_indexes(tmp_path) -> None:
     cfg = IndexConfig(threshold=240, scalar_threshold=120, rows_per_partition=60, compact_every=8)
-    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(), index=cfg, background=True)
-    mem.add_sense(VectorSense("motion", dim=64))
+    mem = motion_memory(tmp_path / "m", cfg, background=True)
     rng = np.random.default_rng(5)
-    vecs = rng.standard_normal((300, 64)).astype(np.float32)
+    vecs = rng.standard_normal((300, MOTION_DIM)).astype(np.float32)
     # seven single-row appends: seven small fragments, below compact_every: nothing runs yet
     for i in range(7):
         mem.add("s1", "motion", vecs[i], t=float(i))

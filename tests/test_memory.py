@@ -24,6 +24,7 @@ from tactus_memory.errors import (
 from tactus_memory.memory import Memory
 from tactus_memory.senses import Sense, VectorSense
 from tests.fakes import HashingSpace
+from tests.motion import MOTION_DIM, motion_memory
 from tests.threads import run_threads
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -331,10 +332,9 @@ def test_background_index_and_compaction(tmp_path) -> None:
     from tactus_memory.store import IndexConfig
 
     cfg = IndexConfig(threshold=300, scalar_threshold=150, rows_per_partition=100, compact_every=4)
-    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(), index=cfg, background=False)
-    mem.add_sense(VectorSense("motion", dim=64))
+    mem = motion_memory(tmp_path / "m", cfg, background=False)
     rng = np.random.default_rng(2)
-    vecs = rng.standard_normal((400, 64)).astype(np.float32)
+    vecs = rng.standard_normal((400, MOTION_DIM)).astype(np.float32)
     for k in range(4):
         mem.add_many("s1", "motion", list(vecs[k * 100 : (k + 1) * 100]), t=list(range(100)))
         if k == 1:  # 200 rows: scalar indexes yes, ANN index not yet
@@ -481,14 +481,13 @@ def test_index_deltas_are_bounded(tmp_path) -> None:
     from tactus_memory.store import IndexConfig
 
     cfg = IndexConfig(threshold=200, rows_per_partition=100, compact_every=1, max_deltas=2)
-    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(), index=cfg, background=False)
-    mem.add_sense(VectorSense("motion", dim=64))
+    mem = motion_memory(tmp_path / "m", cfg, background=False)
     rng = np.random.default_rng(4)
-    mem.add_many("s1", "motion", list(rng.standard_normal((250, 64))))
+    mem.add_many("s1", "motion", list(rng.standard_normal((250, MOTION_DIM))))
     assert mem.store.vector_deltas() == 1
     seen = []
     for _ in range(4):
-        mem.add_many("s1", "motion", list(rng.standard_normal((5, 64))))
+        mem.add_many("s1", "motion", list(rng.standard_normal((5, MOTION_DIM))))
         seen.append(mem.store.vector_deltas())
     assert max(seen) == 3 and min(seen[1:]) <= 2  # grew to 3, then was retrained
     assert all(d <= cfg.max_deltas + 1 for d in seen)

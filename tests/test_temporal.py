@@ -1,9 +1,10 @@
 """Temporal operators, moments, episodes and clock offsets, fast: HashingSpace at the space seam,
 a VectorSense "touch" stand-in with controlled vectors, real LanceDB files in tmp_path.
 
-Ground truth (session "kitchen", seconds): three mug grasps at 10, 40 and 70 (two 1 s touch
-windows each), a screwdriver grasp at 55, an empty hand in between; notes "picked up the mug"
-just after each mug grasp, "picked up the screwdriver" at 57.5, "dropped the can" at 90.
+Ground truth (tests/kitchen.py; session "kitchen", seconds): three mug grasps at 10, 40 and 70
+(two 1 s touch windows each), a screwdriver grasp at 55, an empty hand in between; notes
+"picked up the mug" 2.5 s after each mug grasp starts, "picked up the screwdriver" at 57.5,
+"dropped the can" at 90.
 """
 
 from __future__ import annotations
@@ -24,34 +25,16 @@ from tactus_memory.temporal import (
     resolve_thresholds,
 )
 from tests.fakes import HashingSpace
+from tests.kitchen import IDLE, MUG_GRASPS, SCREW_GRASP, S, kitchen_notes, near_caption
 
-S = "kitchen"
-MUG_GRASPS = [10.0, 40.0, 70.0]
-SCREW_GRASP = 55.0
-IDLE = [0.0, 5.0, 20.0, 25.0, 30.0, 50.0, 60.0, 80.0, 85.0, 95.0]
-NOTES = [
-    ("the operator said hello", 2.0),
-    ("picked up the mug", 12.5),
-    ("wiped the table with a sponge", 30.0),
-    ("picked up the mug", 42.5),
-    ("picked up the screwdriver", 57.5),
-    ("picked up the mug", 72.5),
-    ("dropped the can", 90.0),
-]
+NOTES = kitchen_notes(delay=2.5)
 #: what each stand-in touch window "feels like": its vector is this caption's embedding + noise
 FEEL = {"mug": "mug ceramic handle", "screwdriver": "screwdriver grip", "empty": "empty open hand"}
 
 
 def touch_vectors(space: HashingSpace, kind: str, n: int, seed: int) -> list[np.ndarray]:
     """n unit vectors near the caption of ``kind`` (noise of norm 0.1, seeded)."""
-    rng = np.random.default_rng(seed)
-    base = space.embed_texts([FEEL[kind]])[0]
-    out = []
-    for _ in range(n):
-        g = rng.standard_normal(space.dim)
-        v = base + 0.1 * g / np.linalg.norm(g)
-        out.append((v / np.linalg.norm(v)).astype(np.float32))
-    return out
+    return near_caption(space, FEEL[kind], n, seed, noise=0.1)
 
 
 def fill_kitchen(mem: Memory, session: str = S, *, notes_clock: float = 0.0) -> dict[str, list]:
@@ -248,12 +231,6 @@ def test_timeline_in_time_order_with_filters(kitchen) -> None:
     assert len(mem.timeline(S, limit=3)) == 3
     # overlap semantics: a window [9.5?]: the 10-11 window overlaps [10.5, 10.6]
     assert [i.t for i in mem.timeline(S, after=10.5, before=10.6)] == [10.0]
-    with pytest.raises(NotFoundError):
-        mem.timeline("nope")
-    with pytest.raises(InvalidIdError):
-        mem.timeline("bad id!")
-    with pytest.raises(InvalidInputError):
-        mem.timeline(S, limit=0)
 
 
 # --------------------------------------------------------------------------- episodes
@@ -286,10 +263,22 @@ def test_timeline_episodes_segments_on_demand_and_after_new_rows(mem: Memory) ->
     eps = mem.timeline(S, senses=["touch"], episodes=True, after=99.0)
     assert [(e.t, e.n) for e in eps] == [(100.0, 2)]
     assert mem.segment_episodes() > 0  # every session
-    with pytest.raises(NotFoundError):
-        mem.segment_episodes("nope")
-    with pytest.raises(InvalidInputError):
-        mem.segment_episodes(S, min_cos=2.0)
+
+
+@pytest.mark.parametrize(
+    ("call", "error"),
+    [
+        (lambda mem: mem.timeline("nope"), NotFoundError),
+        (lambda mem: mem.timeline("bad id!"), InvalidIdError),
+        (lambda mem: mem.timeline(S, limit=0), InvalidInputError),
+        (lambda mem: mem.segment_episodes("nope"), NotFoundError),
+        (lambda mem: mem.segment_episodes(S, min_cos=2.0), InvalidInputError),
+    ],
+    ids=["timeline-unknown", "timeline-bad-id", "timeline-limit-0", "segment-unknown", "min-cos"],
+)
+def test_timeline_and_episodes_refuse_bad_input(kitchen, call, error) -> None:
+    with pytest.raises(error):
+        call(kitchen[0])
 
 
 # --------------------------------------------------------------------------- moments

@@ -2,9 +2,9 @@
 VectorSense stand-in (MiniLM embeddings of what each grasp feels like) or, when the shipped
 checkpoint is present, the real ``TactusEncoder`` on real STAG windows (never copied here).
 
-Ground truth as in tests/test_temporal.py: mug grasps at 10, 40, 70 s, a screwdriver at 55 s,
-an empty hand in between; notes "picked up the mug" just after each mug grasp, "picked up the
-screwdriver" at 57.5 s, "dropped the can" at 90 s.
+Ground truth: the kitchen session of tests/kitchen.py (mug grasps at 10, 40, 70 s, a
+screwdriver at 55 s, an empty hand in between), its notes 1.5 s after each grasp starts, and
+two unrelated notes at 100 and 110 s.
 """
 
 from __future__ import annotations
@@ -15,21 +15,12 @@ import pytest
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
 from tactus_memory.temporal import MATCH_Z
+from tests.kitchen import IDLE, MUG_GRASPS, SCREW_GRASP, S, kitchen_notes, near_caption
 
 pytestmark = pytest.mark.slow
 
-S = "kitchen"
-MUG = [10.0, 40.0, 70.0]
-SCREW = 55.0
-IDLE = [0.0, 5.0, 20.0, 25.0, 30.0, 50.0, 60.0, 80.0, 85.0, 95.0]
 NOTES = [
-    ("the operator said hello", 2.0),
-    ("picked up the mug", 11.5),
-    ("wiped the table with a sponge", 30.0),
-    ("picked up the mug", 41.5),
-    ("picked up the screwdriver", 56.5),
-    ("picked up the mug", 71.5),
-    ("dropped the can", 90.0),
+    *kitchen_notes(delay=1.5),
     ("charging the battery", 100.0),
     ("folded a towel", 110.0),
 ]
@@ -49,14 +40,7 @@ WINDOW_S = 1.1
 
 
 def stand_in(space, kind: str, n: int, seed: int) -> list[np.ndarray]:
-    rng = np.random.default_rng(seed)
-    base = space.embed_texts([FEEL[kind]])[0]
-    out = []
-    for _ in range(n):
-        g = rng.standard_normal(space.dim)
-        v = base + 0.05 * g / np.linalg.norm(g)
-        out.append((v / np.linalg.norm(v)).astype(np.float32))
-    return out
+    return near_caption(space, FEEL[kind], n, seed, noise=0.05)
 
 
 def add_notes(mem: Memory) -> list[str]:
@@ -66,7 +50,7 @@ def add_notes(mem: Memory) -> list[str]:
 def add_touch(mem: Memory, windows: dict[str, list]) -> dict[str, list[str]]:
     """windows: kind -> items (mug: 3, screwdriver: 1, empty: len(IDLE))."""
     ids = {}
-    for kind, times in (("mug", MUG), ("screwdriver", [SCREW]), ("empty", IDLE)):
+    for kind, times in (("mug", MUG_GRASPS), ("screwdriver", [SCREW_GRASP]), ("empty", IDLE)):
         ids[kind] = mem.add_many(
             S, "touch", windows[kind], t=times, t_end=[t + WINDOW_S for t in times]
         )
@@ -93,7 +77,7 @@ def test_real_count_last_first(real) -> None:
     mem, ids = real
     occ = mem.occurrences("picked up the mug", session=S)
     assert occ.count == 3
-    assert [m.t for m in occ.moments] == MUG
+    assert [m.t for m in occ.moments] == MUG_GRASPS
     assert all(m.senses == ["text", "touch"] for m in occ.moments)
     assert mem.count("picked up the mug", senses=["text"]) == 3
     assert mem.count("picked up the mug", senses=["touch"]) == 3
@@ -132,7 +116,7 @@ def test_real_before_after_moments_episodes(real) -> None:
     assert ctx.anchor.id == ids["screwdriver"][0]
     assert [i.t for i in ctx.items] == [56.5, 60.0, 70.0, 71.5]
     moments = mem.search("picked up the mug", k=3, group="moment")
-    assert sorted(m.t for m in moments) == MUG
+    assert sorted(m.t for m in moments) == MUG_GRASPS
     assert all(m.senses == ["text", "touch"] for m in moments)
     eps = mem.timeline(S, senses=["touch"], episodes=True)
     assert [e.t for e in eps] == [0.0, 10.0, 20.0, 40.0, 50.0, 55.0, 60.0, 70.0, 80.0, 95.0]
@@ -161,7 +145,7 @@ def _stag_grasps(stag_dir, k: int) -> dict[str, list[list[np.ndarray]]]:
         return out[:n]
 
     return {
-        "mug": grasps("mug", len(MUG)),
+        "mug": grasps("mug", len(MUG_GRASPS)),
         "screwdriver": grasps("screw_driver", 1),
         "empty": grasps("empty_hand", len(IDLE_REAL)),
     }
@@ -178,7 +162,7 @@ def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) ->
     add_notes(mem)
     real = _stag_grasps(stag_dir, enc.frames)
     ids: dict[str, list[str]] = {"mug": [], "screwdriver": [], "empty": []}
-    for kind, times in (("mug", MUG), ("screwdriver", [SCREW]), ("empty", IDLE_REAL)):
+    for kind, times in (("mug", MUG_GRASPS), ("screwdriver", [SCREW_GRASP]), ("empty", IDLE_REAL)):
         for t0, pair in zip(times, real[kind], strict=True):
             ids[kind] += mem.add_many(
                 S, "touch", pair, t=[t0, t0 + WINDOW_S], t_end=[t0 + WINDOW_S, t0 + 2 * WINDOW_S]
@@ -186,9 +170,11 @@ def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) ->
     # touch alone: the three mug grasps match object words, as three occurrences
     for q in ["a mug", "holding a coffee mug"]:
         occ = mem.occurrences(q, senses=["touch"])
-        assert [m.t for m in occ.moments] == MUG, q
+        assert [m.t for m in occ.moments] == MUG_GRASPS, q
         assert {h.id for m in occ.moments for h in m.hits} <= set(ids["mug"])
-    assert [m.t for m in mem.occurrences("a screwdriver", senses=["touch"]).moments] == [SCREW]
+    assert [m.t for m in mem.occurrences("a screwdriver", senses=["touch"]).moments] == [
+        SCREW_GRASP
+    ]
     assert mem.count("an empty hand", senses=["touch"]) == len(IDLE_REAL)
     # irrelevant queries match no touch window (and no note)
     for q in IRRELEVANT:
@@ -196,7 +182,7 @@ def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) ->
         assert mem.count(q) == 0, q
     # a real touch window and the note written about it form one moment / one occurrence
     moments = mem.search("picked up the mug", k=3, group="moment")
-    assert sorted(m.t for m in moments) == MUG
+    assert sorted(m.t for m in moments) == MUG_GRASPS
     assert all(m.senses == ["text", "touch"] for m in moments)
     assert mem.count("picked up the mug") == 3
     last = mem.last("picked up the mug")  # the third grasp, by its window or its note
@@ -205,4 +191,6 @@ def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) ->
     assert [i.t for i in ctx.items] == [70.0, 71.1, 80.0, 81.1]
     # episodes: each grasp's two windows are one episode, the gaps split the rest
     eps = mem.timeline(S, senses=["touch"], episodes=True)
-    assert [(e.t, e.n) for e in eps] == [(t, 2) for t in sorted(MUG + [SCREW] + IDLE_REAL)]
+    assert [(e.t, e.n) for e in eps] == [
+        (t, 2) for t in sorted(MUG_GRASPS + [SCREW_GRASP] + IDLE_REAL)
+    ]

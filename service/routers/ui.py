@@ -15,7 +15,7 @@ from pathlib import Path as FsPath
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, HTTPException, Path, Query
+from fastapi import APIRouter, Depends, HTTPException, Path, Query
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
@@ -52,6 +52,17 @@ Columns = Annotated[
     int | None, Query(ge=1, le=64, description="Frames per row (default: all in one row).")
 ]
 Legend = Annotated[bool, Query(description="Draw the colour bar under the frames.")]
+
+
+def _layout(
+    scale: Scale = SCALE, max_frames: MaxFrames = MAX_FRAMES, columns: Columns = None
+) -> View:
+    """How the query asks a window to be drawn (the same three parameters on every heat map)."""
+    return View(scale=scale, max_frames=max_frames, columns=columns)
+
+
+#: ``scale``, ``max_frames`` and ``columns`` from the query, as drawing keywords
+LayoutDep = Annotated[View, Depends(_layout)]
 
 
 # ----------------------------------------------------------------------------- the page
@@ -114,26 +125,19 @@ def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, Se
     return window, calibrated, _profile(memory, item.sense)
 
 
-def _item_view(
-    memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
-) -> tuple[np.ndarray, View]:
+def _item_view(memory: Any, item_id: str, layout: View) -> tuple[np.ndarray, View]:
     """The item's window and how to draw it (for draw_window_png and window_values)."""
     window, calibrated, profile = _item_window(memory, item_id)
-    view = View(calibrated=calibrated, profile=profile, scale=scale, max_frames=max_frames)
-    return window, View(**view, columns=columns)
+    return window, View(**layout, calibrated=calibrated, profile=profile)
 
 
-def _item_png(
-    memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None, legend: bool
-) -> bytes:
-    window, view = _item_view(memory, item_id, scale, max_frames, columns)
+def _item_png(memory: Any, item_id: str, layout: View, legend: bool) -> bytes:
+    window, view = _item_view(memory, item_id, layout)
     return draw_window_png(window, legend=legend, **view)
 
 
-def _item_values(
-    memory: Any, item_id: str, scale: int, max_frames: int, columns: int | None
-) -> dict[str, Any]:
-    window, view = _item_view(memory, item_id, scale, max_frames, columns)
+def _item_values(memory: Any, item_id: str, layout: View) -> dict[str, Any]:
+    window, view = _item_view(memory, item_id, layout)
     return window_values(window, **view)
 
 
@@ -156,12 +160,10 @@ async def touch_png(
         Path(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Item id. " + ID_DESCRIPTION),
     ],
     memory: MemoryDep,
-    scale: Scale = SCALE,
-    max_frames: MaxFrames = MAX_FRAMES,
-    columns: Columns = None,
+    layout: LayoutDep,
     legend: Legend = True,
 ) -> Response:
-    png = await run_in_threadpool(_item_png, memory, item_id, scale, max_frames, columns, legend)
+    png = await run_in_threadpool(_item_png, memory, item_id, layout, legend)
     return _png(png)
 
 
@@ -181,11 +183,9 @@ async def touch_json(
         str, Path(pattern=ID_PATTERN, max_length=128, description="Item id. " + ID_DESCRIPTION)
     ],
     memory: MemoryDep,
-    scale: Scale = SCALE,
-    max_frames: MaxFrames = MAX_FRAMES,
-    columns: Columns = None,
+    layout: LayoutDep,
 ) -> dict[str, Any]:
-    return await run_in_threadpool(_item_values, memory, item_id, scale, max_frames, columns)
+    return await run_in_threadpool(_item_values, memory, item_id, layout)
 
 
 class RenderIn(Strict):
@@ -206,19 +206,11 @@ class RenderIn(Strict):
 )
 async def render_touch_png(
     body: RenderIn,
-    scale: Scale = SCALE,
-    max_frames: MaxFrames = MAX_FRAMES,
-    columns: Columns = None,
+    layout: LayoutDep,
     legend: Legend = True,
 ) -> Response:
     window = as_window(body.frames)
     png = await run_in_threadpool(
-        draw_window_png,
-        window,
-        calibrated=body.calibrated,
-        scale=scale,
-        max_frames=max_frames,
-        columns=columns,
-        legend=legend,
+        draw_window_png, window, calibrated=body.calibrated, legend=legend, **layout
     )
     return _png(png)

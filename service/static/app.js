@@ -107,17 +107,28 @@ function cssIdent(s) {
   return String(s).toLowerCase().replace(/[^a-z0-9_-]/g, "-");
 }
 
-function metaList(meta) {
-  const entries = Object.entries(meta || {});
-  if (!entries.length) return null;
+// A stored value as text: strings as they are, anything else as JSON.
+function fmtValue(v) {
+  return typeof v === "string" ? v : JSON.stringify(v);
+}
+
+// <dl class="cls"> with one dt/dd per [label, value] pair; null pairs are left out.
+function defList(cls, pairs) {
   return h(
     "dl",
-    { class: "meta" },
-    entries.flatMap(([k, v]) => [
-      h("dt", {}, k),
-      h("dd", {}, typeof v === "string" ? v : JSON.stringify(v)),
-    ]),
+    { class: cls },
+    pairs.filter(Boolean).flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, v)]),
   );
+}
+
+// An item's meta as [key, text] pairs.
+function metaEntries(meta) {
+  return Object.entries(meta || {}).map(([k, v]) => [k, fmtValue(v)]);
+}
+
+function metaList(meta) {
+  const entries = metaEntries(meta);
+  return entries.length ? defList("meta", entries) : null;
 }
 
 // ------------------------------------------------------------------------------ heat maps
@@ -352,7 +363,7 @@ function flatEntries(obj, prefix = "") {
   return Object.entries(obj || {}).flatMap(([k, v]) =>
     v && typeof v === "object" && !Array.isArray(v)
       ? flatEntries(v, `${prefix}${k}.`)
-      : [[`${prefix}${k}`, v === "" || v === null ? "—" : typeof v === "string" ? v : JSON.stringify(v)]],
+      : [[`${prefix}${k}`, v === "" || v === null ? "—" : fmtValue(v)]],
   );
 }
 
@@ -366,27 +377,16 @@ function renderSenses() {
         "article",
         { class: "sense-card" },
         h("h3", {}, senseBadge(s.name), " ", s.modality),
-        h(
-          "dl",
-          { class: "meta" },
-          h("dt", {}, "dimension"),
-          h("dd", {}, s.dim),
-          h("dt", {}, "stored items"),
-          h("dd", {}, s.rows),
-          h("dt", {}, "live"),
-          h("dd", {}, s.live ? "yes: can embed new items" : "no: known from the store only"),
+        defList("meta", [
+          ["dimension", s.dim],
+          ["stored items", s.rows],
+          ["live", s.live ? "yes: can embed new items" : "no: known from the store only"],
           s.mu !== null && s.mu !== undefined
-            ? [h("dt", {}, "score calibration"), h("dd", {}, `μ ${s.mu.toFixed(3)}, σ ${s.sigma.toFixed(3)}`)]
+            ? ["score calibration", `μ ${s.mu.toFixed(3)}, σ ${s.sigma.toFixed(3)}`]
             : null,
-        ),
+        ]),
         h("h4", {}, "Provenance"),
-        prov.length
-          ? h(
-              "dl",
-              { class: "meta provenance" },
-              prov.flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, v)]),
-            )
-          : h("p", { class: "muted" }, "none recorded"),
+        prov.length ? defList("meta provenance", prov) : h("p", { class: "muted" }, "none recorded"),
       ),
     );
   }
@@ -970,23 +970,14 @@ function showEvidence(p) {
     p.text ? h("blockquote", { class: "hit-text" }, p.text) : "",
     isTouch(p) ? heatmap(p.id, touchLabel(p)) : "",
     isImage(p) ? thumbnail(p.id, imageLabel(p)) : "",
-    h(
-      "dl",
-      { class: "meta" },
-      h("dt", {}, "item"),
-      h("dd", {}, p.id),
-      h("dt", {}, "session"),
-      h("dd", {}, p.session),
-      p.source ? [h("dt", {}, "source"), h("dd", {}, p.source)] : null,
-      p.t_stored !== undefined && p.t_stored !== p.t
-        ? [h("dt", {}, "stored t"), h("dd", {}, fmtT(p.t_stored))]
-        : null,
-      Object.entries(p.meta || {}).flatMap(([k, v]) => [
-        h("dt", {}, k),
-        h("dd", {}, typeof v === "string" ? v : JSON.stringify(v)),
-      ]),
-      prov.length ? [h("dt", {}, "encoder"), h("dd", {}, prov.map(([k, v]) => `${k}: ${typeof v === "string" ? v : JSON.stringify(v)}`).join("; "))] : null,
-    ),
+    defList("meta", [
+      ["item", p.id],
+      ["session", p.session],
+      p.source ? ["source", p.source] : null,
+      p.t_stored !== undefined && p.t_stored !== p.t ? ["stored t", fmtT(p.t_stored)] : null,
+      ...metaEntries(p.meta),
+      prov.length ? ["encoder", prov.map(([k, v]) => `${k}: ${fmtValue(v)}`).join("; ")] : null,
+    ]),
   );
   $("#evidence-title").textContent = `Evidence: ${p.sense} at ${fmtSpan(p.t, p.t_end)}`;
   $("#evidence").hidden = false;

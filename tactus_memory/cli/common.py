@@ -1,11 +1,74 @@
-"""Helpers shared by the command modules."""
+"""Helpers shared by the command modules, and the options several commands declare alike.
+
+Options are ``Annotated`` aliases (as in :mod:`tactus_memory.cli.space_opts`): a command
+declares ``seed: Seed = 0`` and keeps its own default; the flag and its help live here once.
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
 import typer
 
-#: ``--data``, shared by every command that reads STAG files
-DATA_OPTION = typer.Option(..., "--data", help="STAG metadata.mat or folder; repeat")
+#: ``--data``, shared by every command that reads STAG files (required)
+StagFiles = Annotated[
+    list[Path], typer.Option("--data", help="STAG metadata.mat or folder; repeat")
+]
+
+# ----------------------------------------------------------------------------- a memory store
+#: ``--data`` of the commands that open a memory store (search, sessions, ingest, export)
+MemoryData = Annotated[
+    str | None,
+    typer.Option(
+        "--data",
+        help="Memory location: a directory or s3:// gs:// az:// URI (default $TACTUS_DATA or "
+        "./memory).",
+    ),
+]
+#: ``--data`` of the long-running processes (serve, maintain), whose settings read TACTUS_DATA
+ServiceData = Annotated[
+    str | None,
+    typer.Option("--data", help="Memory directory or URI (s3://, gs://, az://) (env TACTUS_DATA)."),
+]
+
+# ----------------------------------------------------------------------------- training
+#: torch's CPU threads for the command (each command sets its own default)
+Threads = Annotated[int, typer.Option("--threads", help="torch CPU threads (0: torch default)")]
+Seed = Annotated[int, typer.Option("--seed")]
+LearningRate = Annotated[float, typer.Option("--lr")]
+#: the checkpoint a training command writes (tactus train, tactus baseline train; required)
+CheckpointOut = Annotated[Path, typer.Option("--out", help="checkpoint to write (.safetensors)")]
+Resume = Annotated[bool, typer.Option("--resume", help="continue from OUT.resume.pt")]
+#: the recordings ``tactus pretrain`` and ``tactus train`` keep out (the grammar of
+#: :func:`tactus_memory.touch.train.holdout_recordings`)
+TrainHoldout = Annotated[
+    str,
+    typer.Option(
+        "--holdout",
+        help="recordings kept out of training (and pretraining) and scored: none | "
+        "one-per-object@SUBSTR (per object, the lowest-id recording with valid frames in the "
+        "--data file whose path contains SUBSTR) | recordings@NAME,NAME",
+    ),
+]
+#: the recordings ``tactus eval`` and ``tactus baseline eval`` score
+ScoredHoldout = Annotated[
+    str | None,
+    typer.Option(
+        "--holdout",
+        help="score exactly the recordings a `tactus train --holdout SPEC` run held out (same "
+        "grammar: none | one-per-object@SUBSTR | recordings@NAME,NAME); replaces --split. Pass "
+        "the same --data files in the same order as the training run",
+    ),
+]
+Split = Annotated[
+    str,
+    typer.Option(
+        "--split",
+        help="test: each file's 'test' frames (a file without splits, e.g. weights, is scored "
+        "whole); all: every valid frame",
+    ),
+]
 
 
 def set_threads(n: int) -> None:

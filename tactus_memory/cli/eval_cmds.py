@@ -5,23 +5,22 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import DATA_OPTION, set_threads
+from tactus_memory.cli.common import (
+    CheckpointOut,
+    LearningRate,
+    ScoredHoldout,
+    Seed,
+    Split,
+    StagFiles,
+    Threads,
+    set_threads,
+)
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail, space_choice
-
-HOLDOUT_HELP = (
-    "score exactly the recordings a `tactus train --holdout SPEC` run held out (same grammar: "
-    "none | one-per-object@SUBSTR | recordings@NAME,NAME); replaces --split. Pass the same "
-    "--data files in the same order as the training run"
-)
-SPLIT_HELP = (
-    "test: each file's 'test' frames (a file without splits, e.g. weights, is scored whole); "
-    "all: every valid frame"
-)
 
 baseline_app = typer.Typer(
     help="The supervised STAG CNN (closed-set reference), trained and scored like Tactus.",
@@ -63,12 +62,15 @@ def _write_outputs(
 
 @app.command("eval")
 def eval_cmd(
-    checkpoint: list[str] = typer.Option(
-        ..., "--checkpoint", help="Tactus or baseline .safetensors, or 'default'; repeat for runs"
-    ),
-    data: list[Path] = DATA_OPTION,
-    split: str = typer.Option("test", "--split", help=SPLIT_HELP),
-    holdout: str | None = typer.Option(None, "--holdout", help=HOLDOUT_HELP),
+    checkpoint: Annotated[
+        list[str],
+        typer.Option(
+            "--checkpoint", help="Tactus or baseline .safetensors, or 'default'; repeat for runs"
+        ),
+    ],
+    data: StagFiles,
+    split: Split = "test",
+    holdout: ScoredHoldout = None,
     votes: int = typer.Option(4, "--votes", help="independent tuple draws pooled for *_vote"),
     seed: int | None = typer.Option(None, "--seed", help="tiling seed (default 1234, as train)"),
     json_out: Path = typer.Option(..., "--json", help="write the metrics JSON here"),
@@ -77,7 +79,7 @@ def eval_cmd(
         [], "--compare", help="other eval JSONs (e.g. the baseline's) as rows of the table"
     ),
     analysis: bool = typer.Option(True, "--analysis/--no-analysis", help="confusion analyses"),
-    threads: int = typer.Option(1, "--threads", help="torch CPU threads (0: torch default)"),
+    threads: Threads = 1,
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
@@ -138,17 +140,17 @@ def eval_cmd(
 
 @baseline_app.command("train")
 def baseline_train_cmd(
-    data: list[Path] = DATA_OPTION,
-    out: Path = typer.Option(..., "--out", help="checkpoint to write (.safetensors)"),
+    data: StagFiles,
+    out: CheckpointOut,
     holdout: str = typer.Option("none", "--holdout", help="recordings kept out (train's grammar)"),
     epochs: int = typer.Option(30, "--epochs", help="passes over the training tuples"),
     max_steps: int | None = typer.Option(None, "--max-steps", help="cap on optimizer steps"),
     batch: int = typer.Option(32, "--batch"),
-    lr: float = typer.Option(1e-3, "--lr"),
-    seed: int = typer.Option(0, "--seed"),
+    lr: LearningRate = 1e-3,
+    seed: Seed = 0,
     sampling: str = typer.Option("cluster", "--sampling", help="cluster | random"),
     k: int = typer.Option(8, "--k", help="frames per tuple (reference: 8)"),
-    threads: int = typer.Option(1, "--threads", help="torch CPU threads (0: torch default)"),
+    threads: Threads = 1,
 ) -> None:
     """Train the STAG reference CNN on the non-held-out frames; the last epoch is saved (no
     model selection). With --holdout, the held-out recordings are scored afterwards."""
@@ -176,10 +178,10 @@ def baseline_train_cmd(
 
 @baseline_app.command("eval")
 def baseline_eval_cmd(
-    checkpoint: list[str] = typer.Option(..., "--checkpoint", help="baseline .safetensors"),
-    data: list[Path] = DATA_OPTION,
-    split: str = typer.Option("test", "--split", help=SPLIT_HELP),
-    holdout: str | None = typer.Option(None, "--holdout", help=HOLDOUT_HELP),
+    checkpoint: Annotated[list[str], typer.Option("--checkpoint", help="baseline .safetensors")],
+    data: StagFiles,
+    split: Split = "test",
+    holdout: ScoredHoldout = None,
     votes: int = typer.Option(4, "--votes"),
     seed: int | None = typer.Option(None, "--seed"),
     json_out: Path = typer.Option(..., "--json"),
@@ -200,7 +202,7 @@ def baseline_eval_cmd(
 
 @app.command("ablate")
 def ablate_cmd(
-    data: list[Path] = DATA_OPTION,
+    data: StagFiles,
     json_out: Path = typer.Option(..., "--json", help="write the ablation table JSON here"),
     steps: int = typer.Option(300, "--steps", help="training steps per run"),
     pretrain_steps: int | None = typer.Option(

@@ -16,14 +16,12 @@ from typing import Annotated
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.common import ServiceData
 
 
 @app.command()
 def maintain(
-    data: Annotated[
-        str | None,
-        typer.Option(help="Memory directory or URI (s3://, gs://, az://) (env TACTUS_DATA)."),
-    ] = None,
+    data: ServiceData = None,
     once: Annotated[bool, typer.Option("--once", help="Run one pass and exit.")] = False,
     interval: Annotated[
         float | None,

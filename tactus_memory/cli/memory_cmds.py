@@ -8,20 +8,21 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.common import MemoryData
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 
 if TYPE_CHECKING:
-    from tactus_memory.memory import Memory
+    from pydantic import BaseModel
+    from rich.console import OverflowMethod
 
-DATA_HELP = (
-    "Memory location: a directory or s3:// gs:// az:// URI (default $TACTUS_DATA or ./memory)."
-)
+    from tactus_memory.memory import Memory
 
 
 def _data_dir(data: str | None) -> str:
@@ -51,10 +52,35 @@ def _print_json(value: Any) -> None:
     typer.echo(json.dumps(value, indent=2, ensure_ascii=False))
 
 
+def _print_results(
+    results: Sequence[BaseModel],
+    *,
+    as_json: bool,
+    title: str,
+    columns: Sequence[str],
+    row: Callable[[Any], Sequence[str]],
+    overflow: OverflowMethod = "ellipsis",
+) -> None:
+    """``results`` as a JSON list (``--json``), else as a rich table: ``columns``, and
+    ``row(result)`` for each result."""
+    if as_json:
+        _print_json([r.model_dump() for r in results])
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title)
+    for col in columns:
+        table.add_column(col, overflow=overflow)
+    for r in results:
+        table.add_row(*row(r))
+    Console().print(table)
+
+
 @app.command("search")
 def search(
     query: str = typer.Argument(..., help="What to look for, in natural language."),
-    data: str | None = typer.Option(None, "--data", help=DATA_HELP),
+    data: MemoryData = None,
     k: int = typer.Option(10, "--k", min=1, max=1000, help="How many hits."),
     sense: list[str] | None = typer.Option(
         None, "--sense", help="Only these senses (repeatable); default all with rows."
@@ -78,17 +104,12 @@ def search(
     except TactusError as exc:
         _fail(str(exc))
         return
-    if as_json:
-        _print_json([h.model_dump() for h in hits])
-        return
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=f"{len(hits)} hits for {query!r}")
-    for col in ("score", "cosine", "sense", "session", "t", "id", "text"):
-        table.add_column(col, overflow="fold")
-    for h in hits:
-        table.add_row(
+    _print_results(
+        hits,
+        as_json=as_json,
+        title=f"{len(hits)} hits for {query!r}",
+        columns=("score", "cosine", "sense", "session", "t", "id", "text"),
+        row=lambda h: (
             f"{h.score:.2f}",
             f"{h.cosine:.3f}",
             h.sense,
@@ -96,13 +117,14 @@ def search(
             f"{h.t:g}" if h.t == h.t_end else f"{h.t:g}-{h.t_end:g}",
             h.id,
             h.text or "",
-        )
-    Console().print(table)
+        ),
+        overflow="fold",
+    )
 
 
 @app.command("sessions")
 def sessions(
-    data: str | None = typer.Option(None, "--data", help=DATA_HELP),
+    data: MemoryData = None,
     as_json: bool = typer.Option(False, "--json", help="Print a JSON list of sessions."),
     space: SpaceName = None,
     space_path: SpacePath = None,
@@ -116,16 +138,16 @@ def sessions(
     except TactusError as exc:
         _fail(str(exc))
         return
-    if as_json:
-        _print_json([s.model_dump() for s in summaries])
-        return
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=f"{len(summaries)} sessions")
-    for col in ("session", "n", "per sense", "t_min", "t_max"):
-        table.add_column(col)
-    for s in summaries:
-        per = ", ".join(f"{name}: {n}" for name, n in s.counts.items())
-        table.add_row(s.id, str(s.n), per, f"{s.t_min:g}", f"{s.t_max:g}")
-    Console().print(table)
+    _print_results(
+        summaries,
+        as_json=as_json,
+        title=f"{len(summaries)} sessions",
+        columns=("session", "n", "per sense", "t_min", "t_max"),
+        row=lambda s: (
+            s.id,
+            str(s.n),
+            ", ".join(f"{name}: {n}" for name, n in s.counts.items()),
+            f"{s.t_min:g}",
+            f"{s.t_max:g}",
+        ),
+    )

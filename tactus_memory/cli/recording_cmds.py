@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.memory_cmds import DATA_HELP, _data_dir, _fail, _print_json
+from tactus_memory.cli.common import MemoryData
+from tactus_memory.cli.memory_cmds import _data_dir, _fail, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
 
 if TYPE_CHECKING:
@@ -56,7 +57,7 @@ def ingest(
         list[str] | None,
         typer.Option("--topic", help="TOPIC=SENSE, repeatable (e.g. /glove/pressure=touch)."),
     ] = None,
-    data: Annotated[str | None, typer.Option("--data", help=DATA_HELP)] = None,
+    data: MemoryData = None,
     absolute: Annotated[
         bool, typer.Option("--absolute", help="Unix times instead of the session clock.")
     ] = False,
@@ -78,19 +79,13 @@ def ingest(
 
     try:
         if list_only:
-            rows = list_topics(files)
-            if as_json:
-                _print_json([r.model_dump() for r in rows])
-                return
-            from rich.console import Console
-            from rich.table import Table
-
-            table = Table(title="topics")
-            for col in ("file", "topic", "type", "count", "sense"):
-                table.add_column(col)
-            for r in rows:
-                table.add_row(r.file, r.topic, r.type, str(r.count), r.sense or "-")
-            Console().print(table)
+            _print_results(
+                list_topics(files),
+                as_json=as_json,
+                title="topics",
+                columns=("file", "topic", "type", "count", "sense"),
+                row=lambda r: (r.file, r.topic, r.type, str(r.count), r.sense or "-"),
+            )
             return
         if not session:
             _fail("--session is required (or --list to see the topics)")
@@ -132,7 +127,7 @@ def export_rerun_cmd(
     query: Annotated[
         str | None, typer.Option("--query", help="Annotate the moments of this query.")
     ] = None,
-    data: Annotated[str | None, typer.Option("--data", help=DATA_HELP)] = None,
+    data: MemoryData = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Write a session as a Rerun recording: touch heat maps, notes, query moments."""

@@ -9,6 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.app import app
+from tactus_memory.cli.common import ServiceData
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 
 
@@ -16,10 +17,7 @@ from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 def serve(
     host: Annotated[str | None, typer.Option(help="Bind address (default 127.0.0.1).")] = None,
     port: Annotated[int | None, typer.Option(help="Port (default 8000).")] = None,
-    data: Annotated[
-        str | None,
-        typer.Option(help="Memory directory or URI (s3://, gs://, az://) (env TACTUS_DATA)."),
-    ] = None,
+    data: ServiceData = None,
     token: Annotated[
         str | None,
         typer.Option(

@@ -9,46 +9,44 @@ from pathlib import Path
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import DATA_OPTION, set_threads
-from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
-
-HOLDOUT_HELP = (
-    "recordings kept out of training (and pretraining) and scored: none | "
-    "one-per-object@SUBSTR (per object, the lowest-id recording with valid frames in the "
-    "--data file whose path contains SUBSTR) | recordings@NAME,NAME"
+from tactus_memory.cli.common import (
+    CheckpointOut,
+    LearningRate,
+    Resume,
+    Seed,
+    StagFiles,
+    Threads,
+    TrainHoldout,
+    set_threads,
 )
-
-
-def _warmup(steps: int) -> int:
-    """Warm-up steps: 5% of the run, at least 1, at most 150 (the shipped recipe's rule)."""
-    return max(1, min(150, steps // 20))
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
 
 
 @app.command("pretrain")
 def pretrain_cmd(
-    data: list[Path] = DATA_OPTION,
+    data: StagFiles,
     out: Path = typer.Option(..., "--out", help="MAE checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="trunk architecture"),
     steps: int = typer.Option(400, "--steps", help="optimizer steps (shipped recipe: 400)"),
     batch: int = typer.Option(128, "--batch", help="frames per step"),
-    lr: float = typer.Option(1.5e-3, "--lr"),
-    seed: int = typer.Option(0, "--seed"),
-    holdout: str = typer.Option("none", "--holdout", help=HOLDOUT_HELP),
+    lr: LearningRate = 1.5e-3,
+    seed: Seed = 0,
+    holdout: TrainHoldout = "none",
     device: str = typer.Option("auto", "--device"),
-    threads: int = typer.Option(2, "--threads", help="torch CPU threads (0: torch default)"),
-    resume: bool = typer.Option(False, "--resume", help="continue from OUT.resume.pt"),
+    threads: Threads = 2,
+    resume: Resume = False,
 ) -> None:
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
-    from tactus_memory.touch.pretrain import PretrainConfig, pretrain
+    from tactus_memory.touch.pretrain import PretrainConfig, pretrain, recipe_warmup
     from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.touch.train import _resolve_device, holdout_recordings, load_data
 
     d = load_data(data)
     d.check_dynamic_range(STAG_GLOVE)  # per source file; raises DynamicRangeError
     excl = holdout_recordings(d, holdout)
-    warmup = _warmup(steps)
+    warmup = recipe_warmup(steps)
     cfg = PretrainConfig(model=model, steps=steps, batch=batch, lr=lr, seed=seed, warmup=warmup)
     summary = pretrain(
         d.calibrated(STAG_GLOVE),
@@ -67,19 +65,19 @@ def pretrain_cmd(
 
 @app.command("train")
 def train_cmd(
-    data: list[Path] = DATA_OPTION,
-    out: Path = typer.Option(..., "--out", help="checkpoint to write (.safetensors)"),
+    data: StagFiles,
+    out: CheckpointOut,
     model: str = typer.Option("tactus-lite", "--model", help="architecture in configs/"),
     pretrained: Path | None = typer.Option(None, "--pretrained", help="MAE checkpoint"),
     steps: int = typer.Option(600, "--steps", help="optimizer steps (shipped recipe: 600)"),
     batch: int = typer.Option(64, "--batch", help="windows per step"),
-    lr: float = typer.Option(1e-3, "--lr"),
-    seed: int = typer.Option(0, "--seed"),
+    lr: LearningRate = 1e-3,
+    seed: Seed = 0,
     device: str = typer.Option("auto", "--device", help="auto | cpu | cuda"),
-    holdout: str = typer.Option("none", "--holdout", help=HOLDOUT_HELP),
+    holdout: TrainHoldout = "none",
     half: bool = typer.Option(False, "--half", help="store float16 weights"),
-    threads: int = typer.Option(2, "--threads", help="torch CPU threads (0: torch default)"),
-    resume: bool = typer.Option(False, "--resume", help="continue from OUT.resume.pt"),
+    threads: Threads = 2,
+    resume: Resume = False,
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
@@ -92,7 +90,7 @@ def train_cmd(
     consecutive: float = typer.Option(
         0.0, "--consecutive", help="share of training windows cut as K consecutive frames"
     ),
-    augment: str = typer.Option("default", "--augment", help="default | strong"),
+    augment: str = typer.Option("default", "--augment", help="default | strong | pressed-noise"),
     weight_decay: float = typer.Option(0.05, "--weight-decay", help="AdamW weight decay"),
     input_gamma: float | None = typer.Option(
         None, "--input-gamma", help="model input: pressure ** gamma (default: the config's)"
@@ -108,6 +106,7 @@ def train_cmd(
     set_threads(threads)
     sp = resolve_or_exit(space, space_path, space_dim)
     from tactus_memory.touch.augment import augment_preset
+    from tactus_memory.touch.pretrain import recipe_warmup
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.touch.train import (
         TrainConfig,
@@ -121,7 +120,7 @@ def train_cmd(
     td = prepare_data(d, holdout_recordings(d, holdout), positives=positives)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
-    warmup = _warmup(steps)
+    warmup = recipe_warmup(steps)
     cfg = TrainConfig(
         model=model,
         steps=steps,

@@ -87,7 +87,7 @@ def run_ablation(
     what finished)."""
     from tactus_memory.spaces import get_space
     from tactus_memory.touch.data import combine, load_stag
-    from tactus_memory.touch.pretrain import PretrainConfig, pretrain
+    from tactus_memory.touch.pretrain import PretrainConfig, pretrain, recipe_warmup
     from tactus_memory.touch.targets import build_targets
     from tactus_memory.touch.train import TrainConfig, fit, holdout_recordings, prepare_data
 
@@ -132,7 +132,7 @@ def run_ablation(
                             steps=cfg.pretrain_steps,
                             batch=cfg.pretrain_batch,
                             seed=seed,
-                            warmup=max(1, min(150, cfg.pretrain_steps // 20)),
+                            warmup=recipe_warmup(cfg.pretrain_steps),
                         ),
                         fingerprint=td.fingerprint,
                         progress=progress,
@@ -149,7 +149,7 @@ def run_ablation(
                     batch=cfg.batch,
                     seed=seed,
                     sampling=spec["sampling"],
-                    warmup=max(1, min(150, cfg.steps // 20)),
+                    warmup=recipe_warmup(cfg.steps),
                     save_every=max(cfg.steps, 1),
                 ),
                 work / f"{row}_s{seed}.safetensors",

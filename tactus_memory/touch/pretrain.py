@@ -145,6 +145,12 @@ class PretrainConfig:
     save_every: int = 500  # write the resume state every this many steps
 
 
+def recipe_warmup(steps: int) -> int:
+    """Warm-up steps of a run of ``steps``: 5% of the run, at least 1, at most 150 (the shipped
+    recipe's rule, for pretraining and training alike)."""
+    return max(1, min(150, steps // 20))
+
+
 def lr_at(step: int, total: int, warmup: int, peak: float) -> float:
     """Linear warmup to ``peak`` then cosine decay to 0 (step is 0-based)."""
     if step < warmup:

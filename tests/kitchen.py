@@ -1,0 +1,45 @@
+"""The kitchen session shared by tests/test_temporal.py (HashingSpace, fast) and
+tests/test_temporal_real.py (real MiniLM): when each grasp happens, the notes written after
+them, and touch stand-ins whose vectors lie near the embedding of what a grasp feels like.
+
+Ground truth (session "kitchen", seconds): three mug grasps at 10, 40 and 70, a screwdriver
+grasp at 55, an empty hand in between; a note "picked up the mug" ``delay`` s after each mug
+grasp starts, "picked up the screwdriver" ``delay`` s after 55, "dropped the can" at 90.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tactus_memory.spaces.base import Space
+
+S = "kitchen"
+MUG_GRASPS = [10.0, 40.0, 70.0]
+SCREW_GRASP = 55.0
+#: an empty hand (one window each)
+IDLE = [0.0, 5.0, 20.0, 25.0, 30.0, 50.0, 60.0, 80.0, 85.0, 95.0]
+
+
+def kitchen_notes(delay: float) -> list[tuple[str, float]]:
+    """(note, t) in time order; each grasp's note ``delay`` s after the grasp starts."""
+    notes = [
+        ("the operator said hello", 2.0),
+        ("wiped the table with a sponge", 30.0),
+        ("picked up the screwdriver", SCREW_GRASP + delay),
+        ("dropped the can", 90.0),
+    ]
+    notes += [("picked up the mug", t + delay) for t in MUG_GRASPS]
+    return sorted(notes, key=lambda note: note[1])
+
+
+def near_caption(space: Space, caption: str, n: int, seed: int, noise: float) -> list[np.ndarray]:
+    """n unit vectors, each (dim,) float32, at distance ``noise`` (before normalising) around
+    the embedding of ``caption`` (seeded)."""
+    rng = np.random.default_rng(seed)
+    base = space.embed_texts([caption])[0]
+    out = []
+    for _ in range(n):
+        g = rng.standard_normal(space.dim)
+        v = base + noise * g / np.linalg.norm(g)
+        out.append((v / np.linalg.norm(v)).astype(np.float32))
+    return out
