@@ -122,23 +122,13 @@ def train_cmd(
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
     warmup = recipe_warmup(steps)
     cfg = TrainConfig(
-        model=model,
-        steps=steps,
-        batch=batch,
-        lr=lr,
-        seed=seed,
-        half=half,
-        warmup=warmup,
-        balance=balance,
-        consecutive=consecutive,
-        augment=augment_preset(augment),
-        weight_decay=weight_decay,
-        model_overrides={
-            k: v
-            for k, v in (("input_gamma", input_gamma), ("input_blur", input_blur))
-            if v is not None
-        },
+        model=model, steps=steps, batch=batch, lr=lr, seed=seed, half=half, warmup=warmup
     )
+    # the ladder's options (checkpoints README): batches, windows, regularisation, input shaping
+    cfg.balance, cfg.consecutive, cfg.weight_decay = balance, consecutive, weight_decay
+    cfg.augment = augment_preset(augment)
+    shaping = {"input_gamma": input_gamma, "input_blur": input_blur}
+    cfg.model_overrides = {k: v for k, v in shaping.items() if v is not None}
     summary = fit(
         td, targets, cfg, out, space_dim=sp.dim, pretrained=pretrained, device=device, resume=resume
     )
