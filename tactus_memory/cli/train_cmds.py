@@ -98,6 +98,9 @@ def train_cmd(
     input_blur: float | None = typer.Option(
         None, "--input-blur", help="model input: Gaussian blur sigma, px (default: the config's)"
     ),
+    dropout: float | None = typer.Option(
+        None, "--dropout", help="Dropout2d on trunk features (default: the config's)"
+    ),
 ) -> None:
     """Train the touch encoder against centred class-phrase targets embedded in the frozen
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
@@ -127,8 +130,8 @@ def train_cmd(
     # the ladder's options (checkpoints README): batches, windows, regularisation, input shaping
     cfg.balance, cfg.consecutive, cfg.weight_decay = balance, consecutive, weight_decay
     cfg.augment = augment_preset(augment)
-    shaping = {"input_gamma": input_gamma, "input_blur": input_blur}
-    cfg.model_overrides = {k: v for k, v in shaping.items() if v is not None}
+    model_opts = {"input_gamma": input_gamma, "input_blur": input_blur, "dropout": dropout}
+    cfg.model_overrides = {k: v for k, v in model_opts.items() if v is not None}
     summary = fit(
         td, targets, cfg, out, space_dim=sp.dim, pretrained=pretrained, device=device, resume=resume
     )
