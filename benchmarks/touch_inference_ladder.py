@@ -19,6 +19,9 @@ Variants (each applied to every checkpoint; the checkpoints' scores are averaged
   recording (what a live stream could do);
 * ``ensemble``: all checkpoints given, scores averaged (a seed ensemble).
 
+Also where the touch side fails: each checkpoint's class top-1 over the stored windows, split
+into windows that hold a frame the dataset labels as a grasp and all the others.
+
 Also the text side alone: how often a query's nearest class target is its own class, with the
 4 shipped templates and with 6 more paraphrase templates. STAG files: ``$TACTUS_STAG_DIR``.
 """
@@ -98,6 +101,7 @@ def main() -> None:
     obj = np.asarray(stream.obj)[keep]
     rec = np.asarray(stream.recording)[keep]
     variants: dict[str, list[np.ndarray]] = {}
+    window_top1: list[dict[str, float]] = []
     for ck in args.checkpoints:
         enc = TactusEncoder(ck)
         tgt = enc._targets  # (C, D) centred class targets
@@ -121,6 +125,18 @@ def main() -> None:
             sims[f"smooth_causal_{m}"] = q @ unit(zs).T
         for name, s in sims.items():
             variants.setdefault(name, []).append(s)
+        # where the touch side fails: class top-1 of the stored windows vs the labelled ones
+        ci = {c: i for i, c in enumerate(enc.classes)}
+        truth = np.array([ci[c] for c in obj])
+        pred = np.argmax(z @ tgt.T, axis=1)
+        lab = stream.labelled[keep]
+        window_top1.append(
+            {
+                "stored_windows": float((pred == truth).mean()),
+                "windows_holding_a_labelled_frame": float((pred[lab] == truth[lab]).mean()),
+                "other_windows": float((pred[~lab] == truth[~lab]).mean()),
+            }
+        )
     per_ckpt = {name: [retrieval(s, obj, qcls) for s in ss] for name, ss in variants.items()}
     out: dict[str, Any] = {
         "what": __doc__.split("\n")[0],
@@ -130,6 +146,7 @@ def main() -> None:
         "windows_stored": int(keep.sum()),
         "queries": len(qcls),
         "per_checkpoint": per_ckpt,
+        "window_class_top1": window_top1,
         "mean_over_checkpoints": {
             name: {k: float(np.mean([r[k] for r in rs])) for k in rs[0]}
             for name, rs in per_ckpt.items()

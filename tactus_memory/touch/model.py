@@ -49,11 +49,10 @@ class TactusConfig:
     proj_hidden: int = 1024  # projector hidden width (paper: 512 -> 1024 -> D)
     out_dim: int = 2048  # D, the frozen text space's dimension (paper: 2048; MiniLM: 384)
     dropout: float = 0.0  # Dropout2d on trunk features before fusion (STAG reference: 0.2)
-    # Input shaping, fixed (not learned), applied to every frame before the trunk. Measured on
-    # the held-out blindfolded frames (1-NN over training frames, benchmarks/results/
-    # touch_ladder.json): compressing pressure (x ** 0.3) and blurring by 1 px lifts 1-NN
-    # accuracy from 0.21 to 0.39: the contact pattern generalises across grasps, exact pressure
-    # levels and exact taxels do not. Defaults are off (the paper's recipe).
+    # Input shaping, fixed (not learned), applied to every frame before the trunk. On the
+    # held-out blindfolded frames a 1-NN over training frames goes from 0.21 to 0.39 with
+    # x ** 0.3 and a 1 px blur (benchmarks/results/touch_probe.json), but the CNN trained on
+    # shaped input did not gain (touch ladder rung "shaped"). Defaults: off (the paper's recipe).
     input_gamma: float = 1.0  # pressure compression x ** gamma (1.0 = off)
     input_blur: float = 0.0  # Gaussian blur sigma in pixels (0.0 = off)
     # Where the text embedding of each class lives is not the model's business; see targets.py.
