@@ -63,8 +63,9 @@ class TrainConfig:
     # file has ~17x more labelled frames per recording than the blindfolded one)
     balance: str = "none"
     consecutive: float = 0.0  # share of training windows cut as K consecutive frames (stream-like)
-    model_overrides: dict[str, Any] = field(default_factory=dict)  # TactusConfig fields, e.g.
-    # {"input_gamma": 0.3, "input_blur": 1.0}; recorded in the checkpoint's model config
+    # TactusConfig fields set on the model, e.g. {"input_gamma": 0.3, "input_blur": 1.0};
+    # they end up in the checkpoint's model config, so serving builds the same model
+    model_overrides: dict[str, Any] = field(default_factory=dict)
     half: bool = False  # store float16 weights in the final checkpoint
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
