@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from tactus_memory.touch.metrics import unit_rows
+
 ROOT = Path(__file__).resolve().parents[1]
 HOLDOUT = "one-per-object@blindfolded"
 #: paraphrase templates tried on the text side (not the shipped TEMPLATES)
@@ -49,14 +51,10 @@ PARAPHRASES = (
 )
 
 
-def unit(x: np.ndarray) -> np.ndarray:
-    return x / np.linalg.norm(x, axis=-1, keepdims=True).clip(1e-12)
-
-
 def softmax_mix(s: np.ndarray, targets: np.ndarray, tau: float) -> np.ndarray:
     """s: (N, C) cosines to the class targets -> (N, D) unit softmax mixtures of the targets."""
     p = np.exp((s - s.max(axis=1, keepdims=True)) / tau)
-    return unit((p / p.sum(axis=1, keepdims=True)) @ targets)
+    return unit_rows((p / p.sum(axis=1, keepdims=True)) @ targets)
 
 
 def retrieval(sim: np.ndarray, obj: np.ndarray, qcls: list[str]) -> dict[str, float]:
@@ -82,8 +80,8 @@ def main() -> None:
     args = ap.parse_args()
     from tactus_memory.adapters import TactusEncoder
     from tactus_memory.spaces.minilm import MiniLMSpace
-    from tactus_memory.touch import targets as tg
     from tactus_memory.touch.stream_eval import build_stream, load_queries
+    from tactus_memory.touch.targets import TEMPLATES, build_targets, centre
     from tactus_memory.touch.train import holdout_recordings, load_data
 
     stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
@@ -104,7 +102,7 @@ def main() -> None:
     window_top1: list[dict[str, float]] = []
     for ck in args.checkpoints:
         enc = TactusEncoder(ck)
-        tgt = enc._targets  # (C, D) centred class targets
+        tgt = enc.ckpt.targets.centred  # (C, D) centred class targets
         q = enc.query_transform(qvec)  # (Q, D)
         z = enc.embed(frames)  # (W, D)
         shifted = [z] + [enc.embed(np.roll(frames, s, axis=a)) for a in (-1, -2) for s in (-1, 1)]
@@ -114,7 +112,7 @@ def main() -> None:
             "query_snap_0.1": softmax_mix(q @ tgt.T, tgt, 0.1) @ z.T,
             "window_snap_0.1": q @ softmax_mix(z @ tgt.T, tgt, 0.1).T,
             "csls3": 2 * (q @ z.T) - np.sort(z @ tgt.T, axis=1)[:, -3:].mean(axis=1)[None],
-            "tta_shift": q @ unit(np.mean(shifted, axis=0)).T,
+            "tta_shift": q @ unit_rows(np.mean(shifted, axis=0)).T,
         }
         for m in (2, 4):
             zs = z.copy()
@@ -122,7 +120,7 @@ def main() -> None:
                 ix = np.flatnonzero(rec == r)
                 for j, i in enumerate(ix):
                     zs[i] = z[ix[max(0, j - m + 1) : j + 1]].mean(axis=0)
-            sims[f"smooth_causal_{m}"] = q @ unit(zs).T
+            sims[f"smooth_causal_{m}"] = q @ unit_rows(zs).T
         for name, s in sims.items():
             variants.setdefault(name, []).append(s)
         # where the touch side fails: class top-1 of the stored windows vs the labelled ones
@@ -156,13 +154,8 @@ def main() -> None:
         out["ensemble"] = retrieval(np.mean(variants["plain"], axis=0), obj, qcls)
 
     def text_side(extra: tuple[str, ...]) -> float:
-        saved = tg.TEMPLATES
-        tg.TEMPLATES = saved + extra
-        try:
-            t = tg.build_targets(space, data.objects)
-        finally:
-            tg.TEMPLATES = saved
-        pred = np.argmax(tg.centre(qvec, t.centroid) @ t.centred.T, axis=1)
+        t = build_targets(space, data.objects, templates=TEMPLATES + extra)
+        pred = np.argmax(centre(qvec, t.centroid) @ t.centred.T, axis=1)
         return float(np.mean([t.classes[p] == c for p, c in zip(pred, qcls, strict=True)]))
 
     out["text_query_to_own_class"] = {

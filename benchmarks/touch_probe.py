@@ -20,7 +20,6 @@ import os
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
 from sklearn.linear_model import LogisticRegression
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,11 +29,14 @@ SHAPINGS |= {"gamma0.3+blur1": (0.3, 1.0), "gamma0.3+blur1.5": (0.3, 1.5)}
 
 
 def shaped(frames: np.ndarray, gamma: float, blur: float) -> np.ndarray:
-    """frames: (N, 32, 32) calibrated -> (N, 1024) rows, as the model's InputShaping does."""
-    x = frames**gamma
-    if blur > 0:
-        x = gaussian_filter(x, (0, blur, blur), mode="nearest")
-    return x.reshape(len(x), -1)
+    """frames: (N, 32, 32) calibrated -> (N, 1024) rows through the model's own InputShaping."""
+    import torch
+
+    from tactus_memory.touch.model import InputShaping
+
+    with torch.inference_mode():
+        x = InputShaping(gamma, blur)(torch.from_numpy(frames[:, None].astype(np.float32)))
+    return x.reshape(len(frames), -1).numpy()
 
 
 def one_nn(x: np.ndarray, labels: np.ndarray, pool: np.ndarray, test: np.ndarray) -> float:

@@ -14,7 +14,7 @@ padded the same way at inference.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -51,7 +51,7 @@ def augment_preset(name: str) -> AugmentConfig:
     """The named preset (a fresh copy); ValueError naming the choices for an unknown name."""
     if name not in AUGMENT_PRESETS:
         raise ValueError(f"augment must be one of {sorted(AUGMENT_PRESETS)}, got {name!r}")
-    return AugmentConfig(**vars(AUGMENT_PRESETS[name]))
+    return replace(AUGMENT_PRESETS[name])
 
 
 def _shift(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:

@@ -68,12 +68,12 @@ def with_article(noun: str) -> str:
     return ("an " if noun[:1].lower() in "aeiou" else "a ") + noun
 
 
-def class_phrases(name: str) -> list[str]:
+def class_phrases(name: str, templates: Sequence[str] = TEMPLATES) -> list[str]:
     """Every template filled in for one class; the first one is the class's display phrase."""
     if name == EMPTY_HAND:
         return list(EMPTY_HAND_PHRASES)
     noun = with_article(natural_name(name))
-    return [t.format(noun) for t in TEMPLATES]
+    return [t.format(noun) for t in templates]
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
@@ -103,10 +103,18 @@ def centre(q: np.ndarray, centroid: np.ndarray) -> np.ndarray:
     return _unit(np.asarray(q, dtype=np.float32) - np.asarray(centroid, dtype=np.float32))
 
 
-def build_targets(space: Space, classes: Sequence[str], *, ensemble: bool = True) -> Targets:
-    """Embed every class's phrases through ``space`` (document side) and centre them."""
+def build_targets(
+    space: Space,
+    classes: Sequence[str],
+    *,
+    ensemble: bool = True,
+    templates: Sequence[str] = TEMPLATES,
+) -> Targets:
+    """Embed every class's phrases through ``space`` (document side) and centre them.
+
+    ``templates``: the phrase templates to fill in (default: the shipped :data:`TEMPLATES`)."""
     classes = list(classes)
-    per_class = [class_phrases(c) if ensemble else class_phrases(c)[:1] for c in classes]
+    per_class = [class_phrases(c, templates)[: None if ensemble else 1] for c in classes]
     flat = [p for ps in per_class for p in ps]
     emb = np.asarray(space.embed_texts(flat, query=False), dtype=np.float32)
     rows, i = [], 0

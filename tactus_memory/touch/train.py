@@ -33,6 +33,7 @@ from tqdm.auto import tqdm
 
 from tactus_memory.touch.augment import AugmentConfig, augment
 from tactus_memory.touch.checkpoint import load_resume, resume_path, save_checkpoint, save_resume
+from tactus_memory.touch.metrics import topk_accuracy
 from tactus_memory.touch.model import TactusModel, batched_forward, create_model, param_report
 from tactus_memory.touch.pretrain import load_pretrained_trunk, lr_at
 from tactus_memory.touch.targets import Targets, target_report
@@ -204,11 +205,6 @@ def embed_windows(
     return batched_forward(model, windows, batch, device, model.cfg.out_dim)
 
 
-def _topk(sim: np.ndarray, y: np.ndarray, k: int) -> float:
-    top = np.argsort(-sim, axis=1)[:, :k]
-    return float((top == y[:, None]).any(axis=1).mean()) if len(y) else float("nan")
-
-
 def evaluate(
     model: TactusModel,
     targets: np.ndarray,
@@ -245,8 +241,8 @@ def evaluate(
     n_cls = len(targets)
     return {
         "tuples": int(len(y)),
-        "top1": _topk(sim, y, 1),
-        "top3": _topk(sim, y, 3),
+        "top1": topk_accuracy(sim, y, 1),
+        "top3": topk_accuracy(sim, y, 3),
         "recordings": int(len(rec_true)),
         "recording_top1": float((rec_pred_a == rec_true_a).mean()),
         "chance_top1": 1.0 / n_cls,
