@@ -48,7 +48,14 @@ FRAME = 32
 
 class CalibratedWindow(np.ndarray):
     """A window the touch sense has validated: (K, 32, 32) float32, calibrated to [0, 1].
-    ``validate`` returns one and takes one back as it is; ``embed`` trusts it."""
+    ``validate`` returns one and takes one back as it is; ``embed`` trusts it.
+
+    Arithmetic on it (``w * 1000``, ``w - bg``) gives a plain ndarray, which is validated
+    again: only the window ``validate`` returned (and views of it) is trusted."""
+
+    def __array_wrap__(self, arr: np.ndarray, context: Any = None, return_scalar: bool = False):
+        out = np.asarray(arr).view(np.ndarray)
+        return out[()] if return_scalar else out
 
 
 class TactusEncoder(Sense):
@@ -189,15 +196,12 @@ class TactusEncoder(Sense):
         """N windows ((B, K, 32, 32) array or a list of (K, 32, 32)) -> (N, D) float32 unit rows."""
         import torch
 
+        from tactus_memory.touch.model import batched_forward
+
         wins = self._windows(batch, calibrated)
-        if len(wins) == 0:
-            return np.zeros((0, self.dim), np.float32)
-        outs = []
         with torch.inference_mode():
-            for s in range(0, len(wins), self.batch_size):
-                x = torch.from_numpy(wins[s : s + self.batch_size]).to(self.device)
-                outs.append(self.model(x).float().cpu().numpy())
-        return as_unit_rows(np.concatenate(outs), self.dim, what="touch embedding")
+            z = batched_forward(self.model, wins, self.batch_size, self.device, self.dim)
+        return as_unit_rows(z, self.dim, what="touch embedding")
 
     def query_transform(self, queries: np.ndarray) -> np.ndarray:
         """(N, D) text-query vectors -> normalize(q - centroid), comparable with touch vectors."""

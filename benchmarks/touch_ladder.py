@@ -55,7 +55,7 @@ def score_run(ckpt: Path, data: Any) -> dict[str, Any]:
         "recording_top1": held.get("recording_top1"),
         "train_args": {
             k: meta.get("train_args", {}).get(k)
-            for k in ("steps", "balance", "consecutive", "weight_decay")
+            for k in ("steps", "positives", "balance", "consecutive", "weight_decay")
         },
         "model": {k: meta["model"].get(k) for k in ("input_gamma", "input_blur", "dropout")},
         "leakage": res["leakage"]["status"],

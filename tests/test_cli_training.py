@@ -100,3 +100,14 @@ def test_ablate_runs_every_row(data, tmp_path) -> None:
     text = json.dumps(res)
     for row in rows.split(","):
         assert row in text and row in out
+
+
+@pytest.mark.parametrize(
+    ("flag", "value"), [("--positives", "all"), ("--balance", "objects"), ("--augment", "wild")]
+)
+def test_train_refuses_an_unknown_ladder_option_up_front(data, tmp_path, flag, value) -> None:
+    out = tmp_path / "never.safetensors"
+    r = CliRunner().invoke(app, ["train", *data, "--out", str(out), flag, value])
+    assert r.exit_code == 2  # a usage error, before any data is read
+    assert flag in r.output and value in r.output
+    assert not out.exists()

@@ -140,3 +140,32 @@ def test_pressed_noise_leaves_empty_taxels_empty() -> None:
     assert (y[:, :, :8, :8] == 0).all()  # unpressed corner: no noise
     everywhere = augment(x, augment_preset("default"), torch.Generator().manual_seed(0))
     assert (everywhere[:, :, :8, :8] > 0).any()
+
+
+def test_compressed_input_refuses_noise_on_empty_taxels(tmp_path) -> None:
+    cfg = TrainConfig(
+        model="tactus-tiny", steps=2, batch=4, warmup=1, model_overrides={"input_gamma": 0.3}
+    )
+    with pytest.raises(ValueError, match="pressed-noise"):
+        fit(
+            synthetic(2, 8),
+            orthogonal_targets(),
+            cfg,
+            tmp_path / "x.safetensors",
+            space_dim=DIM,
+            device="cpu",
+            progress=False,
+        )
+
+
+def test_arithmetic_on_a_validated_window_is_validated_again() -> None:
+    from tactus_memory.adapters.touch import CalibratedWindow, TactusEncoder
+    from tactus_memory.errors import InvalidInputError as Invalid
+
+    enc = TactusEncoder()
+    w = enc.validate(np.full((8, 32, 32), 0.5, np.float32))
+    assert isinstance(w, CalibratedWindow) and isinstance(w[:4], CalibratedWindow)
+    assert type(w * 3) is np.ndarray  # no longer "validated"
+    with pytest.raises(Invalid, match=r"\[0, 1\]"):
+        enc.embed([w * 3], calibrated=True)  # 1.5 > 1: refused, not trusted
+    assert enc.embed([w]).shape == (1, enc.dim)

@@ -105,6 +105,7 @@ def eval_cmd(
 
     given = space is not None or space_path is not None or space_dim is not None
     scope = {"split": split, "holdout": holdout, "votes": votes, "seed": seed}
+    loaded = load_eval_data(data)  # once: the stream evaluation reuses it
     try:
         payload, first, es = run_eval(
             checkpoint,
@@ -112,6 +113,7 @@ def eval_cmd(
             analysis=analysis,
             warn=_warn,
             space=space_choice(space, space_path, space_dim) if given else None,
+            loaded=loaded,
             **scope,
         )
     except SpaceConfigError as exc:
@@ -119,7 +121,7 @@ def eval_cmd(
     if stream:
         from tactus_memory.touch.stream_eval import run_stream_eval, stream_markdown
 
-        sdata, _ = load_eval_data(data)
+        sdata = loaded[0]
         runs = [
             run_stream_eval(None if c == "default" else c, sdata, holdout or "", limit=stream_limit)
             for c in checkpoint
@@ -186,7 +188,7 @@ def baseline_eval_cmd(
     seed: int | None = typer.Option(None, "--seed"),
     json_out: Path = typer.Option(..., "--json"),
     report: Path | None = typer.Option(None, "--report"),
-    threads: int = typer.Option(1, "--threads"),
+    threads: Threads = 1,
 ) -> None:
     """Score baseline checkpoints with the same tuples and JSON keys as ``tactus eval``
     (voting and recording level average class probabilities)."""
@@ -220,7 +222,7 @@ def ablate_cmd(
     workdir: Path | None = typer.Option(
         None, "--workdir", help="checkpoints (default: beside JSON)"
     ),
-    threads: int = typer.Option(1, "--threads"),
+    threads: Threads = 1,
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,

@@ -17,6 +17,7 @@ import typer
 
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import ServiceData
+from tactus_memory.cli.memory_cmds import _data_dir
 
 
 @app.command()
@@ -42,13 +43,11 @@ def maintain(
     Prints one JSON line per pass and table (version, fragments, what was compacted and
     removed). Run exactly one per store; start the servers with ``--no-maintain``.
     """
-    import os
-
     from tactus_memory.errors import TactusError
     from tactus_memory.maintenance import MaintenanceConfig
     from tactus_memory.store import Store
 
-    location = data or os.environ.get("TACTUS_DATA") or "./memory"
+    location = _data_dir(data)
     given = {"maintain": True}
     if interval is not None:
         given["maintain_interval"] = interval

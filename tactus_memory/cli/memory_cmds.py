@@ -40,12 +40,8 @@ def _open(
 
     location = _data_dir(data)
     if "://" not in location and not Path(location).is_dir():
-        _fail(f"no memory at {location!r} (set --data or TACTUS_DATA)")
+        fail(f"no memory at {location!r} (set --data or TACTUS_DATA)")
     return Memory.open(location, space=space, space_path=space_path, space_dim=space_dim)
-
-
-def _fail(message: str) -> None:
-    fail(message)
 
 
 def _print_json(value: Any) -> None:
@@ -102,7 +98,7 @@ def search(
             query, k=k, senses=sense or None, session=session, after=after, before=before
         )
     except TactusError as exc:
-        _fail(str(exc))
+        fail(str(exc))
         return
     _print_results(
         hits,
@@ -136,7 +132,7 @@ def sessions(
     try:
         summaries = _open(data, space, space_path, space_dim).sessions()
     except TactusError as exc:
-        _fail(str(exc))
+        fail(str(exc))
         return
     _print_results(
         summaries,

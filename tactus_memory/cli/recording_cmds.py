@@ -18,7 +18,7 @@ import typer
 
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import MemoryData
-from tactus_memory.cli.memory_cmds import _data_dir, _fail, _print_json, _print_results
+from tactus_memory.cli.memory_cmds import _data_dir, _open, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
 
 if TYPE_CHECKING:
@@ -88,11 +88,9 @@ def ingest(
             )
             return
         if not session:
-            _fail("--session is required (or --list to see the topics)")
-            return
+            fail("--session is required (or --list to see the topics)")
         if not topic:
-            _fail("map topics with --topic TOPIC=SENSE (see --list for the topics)")
-            return
+            fail("map topics with --topic TOPIC=SENSE (see --list for the topics)")
         topics = parse_topic_map(topic)
         memory = _memory_for(data, set(topics.values()))
         summary = ingest_recording(
@@ -132,13 +130,10 @@ def export_rerun_cmd(
 ) -> None:
     """Write a session as a Rerun recording: touch heat maps, notes, query moments."""
     from tactus_memory.errors import TactusError
-    from tactus_memory.memory import Memory
 
-    location = _data_dir(data)
-    if "://" not in location and not Path(location).is_dir():
-        _fail(f"no memory at {location!r} (set --data or TACTUS_DATA)")
+    memory = _open(data)  # exits when there is no memory there
     try:
-        summary = Memory.open(location).export_rerun(session, out, query=query)
+        summary = memory.export_rerun(session, out, query=query)
     except (TactusError, ImportError) as exc:
         fail(str(exc))  # exits
     if as_json:

@@ -106,9 +106,19 @@ def train_cmd(
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
     space's name, dim and model fingerprint, so it only registers in a memory of that space."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    from tactus_memory.touch.augment import AUGMENT_PRESETS, augment_preset
+    from tactus_memory.touch.train import BALANCE, POSITIVES
+
+    # refuse a typo before the data is read and the targets embedded
+    for flag, value, choices in (
+        ("--positives", positives, POSITIVES),
+        ("--balance", balance, BALANCE),
+        ("--augment", augment, tuple(AUGMENT_PRESETS)),
+    ):
+        if value not in choices:
+            raise typer.BadParameter(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
     set_threads(threads)
     sp = resolve_or_exit(space, space_path, space_dim)
-    from tactus_memory.touch.augment import augment_preset
     from tactus_memory.touch.pretrain import recipe_warmup
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.touch.train import (

@@ -86,18 +86,22 @@ def run_ablation(
     receives the result so far after every run (the CLI writes it, so a cut-off run keeps
     what finished)."""
     from tactus_memory.spaces import get_space
-    from tactus_memory.touch.data import combine, load_stag
     from tactus_memory.touch.pretrain import PretrainConfig, pretrain, recipe_warmup
     from tactus_memory.touch.targets import build_targets
-    from tactus_memory.touch.train import TrainConfig, fit, holdout_recordings, prepare_data
+    from tactus_memory.touch.train import (
+        TrainConfig,
+        fit,
+        holdout_recordings,
+        load_data,
+        prepare_data,
+    )
 
     unknown = [r for r in cfg.rows if r not in ROWS]
     if unknown:
         raise ValueError(f"unknown ablation rows {unknown}; known: {list(ROWS)}")
     work = Path(workdir)
     work.mkdir(parents=True, exist_ok=True)
-    parts = [load_stag(p) for p in data_paths]
-    data = parts[0] if len(parts) == 1 else combine(parts)
+    data = load_data(data_paths)
     held = holdout_recordings(data, cfg.holdout)
     td_affine = prepare_data(data, held)
     frames = {

@@ -65,6 +65,7 @@ def run_eval(
     progress: bool = True,
     warn: Callable[[str], None] = log.warning,
     space: Any = None,
+    loaded: tuple[Any, Any] | None = None,
 ) -> tuple[dict[str, Any], Any, Any]:
     """Evaluate one or more checkpoints on one scope. Returns (payload, first result, scope).
 
@@ -73,8 +74,9 @@ def run_eval(
     ``warn`` hears about checkpoints whose training data overlaps the scored recordings.
     ``space``: a ``SpaceChoice`` for the analyses' text space (each checkpoint's recorded
     space, its model folder from ``--space-path``); None: built from the name when possible.
+    ``loaded``: what ``load_eval_data(data_paths)`` returned, when the caller has it already.
     """
-    data, fps = load_eval_data(data_paths)
+    data, fps = loaded if loaded is not None else load_eval_data(data_paths)
     es = select_eval_frames(data, split, holdout, fingerprints=fps)
     runs, first = [], None
     for spec in checkpoints:

@@ -362,7 +362,6 @@ def evaluate_stream(
     from tactus_memory.adapters import TactusEncoder
     from tactus_memory.memory import Memory
     from tactus_memory.temporal import MATCH_Z
-    from tactus_memory.touch.checkpoint import default_checkpoint_path, load_checkpoint
 
     bad = template_collisions(queries)
     if bad:
@@ -371,7 +370,7 @@ def evaluate_stream(
         if m not in MODES:
             raise InvalidInputError(f"unknown stream mode {m!r}; modes are {MODES}")
     enc = TactusEncoder(checkpoint)
-    meta = load_checkpoint(checkpoint if checkpoint is not None else default_checkpoint_path()).meta
+    meta = enc.ckpt.meta
     out: dict[str, Any] = {
         "checkpoint": str(checkpoint) if checkpoint is not None else "default",
         "leakage": leakage(meta, sorted(stream.spans), data_fingerprint),

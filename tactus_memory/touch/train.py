@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 
 from tactus_memory.touch.augment import AugmentConfig, augment
 from tactus_memory.touch.checkpoint import load_resume, resume_path, save_checkpoint, save_resume
-from tactus_memory.touch.metrics import topk_accuracy
+from tactus_memory.touch.metrics import RECORDING_POOL, recording_windows, topk_accuracy
 from tactus_memory.touch.model import TactusModel, batched_forward, create_model, param_report
 from tactus_memory.touch.pretrain import load_pretrained_trunk, lr_at
 from tactus_memory.touch.targets import Targets, target_report
@@ -42,7 +42,6 @@ from tactus_memory.touch.tuples import RESAMPLE_EVERY, TupleSampler, consecutive
 log = logging.getLogger(__name__)
 
 TEMPERATURE = 0.07  # paper, Method: cross-entropy over cosine logits at temperature 0.07
-RECORDING_POOL = 64  # paper, Evaluation: recording-level score pools up to 64 frames
 EVAL_SEED = 1234  # fixed seed of the held-out tuple tiling
 
 
@@ -84,6 +83,7 @@ class TrainData:
     fingerprint: str = ""
     calibration: dict[str, Any] = field(default_factory=dict)
     heldout_recordings: list[str] = field(default_factory=list)  # names, for the report
+    positives: str = "valid"  # which frames train_valid holds (prepare_data's ``positives``)
     train_anchors: np.ndarray | None = None  # (N,) bool, default: train_valid
 
     def train_sampler(self, k: int, mode: str, seed: int) -> Any:
@@ -190,6 +190,7 @@ def prepare_data(data: Any, holdout: list[int], positives: str = "valid") -> Tra
         fingerprint=data.fingerprint(),
         calibration=STAG_GLOVE.to_dict(),
         heldout_recordings=[data.recordings[r] for r in holdout],
+        positives=positives,
     )
 
 
@@ -227,16 +228,13 @@ def evaluate(
     rec_pred, rec_true, per_rec = [], [], {}
     for r in np.unique(data.recording_id[mask]):
         fr = np.flatnonzero(mask & (data.recording_id == r))
-        if len(fr) > RECORDING_POOL:
-            fr = fr[np.linspace(0, len(fr) - 1, RECORDING_POOL).round().astype(int)]
-        wins = [fr[s : s + k] for s in range(0, len(fr), k)]
-        emb = np.stack(
-            [embed_windows(model, data.calibrated[w][None], device=device)[0] for w in wins]
-        ).mean(axis=0)
+        wins = recording_windows(fr, k)  # (W, k) frame indices, up to RECORDING_POOL frames
+        emb = embed_windows(model, data.calibrated[wins], device=device).mean(axis=0)
         pred = int(np.argmax(targets @ emb))
         rec_pred.append(pred)
         rec_true.append(int(data.labels[fr[0]]))
-        per_rec[int(r)] = {"true": rec_true[-1], "pred": pred, "frames": int(len(fr))}
+        used = min(len(fr), RECORDING_POOL)
+        per_rec[int(r)] = {"true": rec_true[-1], "pred": pred, "frames": used}
     rec_pred_a, rec_true_a = np.array(rec_pred), np.array(rec_true)
     n_cls = len(targets)
     return {
@@ -297,6 +295,13 @@ def fit(
     torch.manual_seed(cfg.seed)
     model = create_model(cfg.model, out_dim=space_dim, frames=cfg.k, **cfg.model_overrides)
     model = model.to(device)
+    a = cfg.augment
+    if model.cfg.input_gamma < 1.0 and a.noise_std > 0 and a.noise_on_zero:
+        raise ValueError(
+            f"input_gamma {model.cfg.input_gamma} < 1 turns augmentation noise on empty taxels "
+            f"({a.noise_std}) into ~{a.noise_std**model.cfg.input_gamma:.2f}: train with "
+            "noise only on pressed taxels (--augment pressed-noise, noise_on_zero=False)"
+        )
     mae_meta = None
     if pretrained:
         mae_meta = load_pretrained_trunk(model.trunk, pretrained, model.cfg)
@@ -394,7 +399,7 @@ def fit(
         summary["heldout"] = {k: v for k, v in ev.items() if k != "per_recording"}
         summary["heldout"]["recordings_named"] = data.heldout_recordings
         summary["heldout_per_recording"] = ev["per_recording"]
-    train_args = asdict(cfg)
+    train_args = {**asdict(cfg), "positives": data.positives}
     save_checkpoint(
         out,
         model,
