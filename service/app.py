@@ -65,21 +65,26 @@ in natural language.
 """
 
 
-def open_memory(settings: Settings) -> tuple[Any, str | None]:
-    """Open the memory at ``settings.data`` and register the default senses.
-
-    Returns (memory, why touch is unavailable or None).
-    """
+def open_store(settings: Settings) -> Any:
+    """The memory at ``settings.data`` in the configured space, no senses added yet."""
     from tactus_memory.maintenance import MaintenanceConfig
     from tactus_memory.memory import Memory
 
-    memory = Memory.open(
+    return Memory.open(
         settings.data,
         space=settings.space,
         space_path=settings.space_path,
         space_dim=settings.space_dim,
         maintenance=MaintenanceConfig(maintain=settings.maintain),
     )
+
+
+def open_memory(settings: Settings) -> tuple[Any, str | None]:
+    """Open the memory at ``settings.data`` and register the default senses.
+
+    Returns (memory, why touch is unavailable or None).
+    """
+    memory = open_store(settings)
     return memory, register_default_senses(memory, settings)
 
 

@@ -120,9 +120,7 @@ def page_url(settings: Any, port: int | None = None) -> str:
 def load_app(settings: Any, say: Callable[[str], None]) -> Any:
     """Open the store and load the models step by step, saying what is loading and how long
     each step took (the text model and the touch encoder take seconds on a CPU)."""
-    from tactus_memory.maintenance import MaintenanceConfig
-    from tactus_memory.memory import Memory
-    from tactus_memory.service.app import create_app, register_default_senses
+    from tactus_memory.service.app import create_app, open_store, register_default_senses
 
     steps = 3
 
@@ -133,17 +131,7 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
         say(f"[{i}/{steps}] {what}: done in {time.perf_counter() - t0:.1f} s")
         return out
 
-    memory = step(
-        1,
-        f"opening the memory at {settings.data}",
-        lambda: Memory.open(
-            settings.data,
-            space=settings.space,
-            space_path=settings.space_path,
-            space_dim=settings.space_dim,
-            maintenance=MaintenanceConfig(maintain=settings.maintain),
-        ),
-    )
+    memory = step(1, f"opening the memory at {settings.data}", lambda: open_store(settings))
     name = getattr(memory.space, "name", settings.space)
     step(2, f"loading the text model ({name})", lambda: memory.space.embed_texts(["warm up"]))
     why = step(3, "loading the touch encoder", lambda: register_default_senses(memory, settings))
