@@ -67,9 +67,15 @@ class SensorProfile:
             )
         if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
             raise InvalidInputError(f"raw pressure must be numeric, got dtype {arr.dtype}")
-        out = (arr.astype(np.float32) - np.float32(self.offset)) / np.float32(self.span)
+        out = self.scale(arr)
         if not np.all(np.isfinite(out)):
             raise InvalidInputError("raw pressure contains NaN or inf")
+        return out
+
+    def scale(self, raw: np.ndarray) -> np.ndarray:
+        """The calibration affine alone, any shape, no checks: clip((raw - offset) / span, 0, 1)
+        as float32 (NaN stays NaN). ``calibrate`` adds the frame-shape and value checks."""
+        out = (np.asarray(raw).astype(np.float32) - np.float32(self.offset)) / np.float32(self.span)
         return np.clip(out, 0.0, 1.0, out=out)
 
     def to_dict(self) -> dict[str, Any]:

@@ -82,9 +82,7 @@ def calibrated_frames(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -
         np.issubdtype(arr.dtype, np.floating) and arr.min() >= 0 and arr.max() <= 1
     ):
         return arr.astype(np.float32, copy=False)
-    # the profile's formula, without its frame-shape check (windowing takes any H x W)
-    out = (arr.astype(np.float32) - np.float32(profile.offset)) / np.float32(profile.span)
-    return np.clip(out, 0.0, 1.0)
+    return profile.scale(arr)  # no frame-shape check: windowing takes any H x W
 
 
 def contact_taxels(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
