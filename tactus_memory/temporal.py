@@ -16,7 +16,6 @@ this module. Offsets live in the store's ``meta`` table (persisted, shared by pr
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -63,6 +62,7 @@ from tactus_memory.models import Moment as Moment
 from tactus_memory.models import Occurrences as Occurrences
 from tactus_memory.models import Side as Side
 from tactus_memory.models import TimelineItem as TimelineItem
+from tactus_memory.models import row_fields
 from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import CLOCK_KEY, HIT_COLUMNS, Where, finite_float, validate_id
@@ -101,22 +101,6 @@ __all__ = [
 ]
 
 Offsets = Mapping[tuple[str, str, str], float]
-
-
-def _row_item(row: dict[str, Any], offset: float) -> dict[str, Any]:
-    return {
-        "id": row["id"],
-        "session": row["session"],
-        "sense": row["sense"],
-        "source": row.get("source") or "",
-        "t": row["t"],
-        "t_end": row["t_end"],
-        "t_aligned": row["t"] + offset,
-        "t_end_aligned": row["t_end"] + offset,
-        "text": row.get("text"),
-        "meta": json.loads(row["meta"] or "{}") if isinstance(row.get("meta"), str) else {},
-        "episode": row.get("episode"),
-    }
 
 
 def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
@@ -298,12 +282,14 @@ class Temporal:
             raise InvalidInputError(
                 f"more than {TIMELINE_MAX} items in range; narrow it with after/before or senses"
             )
-        items = [
-            TimelineItem(
-                **_row_item(r, offsets.get((r["session"], r["sense"], r.get("source") or ""), 0.0))
+        items = []
+        for r in rows:
+            off = offsets.get((r["session"], r["sense"], r.get("source") or ""), 0.0)
+            items.append(
+                TimelineItem(
+                    **row_fields(r), t_aligned=r["t"] + off, t_end_aligned=r["t_end"] + off
+                )
             )
-            for r in rows
-        ]
         items.sort(key=lambda it: (it.t_aligned, it.t_end_aligned, it.sense, it.source, it.id))
         return items
 
