@@ -20,7 +20,7 @@ from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.store import Store, Where
-from tactus_memory.vectors import as_unit_rows
+from tactus_memory.vectors import as_unit_rows, vector_column
 
 log = logging.getLogger(__name__)
 
@@ -257,8 +257,7 @@ class SenseRegistry:
         s = self.search_sense(sense)
         probes = s.query_transform(self.probe_vectors())
         sample = self.store.scan(Where().sense(sense).sql(), ["vector"], limit=SAMPLE)
-        vecs = np.asarray(sample.column("vector").combine_chunks().flatten(), np.float32)
-        vecs = vecs.reshape(-1, self.space.dim)
+        vecs = vector_column(sample, self.space.dim)
         calib = estimate(probes, vecs, rows)
         self._calib[sense] = calib
         with self.lock:

@@ -67,6 +67,7 @@ from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import CLOCK_KEY, HIT_COLUMNS, Where, finite_float, validate_id
 from tactus_memory.store import validate_source as _validate_source
+from tactus_memory.vectors import vector_column
 
 __all__ = [
     "CLOCK_KEY",
@@ -348,7 +349,7 @@ class Temporal:
                 continue
             ids = tbl.column("id").to_pylist()
             firsts: list[tuple[float, str, str, int, np.ndarray]] = []
-            vecs = _vectors(tbl, self.memory.space.dim)
+            vecs = vector_column(tbl, self.memory.space.dim)
             t = tbl.column("t").to_numpy()
             t_end = tbl.column("t_end").to_numpy()
             for (sense, source), idx in sorted(_streams(tbl).items()):
@@ -388,7 +389,7 @@ class Temporal:
         offsets = self.offsets()
         if tbl.num_rows == 0:
             return []
-        vecs = _vectors(tbl, self.memory.space.dim)
+        vecs = vector_column(tbl, self.memory.space.dim)
         ids = tbl.column("id").to_pylist()
         senses_col = tbl.column("sense").to_pylist()
         sources = [s or "" for s in tbl.column("source").to_pylist()]
@@ -457,8 +458,3 @@ def _streams(tbl: Any) -> dict[tuple[str, str], np.ndarray]:
         key: np.array(sorted(idx, key=lambda i: (t[i], ids[i])), dtype=np.int64)
         for key, idx in by.items()
     }
-
-
-def _vectors(tbl: Any, dim: int) -> np.ndarray:
-    flat = tbl.column("vector").combine_chunks().flatten()
-    return np.asarray(flat, dtype=np.float32).reshape(-1, dim)
