@@ -48,9 +48,9 @@ from typing_extensions import Unpack
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
 from tactus_memory.maintenance import Background, MaintenanceConfig
-from tactus_memory.matching import DEFAULT_MOMENT_GAP, split_match
+from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
-from tactus_memory.query import Scope, ScopeKwargs, check_k, check_query_text, embed_query
+from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry, StoredSense
@@ -348,10 +348,8 @@ class Memory(TemporalQuestions):
         if group is not None and group != "moment":
             raise InvalidInputError(f"unknown group {group!r}; use group='moment'")
         if group is not None:
-            q = embed_query(self.space, query)
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
-            return self.temporal.moments(q, k, where, split_match({})[1], gap)
-        query = check_query_text(query)
+            return self.search_moments(query, k, gap=gap, scope=where)
         k = check_k(k)
         base = where.where()
         names = self.resolve_senses(where.senses)
