@@ -30,7 +30,7 @@ in :mod:`tactus_memory.ranking`, query checks and the :class:`~tactus_memory.que
 
 Extension points (temporal operators and the service build on these, not on LanceDB):
 ``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
-``Memory.rank(q, k, senses, where, transform=..., build=...)`` (the one ranked search
+``Memory.rank(q, k, senses, where, transform=...)`` (the one ranked search
 path), ``Memory.store.scan(where, columns, limit)`` (unranked reads), ``Memory.calibration``.
 """
 
@@ -405,7 +405,7 @@ class Memory(TemporalQuestions):
     ) -> list[Hit]:
         """The one ranked search path (:meth:`tactus_memory.ranking.Ranker.rank`): (1, D)
         unit query ``q``, the senses searched, ``base`` the non-sense conditions; keywords
-        ``transform`` (apply each sense's query transform) and ``build`` (the hit maker)."""
+        ``transform`` (apply each sense's query transform)."""
         return self.ranker.rank(q, k, senses, base, **kw)
 
     # ----------------------------------------------------------- reads
