@@ -293,8 +293,3 @@ class SenseRegistry:
 
     def forget_counts(self) -> None:
         self._counts = None
-
-    @property
-    def counting(self) -> bool:
-        """Whether counts are cached (an upsert then reads which senses it replaces)."""
-        return self._counts is not None
