@@ -263,8 +263,13 @@ class Temporal:
             lo, hi = a.t_end_aligned, a.t_end_aligned + window
         offsets = self.offsets()
         pad = _pad(offsets, a.session)
-        where = Where().session(a.session).t_range(lo - pad, None).source(scope.source)
-        where.parts.append(f"t <= {float(hi + pad)!r}")
+        where = (
+            Where()
+            .session(a.session)
+            .t_range(lo - pad, None)
+            .source(scope.source)
+            .overlaps(before=hi + pad)
+        )
         if names is not None:
             where.senses(names)
         items = [
