@@ -314,7 +314,7 @@ class Temporal:
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
         if episodes:
-            eps = self.episodes(session, senses=names, source=scope.source)
+            eps = self._episodes(session, names, scope.source)
             eps = [e for e in eps if _overlaps(e, scope.after, scope.before)]
             return eps[:limit] if limit else eps
         where = scope.where(_pad(offsets, session))
@@ -379,9 +379,15 @@ class Temporal:
     ) -> list[Episode]:
         """The session's episodes in aligned time order (segmenting it first if needed)."""
         session = validate_id(session, "session id")
-        where = Where().session(session)
-        if self.store.count(where.sql()) == 0:
+        if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
+        return self._episodes(session, senses, source)
+
+    def _episodes(
+        self, session: str, senses: Sequence[str] | None, source: str | None
+    ) -> list[Episode]:
+        """:meth:`episodes` of a validated session known to have rows."""
+        where = Where().session(session)
         unsegmented = Where().session(session)
         unsegmented.parts.append("episode IS NULL")
         if self.store.count(unsegmented.sql()) > 0:
