@@ -313,14 +313,14 @@ class Temporal:
         offsets = self.offsets()
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
+        after, before = scope.bounds()
         if episodes:
             eps = self._episodes(session, names, scope.source)
-            eps = [e for e in eps if _overlaps(e, scope.after, scope.before)]
+            eps = [e for e in eps if _overlaps(e, after, before)]
             return eps[:limit] if limit else eps
         where = scope.where(_pad(offsets, session))
         if names is not None:
             where.senses(names)
-        after, before = scope.bounds()
         items = [it for it in self._items(where, offsets) if _overlaps(it, after, before)]
         return items[:limit] if limit else items
 
