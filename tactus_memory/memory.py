@@ -299,8 +299,10 @@ class Memory(TemporalQuestions):
     def delete_session(self, session: str) -> int:
         """Delete every item of a session and its clock offsets; returns the rows removed."""
         deleted = self._delete(Where().session(session).sql())
-        for offset in self.clock_offsets(session):
-            self.set_clock_offset(session, offset.sense, 0.0, source=offset.source)
+        with self.lock:  # every offset of the session in one meta write
+            table = self.store.clock_table()
+            if table.pop(session, None):
+                self.store.put_clock_table(table)
         return deleted
 
     def _delete(self, where: str | None) -> int:
