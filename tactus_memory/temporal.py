@@ -408,10 +408,13 @@ class Temporal:
         t_end = tbl.column("t_end").to_numpy()
         ep = tbl.column("episode").to_numpy()
         out = []
-        for number in np.unique(ep):
-            members = np.flatnonzero(ep == number)
-            members = members[np.lexsort((np.array(ids, dtype=object)[members], t[members]))]
+        # one sort by (episode, t, id), split where the episode changes: rows of each episode
+        # in (t, id) order, episodes ascending
+        order = np.lexsort((np.array(ids, dtype=object), t, ep))
+        starts = np.flatnonzero(np.diff(ep[order])) + 1
+        for members in np.split(order, starts):
             first = members[0]
+            number = ep[first]
             off = offsets.get((session, senses_col[first], sources[first]), 0.0)
             rep = members[representative(vecs[members])]
             out.append(
