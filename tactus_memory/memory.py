@@ -102,8 +102,8 @@ class Memory(TemporalQuestions):
         self.lock = threading.RLock()
         store.bind_space(space.name, int(space.dim), space.fingerprint())
         self.registry = SenseRegistry(store, space, self.lock)
-        rows = lambda: sum(self.registry.counts().values())  # noqa: E731
-        self._maintenance = Background(store, rows, background=background)
+        # live rows for the index threshold: the table's own count, as Store.maintain uses
+        self._maintenance = Background(store, store.count, background=background)
         self.ranker = Ranker(store, self.registry)
         self.temporal = Temporal(self)
         self.add_sense(TextSense(space))
