@@ -276,16 +276,16 @@ class Memory(TemporalQuestions):
             raise InvalidInputError("the same id appears in two writes of one commit")
         data = writes_table(self.store.schema, live)
         with self.lock:
-            replaced: list[str] = []
+            replaced = [0] * len(live)  # rows each write replaces (of its own sense)
             if upsert:  # under the commit lock: no racing writer can slip in between
-                for w in live:
+                for n, w in enumerate(live):
                     if w.batch.upsert:
-                        replaced += self.store.owned_ids(w.ids, w.session, w.sense.name)
+                        replaced[n] = self.store.owned_count(w.ids, w.session, w.sense.name)
             before = self.store.version()
             self.store.write(data, upsert=upsert)
             self.registry.note_commit(before)
-            for n, w in enumerate(live):
-                self.registry.note_write(w.sense.name, len(w), replaced if n == 0 else [])
+            for w, r in zip(live, replaced, strict=True):
+                self.registry.note_write(w.sense.name, len(w) - r)
         self._schedule_maintenance()
         return [list(w.ids) for w in writes]
 

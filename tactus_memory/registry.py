@@ -280,14 +280,12 @@ class SenseRegistry:
                 names.append(name)
         return names
 
-    def note_write(self, sense: str, n: int, replaced: Sequence[str]) -> None:
-        """Keep the cached counts right after writing n rows of ``sense`` (an upsert may have
-        moved the ``replaced`` ids' rows away from their old senses)."""
+    def note_write(self, sense: str, n: int) -> None:
+        """Keep the cached counts right after a write added n rows to ``sense`` (an upsert's
+        new rows: its rows less those it replaced)."""
         if self._counts is None:
             return
         counts = dict(self._counts)
-        for name in replaced:
-            counts[name] -= 1
         counts[sense] = counts.get(sense, 0) + n
         self._counts = counts
 

@@ -258,15 +258,15 @@ class Store:
                 self.items.add(data)
         self._appends += 1
 
-    def owned_ids(self, ids: Sequence[str], session: str, sense: str) -> list[str]:
-        """The senses of the rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
+    def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
+        """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
 
         Raises IdConflictError, naming the first offending id, when any id already belongs to
         another session or another sense: an upsert never overwrites or moves another
         session's row. Call it under the memory's commit lock, just before :meth:`write`.
         """
         if self._items is None or not ids:
-            return []
+            return 0
         rows = self.scan(Where().ids(ids).sql(), ["id", "session", "sense"]).to_pylist()
         for row in rows:
             if row["session"] != session or row["sense"] != sense:
@@ -275,7 +275,7 @@ class Store:
                     f"(not {sense!r} in session {session!r}); use another id, or delete "
                     "that item first"
                 )
-        return [row["sense"] for row in rows]
+        return len(rows)
 
     def delete(self, where: str) -> None:
         with self.commit_lock:
