@@ -30,7 +30,7 @@ in :mod:`tactus_memory.ranking`, query checks and the :class:`~tactus_memory.que
 
 Extension points (temporal operators and the service build on these, not on LanceDB):
 ``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
-``Memory.rank(q, k, senses, where, transform=..., build=...)`` (the one ranked search
+``Memory.rank(q, k, senses, where, transform=...)`` (the one ranked search
 path), ``Memory.store.scan(where, columns, limit)`` (unranked reads), ``Memory.calibration``.
 """
 
@@ -48,9 +48,9 @@ from typing_extensions import Unpack
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
 from tactus_memory.maintenance import Background, MaintenanceConfig
-from tactus_memory.matching import DEFAULT_MOMENT_GAP, split_match
+from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
-from tactus_memory.query import Scope, ScopeKwargs, check_k, check_query_text, embed_query
+from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry, StoredSense
@@ -102,8 +102,8 @@ class Memory(TemporalQuestions):
         self.lock = threading.RLock()
         store.bind_space(space.name, int(space.dim), space.fingerprint())
         self.registry = SenseRegistry(store, space, self.lock)
-        rows = lambda: sum(self.registry.counts().values())  # noqa: E731
-        self._maintenance = Background(store, rows, background=background)
+        # live rows for the index threshold: the table's own count, as Store.maintain uses
+        self._maintenance = Background(store, store.count, background=background)
         self.ranker = Ranker(store, self.registry)
         self.temporal = Temporal(self)
         self.add_sense(TextSense(space))
@@ -276,16 +276,16 @@ class Memory(TemporalQuestions):
             raise InvalidInputError("the same id appears in two writes of one commit")
         data = writes_table(self.store.schema, live)
         with self.lock:
-            replaced: list[str] = []
+            replaced = [0] * len(live)  # rows each write replaces (of its own sense)
             if upsert:  # under the commit lock: no racing writer can slip in between
-                for w in live:
+                for n, w in enumerate(live):
                     if w.batch.upsert:
-                        replaced += self.store.owned_ids(w.ids, w.session, w.sense.name)
+                        replaced[n] = self.store.owned_count(w.ids, w.session, w.sense.name)
             before = self.store.version()
             self.store.write(data, upsert=upsert)
             self.registry.note_commit(before)
-            for n, w in enumerate(live):
-                self.registry.note_write(w.sense.name, len(w), replaced if n == 0 else [])
+            for w, r in zip(live, replaced, strict=True):
+                self.registry.note_write(w.sense.name, len(w) - r)
         self._schedule_maintenance()
         return [list(w.ids) for w in writes]
 
@@ -299,8 +299,10 @@ class Memory(TemporalQuestions):
     def delete_session(self, session: str) -> int:
         """Delete every item of a session and its clock offsets; returns the rows removed."""
         deleted = self._delete(Where().session(session).sql())
-        for offset in self.clock_offsets(session):
-            self.set_clock_offset(session, offset.sense, 0.0, source=offset.source)
+        with self.lock:  # every offset of the session in one meta write
+            table = self.store.clock_table()
+            if table.pop(session, None):
+                self.store.put_clock_table(table)
         return deleted
 
     def _delete(self, where: str | None) -> int:
@@ -348,10 +350,8 @@ class Memory(TemporalQuestions):
         if group is not None and group != "moment":
             raise InvalidInputError(f"unknown group {group!r}; use group='moment'")
         if group is not None:
-            q = embed_query(self.space, query)
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
-            return self.temporal.moments(q, k, where, split_match({})[1], gap)
-        query = check_query_text(query)
+            return self.search_moments(query, k, gap=gap, scope=where)
         k = check_k(k)
         base = where.where()
         names = self.resolve_senses(where.senses)
@@ -407,7 +407,7 @@ class Memory(TemporalQuestions):
     ) -> list[Hit]:
         """The one ranked search path (:meth:`tactus_memory.ranking.Ranker.rank`): (1, D)
         unit query ``q``, the senses searched, ``base`` the non-sense conditions; keywords
-        ``transform`` (apply each sense's query transform) and ``build`` (the hit maker)."""
+        ``transform`` (apply each sense's query transform)."""
         return self.ranker.rank(q, k, senses, base, **kw)
 
     # ----------------------------------------------------------- reads

@@ -6,7 +6,7 @@ ANN (or exact flat) search in the store, calibrated scores, merged top k. ``Memo
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -34,7 +34,6 @@ class Ranker:
         base: Where,
         *,
         transform: bool,
-        build: Callable[[dict[str, Any], float, float], Hit] | None = None,
     ) -> list[Hit]:
         """The one search path: q (1, D) unit query -> per-sense query transform, prefiltered
         ANN (or exact flat) search, calibrated scores, merged top k. ``base`` holds the
@@ -65,8 +64,7 @@ class Ranker:
         for vec, names in groups:
             scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
         scored.sort(key=lambda x: -x[0])
-        make = build or hit_from_row
-        return [make(row, score, cos) for score, cos, row in scored[:k]]
+        return [hit_from_row(row, score, cos) for score, cos, row in scored[:k]]
 
     def _search_group(
         self,

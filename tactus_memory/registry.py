@@ -20,7 +20,7 @@ from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.store import Store, Where
-from tactus_memory.vectors import as_unit_rows
+from tactus_memory.vectors import as_unit_rows, vector_column
 
 log = logging.getLogger(__name__)
 
@@ -257,8 +257,7 @@ class SenseRegistry:
         s = self.search_sense(sense)
         probes = s.query_transform(self.probe_vectors())
         sample = self.store.scan(Where().sense(sense).sql(), ["vector"], limit=SAMPLE)
-        vecs = np.asarray(sample.column("vector").combine_chunks().flatten(), np.float32)
-        vecs = vecs.reshape(-1, self.space.dim)
+        vecs = vector_column(sample, self.space.dim)
         calib = estimate(probes, vecs, rows)
         self._calib[sense] = calib
         with self.lock:
@@ -281,21 +280,14 @@ class SenseRegistry:
                 names.append(name)
         return names
 
-    def note_write(self, sense: str, n: int, replaced: Sequence[str]) -> None:
-        """Keep the cached counts right after writing n rows of ``sense`` (an upsert may have
-        moved the ``replaced`` ids' rows away from their old senses)."""
+    def note_write(self, sense: str, n: int) -> None:
+        """Keep the cached counts right after a write added n rows to ``sense`` (an upsert's
+        new rows: its rows less those it replaced)."""
         if self._counts is None:
             return
         counts = dict(self._counts)
-        for name in replaced:
-            counts[name] -= 1
         counts[sense] = counts.get(sense, 0) + n
         self._counts = counts
 
     def forget_counts(self) -> None:
         self._counts = None
-
-    @property
-    def counting(self) -> bool:
-        """Whether counts are cached (an upsert then reads which senses it replaces)."""
-        return self._counts is not None

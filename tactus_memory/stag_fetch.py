@@ -22,7 +22,6 @@ could not be verified.
 
 from __future__ import annotations
 
-import hashlib
 import http.client
 import os
 import shutil
@@ -35,6 +34,7 @@ from pathlib import Path
 
 from tactus_memory.datahome import ENV_DATA, STAG, user_data_dir
 from tactus_memory.errors import TactusError
+from tactus_memory.hashing import file_sha256
 
 #: the public mirror of the STAG lite files (the dataset itself: http://stag.csail.mit.edu),
 #: pinned to the commit the sums below were taken from
@@ -118,14 +118,6 @@ def fetch_target() -> Path:
     return Path(env).expanduser() if env else user_data_dir()
 
 
-def sha256_of(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def looks_like_mat(path: Path) -> bool:
     """A MATLAB 5 MAT-file header, or HDF5 (v7.3, signature at 0 or after the 512-byte
     userblock): catches an HTML error page or a Git LFS pointer saved as ``metadata.mat``."""
@@ -148,7 +140,7 @@ def record_sum(stag_root: Path, subset: str, digest: str) -> None:
 
 def _finish(part: Path, dest: Path, expected: str | None, what: str) -> str:
     """Verify ``part`` (format, sha256) and move it to ``dest``; delete it when bad."""
-    digest = sha256_of(part)
+    digest = file_sha256(part)
     if expected is not None and digest != expected:
         part.unlink(missing_ok=True)
         raise ChecksumError(
@@ -270,7 +262,7 @@ def fetch_stag(
     for name in names:
         dest = root / name / FILE
         pin = source.pins[name]
-        if dest.exists() and sha256_of(dest) == pin:
+        if dest.exists() and file_sha256(dest) == pin:
             say(f"{name}: already present and verified ({dest})")
             out.append(Placed(name, dest, pin, "present"))
             continue
@@ -324,7 +316,7 @@ def import_stag(
         pin = source.pins.get(name)
         if dest.exists() and dest.resolve() == src.resolve():
             raise FetchError(f"{src} is already the data folder's file")
-        if pin is not None and dest.exists() and sha256_of(dest) == pin:
+        if pin is not None and dest.exists() and file_sha256(dest) == pin:
             say(f"{name}: already present and verified ({dest})")
             out.append(Placed(name, dest, pin, "present"))
             continue

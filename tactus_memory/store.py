@@ -66,6 +66,7 @@ from tactus_memory.where import validate_source as validate_source
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa
+    from lancedb.table import Table
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +77,11 @@ META = "meta"
 CLOCK_KEY = "clock_offsets"
 #: columns returned by searches (everything except the vector and raw bytes)
 HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
+
+
+def _upsert(table: Table, key: str, data: pa.Table) -> None:
+    """One merge-insert commit on ``key``: matching rows replaced, the others inserted."""
+    table.merge_insert(key).when_matched_update_all().when_not_matched_insert_all().execute(data)
 
 
 # --------------------------------------------------------------------------- store
@@ -212,12 +218,7 @@ class Store:
         import pyarrow as pa
 
         data = pa.table({"key": [key], "value": [value]}, schema=meta_schema())
-        (
-            self._meta.merge_insert("key")
-            .when_matched_update_all()
-            .when_not_matched_insert_all()
-            .execute(data)
-        )
+        _upsert(self._meta, "key", data)
 
     # ----------------------------------------------------------- temporal state
     def clock_table(self) -> dict[str, dict[str, float]]:
@@ -245,37 +246,27 @@ class Store:
         import pyarrow as pa
 
         data = pa.Table.from_pylist([row], schema=senses_schema())
-        (
-            self._senses.merge_insert("name")
-            .when_matched_update_all()
-            .when_not_matched_insert_all()
-            .execute(data)
-        )
+        _upsert(self._senses, "name", data)
 
     # ----------------------------------------------------------- writes
     def write(self, data: pa.Table, *, upsert: bool) -> None:
         """One LanceDB commit: append, or merge-insert on ``id`` (idempotent upsert)."""
         with self.commit_lock:
             if upsert:
-                (
-                    self.items.merge_insert("id")
-                    .when_matched_update_all()
-                    .when_not_matched_insert_all()
-                    .execute(data)
-                )
+                _upsert(self.items, "id", data)
             else:
                 self.items.add(data)
         self._appends += 1
 
-    def owned_ids(self, ids: Sequence[str], session: str, sense: str) -> list[str]:
-        """The senses of the rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
+    def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
+        """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
 
         Raises IdConflictError, naming the first offending id, when any id already belongs to
         another session or another sense: an upsert never overwrites or moves another
         session's row. Call it under the memory's commit lock, just before :meth:`write`.
         """
         if self._items is None or not ids:
-            return []
+            return 0
         rows = self.scan(Where().ids(ids).sql(), ["id", "session", "sense"]).to_pylist()
         for row in rows:
             if row["session"] != session or row["sense"] != sense:
@@ -284,7 +275,7 @@ class Store:
                     f"(not {sense!r} in session {session!r}); use another id, or delete "
                     "that item first"
                 )
-        return [row["sense"] for row in rows]
+        return len(rows)
 
     def delete(self, where: str) -> None:
         with self.commit_lock:

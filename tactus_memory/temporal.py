@@ -16,7 +16,6 @@ this module. Offsets live in the store's ``meta`` table (persisted, shared by pr
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -63,10 +62,12 @@ from tactus_memory.models import Moment as Moment
 from tactus_memory.models import Occurrences as Occurrences
 from tactus_memory.models import Side as Side
 from tactus_memory.models import TimelineItem as TimelineItem
+from tactus_memory.models import row_fields
 from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import CLOCK_KEY, HIT_COLUMNS, Where, finite_float, validate_id
 from tactus_memory.store import validate_source as _validate_source
+from tactus_memory.vectors import vector_column
 
 __all__ = [
     "CLOCK_KEY",
@@ -101,22 +102,6 @@ __all__ = [
 ]
 
 Offsets = Mapping[tuple[str, str, str], float]
-
-
-def _row_item(row: dict[str, Any], offset: float) -> dict[str, Any]:
-    return {
-        "id": row["id"],
-        "session": row["session"],
-        "sense": row["sense"],
-        "source": row.get("source") or "",
-        "t": row["t"],
-        "t_end": row["t_end"],
-        "t_aligned": row["t"] + offset,
-        "t_end_aligned": row["t_end"] + offset,
-        "text": row.get("text"),
-        "meta": json.loads(row["meta"] or "{}") if isinstance(row.get("meta"), str) else {},
-        "episode": row.get("episode"),
-    }
 
 
 def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
@@ -278,8 +263,13 @@ class Temporal:
             lo, hi = a.t_end_aligned, a.t_end_aligned + window
         offsets = self.offsets()
         pad = _pad(offsets, a.session)
-        where = Where().session(a.session).t_range(lo - pad, None).source(scope.source)
-        where.parts.append(f"t <= {float(hi + pad)!r}")
+        where = (
+            Where()
+            .session(a.session)
+            .t_range(lo - pad, None)
+            .source(scope.source)
+            .overlaps(before=hi + pad)
+        )
         if names is not None:
             where.senses(names)
         items = [
@@ -298,12 +288,14 @@ class Temporal:
             raise InvalidInputError(
                 f"more than {TIMELINE_MAX} items in range; narrow it with after/before or senses"
             )
-        items = [
-            TimelineItem(
-                **_row_item(r, offsets.get((r["session"], r["sense"], r.get("source") or ""), 0.0))
+        items = []
+        for r in rows:
+            off = offsets.get((r["session"], r["sense"], r.get("source") or ""), 0.0)
+            items.append(
+                TimelineItem(
+                    **row_fields(r), t_aligned=r["t"] + off, t_end_aligned=r["t_end"] + off
+                )
             )
-            for r in rows
-        ]
         items.sort(key=lambda it: (it.t_aligned, it.t_end_aligned, it.sense, it.source, it.id))
         return items
 
@@ -321,14 +313,14 @@ class Temporal:
         offsets = self.offsets()
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
+        after, before = scope.bounds()
         if episodes:
-            eps = self.episodes(session, senses=names, source=scope.source)
-            eps = [e for e in eps if _overlaps(e, scope.after, scope.before)]
+            eps = self._episodes(session, names, scope.source)
+            eps = [e for e in eps if _overlaps(e, after, before)]
             return eps[:limit] if limit else eps
         where = scope.where(_pad(offsets, session))
         if names is not None:
             where.senses(names)
-        after, before = scope.bounds()
         items = [it for it in self._items(where, offsets) if _overlaps(it, after, before)]
         return items[:limit] if limit else items
 
@@ -362,7 +354,7 @@ class Temporal:
                 continue
             ids = tbl.column("id").to_pylist()
             firsts: list[tuple[float, str, str, int, np.ndarray]] = []
-            vecs = _vectors(tbl, self.memory.space.dim)
+            vecs = vector_column(tbl, self.memory.space.dim)
             t = tbl.column("t").to_numpy()
             t_end = tbl.column("t_end").to_numpy()
             for (sense, source), idx in sorted(_streams(tbl).items()):
@@ -387,9 +379,15 @@ class Temporal:
     ) -> list[Episode]:
         """The session's episodes in aligned time order (segmenting it first if needed)."""
         session = validate_id(session, "session id")
-        where = Where().session(session)
-        if self.store.count(where.sql()) == 0:
+        if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
+        return self._episodes(session, senses, source)
+
+    def _episodes(
+        self, session: str, senses: Sequence[str] | None, source: str | None
+    ) -> list[Episode]:
+        """:meth:`episodes` of a validated session known to have rows."""
+        where = Where().session(session)
         unsegmented = Where().session(session)
         unsegmented.parts.append("episode IS NULL")
         if self.store.count(unsegmented.sql()) > 0:
@@ -402,7 +400,7 @@ class Temporal:
         offsets = self.offsets()
         if tbl.num_rows == 0:
             return []
-        vecs = _vectors(tbl, self.memory.space.dim)
+        vecs = vector_column(tbl, self.memory.space.dim)
         ids = tbl.column("id").to_pylist()
         senses_col = tbl.column("sense").to_pylist()
         sources = [s or "" for s in tbl.column("source").to_pylist()]
@@ -410,10 +408,13 @@ class Temporal:
         t_end = tbl.column("t_end").to_numpy()
         ep = tbl.column("episode").to_numpy()
         out = []
-        for number in np.unique(ep):
-            members = np.flatnonzero(ep == number)
-            members = members[np.lexsort((np.array(ids, dtype=object)[members], t[members]))]
+        # one sort by (episode, t, id), split where the episode changes: rows of each episode
+        # in (t, id) order, episodes ascending
+        order = np.lexsort((np.array(ids, dtype=object), t, ep))
+        starts = np.flatnonzero(np.diff(ep[order])) + 1
+        for members in np.split(order, starts):
             first = members[0]
+            number = ep[first]
             off = offsets.get((session, senses_col[first], sources[first]), 0.0)
             rep = members[representative(vecs[members])]
             out.append(
@@ -471,8 +472,3 @@ def _streams(tbl: Any) -> dict[tuple[str, str], np.ndarray]:
         key: np.array(sorted(idx, key=lambda i: (t[i], ids[i])), dtype=np.int64)
         for key, idx in by.items()
     }
-
-
-def _vectors(tbl: Any, dim: int) -> np.ndarray:
-    flat = tbl.column("vector").combine_chunks().flatten()
-    return np.asarray(flat, dtype=np.float32).reshape(-1, dim)

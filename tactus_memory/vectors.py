@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from tactus_memory.errors import DimensionMismatchError, InvalidInputError
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 EPS = 1e-12
 #: largest absolute vector component: the float32 norm of 65536 of them stays finite
@@ -42,3 +47,9 @@ def as_unit_rows(
     if (norms < EPS).any():
         raise InvalidInputError(f"{what} has an all-zero row; it has no direction")
     return (arr / norms).astype(np.float32)
+
+
+def vector_column(tbl: pa.Table, dim: int) -> np.ndarray:
+    """A scanned table's fixed-size-list ``vector`` column -> (N, dim) float32 (as stored)."""
+    flat = tbl.column("vector").combine_chunks().flatten()
+    return np.asarray(flat, dtype=np.float32).reshape(-1, dim)

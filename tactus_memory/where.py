@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError
-from tactus_memory.limits import ID_RE
+from tactus_memory.limits import ID_DESCRIPTION, ID_RE
 from tactus_memory.senses import validate_sense_name
 
 
@@ -25,10 +25,7 @@ def validate_id(value: Any, what: str = "id") -> str:
             if not isinstance(value, str) or len(value) <= 60
             else repr(value[:60]) + "..."
         )
-        raise InvalidIdError(
-            f"invalid {what} {shown}: use 1-128 characters of [A-Za-z0-9._:-], "
-            "starting with a letter or digit"
-        )
+        raise InvalidIdError(f"invalid {what} {shown}: use {ID_DESCRIPTION.removesuffix('.')}")
     return value
 
 

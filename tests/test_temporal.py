@@ -281,6 +281,15 @@ def test_timeline_and_episodes_refuse_bad_input(kitchen, call, error) -> None:
         call(kitchen[0])
 
 
+@pytest.mark.parametrize("episodes", [False, True])
+def test_timeline_refuses_bad_bounds_with_and_without_episodes(kitchen, episodes) -> None:
+    mem = kitchen[0]
+    with pytest.raises(InvalidInputError, match=r"after \(50.0\) is later than before \(10.0\)"):
+        mem.timeline(S, episodes=episodes, after=50.0, before=10.0)
+    with pytest.raises(InvalidInputError, match="after must be a number"):
+        mem.timeline(S, episodes=episodes, after="soon")  # type: ignore[arg-type]
+
+
 # --------------------------------------------------------------------------- moments
 def test_search_group_moment_joins_touch_and_note(kitchen) -> None:
     mem, ids = kitchen

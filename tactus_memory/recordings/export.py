@@ -33,7 +33,8 @@ Memory = Any
 
 TIMELINE = "session_time"
 APPLICATION_ID = "tactus-memory"
-SCAN_COLUMNS = ("id", "sense", "raw", "text", "source")
+#: columns read back for the export (the items themselves come from the timeline)
+SCAN_COLUMNS = ("id", "raw")
 #: moments of a query exported with --query
 MOMENTS_K = 20
 #: pixels per taxel in the exported heat maps: 1 keeps a K=8 window at 32 x 263 RGBA (34 kB;

@@ -16,7 +16,6 @@ copy is authoritative. The file's sha256 is the provenance handle (``file_sha256
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -30,6 +29,7 @@ from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 from tactus_memory import __version__
+from tactus_memory.hashing import file_sha256 as file_sha256
 from tactus_memory.touch.model import TactusConfig, TactusModel
 from tactus_memory.touch.targets import Targets
 
@@ -47,14 +47,6 @@ def default_checkpoint_path() -> Path:
             "train one with `tactus train` and use TactusEncoder.from_pretrained(path)"
         )
     return path
-
-
-def file_sha256(path: str | os.PathLike[str]) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 @dataclass

@@ -37,7 +37,6 @@ score against classes), so Tactus and the baseline share one code path and one J
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,6 +46,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.hashing import file_sha256
 from tactus_memory.touch.targets import centre, natural_name
 from tactus_memory.touch.tuples import TupleSampler
 
@@ -122,11 +122,7 @@ def file_fingerprint(data: StagData, path: str | Path | None = None) -> dict[str
     if p.is_dir():
         p = p / "metadata.mat"
     if p.is_file():
-        h = hashlib.sha256()
-        with open(p, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                h.update(chunk)
-        out["file_sha256"] = h.hexdigest()
+        out["file_sha256"] = file_sha256(p)
     return out
 
 
