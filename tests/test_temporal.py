@@ -359,7 +359,10 @@ def test_delete_session_removes_its_clock_offsets(mem: Memory) -> None:
     mem.add("gone", "text", "a note", t=1.0)
     mem.add("kept", "text", "another note", t=1.0)
     mem.set_clock_offset("gone", "text", 5.0)
+    mem.set_clock_offset("gone", "touch", 2.0, source="glove-l")  # several: all removed
+    mem.set_clock_offset("gone", "touch", 3.0, source="glove-r")
     mem.set_clock_offset("kept", "text", 7.0)
+    assert len(mem.clock_offsets("gone")) == 3
     assert mem.delete_session("gone") == 1
     assert mem.clock_offsets("gone") == []
     assert [(o.session, o.offset) for o in mem.clock_offsets()] == [("kept", 7.0)]
