@@ -154,6 +154,8 @@ def test_read_only_store_refuses_writes_and_serves_reads(client):
     assert client.get("/search", params={"q": "red ball"}).status_code == 200
     r = client.post("/search/like", json={"text": "red ball"})
     assert r.status_code != 503, r.text
+    r = client.post("/search/like/image", files={"file": ("x.png", b"not a png", "image/png")})
+    assert r.status_code != 503, r.text  # a read-only POST: answered by the route, not refused
     assert_problem(client.post("/sessions/s1/text", json={"text": "x", "t": 2}), 503, "read-only")
     assert_problem(client.delete("/sessions/s1"), 503, "read-only")
     assert_problem(
