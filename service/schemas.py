@@ -60,7 +60,7 @@ Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": 32, "maxItems"
 #: (K, 32, 32) a window, 1 <= K <= 512
 Window = Annotated[list[Frame], Field(min_length=1, max_length=512)]
 #: an item id (the store's rule)
-ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=128)]
+ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
 
 T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
 T_END_DESC = "End time in seconds (>= t); defaults to t."
