@@ -37,7 +37,6 @@ import contextlib
 import json
 import logging
 import math
-import re
 import time
 import uuid
 from typing import Any
@@ -46,8 +45,9 @@ import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from tactus_memory.errors import InvalidInputError, OverloadedError, TactusError
+from tactus_memory.limits import ID_DESCRIPTION, ID_RE
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
-from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
+from tactus_memory.service.deps import bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.touch.windows import WindowStream
 
@@ -55,7 +55,6 @@ log = logging.getLogger("tactus_memory.service")
 
 router = APIRouter(tags=["touch"])
 
-ID_RE = re.compile(ID_PATTERN)
 MAX_WINDOW = 512
 QUEUE_WINDOWS = 256
 POLICY_VIOLATION = 1008
@@ -144,8 +143,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
     if not ID_RE.fullmatch(session):
         await refuse(
             422,
-            f"invalid session id {session[:60]!r}: use 1-128 characters of "
-            "[A-Za-z0-9._:-], starting with a letter or digit",
+            f"invalid session id {session[:60]!r}: use {ID_DESCRIPTION.rstrip('.')}",
             POLICY_VIOLATION,
         )
         return
