@@ -45,7 +45,7 @@ import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from tactus_memory.errors import InvalidInputError, OverloadedError, TactusError
-from tactus_memory.limits import ID_DESCRIPTION, ID_RE
+from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_WINDOW_FRAMES
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
@@ -55,7 +55,6 @@ log = logging.getLogger("tactus_memory.service")
 
 router = APIRouter(tags=["touch"])
 
-MAX_WINDOW = 512
 QUEUE_WINDOWS = 256
 POLICY_VIOLATION = 1008
 TRY_AGAIN_LATER = 1013
@@ -83,8 +82,8 @@ class StreamParams:
             value = int(raw)
         except ValueError:
             raise InvalidInputError(f"{name} must be an integer, got {raw!r}") from None
-        if not 1 <= value <= MAX_WINDOW:
-            raise InvalidInputError(f"{name} must be in [1, {MAX_WINDOW}], got {value}")
+        if not 1 <= value <= MAX_WINDOW_FRAMES:
+            raise InvalidInputError(f"{name} must be in [1, {MAX_WINDOW_FRAMES}], got {value}")
         return value
 
     @staticmethod

@@ -185,7 +185,7 @@ async def touch_json(
 class RenderIn(Strict):
     """A touch window to draw (e.g. the example the user is about to search with)."""
 
-    frames: Window = Field(description="(K, 32, 32) pressure frames.", min_length=1, max_length=512)
+    frames: Window = Field(description="(K, 32, 32) pressure frames.")
     calibrated: bool | None = Field(
         None, description="true: 0..1; false: raw sensor units; null: decided from the values."
     )
