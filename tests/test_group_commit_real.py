@@ -5,18 +5,18 @@ fewer commits (table versions) than acknowledged writes."""
 
 from __future__ import annotations
 
-import io
 import json
 import signal
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 import httpx
-import numpy as np
 import pytest
 
 from tactus_memory.store import Store
-from tests.test_service_helpers import window
+from tests.test_service_helpers import npy_bytes, window
 from tests.test_service_uvicorn import Server
 
 pytestmark = pytest.mark.slow
@@ -26,12 +26,6 @@ HZ = 30.0  # STAG glove frame rate (frames per second)
 K = 8  # frames per window (the shipped encoder's window)
 ACKED_WINDOWS_BEFORE_KILL = 80
 ACKED_NOTES_BEFORE_KILL = 10
-
-
-def _npy(arr: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, arr.astype(np.float32), allow_pickle=False)
-    return buf.getvalue()
 
 
 def test_real_server_group_commit_survives_sigkill(tmp_path):
@@ -47,6 +41,18 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
     lock = threading.Lock()
     enough = threading.Event()
     errors: list[str] = []
+    failures: list[BaseException] = []  # what a worker thread raised: re-raised after join
+
+    def guarded(work: Callable[..., None]) -> Callable[..., None]:
+        def run(*args: Any) -> None:
+            try:
+                work(*args)
+            except BaseException as exc:  # noqa: BLE001  (re-raised in the main thread)
+                with lock:
+                    failures.append(exc)
+                enough.set()
+
+        return run
 
     def check() -> None:
         if (
@@ -75,10 +81,10 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
                     except (ConnectionClosed, TimeoutError, OSError):
                         return
 
-                rx = threading.Thread(target=receive, daemon=True)
+                rx = threading.Thread(target=guarded(receive), daemon=True)
                 rx.start()
                 for i in range(10_000):
-                    ws.send(_npy(window(k=K, seed=g * 10_000 + i)))
+                    ws.send(npy_bytes(window(k=K, seed=g * 10_000 + i)))
                     time.sleep(K / HZ)
         except (ConnectionClosed, OSError, TimeoutError):
             return  # the server is gone
@@ -96,8 +102,10 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
                     check()
                 time.sleep(0.05)
 
-    threads = [threading.Thread(target=glove, args=(g,), daemon=True) for g in range(GLOVES)]
-    threads += [threading.Thread(target=writer, args=(w,), daemon=True) for w in range(2)]
+    threads = [
+        threading.Thread(target=guarded(glove), args=(g,), daemon=True) for g in range(GLOVES)
+    ]
+    threads += [threading.Thread(target=guarded(writer), args=(w,), daemon=True) for w in range(2)]
     try:
         for th in threads:
             th.start()
@@ -107,6 +115,9 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
     assert server.proc.returncode == -signal.SIGKILL
     for th in threads:
         th.join(30)
+    with lock:
+        if failures:
+            raise failures[0]
     assert errors == []
     with lock:
         acked = {s: list(ids) for s, ids in windows.items()}
