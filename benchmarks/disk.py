@@ -41,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactus_memory.maintenance import MaintenanceConfig, footprint  # noqa: E402
+from tactus_memory.maintenance import MaintenanceConfig, dir_bytes, footprint  # noqa: E402
 from tactus_memory.memory import Memory  # noqa: E402
 from tactus_memory.senses import Sense, array_to_bytes  # noqa: E402
 from tactus_memory.spaces.base import Space  # noqa: E402
@@ -148,7 +148,7 @@ def run_policy(policy: str, args: argparse.Namespace, root: str) -> dict[str, An
                 "versions": fp.versions,
                 "fragments": fp.fragments,
                 "rows": fp.rows,
-                "store_bytes": _dir_bytes(path),
+                "store_bytes": dir_bytes(path),
             }
         )
         s = samples[-1]
@@ -179,12 +179,6 @@ def run_policy(policy: str, args: argparse.Namespace, root: str) -> dict[str, An
     }
     shutil.rmtree(path, ignore_errors=True)
     return out
-
-
-def _dir_bytes(path: str) -> int:
-    from tactus_memory.maintenance import dir_bytes
-
-    return dir_bytes(path)
 
 
 def main() -> None:
