@@ -22,15 +22,13 @@ import numpy as np
 import pytest
 
 from benchmarks.s3local import moto_s3
-from benchmarks.serving import free_port, start_serve
 from tactus_memory.errors import NotFoundError
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
 from tests.replicas import STALENESS, open_replica, start_writer, wait_for
-from tests.servers import stop_process, wait_healthy
+from tests.test_service_uvicorn import Server
 
 BUCKET = "tactus-test"
-STARTUP_S = 180  # a server loads MiniLM first (slow on 2 shared cores)
 
 
 @pytest.fixture(scope="module")
@@ -167,27 +165,21 @@ def test_tactus_maintain_on_s3(uri: str, aws_env: dict[str, str]) -> None:
 
 
 # ------------------------------------------------------------------ real HTTP
-class _Serve:
-    def __init__(self, uri: str, env: dict[str, str], log: Path, *extra: str) -> None:
-        self.port = free_port()
-        self.base = f"http://127.0.0.1:{self.port}"
-        full = {**env, "OMP_NUM_THREADS": "1", "TACTUS_READ_CONSISTENCY": str(STALENESS)}
-        self.proc = start_serve(self.port, uri, log, "--no-touch", *extra, env=full)
-        self.log = log
-        wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.stop)
-
-    def stop(self) -> None:
-        stop_process(self.proc)
+def _serve(uri: str, env: dict[str, str], log: Path, *extra: str) -> Server:
+    """``tactus serve --data s3://...`` without touch, reading others' commits every STALENESS s."""
+    return Server(
+        uri, log, "--no-touch", *extra, env={**env, "TACTUS_READ_CONSISTENCY": str(STALENESS)}
+    )
 
 
 @pytest.mark.slow
 def test_two_serve_replicas_on_s3_over_http(
     uri: str, aws_env: dict[str, str], tmp_path: Path
 ) -> None:
-    first = _Serve(uri, aws_env, tmp_path / "a.log")  # owns maintenance
+    first = _serve(uri, aws_env, tmp_path / "a.log")  # owns maintenance
     second = None
     try:
-        second = _Serve(uri, aws_env, tmp_path / "b.log", "--no-maintain")
+        second = _serve(uri, aws_env, tmp_path / "b.log", "--no-maintain")
         r = httpx.post(
             first.base + "/sessions/kitchen/text",
             json={"text": "put the red mug on the shelf", "t": 1.0},
