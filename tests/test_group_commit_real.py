@@ -9,8 +9,6 @@ import json
 import signal
 import threading
 import time
-from collections.abc import Callable
-from typing import Any
 
 import httpx
 import pytest
@@ -18,6 +16,7 @@ import pytest
 from tactus_memory.store import Store
 from tests.test_service_helpers import npy_bytes, window
 from tests.test_service_uvicorn import Server
+from tests.threads import ThreadErrors
 
 pytestmark = pytest.mark.slow
 
@@ -41,18 +40,7 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
     lock = threading.Lock()
     enough = threading.Event()
     errors: list[str] = []
-    failures: list[BaseException] = []  # what a worker thread raised: re-raised after join
-
-    def guarded(work: Callable[..., None]) -> Callable[..., None]:
-        def run(*args: Any) -> None:
-            try:
-                work(*args)
-            except BaseException as exc:  # noqa: BLE001  (re-raised in the main thread)
-                with lock:
-                    failures.append(exc)
-                enough.set()
-
-        return run
+    failures = ThreadErrors(on_error=enough.set)  # what a worker raised: re-raised after join
 
     def check() -> None:
         if (
@@ -81,7 +69,7 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
                     except (ConnectionClosed, TimeoutError, OSError):
                         return
 
-                rx = threading.Thread(target=guarded(receive), daemon=True)
+                rx = threading.Thread(target=failures.wrap(receive), daemon=True)
                 rx.start()
                 for i in range(10_000):
                     ws.send(npy_bytes(window(k=K, seed=g * 10_000 + i)))
@@ -103,9 +91,11 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
                 time.sleep(0.05)
 
     threads = [
-        threading.Thread(target=guarded(glove), args=(g,), daemon=True) for g in range(GLOVES)
+        threading.Thread(target=failures.wrap(glove), args=(g,), daemon=True) for g in range(GLOVES)
     ]
-    threads += [threading.Thread(target=guarded(writer), args=(w,), daemon=True) for w in range(2)]
+    threads += [
+        threading.Thread(target=failures.wrap(writer), args=(w,), daemon=True) for w in range(2)
+    ]
     try:
         for th in threads:
             th.start()
@@ -115,9 +105,7 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
     assert server.proc.returncode == -signal.SIGKILL
     for th in threads:
         th.join(30)
-    with lock:
-        if failures:
-            raise failures[0]
+    failures.raise_first()
     assert errors == []
     with lock:
         acked = {s: list(ids) for s, ids in windows.items()}
