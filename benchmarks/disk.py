@@ -41,27 +41,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactus_memory.maintenance import MaintenanceConfig, footprint  # noqa: E402
+# the 384-d stand-in space of memory.py: random unit vectors (text embedding is not measured)
+from memory import DIM, BenchSpace  # noqa: E402
+
+from tactus_memory.maintenance import MaintenanceConfig, dir_bytes, footprint  # noqa: E402
 from tactus_memory.memory import Memory  # noqa: E402
 from tactus_memory.senses import Sense, array_to_bytes  # noqa: E402
-from tactus_memory.spaces.base import Space  # noqa: E402
 
-DIM = 384
 WINDOW = (8, 32, 32)  # K frames x 32 x 32 taxels, int16 STAG units (a touch row's raw bytes)
-
-
-class BenchSpace(Space):
-    """384-d stand-in space: random unit vectors (text embedding is not what is measured)."""
-
-    name = "bench-384"
-    dim = DIM
-
-    def __init__(self) -> None:
-        self.rng = np.random.default_rng(0)
-
-    def embed_texts(self, texts: Sequence[str], *, query: bool = False) -> np.ndarray:
-        v = self.rng.standard_normal((len(texts), DIM)).astype(np.float32)
-        return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
 class RawTouchSense(Sense):
@@ -148,7 +135,7 @@ def run_policy(policy: str, args: argparse.Namespace, root: str) -> dict[str, An
                 "versions": fp.versions,
                 "fragments": fp.fragments,
                 "rows": fp.rows,
-                "store_bytes": _dir_bytes(path),
+                "store_bytes": dir_bytes(path),
             }
         )
         s = samples[-1]
@@ -179,12 +166,6 @@ def run_policy(policy: str, args: argparse.Namespace, root: str) -> dict[str, An
     }
     shutil.rmtree(path, ignore_errors=True)
     return out
-
-
-def _dir_bytes(path: str) -> int:
-    from tactus_memory.maintenance import dir_bytes
-
-    return dir_bytes(path)
 
 
 def main() -> None:

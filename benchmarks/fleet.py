@@ -39,7 +39,6 @@ import contextlib
 import json
 import os
 import shutil
-import signal
 import tempfile
 import time
 from pathlib import Path
@@ -54,7 +53,7 @@ from load import (
     run_header,
     stream_gloves,
 )
-from serving import free_port, start_serve, stop_process, wait_ok
+from serving import free_port, kill_process, start_serve, stop_process, wait_ok
 
 ROOT = Path(__file__).resolve().parents[1]
 K = 10
@@ -103,9 +102,7 @@ class TactusServer:
             raise SystemExit(f"touch did not load: {self.health.get('touch_unavailable')}")
 
     def kill9(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGKILL)
-            self.proc.wait(30)
+        kill_process(self.proc)
 
     def stop(self) -> None:
         stop_process(self.proc, 60)

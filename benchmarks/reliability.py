@@ -29,7 +29,6 @@ import asyncio
 import json
 import os
 import platform
-import signal
 import subprocess
 import tempfile
 import time
@@ -39,7 +38,7 @@ from typing import Any
 
 import numpy as np
 from load import npy
-from serving import free_port, start_serve, wait_ok
+from serving import free_port, kill_process, start_serve, wait_ok
 
 ROOT = Path(__file__).resolve().parents[1]
 WINDOW = 8  # frames per touch window (the stream default, Settings.window)
@@ -67,9 +66,7 @@ class Server:
         return None
 
     def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGKILL)
-            self.proc.wait(30)
+        kill_process(self.proc)
 
 
 class Ledger:

@@ -74,3 +74,10 @@ def stop_process(proc: subprocess.Popen, wait_s: float = 20) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(10)
+
+
+def kill_process(proc: subprocess.Popen | None, wait_s: float = 30) -> None:
+    """SIGKILL (no shutdown hooks, no flush) and reap, if the process is still there."""
+    if proc is not None and proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(wait_s)

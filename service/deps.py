@@ -94,6 +94,10 @@ SessionId = Annotated[
         examples=["kitchen-2026-11-21"],
     ),
 ]
+ItemIdPath = Annotated[
+    str,
+    Path(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Item id. " + ID_DESCRIPTION),
+]
 
 
 def token_ok(settings: Settings, presented: str | None) -> bool:

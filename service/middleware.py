@@ -129,7 +129,7 @@ class BodyLimitMiddleware:
 
 
 #: POST routes that only read (search by example, drawing a window): allowed on a read-only store
-READ_ONLY_POSTS = ("/search/like", "/render/touch.png")
+READ_ONLY_POSTS = ("/search/like", "/search/like/image", "/render/touch.png")
 WRITE_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from tactus_memory.connect import is_remote_uri, normalise_uri
+
 #: what LanceDB's Python binding raises when a file of the store cannot be read
 _LANCE_IO_MARKERS = ("LanceError(IO)", "Not found:", "No such file", "Permission denied")
 
@@ -50,7 +52,7 @@ def store_problem(memory: Any) -> str | None:
 
 def store_read_only(uri: str) -> bool:
     """Whether a local store directory exists but cannot be written by this process."""
-    if "://" in uri and not uri.startswith("file://"):
+    if is_remote_uri(uri):
         return False
-    path = uri.removeprefix("file://")
+    path = normalise_uri(uri)  # the store's uri is already normalised: a local path
     return os.path.isdir(path) and not os.access(path, os.W_OK | os.X_OK)

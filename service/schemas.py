@@ -14,6 +14,7 @@ from tactus_memory.limits import (
     MAX_ID_CHARS,
     MAX_K,
     MAX_TEXT_CHARS,
+    MAX_WINDOW_FRAMES,
     SOURCE_PATTERN,
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
@@ -57,10 +58,10 @@ NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
 Row = Annotated[list[Value], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
 #: (32, 32) one frame
 Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
-#: (K, 32, 32) a window, 1 <= K <= 512
-Window = Annotated[list[Frame], Field(min_length=1, max_length=512)]
+#: (K, 32, 32) a window, 1 <= K <= MAX_WINDOW_FRAMES
+Window = Annotated[list[Frame], Field(min_length=1, max_length=MAX_WINDOW_FRAMES)]
 #: an item id (the store's rule)
-ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=128)]
+ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
 
 T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
 T_END_DESC = "End time in seconds (>= t); defaults to t."
@@ -87,8 +88,6 @@ class TouchWindowIn(Strict):
     frames: Window = Field(
         description="(K, 32, 32) pressure frames, RAW sensor units (e.g. 500-700 for the STAG "
         "glove) unless calibrated=true.",
-        min_length=1,
-        max_length=512,
     )
     t: float = Field(description=T_DESC)
     t_end: float | None = Field(None, description=T_END_DESC)

@@ -9,6 +9,8 @@ from __future__ import annotations
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from tactus_memory.limits import MAX_WINDOW_FRAMES
+
 
 class Settings(BaseSettings):
     """Everything the service can be told. Every field reads ``TACTUS_<NAME>`` too."""
@@ -48,8 +50,12 @@ class Settings(BaseSettings):
     max_ws_message_bytes: int = Field(
         1024 * 1024, ge=1024, description="Largest WebSocket message accepted on touch streams."
     )
-    window: int = Field(8, ge=1, le=512, description="Default frames per window on touch streams.")
-    stride: int = Field(8, ge=1, le=512, description="Default frames between window starts.")
+    window: int = Field(
+        8, ge=1, le=MAX_WINDOW_FRAMES, description="Default frames per window on touch streams."
+    )
+    stride: int = Field(
+        8, ge=1, le=MAX_WINDOW_FRAMES, description="Default frames between window starts."
+    )
     write_threads: int = Field(
         2,
         ge=1,

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from tactus_memory.errors import TactusError
+from tactus_memory.connect import is_remote_uri, normalise_uri
+from tactus_memory.errors import InvalidInputError, TactusError
 from tactus_memory.service.readiness import is_store_failure, short
 
 
@@ -24,9 +25,12 @@ class StartupError(Exception):
 
 def check_location(data: str) -> None:
     """Refuse a local ``--data`` that cannot be a memory directory (before opening it)."""
-    if "://" in data and not data.startswith("file://"):
+    if is_remote_uri(data):
         return  # object storage: the open itself reports
-    path = Path(data.removeprefix("file://"))
+    try:
+        path = Path(normalise_uri(data))
+    except InvalidInputError:
+        return  # an unknown scheme: opening the memory says which
     if path.exists() and not path.is_dir():
         raise StartupError(
             f"--data {data} is a regular file, not a memory directory: pass a directory "

@@ -17,6 +17,8 @@ MAX_META_BYTES = 65_536
 MAX_BATCH = 100_000
 #: the longest session / item / source id
 MAX_ID_CHARS = 128
+#: the most frames in one touch window (a request's window, a stream's window and stride)
+MAX_WINDOW_FRAMES = 512
 
 #: sense names: 1-32 characters of [a-z0-9_], starting with a letter
 SENSE_NAME_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"

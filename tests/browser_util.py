@@ -17,7 +17,6 @@ import argparse
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -26,6 +25,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks.serving import free_port
 from tests.servers import stop_process, wait_healthy
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,12 +80,6 @@ def launch(pw: Any, profile_dir: Path) -> Any:
 
 
 # ----------------------------------------------------------------------------- server
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Server:
     """``python -m tests.browser_util serve`` in a subprocess; ``base`` is its URL."""
 

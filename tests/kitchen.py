@@ -9,15 +9,28 @@ grasp starts, "picked up the screwdriver" ``delay`` s after 55, "dropped the can
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from tactus_memory.memory import Memory
+from tactus_memory.senses import VectorSense
 from tactus_memory.spaces.base import Space
+from tests.fakes import HashingSpace
 
 S = "kitchen"
 MUG_GRASPS = [10.0, 40.0, 70.0]
 SCREW_GRASP = 55.0
 #: an empty hand (one window each)
 IDLE = [0.0, 5.0, 20.0, 25.0, 30.0, 50.0, 60.0, 80.0, 85.0, 95.0]
+
+
+def kitchen_memory(path: Path | str) -> Memory:
+    """A fast memory for the kitchen scenario: HashingSpace (384-d) at the space seam, no
+    background work, and a VectorSense "touch" stand-in for controlled vectors."""
+    mem = Memory.open(str(path), space=HashingSpace(dim=384), background=False)
+    mem.add_sense(VectorSense("touch", dim=384))
+    return mem
 
 
 def kitchen_notes(delay: float) -> list[tuple[str, float]]:

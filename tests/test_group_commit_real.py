@@ -5,19 +5,18 @@ fewer commits (table versions) than acknowledged writes."""
 
 from __future__ import annotations
 
-import io
 import json
 import signal
 import threading
 import time
 
 import httpx
-import numpy as np
 import pytest
 
 from tactus_memory.store import Store
-from tests.test_service_helpers import window
+from tests.test_service_helpers import npy_bytes, window
 from tests.test_service_uvicorn import Server
+from tests.threads import ThreadErrors
 
 pytestmark = pytest.mark.slow
 
@@ -26,12 +25,6 @@ HZ = 30.0  # STAG glove frame rate (frames per second)
 K = 8  # frames per window (the shipped encoder's window)
 ACKED_WINDOWS_BEFORE_KILL = 80
 ACKED_NOTES_BEFORE_KILL = 10
-
-
-def _npy(arr: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, arr.astype(np.float32), allow_pickle=False)
-    return buf.getvalue()
 
 
 def test_real_server_group_commit_survives_sigkill(tmp_path):
@@ -47,6 +40,7 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
     lock = threading.Lock()
     enough = threading.Event()
     errors: list[str] = []
+    failures = ThreadErrors(on_error=enough.set)  # what a worker raised: re-raised after join
 
     def check() -> None:
         if (
@@ -75,10 +69,10 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
                     except (ConnectionClosed, TimeoutError, OSError):
                         return
 
-                rx = threading.Thread(target=receive, daemon=True)
+                rx = threading.Thread(target=failures.wrap(receive), daemon=True)
                 rx.start()
                 for i in range(10_000):
-                    ws.send(_npy(window(k=K, seed=g * 10_000 + i)))
+                    ws.send(npy_bytes(window(k=K, seed=g * 10_000 + i)))
                     time.sleep(K / HZ)
         except (ConnectionClosed, OSError, TimeoutError):
             return  # the server is gone
@@ -96,8 +90,12 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
                     check()
                 time.sleep(0.05)
 
-    threads = [threading.Thread(target=glove, args=(g,), daemon=True) for g in range(GLOVES)]
-    threads += [threading.Thread(target=writer, args=(w,), daemon=True) for w in range(2)]
+    threads = [
+        threading.Thread(target=failures.wrap(glove), args=(g,), daemon=True) for g in range(GLOVES)
+    ]
+    threads += [
+        threading.Thread(target=failures.wrap(writer), args=(w,), daemon=True) for w in range(2)
+    ]
     try:
         for th in threads:
             th.start()
@@ -107,6 +105,7 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
     assert server.proc.returncode == -signal.SIGKILL
     for th in threads:
         th.join(30)
+    failures.raise_first()
     assert errors == []
     with lock:
         acked = {s: list(ids) for s, ids in windows.items()}

@@ -22,15 +22,12 @@ import numpy as np
 import pytest
 
 from benchmarks.s3local import moto_s3
-from benchmarks.serving import free_port, start_serve
 from tactus_memory.errors import NotFoundError
-from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
 from tests.replicas import STALENESS, open_replica, start_writer, wait_for
-from tests.servers import stop_process, wait_healthy
+from tests.test_service_uvicorn import Server
 
 BUCKET = "tactus-test"
-STARTUP_S = 180  # a server loads MiniLM first (slow on 2 shared cores)
 
 
 @pytest.fixture(scope="module")
@@ -56,21 +53,13 @@ def uri(aws_env: dict[str, str]) -> str:
     return f"s3://{BUCKET}/{uuid.uuid4().hex[:12]}"
 
 
-def _open(uri: str, *, maintain: bool = True, **kw) -> Memory:
-    return open_replica(uri, maintain=maintain, **kw)
-
-
-def _wait_for(check, timeout: float = 15.0) -> float:
-    return wait_for(check, timeout)
-
-
-def _writer(uri: str, prefix: str, n: int, env: dict[str, str], *extra: str) -> subprocess.Popen:
-    return start_writer(uri, prefix, n, *extra, env=env)
+#: seconds a replica waits to see another's writes (on s3://, slower than a local store)
+WAIT_S = 15.0
 
 
 # ------------------------------------------------------------------ the contract on s3://
 def test_memory_contract_on_s3(uri: str) -> None:
-    mem = _open(uri)
+    mem = open_replica(uri, maintain=True)
     assert mem.store.storage_options["allow_http"] == "true"  # from the http:// endpoint
     a = mem.add("kitchen", "text", "put the red mug on the shelf", t=1.0, meta={"by": "op"})
     mem.add_many("kitchen", "text", ["a soft sponge", "a cold spoon"], t=[2.0, 3.0])
@@ -90,7 +79,7 @@ def test_memory_contract_on_s3(uri: str) -> None:
     with pytest.raises(NotFoundError):
         mem.get_item(a)
     assert mem.delete_session("garage") == 3
-    again = _open(uri)  # a fresh connection reads the same store back
+    again = open_replica(uri, maintain=True)  # a fresh connection reads the same store back
     assert len(again) == 3
     assert [s.id for s in again.sessions()] == ["kitchen"]
     assert {s.name: s.rows for s in again.sense_info()} == {"motion": 0, "text": 3}
@@ -99,30 +88,33 @@ def test_memory_contract_on_s3(uri: str) -> None:
 def test_two_replicas_write_concurrently_and_see_each_other(
     uri: str, aws_env: dict[str, str]
 ) -> None:
-    a = _open(uri)
-    b = _open(uri, maintain=False)
+    a = open_replica(uri, maintain=True)
+    b = open_replica(uri, maintain=False)
     a.add("s1", "text", "the red mug from a")
-    lag = _wait_for(lambda: len(b.search("red mug", k=5)) == 1)
+    lag = wait_for(lambda: len(b.search("red mug", k=5)) == 1, WAIT_S)
     assert lag <= STALENESS + 2.0
     b.add("s1", "text", "a blue cup from b")
-    _wait_for(lambda: {s.name: s.rows for s in a.sense_info()}["text"] == 2)
+    wait_for(lambda: {s.name: s.rows for s in a.sense_info()}["text"] == 2, WAIT_S)
     # two processes appending at once (one is the maintainer, compacting meanwhile)
     n = 25
-    procs = [_writer(uri, "p", n, aws_env, "--maintain"), _writer(uri, "q", n, aws_env)]
+    procs = [
+        start_writer(uri, "p", n, "--maintain", env=aws_env),
+        start_writer(uri, "q", n, env=aws_env),
+    ]
     acked: list[str] = []
     for p in procs:
         out, err = p.communicate(timeout=600)
         assert p.returncode == 0, err[-3000:]
         acked += [line for line in out.splitlines() if line != "ready"]
     assert len(acked) == 2 * n
-    _wait_for(lambda: len(b) == 2 * n + 2)
+    wait_for(lambda: len(b) == 2 * n + 2, WAIT_S)
     ids = set(b.store.scan(None, ["id"]).column("id").to_pylist())
     assert set(acked) <= ids and len(ids) == 2 * n + 2
 
 
 def test_acknowledged_rows_survive_a_killed_writer(uri: str, aws_env: dict[str, str]) -> None:
-    _open(uri).close()  # the tables exist before the writer starts
-    proc = _writer(uri, "k", 10_000, aws_env, "--delay", "0.02")
+    open_replica(uri, maintain=True).close()  # the tables exist before the writer starts
+    proc = start_writer(uri, "k", 10_000, "--delay", "0.02", env=aws_env)
     acked: list[str] = []
     assert proc.stdout is not None
     try:
@@ -135,7 +127,7 @@ def test_acknowledged_rows_survive_a_killed_writer(uri: str, aws_env: dict[str, 
         proc.send_signal(signal.SIGKILL)
         proc.wait(30)
     assert proc.returncode == -signal.SIGKILL
-    mem = _open(uri)
+    mem = open_replica(uri, maintain=True)
     ids = set(mem.store.scan(None, ["id"]).column("id").to_pylist())
     assert set(acked) <= ids  # every acknowledged row is there
     assert len(ids) <= len(acked) + 2  # at most the rows in flight at the kill besides
@@ -144,7 +136,7 @@ def test_acknowledged_rows_survive_a_killed_writer(uri: str, aws_env: dict[str, 
 
 
 def test_tactus_maintain_on_s3(uri: str, aws_env: dict[str, str]) -> None:
-    replica = _open(uri, maintain=False)
+    replica = open_replica(uri, maintain=False)
     for i in range(12):
         replica.add("s1", "text", f"note {i}")
     tactus = [sys.executable, "-c", "from tactus_memory.cli import main; main()"]
@@ -162,32 +154,26 @@ def test_tactus_maintain_on_s3(uri: str, aws_env: dict[str, str]) -> None:
     items = [r for r in reports if r["table"] == "items.lance"]
     assert len(items) == 2 and items[0]["compacted_groups"] >= 1
     assert items[-1]["fragments"] < 12
-    _wait_for(lambda: len(replica) == 12)
+    wait_for(lambda: len(replica) == 12, WAIT_S)
     assert len(replica.search("note", k=20)) == 12  # the replica reads on after cleanup
 
 
 # ------------------------------------------------------------------ real HTTP
-class _Serve:
-    def __init__(self, uri: str, env: dict[str, str], log: Path, *extra: str) -> None:
-        self.port = free_port()
-        self.base = f"http://127.0.0.1:{self.port}"
-        full = {**env, "OMP_NUM_THREADS": "1", "TACTUS_READ_CONSISTENCY": str(STALENESS)}
-        self.proc = start_serve(self.port, uri, log, "--no-touch", *extra, env=full)
-        self.log = log
-        wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.stop)
-
-    def stop(self) -> None:
-        stop_process(self.proc)
+def _serve(uri: str, env: dict[str, str], log: Path, *extra: str) -> Server:
+    """``tactus serve --data s3://...`` without touch, reading others' commits every STALENESS s."""
+    return Server(
+        uri, log, "--no-touch", *extra, env={**env, "TACTUS_READ_CONSISTENCY": str(STALENESS)}
+    )
 
 
 @pytest.mark.slow
 def test_two_serve_replicas_on_s3_over_http(
     uri: str, aws_env: dict[str, str], tmp_path: Path
 ) -> None:
-    first = _Serve(uri, aws_env, tmp_path / "a.log")  # owns maintenance
+    first = _serve(uri, aws_env, tmp_path / "a.log")  # owns maintenance
     second = None
     try:
-        second = _Serve(uri, aws_env, tmp_path / "b.log", "--no-maintain")
+        second = _serve(uri, aws_env, tmp_path / "b.log", "--no-maintain")
         r = httpx.post(
             first.base + "/sessions/kitchen/text",
             json={"text": "put the red mug on the shelf", "t": 1.0},
@@ -200,7 +186,7 @@ def test_two_serve_replicas_on_s3_over_http(
             senses = httpx.get(second.base + "/senses", timeout=30).json()["senses"]
             return {s["name"]: s["rows"] for s in senses}.get("text") == 1
 
-        lag = _wait_for(second_sees, timeout=30)
+        lag = wait_for(second_sees, timeout=30)
         assert lag <= STALENESS + 2.0
         hits = httpx.get(
             second.base + "/search", params={"q": "a mug on a shelf", "k": 1}, timeout=60
@@ -209,7 +195,7 @@ def test_two_serve_replicas_on_s3_over_http(
         note = {"text": "a soft sponge", "t": 2.0}
         r = httpx.post(second.base + "/sessions/kitchen/text", json=note, timeout=60)
         assert r.status_code == 201, r.text
-        _wait_for(
+        wait_for(
             lambda: httpx.get(first.base + "/sessions/kitchen", timeout=30).json()["n"] == 2,
             timeout=30,
         )

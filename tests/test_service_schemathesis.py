@@ -12,7 +12,6 @@ rejections of a schema-violating request.
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -24,6 +23,7 @@ import pytest
 import uvicorn
 from fastapi.testclient import TestClient
 
+from benchmarks.serving import free_port
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
 from tests.test_service_helpers import make_memory, window
@@ -31,12 +31,6 @@ from tests.test_service_helpers import make_memory, window
 ROOT = Path(__file__).resolve().parents[1]
 MAX_EXAMPLES = 10
 PHASES = "examples,coverage,stateful"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
@@ -47,7 +41,7 @@ def server(tmp_path):
         client.post("/sessions/s1/text", json={"text": "a red ball", "t": 1.0})
         client.post("/sessions/s1/touch", json={"frames": window(k=2).tolist(), "t": 2.0})
         client.post("/senses", json={"name": "motion", "dim": 64})
-    port = _free_port()
+    port = free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning")
     srv = uvicorn.Server(config)
     thread = threading.Thread(target=srv.run, daemon=True)
@@ -60,6 +54,10 @@ def server(tmp_path):
                 break
         except httpx.TransportError:
             time.sleep(0.1)
+    else:
+        srv.should_exit = True
+        thread.join(15)
+        pytest.fail(f"the server at {base} did not answer /ready with 200 within 60 s")
     yield base
     srv.should_exit = True
     thread.join(15)

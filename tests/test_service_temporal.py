@@ -9,10 +9,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
 from tactus_memory.service.app import create_app
 from tactus_memory.service.settings import Settings
 from tests.fakes import HashingSpace
+from tests.kitchen import kitchen_memory
 from tests.test_temporal import IDLE, MUG_GRASPS, NOTES, S, fill_kitchen
 
 PROBLEM = "application/problem+json"
@@ -21,8 +21,7 @@ PROBLEM = "application/problem+json"
 @pytest.fixture(scope="module")
 def kitchen(tmp_path_factory) -> tuple[Memory, dict[str, list]]:
     path = tmp_path_factory.mktemp("temporal") / "mem"
-    mem = Memory.open(str(path), space=HashingSpace(dim=384), background=False)
-    mem.add_sense(VectorSense("touch", dim=384))
+    mem = kitchen_memory(path)
     return mem, fill_kitchen(mem)
 
 
@@ -36,8 +35,7 @@ def client(kitchen):
 def fresh_client(tmp_path):
     """A store of its own, for tests that write (re-segmenting the shared one made the
     episode counts of other tests depend on the order they ran in)."""
-    mem = Memory.open(str(tmp_path / "mem"), space=HashingSpace(dim=384), background=False)
-    mem.add_sense(VectorSense("touch", dim=384))
+    mem = kitchen_memory(tmp_path / "mem")
     fill_kitchen(mem)
     with TestClient(create_app(Settings(), memory=mem)) as c:
         yield c
@@ -123,8 +121,7 @@ def test_moments(client) -> None:
 
 
 def test_clock_offsets(tmp_path) -> None:
-    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(dim=384), background=False)
-    mem.add_sense(VectorSense("touch", dim=384))
+    mem = kitchen_memory(tmp_path / "m")
     fill_kitchen(mem, notes_clock=-100.0)
     with TestClient(create_app(Settings(), memory=mem)) as c:
         assert c.get("/count", params={"q": "the mug"}).json()["count"] == 6
@@ -178,7 +175,6 @@ def test_search_group_moment_over_http(tmp_path) -> None:
 
     from tactus_memory import Memory, VectorSense
     from tactus_memory.service.app import create_app
-    from tests.fakes import HashingSpace
 
     space = HashingSpace()
     memory = Memory.open(tmp_path / "m", space=space)

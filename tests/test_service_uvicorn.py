@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import signal
 import threading
+from collections.abc import Mapping
 from pathlib import Path
 
 import httpx
@@ -22,12 +23,16 @@ STARTUP_S = 180
 
 
 class Server:
-    def __init__(self, data: Path, log: Path, *extra: str) -> None:
+    """``tactus serve`` on a free port (``env`` added to the environment)."""
+
+    def __init__(
+        self, data: Path | str, log: Path, *extra: str, env: Mapping[str, str] | None = None
+    ) -> None:
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         self.log = log
-        env = {"OMP_NUM_THREADS": "1"}
-        self.proc = start_serve(self.port, data, log, *extra, env=env)
+        full_env = {"OMP_NUM_THREADS": "1", **(env or {})}
+        self.proc = start_serve(self.port, data, log, *extra, env=full_env)
         wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.kill)
 
     def kill(self) -> None:

@@ -15,7 +15,6 @@ import pytest
 from tactus_memory.episodes import representative, segment
 from tactus_memory.errors import InvalidIdError, InvalidInputError, NotFoundError
 from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
 from tactus_memory.temporal import (
     MATCH_Z,
     Evidence,
@@ -25,7 +24,15 @@ from tactus_memory.temporal import (
     resolve_thresholds,
 )
 from tests.fakes import HashingSpace
-from tests.kitchen import IDLE, MUG_GRASPS, SCREW_GRASP, S, kitchen_notes, near_caption
+from tests.kitchen import (
+    IDLE,
+    MUG_GRASPS,
+    SCREW_GRASP,
+    S,
+    kitchen_memory,
+    kitchen_notes,
+    near_caption,
+)
 
 NOTES = kitchen_notes(delay=2.5)
 #: what each stand-in touch window "feels like": its vector is this caption's embedding + noise
@@ -63,9 +70,7 @@ def fill_kitchen(mem: Memory, session: str = S, *, notes_clock: float = 0.0) -> 
 
 @pytest.fixture
 def mem(tmp_path) -> Memory:
-    m = Memory.open(str(tmp_path / "mem"), space=HashingSpace(dim=384), background=False)
-    m.add_sense(VectorSense("touch", dim=384))
-    return m
+    return kitchen_memory(tmp_path / "mem")
 
 
 @pytest.fixture
@@ -320,8 +325,7 @@ def test_search_group_moment_joins_touch_and_note(kitchen) -> None:
 # --------------------------------------------------------------------------- clock offsets
 def test_clock_offset_aligns_streams_and_persists(tmp_path) -> None:
     path = str(tmp_path / "mem")
-    mem = Memory.open(path, space=HashingSpace(dim=384), background=False)
-    mem.add_sense(VectorSense("touch", dim=384))
+    mem = kitchen_memory(path)
     fill_kitchen(mem, notes_clock=-100.0)  # the note taker's clock runs 100 s behind
     # unaligned: notes (t = -87.5, ...) and grasps never meet
     assert all(len(m.senses) == 1 for m in mem.search_moments("the mug", k=10))

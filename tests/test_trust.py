@@ -15,6 +15,7 @@ from tactus_memory.service.settings import Settings
 from tests import test_service
 from tests.test_service import assert_problem
 from tests.test_service_helpers import window
+from tests.threads import run_threads
 
 # test_service's fixtures: a memory in tmp_path, a TestClient over it
 memory = test_service.memory
@@ -54,13 +55,10 @@ def test_racing_writers_cannot_both_claim_an_id(memory):
         except IdConflictError:
             outcomes.append("conflict")
 
-    threads = [threading.Thread(target=write, args=(f"s{i}",)) for i in range(8)]
-    for th in threads:
-        th.start()
-    for th in threads:
-        th.join()
+    run_threads(write, [(f"s{i}",) for i in range(8)])
     winners = [o for o in outcomes if o.startswith("ok:")]
     assert len(winners) == 1, outcomes
+    assert outcomes.count("conflict") == 7, outcomes
     assert memory.get_item("shared").session == winners[0][3:]
     assert len(memory) == 1
 
@@ -154,6 +152,8 @@ def test_read_only_store_refuses_writes_and_serves_reads(client):
     assert client.get("/search", params={"q": "red ball"}).status_code == 200
     r = client.post("/search/like", json={"text": "red ball"})
     assert r.status_code != 503, r.text
+    r = client.post("/search/like/image", files={"file": ("x.png", b"not a png", "image/png")})
+    assert r.status_code != 503, r.text  # a read-only POST: answered by the route, not refused
     assert_problem(client.post("/sessions/s1/text", json={"text": "x", "t": 2}), 503, "read-only")
     assert_problem(client.delete("/sessions/s1"), 503, "read-only")
     assert_problem(

@@ -21,8 +21,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.servers import wait_healthy
-from tests.test_service_uvicorn import free_port
+from benchmarks.serving import free_port
+from tests.servers import stop_process, wait_healthy
 
 pytestmark = pytest.mark.slow
 
@@ -70,12 +70,7 @@ class Serve:
         wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.stop)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
+        stop_process(self.proc)
 
 
 # --------------------------------------------------------------------- G and F: startup

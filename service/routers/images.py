@@ -11,12 +11,13 @@ from __future__ import annotations
 import time
 from typing import Annotated, Any
 
-from fastapi import APIRouter, File, Form, Path, Query, Response, UploadFile
+from fastapi import APIRouter, File, Form, Query, Response, UploadFile
 from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import CapabilityError, InvalidInputError
+from tactus_memory.limits import ID_PATTERN, MAX_ID_CHARS, MAX_K
 from tactus_memory.senses import THUMBNAIL_SIDE
-from tactus_memory.service.deps import ID_DESCRIPTION, ID_PATTERN, MemoryDep
+from tactus_memory.service.deps import ItemIdPath, MemoryDep
 from tactus_memory.service.images import decode_image, encode_png, is_image_array
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SENSE_PATTERN, HitOut, SearchOut
@@ -24,9 +25,6 @@ from tactus_memory.service.schemas import SENSE_PATTERN, HitOut, SearchOut
 router = APIRouter(tags=["images"])
 
 PNG = "image/png"
-ItemId = Annotated[
-    str, Path(pattern=ID_PATTERN, max_length=128, description="Item id. " + ID_DESCRIPTION)
-]
 
 
 def _item_image(memory: Any, item_id: str, size: int) -> bytes:
@@ -50,7 +48,7 @@ def _item_image(memory: Any, item_id: str, size: int) -> bytes:
     },
 )
 async def image_png(
-    item_id: ItemId,
+    item_id: ItemIdPath,
     memory: MemoryDep,
     size: Annotated[
         int, Query(ge=8, le=THUMBNAIL_SIDE, description="Longest side in pixels.")
@@ -75,10 +73,10 @@ async def search_like_image(
     memory: MemoryDep,
     response: Response,
     file: Annotated[UploadFile, File(description="PNG/JPEG/WebP image.")],
-    k: Annotated[int, Form(ge=1, le=1000)] = 10,
+    k: Annotated[int, Form(ge=1, le=MAX_K)] = 10,
     sense: Annotated[str, Form(pattern=SENSE_PATTERN)] = "image",
     senses: Annotated[list[str] | None, Form()] = None,
-    session: Annotated[str | None, Form(pattern=ID_PATTERN, max_length=128)] = None,
+    session: Annotated[str | None, Form(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)] = None,
     after: Annotated[float | None, Form(allow_inf_nan=False)] = None,
     before: Annotated[float | None, Form(allow_inf_nan=False)] = None,
 ) -> SearchOut:

@@ -37,7 +37,6 @@ import contextlib
 import json
 import logging
 import math
-import re
 import time
 import uuid
 from typing import Any
@@ -46,8 +45,9 @@ import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from tactus_memory.errors import InvalidInputError, OverloadedError, TactusError
+from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_WINDOW_FRAMES
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
-from tactus_memory.service.deps import ID_PATTERN, bearer, token_ok
+from tactus_memory.service.deps import bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.touch.windows import WindowStream
 
@@ -55,8 +55,6 @@ log = logging.getLogger("tactus_memory.service")
 
 router = APIRouter(tags=["touch"])
 
-ID_RE = re.compile(ID_PATTERN)
-MAX_WINDOW = 512
 QUEUE_WINDOWS = 256
 POLICY_VIOLATION = 1008
 TRY_AGAIN_LATER = 1013
@@ -84,8 +82,8 @@ class StreamParams:
             value = int(raw)
         except ValueError:
             raise InvalidInputError(f"{name} must be an integer, got {raw!r}") from None
-        if not 1 <= value <= MAX_WINDOW:
-            raise InvalidInputError(f"{name} must be in [1, {MAX_WINDOW}], got {value}")
+        if not 1 <= value <= MAX_WINDOW_FRAMES:
+            raise InvalidInputError(f"{name} must be in [1, {MAX_WINDOW_FRAMES}], got {value}")
         return value
 
     @staticmethod
@@ -144,8 +142,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
     if not ID_RE.fullmatch(session):
         await refuse(
             422,
-            f"invalid session id {session[:60]!r}: use 1-128 characters of "
-            "[A-Za-z0-9._:-], starting with a letter or digit",
+            f"invalid session id {session[:60]!r}: use {ID_DESCRIPTION.rstrip('.')}",
             POLICY_VIOLATION,
         )
         return

@@ -15,15 +15,14 @@ from pathlib import Path as FsPath
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Depends, HTTPException, Path, Query
+from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS
 from tactus_memory.service.arrays import as_window
-from tactus_memory.service.deps import MemoryDep
+from tactus_memory.service.deps import ItemIdPath, MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
@@ -155,10 +154,7 @@ def _item_values(memory: Any, item_id: str, layout: View) -> dict[str, Any]:
     responses={**PNG_RESPONSE, **problem_responses(404, 422)},
 )
 async def touch_png(
-    item_id: Annotated[
-        str,
-        Path(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Item id. " + ID_DESCRIPTION),
-    ],
+    item_id: ItemIdPath,
     memory: MemoryDep,
     layout: LayoutDep,
     legend: Legend = True,
@@ -179,9 +175,7 @@ async def touch_png(
     responses=problem_responses(404, 422),
 )
 async def touch_json(
-    item_id: Annotated[
-        str, Path(pattern=ID_PATTERN, max_length=128, description="Item id. " + ID_DESCRIPTION)
-    ],
+    item_id: ItemIdPath,
     memory: MemoryDep,
     layout: LayoutDep,
 ) -> dict[str, Any]:
@@ -191,7 +185,7 @@ async def touch_json(
 class RenderIn(Strict):
     """A touch window to draw (e.g. the example the user is about to search with)."""
 
-    frames: Window = Field(description="(K, 32, 32) pressure frames.", min_length=1, max_length=512)
+    frames: Window = Field(description="(K, 32, 32) pressure frames.")
     calibrated: bool | None = Field(
         None, description="true: 0..1; false: raw sensor units; null: decided from the values."
     )
