@@ -20,6 +20,7 @@ from tactus_memory.cli.app import app
 from tactus_memory.cli.common import MemoryData
 from tactus_memory.cli.memory_cmds import _data_dir, _open, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
+from tactus_memory.limits import MAX_WINDOW_FRAMES
 
 if TYPE_CHECKING:
     from tactus_memory.memory import Memory
@@ -65,10 +66,11 @@ def ingest(
         bool, typer.Option("--list", help="Print topics, types, counts, default senses.")
     ] = False,
     window: Annotated[
-        int | None, typer.Option(min=1, max=512, help="Touch frames per window (default K).")
+        int | None,
+        typer.Option(min=1, max=MAX_WINDOW_FRAMES, help="Touch frames per window (default K)."),
     ] = None,
     stride: Annotated[
-        int | None, typer.Option(min=1, max=512, help="Frames between window starts.")
+        int | None, typer.Option(min=1, max=MAX_WINDOW_FRAMES, help="Frames between window starts.")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
