@@ -41,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-# the 384-d stand-in space of memory.py: random unit vectors (text embedding is not measured)
+# the 384-d stand-in space of memory.py: a fresh random unit vector per text (as before)
 from memory import DIM, BenchSpace  # noqa: E402
 
 from tactus_memory.maintenance import MaintenanceConfig, dir_bytes, footprint  # noqa: E402

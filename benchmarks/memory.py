@@ -57,9 +57,11 @@ class BenchSpace(Space):
     name = "bench-384"
     dim = DIM
 
+    def __init__(self) -> None:
+        self.rng = np.random.default_rng(0)  # a fresh vector per text (disk.py stores notes)
+
     def embed_texts(self, texts: Any, *, query: bool = False) -> np.ndarray:
-        rng = np.random.default_rng(len(texts))
-        x = rng.standard_normal((len(texts), DIM)).astype(np.float32)
+        x = self.rng.standard_normal((len(texts), DIM)).astype(np.float32)
         return x / np.linalg.norm(x, axis=1, keepdims=True)
 
 
