@@ -1,20 +1,4 @@
-"""Plug-in senses, installed as ``tactus_memory.adapters``.
-
-``TactusEncoder`` (touch) loads lazily so importing this package does not import torch.
+"""Plug-in senses, installed as ``tactus_memory.adapters``: ``adapters.touch.TactusEncoder``
+(the touch sense; importing it imports torch). The senses that need no model of their own
+(text, image, precomputed vectors) live in :mod:`tactus_memory.senses`.
 """
-
-from __future__ import annotations
-
-from typing import Any
-
-from tactus_memory.senses import ImageSense, VectorSense
-
-__all__ = ["TactusEncoder", "ImageSense", "VectorSense"]
-
-
-def __getattr__(name: str) -> Any:
-    if name == "TactusEncoder":
-        from tactus_memory.adapters.touch import TactusEncoder
-
-        return TactusEncoder
-    raise AttributeError(name)

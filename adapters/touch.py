@@ -1,6 +1,6 @@
 """``TactusEncoder``: the touch sense. Grasp windows of 32x32 pressure frames -> text space.
 
-    from tactus_memory.adapters import TactusEncoder
+    from tactus_memory.adapters.touch import TactusEncoder
     memory.add_sense(TactusEncoder())            # the shipped default, no network
     memory.add("s1", "touch", window, t=12.5)    # window: (K, 32, 32) raw or calibrated
     memory.search("holding a screwdriver", senses=["touch"])
@@ -38,8 +38,6 @@ from tactus_memory import __version__
 from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
-
-# re-exported: `from tactus_memory.adapters.touch import default_checkpoint_path` keeps working
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.vectors import as_unit_rows
 

@@ -34,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactus_memory.recordings import open_recording  # noqa: E402
+from tactus_memory.recordings.reader import open_recording  # noqa: E402
 from tests import recording_files as rf  # noqa: E402
 
 NOTE_EVERY_S = 10.0

@@ -78,7 +78,7 @@ def main() -> None:
         "--out", type=Path, default=ROOT / "benchmarks/results/touch_inference_ladder.json"
     )
     args = ap.parse_args()
-    from tactus_memory.adapters import TactusEncoder
+    from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.spaces.minilm import MiniLMSpace
     from tactus_memory.touch.stream_eval import build_stream, load_queries
     from tactus_memory.touch.targets import TEMPLATES, build_targets, centre

@@ -96,7 +96,7 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
             why = "disabled by settings (TACTUS_TOUCH=false)"
         else:
             try:
-                from tactus_memory.adapters import TactusEncoder
+                from tactus_memory.adapters.touch import TactusEncoder
 
                 memory.add_sense(TactusEncoder(settings.touch_checkpoint))
             except Exception as exc:  # noqa: BLE001  (any failure: serve the rest, say why)

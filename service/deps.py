@@ -21,8 +21,9 @@ from tactus_memory.limits import (
     SENSE_NAME_PATTERN,
     SOURCE_PATTERN,
 )
-from tactus_memory.memory import Memory, PreparedWrite
+from tactus_memory.memory import Memory
 from tactus_memory.query import Scope
+from tactus_memory.rows import PreparedWrite
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.settings import Settings
 from tactus_memory.service.writes import Writer

@@ -18,8 +18,8 @@ from tactus_memory.limits import (
     SOURCE_PATTERN,
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
+from tactus_memory.models import ClockOffset, Evidence, Moment, TimelineItem
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
-from tactus_memory.temporal import ClockOffset, Evidence, Moment, TimelineItem
 from tactus_memory.vectors import MAX_COMPONENT
 
 MAX_BATCH = 4096

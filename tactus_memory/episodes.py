@@ -54,7 +54,7 @@ class Episode(BaseModel):
 def check_rule(min_cos: float, mean_cos: float, max_gap: float) -> None:
     """Raise ValueError-compatible InvalidInputError on thresholds outside their range."""
     from tactus_memory.errors import InvalidInputError
-    from tactus_memory.store import finite_float
+    from tactus_memory.where import finite_float
 
     for name, value in (("min_cos", min_cos), ("mean_cos", mean_cos)):
         if not -1.0 <= finite_float(value, name) <= 1.0:

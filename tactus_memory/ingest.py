@@ -37,8 +37,8 @@ from typing import Any
 from typing_extensions import Unpack
 
 from tactus_memory.errors import OverloadedError
-from tactus_memory.memory import Memory, PreparedWrite
-from tactus_memory.rows import BatchKwargs
+from tactus_memory.memory import Memory
+from tactus_memory.rows import BatchKwargs, PreparedWrite
 
 log = logging.getLogger(__name__)
 

@@ -60,7 +60,7 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.models import Evidence, Moment
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.senses import validate_sense_name
-from tactus_memory.store import finite_float
+from tactus_memory.where import finite_float
 
 # --------------------------------------------------------------------------- constants
 #: per-sense match threshold on the calibrated score (z vs the probe null); see the module

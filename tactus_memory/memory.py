@@ -46,14 +46,13 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
-from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
 from tactus_memory.maintenance import Background, MaintenanceConfig
 from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
-from tactus_memory.registry import SenseRegistry, StoredSense
+from tactus_memory.registry import SenseRegistry
 from tactus_memory.rows import (
     PreparedWrite,
     WriteKwargs,
@@ -66,26 +65,13 @@ from tactus_memory.rows import (
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
-from tactus_memory.store import HIT_COLUMNS, IndexConfig, Store, Where, validate_id, validate_source
+from tactus_memory.store import HIT_COLUMNS, Store
+from tactus_memory.tables import IndexConfig
 from tactus_memory.temporal import Temporal
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import Where, validate_id, validate_source
 
 log = logging.getLogger(__name__)
-
-#: re-exported: `from tactus_memory.memory import Hit, Item, MAX_K, ...` keeps working
-__all__ = [
-    "MAX_BATCH",
-    "MAX_K",
-    "MAX_META_BYTES",
-    "Hit",
-    "Item",
-    "Memory",
-    "PreparedWrite",
-    "Scope",
-    "SenseInfo",
-    "SessionSummary",
-    "StoredSense",
-]
 
 
 # --------------------------------------------------------------------------- memory
@@ -466,12 +452,12 @@ class Memory(TemporalQuestions):
         self, path: Any, *, session: str, topics: dict[str, str], **kw: Any
     ) -> Any:
         """MCAP files / ROS 2 bags in: :func:`tactus_memory.recordings.ingest_recording`."""
-        from tactus_memory.recordings import ingest_recording
+        from tactus_memory.recordings.ingest import ingest_recording
 
         return ingest_recording(self, path, session=session, topics=topics, **kw)
 
     def export_rerun(self, session: str, path: Any, **kw: Any) -> Any:
         """A session to a Rerun ``.rrd``: :func:`tactus_memory.recordings.export_rerun`."""
-        from tactus_memory.recordings import export_rerun
+        from tactus_memory.recordings.export import export_rerun
 
         return export_rerun(self, session, path, **kw)

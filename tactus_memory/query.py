@@ -14,8 +14,8 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS
-from tactus_memory.store import Where, finite_float
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import Where, finite_float
 
 if TYPE_CHECKING:
     import threading

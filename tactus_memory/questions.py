@@ -11,23 +11,26 @@ from collections.abc import Sequence
 from typing_extensions import Unpack
 
 from tactus_memory.episodes import Episode
-from tactus_memory.matching import MatchKwargs, split_match
-from tactus_memory.query import Scope, embed_query
-from tactus_memory.spaces.base import Space
-from tactus_memory.store import validate_id
-from tactus_memory.temporal import (
+from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
+    MatchKwargs,
+    split_match,
+)
+from tactus_memory.models import (
     ClockOffset,
     Context,
     Evidence,
     Moment,
     Occurrences,
     Side,
-    Temporal,
     TimelineItem,
 )
+from tactus_memory.query import Scope, embed_query
+from tactus_memory.spaces.base import Space
+from tactus_memory.temporal import Temporal
+from tactus_memory.where import validate_id
 
 
 class OccurrenceKwargs(MatchKwargs, total=False):

@@ -14,8 +14,9 @@ import numpy as np
 from tactus_memory.models import Hit, hit_from_row
 from tactus_memory.registry import SenseRegistry
 from tactus_memory.scoring import Calibration
-from tactus_memory.store import Store, Where
+from tactus_memory.store import Store
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import Where
 
 
 class Ranker:

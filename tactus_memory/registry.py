@@ -19,8 +19,9 @@ from tactus_memory.models import SenseInfo
 from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
-from tactus_memory.store import Store, Where
+from tactus_memory.store import Store
 from tactus_memory.vectors import as_unit_rows, vector_column
+from tactus_memory.where import Where
 
 log = logging.getLogger(__name__)
 

@@ -17,8 +17,8 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
 from tactus_memory.models import SessionSummary
 from tactus_memory.senses import Sense
-from tactus_memory.store import finite_float, validate_id
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import finite_float, validate_id
 
 if TYPE_CHECKING:
     import pyarrow as pa

@@ -14,7 +14,7 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
            embeddings, index bookkeeping.
 
 Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.where.Where`
-(re-exported here, with the validators), from values that first
+(:mod:`tactus_memory.where`), from values that first
 pass a validator (ids and sense names by regex, numbers must be finite); string literals are
 also quote-escaped. No user string reaches LanceDB any other way.
 
@@ -43,26 +43,19 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.connect import REMOTE_SCHEMES as REMOTE_SCHEMES  # re-exported
-from tactus_memory.connect import is_remote_uri as is_remote_uri
-from tactus_memory.connect import normalise_uri as normalise_uri
+from tactus_memory.connect import normalise_uri, storage_options_for
 from tactus_memory.connect import read_consistency_interval as consistency_from
-from tactus_memory.connect import storage_options_for
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
 from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
-from tactus_memory.tables import IndexConfig as IndexConfig  # re-exported: old import paths
 from tactus_memory.tables import (
+    IndexConfig,
     items_schema,
     meta_schema,
     scalar_index_config,
     senses_schema,
     vector_index_config,
 )
-from tactus_memory.where import Where as Where  # re-exported (`X as X`): old import paths
-from tactus_memory.where import _sql_str
-from tactus_memory.where import finite_float as finite_float
-from tactus_memory.where import validate_id as validate_id
-from tactus_memory.where import validate_source as validate_source
+from tactus_memory.where import Where, _sql_str
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa

@@ -32,74 +32,37 @@ from tactus_memory.episodes import (
 )
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_CLOCK_OFFSET, MAX_K
-from tactus_memory.matching import (  # re-exported: `from tactus_memory.temporal import ...`
-    CORROBORATION_BONUS,
-    DEFAULT_MATCH_Z,
+from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
-    DEFAULT_WINDOW,
     MATCH_CANDIDATES,
-    MATCH_Z,
     MOMENT_MIN_Z,
     MOMENT_POOL_FACTOR,
     MOMENT_POOL_MIN,
-    RELATIVE_KEEP,
     TIMELINE_MAX,
     Match,
     check_relative,
     check_seconds,
     group_moments,
-    make_moment,
     match_flags,
     resolve_thresholds,
 )
-
-# re-exported (`X as X`): `from tactus_memory.temporal import Moment, ...` keeps working
-from tactus_memory.models import ClockOffset as ClockOffset
-from tactus_memory.models import Context as Context
-from tactus_memory.models import Evidence as Evidence
-from tactus_memory.models import Moment as Moment
-from tactus_memory.models import Occurrences as Occurrences
-from tactus_memory.models import Side as Side
-from tactus_memory.models import TimelineItem as TimelineItem
-from tactus_memory.models import row_fields
+from tactus_memory.models import (
+    ClockOffset,
+    Context,
+    Evidence,
+    Moment,
+    Occurrences,
+    Side,
+    TimelineItem,
+    row_fields,
+)
 from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
-from tactus_memory.store import CLOCK_KEY, HIT_COLUMNS, Where, finite_float, validate_id
-from tactus_memory.store import validate_source as _validate_source
+from tactus_memory.store import HIT_COLUMNS
 from tactus_memory.vectors import vector_column
-
-__all__ = [
-    "CLOCK_KEY",
-    "CORROBORATION_BONUS",
-    "DEFAULT_MATCH_Z",
-    "DEFAULT_MERGE_GAP",
-    "DEFAULT_MOMENT_GAP",
-    "DEFAULT_WINDOW",
-    "MATCH_CANDIDATES",
-    "MATCH_Z",
-    "MAX_CLOCK_OFFSET",
-    "MOMENT_MIN_Z",
-    "MOMENT_POOL_FACTOR",
-    "MOMENT_POOL_MIN",
-    "RELATIVE_KEEP",
-    "TIMELINE_MAX",
-    "ClockOffset",
-    "Context",
-    "Evidence",
-    "Match",
-    "Moment",
-    "Occurrences",
-    "Side",
-    "Temporal",
-    "TimelineItem",
-    "check_relative",
-    "check_seconds",
-    "group_moments",
-    "make_moment",
-    "match_flags",
-    "resolve_thresholds",
-]
+from tactus_memory.where import Where, finite_float, validate_id
+from tactus_memory.where import validate_source as _validate_source
 
 Offsets = Mapping[tuple[str, str, str], float]
 

@@ -14,7 +14,7 @@ import time
 
 from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
-from tactus_memory.store import IndexConfig
+from tactus_memory.tables import IndexConfig
 from tests.fakes import HashingSpace
 
 

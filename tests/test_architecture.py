@@ -146,3 +146,74 @@ def test_no_source_file_is_over_max_lines() -> None:
         if (n := len(path.read_text().splitlines())) > MAX_LINES
     }
     assert long == {}
+
+
+def defined_names(path: Path) -> set[str]:
+    """Names a module defines itself at top level (def, class, assignment), not imports."""
+    out: set[str] = set()
+    for node in ast.parse(path.read_text(), str(path)).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            out.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+    return out
+
+
+def test_every_name_is_imported_from_the_module_that_owns_it() -> None:
+    """No re-export shims: ``from M import N`` (library, service, tests, benchmarks) names
+    the module M that defines N (or N is a submodule of M)."""
+    mods = modules()
+    owned = {name: defined_names(path) for name, path in mods.items()}
+    files = [*mods.values(), *sorted((ROOT / "tests").glob("*.py"))]
+    files += sorted((ROOT / "benchmarks").glob("*.py"))
+    wrong = []
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(node, ast.ImportFrom) or node.level or node.module not in mods:
+                continue
+            for alias in node.names:
+                if (
+                    alias.name not in owned[node.module]
+                    and f"{node.module}.{alias.name}" not in mods
+                ):
+                    wrong.append(
+                        f"{path.relative_to(ROOT)}:{node.lineno} {node.module}.{alias.name}"
+                    )
+    assert wrong == []
+
+
+#: what serving must never load: training, evaluation, the STAG .mat reader, plotting
+NOT_SERVED = (
+    "h5py",
+    "scipy.io",
+    "matplotlib",
+    "tactus_memory.cli",
+    "tactus_memory.stag_fetch",
+    *(
+        f"tactus_memory.touch.{m}"
+        for m in (
+            "ablate", "augment", "baseline", "data", "eval_runs", "evaluate", "metrics",
+            "pretrain", "report", "stag_io", "stream_eval", "train", "tuples",
+        )
+    ),
+)  # fmt: skip
+
+
+def test_serving_loads_nothing_of_training_plotting_or_mat_reading(tmp_path: Path) -> None:
+    """The app, built on a real store with the shipped touch encoder, in a fresh interpreter:
+    no training, evaluation, plotting or ``.mat`` reading module is in ``sys.modules``."""
+    code = (
+        "import sys\n"
+        "from tactus_memory.service.app import create_app\n"
+        "from tactus_memory.service.settings import Settings\n"
+        f"app = create_app(Settings(data={str(tmp_path / 'm')!r}))\n"
+        "assert 'touch' in app.state.tactus.memory.senses, app.state.tactus.touch_unavailable\n"
+        f"bad = sorted(m for m in sys.modules if m.startswith({NOT_SERVED!r}))\n"
+        "print(bad)\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout.strip().splitlines()[-1] == "[]"

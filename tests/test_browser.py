@@ -21,7 +21,7 @@ from matplotlib import colormaps
 
 from tactus_memory.datahome import CORE_SUBSET, data_home
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.data import taxel_mask_from_spec
+from tactus_memory.touch.profile import taxel_mask_from_spec
 from tactus_memory.touch.render import (
     BACKGROUND,
     COLORMAP,

@@ -72,7 +72,7 @@ def trained(data, tmp_path_factory) -> dict[str, Path]:
 
 
 def test_pretrain_and_train_write_loadable_checkpoints(trained) -> None:
-    from tactus_memory.adapters import TactusEncoder
+    from tactus_memory.adapters.touch import TactusEncoder
 
     assert trained["mae"].is_file() and trained["touch"].is_file()
     enc = TactusEncoder(trained["touch"])

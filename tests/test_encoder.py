@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from tactus_memory.adapters.touch import TactusEncoder, default_checkpoint_path
+from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
 from tactus_memory.senses import bytes_to_array
-from tactus_memory.touch.checkpoint import save_checkpoint
-from tactus_memory.touch.data import STAG_GLOVE
+from tactus_memory.touch.checkpoint import default_checkpoint_path, save_checkpoint
 from tactus_memory.touch.model import create_model
+from tactus_memory.touch.profile import STAG_GLOVE
 from tactus_memory.touch.targets import build_targets
 from tests.fakes import HashingSpace
 from tests.stag_synth import OBJECTS

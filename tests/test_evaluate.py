@@ -8,12 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactus_memory.touch.evaluate import (
-    EmbeddingScorer,
-    EvalSet,
+from tactus_memory.touch.evaluate import EmbeddingScorer, EvalSet, evaluate_scorer, scope_mask
+from tactus_memory.touch.metrics import (
     aggregate_runs,
     confusion_counts,
-    evaluate_scorer,
     ksweep_windows,
     mean_std,
     mean_unit,
@@ -21,7 +19,6 @@ from tactus_memory.touch.evaluate import (
     pair_spearman,
     recording_windows,
     row_normalise,
-    scope_mask,
     text_confusion_correlation,
     topk_accuracy,
     unit_rows,

@@ -23,7 +23,7 @@ from tactus_memory.maintenance import (
 )
 from tactus_memory.memory import Memory
 from tactus_memory.senses import Sense, array_to_bytes
-from tactus_memory.store import IndexConfig
+from tactus_memory.tables import IndexConfig
 from tests.fakes import HashingSpace
 
 KiB = 1024

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import UnknownSenseError
-from tactus_memory.recordings import RecordingError, ingest_recording, list_topics
-from tactus_memory.recordings.ingest import topic_source
+from tactus_memory.recordings.ingest import ingest_recording, list_topics, topic_source
+from tactus_memory.recordings.reader import RecordingError
 from tactus_memory.touch.windows import cut_windows
 from tests import recording_files as rf
 from tests.fakes import HashingSpace

@@ -21,7 +21,7 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
-from tactus_memory.store import IndexConfig
+from tactus_memory.tables import IndexConfig
 from tests.fakes import HashingSpace
 from tests.replicas import STALENESS, open_replica, start_writer, wait_for
 

@@ -173,7 +173,8 @@ def test_search_group_moment_over_http(tmp_path) -> None:
     import numpy as np
     from fastapi.testclient import TestClient
 
-    from tactus_memory import Memory, VectorSense
+    from tactus_memory.memory import Memory
+    from tactus_memory.senses import VectorSense
     from tactus_memory.service.app import create_app
 
     space = HashingSpace()

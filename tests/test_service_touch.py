@@ -23,8 +23,8 @@ def checkpoint(tmp_path_factory) -> Path:
     import torch
 
     from tactus_memory.touch.checkpoint import save_checkpoint
-    from tactus_memory.touch.data import STAG_GLOVE
     from tactus_memory.touch.model import create_model
+    from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.touch.targets import build_targets
     from tests.fakes import HashingSpace
     from tests.stag_synth import OBJECTS
@@ -39,7 +39,7 @@ def checkpoint(tmp_path_factory) -> Path:
 
 @pytest.fixture
 def client(tmp_path, checkpoint):
-    from tactus_memory.adapters import TactusEncoder
+    from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.memory import Memory
     from tests.fakes import HashingSpace
 

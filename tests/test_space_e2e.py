@@ -253,7 +253,7 @@ def test_train_without_the_folder_is_one_line(tmp_path: Path) -> None:
 def test_encoder_refuses_a_memory_of_another_space(
     qwen_ckpt: Path, tiny_qwen: Path, other_qwen: Path, tmp_path: Path
 ) -> None:
-    from tactus_memory.adapters import TactusEncoder
+    from tactus_memory.adapters.touch import TactusEncoder
     from tests.fakes import HashingSpace
 
     minilm_like = Memory.open(str(tmp_path / "a"), space=HashingSpace(name="minilm-l6", dim=384))

@@ -14,15 +14,9 @@ import pytest
 
 from tactus_memory.episodes import representative, segment
 from tactus_memory.errors import InvalidIdError, InvalidInputError, NotFoundError
+from tactus_memory.matching import MATCH_Z, group_moments, match_flags, resolve_thresholds
 from tactus_memory.memory import Memory
-from tactus_memory.temporal import (
-    MATCH_Z,
-    Evidence,
-    Moment,
-    group_moments,
-    match_flags,
-    resolve_thresholds,
-)
+from tactus_memory.models import Evidence, Moment
 from tests.fakes import HashingSpace
 from tests.kitchen import (
     IDLE,

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tactus_memory.matching import MATCH_Z
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
-from tactus_memory.temporal import MATCH_Z
 from tests.kitchen import IDLE, MUG_GRASPS, SCREW_GRASP, S, kitchen_notes, near_caption
 
 pytestmark = pytest.mark.slow
@@ -154,7 +154,7 @@ def _stag_grasps(stag_dir, k: int) -> dict[str, list[list[np.ndarray]]]:
 def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) -> None:
     """The shipped TactusEncoder on real STAG grasps: two windows per grasp (t0, t0 + 1.1 s),
     mug grasps at 10/40/70 s, a screwdriver at 55 s, six empty-hand grasps in between."""
-    from tactus_memory.adapters import TactusEncoder
+    from tactus_memory.adapters.touch import TactusEncoder
 
     enc = TactusEncoder()  # the checkpoint ships with the package: missing is a failure
     mem = Memory.open(str(tmp_path / "m"), space=minilm_space)

@@ -11,20 +11,17 @@ import pytest
 from typer.testing import CliRunner
 
 from tactus_memory.errors import DataFormatError, DynamicRangeError, InvalidInputError
-from tactus_memory.touch.data import (
+from tactus_memory.touch.data import StagData, UnknownSplitError, combine, load_stag
+from tactus_memory.touch.profile import (
     PROFILES,
     RAW_OFFSET,
     RAW_SPAN,
     STAG_GLOVE,
     SensorProfile,
-    StagData,
-    UnknownSplitError,
     calibrate,
     check_dynamic_range,
-    combine,
     dynamic_range_report,
     get_profile,
-    load_stag,
     taxel_mask_from_data,
     taxel_mask_from_spec,
 )

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+from tactus_memory.hashing import file_sha256
 from tactus_memory.touch.augment import AugmentConfig, augment
-from tactus_memory.touch.checkpoint import file_sha256, load_checkpoint, save_checkpoint
+from tactus_memory.touch.checkpoint import load_checkpoint, save_checkpoint
 from tactus_memory.touch.model import create_model
 from tactus_memory.touch.pretrain import (
     MAE,

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.data import calibrate, load_stag
+from tactus_memory.touch.data import load_stag
+from tactus_memory.touch.profile import calibrate
 from tactus_memory.touch.tuples import RESAMPLE_EVERY, TupleSampler, cluster_labels
 
 K = 8

@@ -16,7 +16,14 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query
 
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
-from tactus_memory.matching import Match
+from tactus_memory.matching import (
+    DEFAULT_MERGE_GAP,
+    DEFAULT_MOMENT_GAP,
+    DEFAULT_WINDOW,
+    RELATIVE_KEEP,
+    Match,
+)
+from tactus_memory.models import Occurrences, Side
 from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId, StreamScopeDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import (
@@ -28,14 +35,6 @@ from tactus_memory.service.schemas import (
     SegmentIn,
     SegmentOut,
     TimelineOut,
-)
-from tactus_memory.temporal import (
-    DEFAULT_MERGE_GAP,
-    DEFAULT_MOMENT_GAP,
-    DEFAULT_WINDOW,
-    RELATIVE_KEEP,
-    Occurrences,
-    Side,
 )
 
 ERRORS = problem_responses(404, 422)

@@ -16,7 +16,8 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.memory import Memory, PreparedWrite
+from tactus_memory.memory import Memory
+from tactus_memory.rows import PreparedWrite
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
 from tactus_memory.service.deps import (
     MemoryDep,

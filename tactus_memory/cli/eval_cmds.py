@@ -52,7 +52,7 @@ def _write_outputs(
         typer.echo(
             f"report: {', '.join(str(f) for f in files[:4])}" + (" …" if len(files) > 4 else "")
         )
-    from tactus_memory.touch.evaluate import SCALAR_METRICS
+    from tactus_memory.touch.metrics import SCALAR_METRICS
 
     summary = {k: payload.get(k) for k in ("split", "n_tuples", "n_recordings", *SCALAR_METRICS)}
     if "aggregate" in payload:

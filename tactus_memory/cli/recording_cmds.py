@@ -34,7 +34,7 @@ def _memory_for(data: str | None, senses: set[str]) -> Memory:
 
     memory = Memory.open(_data_dir(data))
     if "touch" in senses and "touch" not in memory.senses:
-        from tactus_memory.adapters import TactusEncoder
+        from tactus_memory.adapters.touch import TactusEncoder
 
         memory.add_sense(TactusEncoder())
     if (
@@ -77,7 +77,7 @@ def ingest(
     """Ingest ROS 2 bags / MCAP files: text (std_msgs/String), touch (mono16/16UC1/mono8/32FC1
     Images, Int16/Float32MultiArray), images (rgb8/bgr8, CompressedImage). Safe to re-run."""
     from tactus_memory.errors import TactusError
-    from tactus_memory.recordings import ingest_recording, list_topics, parse_topic_map
+    from tactus_memory.recordings.ingest import ingest_recording, list_topics, parse_topic_map
 
     try:
         if list_only:

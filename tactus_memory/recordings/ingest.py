@@ -36,8 +36,8 @@ from pydantic import BaseModel, Field
 import tactus_memory.recordings.decode as decode
 from tactus_memory.errors import TactusError, UnknownSenseError
 from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
-from tactus_memory.store import Where, validate_id
 from tactus_memory.touch.windows import WindowStream
+from tactus_memory.where import Where, validate_id
 
 #: a :class:`tactus_memory.memory.Memory`. Not imported, not even for type checking:
 #: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.
@@ -399,14 +399,3 @@ def parse_topic_map(pairs: Iterable[str]) -> dict[str, str]:
             raise RecordingError(f"--topic {p!r}: write TOPIC=SENSE, e.g. /glove/pressure=touch")
         out[topic] = sense
     return out
-
-
-__all__ = [
-    "DEFAULT_BATCH",
-    "IngestSummary",
-    "TopicListing",
-    "ingest_recording",
-    "list_topics",
-    "parse_topic_map",
-    "topic_source",
-]

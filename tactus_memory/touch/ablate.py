@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.touch.evaluate import mean_std
+from tactus_memory.touch.metrics import mean_std
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space

@@ -237,7 +237,7 @@ def save_baseline(path: str | os.PathLike[str], net: StagCNN, meta: dict[str, An
     """Weights + metadata (safetensors, atomically) and a JSON sidecar; returns the sha256."""
     from safetensors.torch import save_file
 
-    from tactus_memory.touch.checkpoint import file_sha256
+    from tactus_memory.hashing import file_sha256
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,6 @@
 """The STAG dataset: :class:`StagData` built from a ``metadata.mat`` (read by
 :mod:`tactus_memory.touch.stag_io`, calibrated and gated by :mod:`tactus_memory.touch.profile`,
-whose names are re-exported here), masks, and :func:`combine`.
+), masks, and :func:`combine`.
 
 Spec: ``../shared/stag-format.md``. Every subset is calibrated with the sensor's own affine
 ``clip((raw - 500) / 150, 0, 1)`` (the STAG reference code; the paper, Sec. Method "Data path"),
@@ -34,21 +34,13 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import DataFormatError, DynamicRangeError, InvalidInputError
-
-# re-exported (`X as X`): `from tactus_memory.touch.data import STAG_GLOVE, ...` keeps working
-from tactus_memory.touch.profile import FRAME_SHAPE as FRAME_SHAPE
-from tactus_memory.touch.profile import MIN_LEVELS as MIN_LEVELS
-from tactus_memory.touch.profile import PROFILES as PROFILES
-from tactus_memory.touch.profile import RAW_OFFSET as RAW_OFFSET
-from tactus_memory.touch.profile import RAW_SPAN as RAW_SPAN
-from tactus_memory.touch.profile import STAG_GLOVE as STAG_GLOVE
-from tactus_memory.touch.profile import SensorProfile as SensorProfile
-from tactus_memory.touch.profile import calibrate as calibrate
-from tactus_memory.touch.profile import check_dynamic_range as check_dynamic_range
-from tactus_memory.touch.profile import dynamic_range_report as dynamic_range_report
-from tactus_memory.touch.profile import get_profile as get_profile
-from tactus_memory.touch.profile import taxel_mask_from_data as taxel_mask_from_data
-from tactus_memory.touch.profile import taxel_mask_from_spec as taxel_mask_from_spec
+from tactus_memory.touch.profile import (
+    FRAME_SHAPE,
+    MIN_LEVELS,
+    STAG_GLOVE,
+    SensorProfile,
+    check_dynamic_range,
+)
 from tactus_memory.touch.stag_io import _resolve, read_mat_fields
 
 PER_FRAME_FIELDS = (

@@ -13,17 +13,16 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.evaluate import (
     DEFAULT_VOTES,
     EVAL_SEED,
-    SCALAR_METRICS,
     EvalResult,
     EvalSet,
     Scorer,
-    aggregate_runs,
     analyse,
     evaluate_scorer,
     file_fingerprint,
     select_eval_frames,
     tactus_scorer,
 )
+from tactus_memory.touch.metrics import SCALAR_METRICS, aggregate_runs
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space
@@ -188,7 +187,8 @@ def load_scorer(path: str | Path, device: str = "cpu") -> tuple[Scorer, dict[str
     """A Tactus or baseline checkpoint -> (scorer, provenance), by its embedded metadata."""
     from safetensors import safe_open
 
-    from tactus_memory.touch.checkpoint import file_sha256, load_checkpoint
+    from tactus_memory.hashing import file_sha256
+    from tactus_memory.touch.checkpoint import load_checkpoint
 
     with safe_open(str(path), framework="pt") as f:
         md = f.metadata() or {}

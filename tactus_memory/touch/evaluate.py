@@ -55,26 +55,22 @@ if TYPE_CHECKING:
     from tactus_memory.touch.checkpoint import Checkpoint
     from tactus_memory.touch.data import StagData
 
-# re-exported (`X as X`): `from tactus_memory.touch.evaluate import topk_accuracy, ...`
-from tactus_memory.touch.metrics import KSWEEP as KSWEEP
-from tactus_memory.touch.metrics import RECORDING_POOL as RECORDING_POOL
-from tactus_memory.touch.metrics import SCALAR_METRICS as SCALAR_METRICS
-from tactus_memory.touch.metrics import _nan_to_none as _nan_to_none
-from tactus_memory.touch.metrics import aggregate_runs as aggregate_runs
-from tactus_memory.touch.metrics import confusion_counts as confusion_counts
-from tactus_memory.touch.metrics import ksweep_windows as ksweep_windows
-from tactus_memory.touch.metrics import mean_std as mean_std
-from tactus_memory.touch.metrics import mean_unit as mean_unit
-from tactus_memory.touch.metrics import pad_window as pad_window
-from tactus_memory.touch.metrics import pair_spearman as pair_spearman
-from tactus_memory.touch.metrics import per_class_topk as per_class_topk
-from tactus_memory.touch.metrics import predictions as predictions
-from tactus_memory.touch.metrics import recording_windows as recording_windows
-from tactus_memory.touch.metrics import row_normalise as row_normalise
-from tactus_memory.touch.metrics import text_confusion_correlation as text_confusion_correlation
-from tactus_memory.touch.metrics import top_confusions as top_confusions
-from tactus_memory.touch.metrics import topk_accuracy as topk_accuracy
-from tactus_memory.touch.metrics import unit_rows as unit_rows
+from tactus_memory.touch.metrics import (
+    KSWEEP,
+    RECORDING_POOL,
+    _nan_to_none,
+    confusion_counts,
+    ksweep_windows,
+    mean_unit,
+    per_class_topk,
+    predictions,
+    recording_windows,
+    row_normalise,
+    text_confusion_correlation,
+    top_confusions,
+    topk_accuracy,
+    unit_rows,
+)
 
 EVAL_SEED = 1234  # same fixed tiling seed as tactus_memory.touch.train.EVAL_SEED
 DEFAULT_VOTES = 4  # paper: tuple voting over four draws

@@ -159,7 +159,7 @@ def _score_mode(
     memory: Any, stream: StreamSet, keep: np.ndarray, queries: dict[str, list[str]], bar: float
 ) -> dict[str, Any]:
     """Store the kept windows in ``memory`` (session SESSION), ask every query, score."""
-    from tactus_memory.memory import MAX_K
+    from tactus_memory.limits import MAX_K
 
     idx = np.flatnonzero(keep)
     memory.add_many(
@@ -359,9 +359,9 @@ def evaluate_stream(
     ``data_fingerprint`` (``StagData.fingerprint()`` of the files the stream was cut from)
     makes the leakage check decidable: ``leakage.status`` is ``overlap`` when the checkpoint
     was trained on these files without holding out the scored recordings."""
-    from tactus_memory.adapters import TactusEncoder
+    from tactus_memory.adapters.touch import TactusEncoder
+    from tactus_memory.matching import MATCH_Z
     from tactus_memory.memory import Memory
-    from tactus_memory.temporal import MATCH_Z
 
     bad = template_collisions(queries)
     if bad:

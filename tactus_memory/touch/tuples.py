@@ -29,7 +29,8 @@ from threadpoolctl import threadpool_limits
 from tactus_memory.errors import InvalidInputError
 
 if TYPE_CHECKING:
-    from tactus_memory.touch.data import SensorProfile, StagData
+    from tactus_memory.touch.data import StagData
+    from tactus_memory.touch.profile import SensorProfile
 
 PCA_COMPONENTS = 8  # STAG ObjectClusterDataset: PCA to 8 components before k-means
 KMEANS_N_INIT = 50  # STAG ObjectClusterDataset: KMeans(k-means++, n_init=50)

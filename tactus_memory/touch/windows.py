@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.data import STAG_GLOVE, SensorProfile
+from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 
 #: calibrated level a taxel must reach to count as touching: 1/6 = raw 525 on the STAG glove,
 #: ~10 raw above its resting pedestal (stag-format.md "The sensor": rest 510-516). Measured on
