@@ -42,18 +42,13 @@ are one occurrence, and a touch window with the note written about it is one too
 a prefiltered search): ``count`` over a long session with more matching windows than that is
 a lower bound, and :class:`Occurrences` says so (``capped=True``); narrow it with
 ``after``/``before``.
-
-**Clock offsets.** ``set_clock_offset(session, sense, offset, source)`` records that a stream's
-clock runs ``offset`` seconds behind the session's reference clock: its items are placed at
-``t + offset`` (``t_aligned``) for grouping, ordering and every ``after``/``before`` bound of
-this module. Offsets live in the store's ``meta`` table (persisted, shared by processes).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
@@ -90,13 +85,6 @@ TIMELINE_MAX = 100_000
 
 
 # --------------------------------------------------------------------------- the match bar
-class MatchKwargs(ScopeKwargs, total=False):
-    """The keyword spelling of a scope and a :class:`Match` (``memory.count(q, session=...)``)."""
-
-    threshold: float | Mapping[str, float] | None
-    relative: float
-
-
 @dataclass(frozen=True)
 class Match:
     """The match bar: ``threshold`` (None: per sense, MATCH_Z; a number: every sense; a
@@ -106,13 +94,24 @@ class Match:
     relative: float = RELATIVE_KEEP
 
 
+class MatchKwargs(ScopeKwargs, total=False):
+    """The keyword spelling of a scope and a :class:`Match` (``memory.count(q, session=...)``):
+    ``threshold`` and ``relative``, or one ``match=`` (as ``scope=`` is one Scope)."""
+
+    threshold: float | Mapping[str, float] | None
+    relative: float
+    match: Match | None
+
+
 def split_match(kw: Mapping[str, Any]) -> tuple[Scope, Match]:
     """Keyword arguments -> (Scope, Match); unknown keywords raise TypeError."""
     scope, rest = split_scope(kw)
-    unknown = sorted(set(rest) - {"threshold", "relative"})
+    unknown = sorted(set(rest) - {"threshold", "relative", "match"})
     if unknown:
         raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
-    return scope, Match(rest.get("threshold"), rest.get("relative", RELATIVE_KEEP))
+    match = rest.pop("match", None) or Match()
+    given = {k: v for k, v in rest.items() if v is not None}
+    return scope, replace(match, **given) if given else match
 
 
 # --------------------------------------------------------------------------- pure helpers

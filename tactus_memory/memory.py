@@ -26,7 +26,8 @@ object that exposes ``query_centroid`` (a (D,) array) must use exactly that tran
 Where the parts live: result models in :mod:`tactus_memory.models`, the sense registry
 (live/stored senses, counts, calibration) in :mod:`tactus_memory.registry`, the ranked search
 in :mod:`tactus_memory.ranking`, query checks and the :class:`~tactus_memory.query.Scope` in
-:mod:`tactus_memory.query`, the temporal operators in :mod:`tactus_memory.temporal`.
+:mod:`tactus_memory.query`, the temporal operators in :mod:`tactus_memory.temporal`
+(``memory.count``, ``memory.last``, ... are the methods of ``memory.temporal``).
 
 Extension points (temporal operators and the service build on these, not on LanceDB):
 ``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
@@ -50,7 +51,6 @@ from tactus_memory.maintenance import Background, MaintenanceConfig
 from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
-from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry
 from tactus_memory.rows import (
@@ -75,7 +75,12 @@ log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- memory
-class Memory(TemporalQuestions):
+def _temporal(name: str) -> Any:
+    """``memory.<name>`` IS ``memory.temporal.<name>``: one implementation, one docstring."""
+    return property(lambda self: getattr(self.temporal, name), doc=getattr(Temporal, name).__doc__)
+
+
+class Memory:
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -91,8 +96,23 @@ class Memory(TemporalQuestions):
         # live rows for the index threshold: the table's own count, as Store.maintain uses
         self._maintenance = Background(store, store.count, background=background)
         self.ranker = Ranker(store, self.registry)
-        self.temporal = Temporal(self)
+        self.temporal = Temporal(store, self.registry, self.ranker, space, self.lock)
         self.add_sense(TextSense(space))
+
+    # the temporal questions (tactus_memory.temporal): memory.count(q, session=...), ...
+    matches = _temporal("matches")
+    occurrences = _temporal("occurrences")
+    count = _temporal("count")
+    last = _temporal("last")
+    first = _temporal("first")
+    before = _temporal("before")
+    after = _temporal("after")
+    search_moments = _temporal("search_moments")
+    timeline = _temporal("timeline")
+    segment_episodes = _temporal("segment_episodes")
+    episodes = _temporal("episodes")
+    set_clock_offset = _temporal("set_clock_offset")
+    clock_offsets = _temporal("clock_offsets")
 
     # ----------------------------------------------------------- construction
     @classmethod
@@ -285,10 +305,7 @@ class Memory(TemporalQuestions):
     def delete_session(self, session: str) -> int:
         """Delete every item of a session and its clock offsets; returns the rows removed."""
         deleted = self._delete(Where().session(session).sql())
-        with self.lock:  # every offset of the session in one meta write
-            table = self.store.clock_table()
-            if table.pop(session, None):
-                self.store.put_clock_table(table)
+        self.temporal.clocks.drop_session(session)
         return deleted
 
     def _delete(self, where: str | None) -> int:

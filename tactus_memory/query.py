@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
-from typing import TYPE_CHECKING, Any, Protocol, TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -18,11 +18,7 @@ from tactus_memory.vectors import as_unit_rows
 from tactus_memory.where import Where, finite_float
 
 if TYPE_CHECKING:
-    import threading
-
-    from tactus_memory.models import Hit
     from tactus_memory.spaces.base import Space
-    from tactus_memory.store import Store
 
 
 def check_k(k: Any) -> int:
@@ -111,20 +107,3 @@ def split_scope(kw: Mapping[str, Any]) -> tuple[Scope, dict[str, Any]]:
     scope_kw = {k: v for k, v in kw.items() if k in names}
     rest = {k: v for k, v in kw.items() if k not in names}
     return Scope.of(**scope_kw), rest
-
-
-class RankedSearch(Protocol):
-    """What the temporal operators need from a memory (``Memory`` provides it): the store,
-    the space, the write lock, the sense resolver and the one ranked search path."""
-
-    store: Store
-    space: Space
-    lock: threading.RLock
-
-    def resolve_senses(self, senses: Sequence[str] | None) -> list[str]: ...
-
-    def rank(
-        self, q: np.ndarray, k: int, senses: Sequence[str], base: Where, *, transform: bool
-    ) -> list[Hit]: ...
-
-    def session_ids(self) -> list[str]: ...

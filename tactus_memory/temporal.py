@@ -1,26 +1,30 @@
 """Temporal reasoning over the memory: last / first / count / before / after / timeline,
 moments (hits of every sense grouped in time), episodes and per-stream clock offsets.
 
-:class:`Temporal` is an object over the memory's public ranked-search call
-(:class:`~tactus_memory.query.RankedSearch`: ``rank``, ``resolve_senses``): the query is
-embedded once (:func:`~tactus_memory.query.embed_query`), each sense is searched with its
-query transform and scored by its calibrated z-score, then time logic runs in Python. What
-"a match" is and how matches group: :mod:`tactus_memory.matching`. ``Memory`` exposes every
-operator with the usual keywords (``memory.count(q, session=..., senses=...)``).
+:class:`Temporal` is built from the parts it needs: the store (rows, episodes), the sense
+registry (which senses a scope covers), the ranker (the one ranked search path,
+:class:`~tactus_memory.ranking.Ranker`), the space (query embedding) and the write lock.
+The query is embedded once (:func:`~tactus_memory.query.embed_query`), each sense is searched
+with its query transform and scored by its calibrated z-score, then time logic runs in
+Python. What "a match" is and how matches group: :mod:`tactus_memory.matching`; clock
+offsets: :mod:`tactus_memory.clocks`.
 
-**Clock offsets.** ``set_clock_offset(session, sense, offset, source)`` records that a stream's
-clock runs ``offset`` seconds behind the session's reference clock: its items are placed at
-``t + offset`` (``t_aligned``) for grouping, ordering and every ``after``/``before`` bound of
-this module. Offsets live in the store's ``meta`` table (persisted, shared by processes).
+Every question takes the scope as keywords (``session``, ``senses``, ``source``, ``after``,
+``before``, or one ``scope=``) and, where it matches, the match bar (``threshold``,
+``relative``, or one ``match=``). ``Memory`` answers each with the same method
+(``memory.count(q, session=...)`` is ``memory.temporal.count``), and so does the service.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import threading
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from typing_extensions import Unpack
 
+from tactus_memory.clocks import Clocks, Offsets, pad
 from tactus_memory.episodes import (
     EPISODE_MAX_GAP,
     EPISODE_MEAN_COS,
@@ -31,21 +35,24 @@ from tactus_memory.episodes import (
     segment,
 )
 from tactus_memory.errors import InvalidInputError, NotFoundError
-from tactus_memory.limits import MAX_CLOCK_OFFSET, MAX_K
+from tactus_memory.limits import MAX_K
 from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
+    DEFAULT_WINDOW,
     MATCH_CANDIDATES,
     MOMENT_MIN_Z,
     MOMENT_POOL_FACTOR,
     MOMENT_POOL_MIN,
     TIMELINE_MAX,
     Match,
+    MatchKwargs,
     check_relative,
     check_seconds,
     group_moments,
     match_flags,
     resolve_thresholds,
+    split_match,
 )
 from tactus_memory.models import (
     ClockOffset,
@@ -57,14 +64,27 @@ from tactus_memory.models import (
     TimelineItem,
     row_fields,
 )
-from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
-from tactus_memory.senses import validate_sense_name
-from tactus_memory.store import HIT_COLUMNS
+from tactus_memory.query import Scope, check_k, embed_query
+from tactus_memory.ranking import Ranker
+from tactus_memory.registry import SenseRegistry
+from tactus_memory.spaces.base import Space
+from tactus_memory.store import HIT_COLUMNS, Store
 from tactus_memory.vectors import vector_column
-from tactus_memory.where import Where, finite_float, validate_id
-from tactus_memory.where import validate_source as _validate_source
+from tactus_memory.where import Where, validate_id
 
-Offsets = Mapping[tuple[str, str, str], float]
+
+class OccurrenceKwargs(MatchKwargs, total=False):
+    """``count`` keywords: the scope, the match bar, ``merge_gap`` and ``per_stream``."""
+
+    merge_gap: float
+    per_stream: bool
+
+
+class AroundKwargs(MatchKwargs, total=False):
+    """``before``/``after`` keywords: the scope and match bar, and where the anchor is
+    searched (``anchor_senses``; default: every sense with rows)."""
+
+    anchor_senses: Sequence[str] | None
 
 
 def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
@@ -73,86 +93,54 @@ def _overlaps(item: TimelineItem | Episode, after: float | None, before: float |
     )
 
 
-def _pad(offsets: Offsets, session: str | None) -> float:
-    """How far store-side time bounds must be widened so no aligned item is missed."""
-    vals = [abs(v) for (s, _, _), v in offsets.items() if session is None or s == session]
-    return max(vals, default=0.0)
-
-
 class Temporal:
-    """Temporal operators, moments, episodes and clock offsets over one memory.
+    """Temporal operators, moments, episodes and clock offsets over one store.
 
-    Every question takes a :class:`~tactus_memory.query.Scope` (``senses`` None: every sense
-    with rows; ``after``/``before`` with overlap semantics on the aligned clock) and, where
-    it matches, a :class:`~tactus_memory.matching.Match` bar.
+    ``after``/``before`` use overlap semantics on the aligned clock; ``senses`` None means
+    every sense with rows.
     """
 
-    def __init__(self, memory: RankedSearch) -> None:
-        self.memory = memory
-        self.store = memory.store
+    def __init__(
+        self,
+        store: Store,
+        registry: SenseRegistry,
+        ranker: Ranker,
+        space: Space,
+        lock: threading.RLock,
+    ) -> None:
+        self.store = store
+        self.registry = registry
+        self.ranker = ranker
+        self.space = space
+        self.lock = lock
+        self.clocks = Clocks(store, lock)
 
     # ----------------------------------------------------------- clock offsets
-    def offsets(self) -> dict[tuple[str, str, str], float]:
-        """(session, sense, source) -> offset, for every recorded stream."""
-        out: dict[tuple[str, str, str], float] = {}
-        for session, streams in self.store.clock_table().items():
-            for key, value in streams.items():
-                sense, source = key.split("/", 1)
-                out[(session, sense, source)] = float(value)
-        return out
-
     def set_clock_offset(self, session: str, sense: str, offset: float, source: str = "") -> None:
-        """Place the stream (session, sense, source) at ``t + offset`` on the session clock.
-
-        Persisted in the store; ``offset=0`` removes the entry. The sense need not exist yet.
-        """
-        session = validate_id(session, "session id")
-        sense = validate_sense_name(sense)
-        source = _validate_source(source)
-        value = finite_float(offset, "offset")
-        if abs(value) > MAX_CLOCK_OFFSET:
-            raise InvalidInputError(
-                f"offset {value!r} is beyond +-{MAX_CLOCK_OFFSET:g} s; a clock offset is a "
-                "time shift, and t + offset must stay a finite number"
-            )
-        with self.memory.lock:
-            table = self.store.clock_table()
-            streams = table.setdefault(session, {})
-            key = f"{sense}/{source}"
-            if value == 0.0:
-                streams.pop(key, None)
-                if not streams:
-                    table.pop(session)
-            else:
-                streams[key] = value
-            self.store.put_clock_table(table)
+        """Place the stream (session, sense, source) at ``t + offset`` on the session clock
+        (persisted; ``offset=0`` removes it; see :mod:`tactus_memory.clocks`)."""
+        self.clocks.set(session, sense, offset, source)
 
     def clock_offsets(self, session: str | None = None) -> list[ClockOffset]:
         """Every recorded clock offset (of one session), sorted."""
-        if session is not None:
-            validate_id(session, "session id")
-        return [
-            ClockOffset(session=s, sense=sense, source=source, offset=v)
-            for (s, sense, source), v in sorted(self.offsets().items())
-            if session is None or s == session
-        ]
+        return self.clocks.listed(session)
 
     # ----------------------------------------------------------- scoring
-    def evidence(
+    def _evidence(
         self, q: np.ndarray, scope: Scope, match: Match, per_sense: int
     ) -> tuple[list[Evidence], bool]:
         """Every candidate of the (1, D) query ``q`` (all senses in scope), scored and flagged;
         and whether a sense was capped (``per_sense`` candidates, all matching)."""
         relative = check_relative(match.relative)
-        offsets = self.offsets()
-        base = scope.where(_pad(offsets, scope.session))
+        offsets = self.clocks.offsets()
+        base = scope.where(pad(offsets, scope.session))
         after, before = scope.bounds()
-        names = self.memory.resolve_senses(scope.senses)
+        names = self.registry.resolve(scope.senses)
         bars = resolve_thresholds(match.threshold, names)
         out: list[Evidence] = []
         capped = False
         for name in names:
-            hits = self.memory.rank(q, per_sense, [name], base, transform=True)
+            hits = self.ranker.rank(q, per_sense, [name], base, transform=True)
             flags = match_flags([h.score for h in hits], bars[name], relative)
             capped = capped or (len(hits) >= per_sense and all(flags))
             for h, flag in zip(hits, flags, strict=True):
@@ -169,54 +157,77 @@ class Temporal:
                     out.append(e)
         return out, capped
 
-    def matches(self, query: str, scope: Scope, match: Match) -> list[Evidence]:
+    def matches(self, query: str, **kw: Unpack[MatchKwargs]) -> list[Evidence]:
         """Every item matching ``query`` (see :mod:`tactus_memory.matching`), in aligned time
         order."""
-        q = embed_query(self.memory.space, query)
-        ev, _ = self.evidence(q, scope, match, MATCH_CANDIDATES)
+        return self._matches(query, *split_match(kw))
+
+    def _matches(self, query: str, scope: Scope, match: Match) -> list[Evidence]:
+        q = embed_query(self.space, query)
+        ev, _ = self._evidence(q, scope, match, MATCH_CANDIDATES)
         return sorted((e for e in ev if e.match), key=lambda e: (e.t_aligned, e.sense, e.id))
 
     # ----------------------------------------------------------- last / first / count
     def occurrences(
         self,
         query: str,
-        scope: Scope,
-        match: Match,
+        *,
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
+        **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
         """Distinct occurrences of ``query``: matching items merged per session when their
         aligned spans overlap or lie within ``merge_gap`` seconds. ``per_stream=True`` merges
         only within one stream (session + sense + source): a grasp and its note count twice."""
+        scope, match = split_match(kw)
         gap = check_seconds(merge_gap, "merge_gap")
-        q = embed_query(self.memory.space, query)
-        ev, capped = self.evidence(q, scope, match, MATCH_CANDIDATES)
+        q = embed_query(self.space, query)
+        ev, capped = self._evidence(q, scope, match, MATCH_CANDIDATES)
         moments = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
         return Occurrences(
             query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments
         )
 
+    def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
+        """How many distinct times ``query`` happened (see :meth:`occurrences`)."""
+        return self.occurrences(query, **kw).count
+
+    def last(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> Moment | None:
+        """The most recent occurrence of ``query`` (latest aligned start), or None."""
+        moments = self.occurrences(query, **kw).moments
+        return moments[-1] if moments else None
+
+    def first(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> Moment | None:
+        """The earliest occurrence of ``query`` (earliest aligned start), or None."""
+        moments = self.occurrences(query, **kw).moments
+        return moments[0] if moments else None
+
     # ----------------------------------------------------------- before / after
-    def around(
-        self,
-        side: Side,
-        anchor: str,
-        window: float,
-        scope: Scope,
-        match: Match,
-        anchor_senses: Sequence[str] | None = None,
+    def before(
+        self, anchor: str, window: float = DEFAULT_WINDOW, **kw: Unpack[AroundKwargs]
     ) -> Context | None:
-        """What happened in the ``window`` seconds before the best match of ``anchor``
-        (items of its session that start in ``[a.t - window, a.t)``, aligned) or after it
-        (``[a.t_end, a.t_end + window]``, the anchor excluded). The anchor is searched in
-        ``anchor_senses`` within the scope's session and time bounds; the items are of the
+        """What happened in the ``window`` seconds before the best match of ``anchor``: items
+        of its session that start in ``[a.t - window, a.t)`` (aligned). The anchor is searched
+        in ``anchor_senses`` within the scope's session and time bounds; the items are of the
         scope's senses and source. None when nothing matches the anchor."""
+        return self._around("before", anchor, window, dict(kw))
+
+    def after(
+        self, anchor: str, window: float = DEFAULT_WINDOW, **kw: Unpack[AroundKwargs]
+    ) -> Context | None:
+        """What happened in the ``window`` seconds after the best match of ``anchor``: items
+        that start in ``[a.t_end, a.t_end + window]``, the anchor excluded (as :meth:`before`)."""
+        return self._around("after", anchor, window, dict(kw))
+
+    def _around(self, side: Side, anchor: str, window: float, kw: dict[str, Any]) -> Context | None:
+        anchor_senses = kw.pop("anchor_senses", None)
+        scope, match = split_match(kw)
         window = check_seconds(window, "window")
-        names = None if scope.senses is None else self.memory.resolve_senses(scope.senses)
+        names = None if scope.senses is None else self.registry.resolve(scope.senses)
         anchor_scope = Scope(
             session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before
         )
-        found = self.matches(anchor, anchor_scope, match)
+        found = self._matches(anchor, anchor_scope, match)
         if not found:
             return None
         a = max(found, key=lambda e: (e.score, e.t_aligned, e.id))
@@ -224,14 +235,14 @@ class Temporal:
             lo, hi = a.t_aligned - window, a.t_aligned
         else:
             lo, hi = a.t_end_aligned, a.t_end_aligned + window
-        offsets = self.offsets()
-        pad = _pad(offsets, a.session)
+        offsets = self.clocks.offsets()
+        wide = pad(offsets, a.session)
         where = (
             Where()
             .session(a.session)
-            .t_range(lo - pad, None)
+            .t_range(lo - wide, None)
             .source(scope.source)
-            .overlaps(before=hi + pad)
+            .overlaps(before=hi + wide)
         )
         if names is not None:
             where.senses(names)
@@ -263,17 +274,27 @@ class Temporal:
         return items
 
     def timeline(
-        self, scope: Scope, episodes: bool = False, limit: int | None = None
+        self,
+        session: str,
+        senses: Sequence[str] | None = None,
+        after: float | None = None,
+        before: float | None = None,
+        episodes: bool = False,
+        *,
+        source: str | None = None,
+        limit: int | None = None,
     ) -> list[TimelineItem] | list[Episode]:
-        """The scope's session's items (or, with ``episodes=True``, its episodes) in aligned
-        time order; ``limit`` keeps the first. Raises NotFoundError for an unknown session."""
-        session = validate_id(scope.session, "session id")
+        """The session's items (or, with ``episodes=True``, its episodes) in aligned time
+        order; ``after``/``before`` use overlap semantics on the aligned clock; ``limit`` keeps
+        the first. Raises NotFoundError for an unknown session."""
+        session = validate_id(session, "session id")
+        scope = Scope(session=session, senses=senses, source=source, after=after, before=before)
         if limit is not None and (
             isinstance(limit, bool) or not isinstance(limit, int) or limit < 1
         ):
             raise InvalidInputError(f"limit must be a positive int, got {limit!r}")
-        names = None if scope.senses is None else self.memory.resolve_senses(scope.senses)
-        offsets = self.offsets()
+        names = None if scope.senses is None else self.registry.resolve(scope.senses)
+        offsets = self.clocks.offsets()
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
         after, before = scope.bounds()
@@ -281,7 +302,7 @@ class Temporal:
             eps = self._episodes(session, names, scope.source)
             eps = [e for e in eps if _overlaps(e, after, before)]
             return eps[:limit] if limit else eps
-        where = scope.where(_pad(offsets, session))
+        where = scope.where(pad(offsets, session))
         if names is not None:
             where.senses(names)
         items = [it for it in self._items(where, offsets) if _overlaps(it, after, before)]
@@ -304,7 +325,8 @@ class Temporal:
         """
         check_rule(min_cos, mean_cos, max_gap)
         if session is None:
-            sessions = self.memory.session_ids()
+            col = self.store.scan(None, ["session"]).column("session")
+            sessions = sorted(set(col.to_pylist()))
         else:
             sessions = [validate_id(session, "session id")]
         total = 0
@@ -317,7 +339,7 @@ class Temporal:
                 continue
             ids = tbl.column("id").to_pylist()
             firsts: list[tuple[float, str, str, int, np.ndarray]] = []
-            vecs = vector_column(tbl, self.memory.space.dim)
+            vecs = vector_column(tbl, self.space.dim)
             t = tbl.column("t").to_numpy()
             t_end = tbl.column("t_end").to_numpy()
             for (sense, source), idx in sorted(_streams(tbl).items()):
@@ -332,7 +354,7 @@ class Temporal:
             episode = np.zeros(len(ids), dtype=np.int64)
             for number, (*_, members) in enumerate(firsts):
                 episode[members] = number
-            with self.memory.lock:
+            with self.lock:
                 self.store.set_episodes(ids, episode)
             total += len(firsts)
         return total
@@ -356,14 +378,14 @@ class Temporal:
         if self.store.count(unsegmented.sql()) > 0:
             self.segment_episodes(session)
         if senses is not None:
-            where.senses(self.memory.resolve_senses(senses))
+            where.senses(self.registry.resolve(senses))
         where.source(source)
         cols = ["id", "sense", "source", "t", "t_end", "episode", "vector"]
         tbl = self.store.scan(where.sql(), cols)
-        offsets = self.offsets()
+        offsets = self.clocks.offsets()
         if tbl.num_rows == 0:
             return []
-        vecs = vector_column(tbl, self.memory.space.dim)
+        vecs = vector_column(tbl, self.space.dim)
         ids = tbl.column("id").to_pylist()
         senses_col = tbl.column("sense").to_pylist()
         sources = [s or "" for s in tbl.column("source").to_pylist()]
@@ -398,25 +420,22 @@ class Temporal:
         return out
 
     # ----------------------------------------------------------- moments
-    def moments(
-        self,
-        q: np.ndarray,
-        k: int,
-        scope: Scope,
-        match: Match,
-        gap: float = DEFAULT_MOMENT_GAP,
+    def search_moments(
+        self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
     ) -> list[Moment]:
-        """Search with the (1, D) query embedding ``q``, then group hits of one session whose
+        """Search for ``query``, then group hits of one session whose
         aligned spans overlap or lie within ``gap`` seconds into moments carrying every
         sense's evidence; best ``k`` moments.
 
         Candidates: the top max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN) per sense that score
         at least MOMENT_MIN_Z (above the sense's null mean). Score: see :class:`Moment`.
         """
+        scope, match = split_match(kw)
+        q = embed_query(self.space, query)
         k = check_k(k)
         gap = check_seconds(gap, "gap")
         pool = min(MAX_K, max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN))
-        ev, _ = self.evidence(q, scope, match, pool)
+        ev, _ = self._evidence(q, scope, match, pool)
         moments = group_moments([e for e in ev if e.match or e.score >= MOMENT_MIN_Z], gap)
         moments.sort(key=lambda m: (-m.score, m.t, m.session))
         return moments[:k]

@@ -14,9 +14,17 @@ import pytest
 
 from tactus_memory.episodes import representative, segment
 from tactus_memory.errors import InvalidIdError, InvalidInputError, NotFoundError
-from tactus_memory.matching import MATCH_Z, group_moments, match_flags, resolve_thresholds
+from tactus_memory.matching import (
+    MATCH_Z,
+    Match,
+    group_moments,
+    match_flags,
+    resolve_thresholds,
+)
 from tactus_memory.memory import Memory
 from tactus_memory.models import Evidence, Moment
+from tactus_memory.query import Scope
+from tactus_memory.temporal import Temporal
 from tests.fakes import HashingSpace
 from tests.kitchen import (
     IDLE,
@@ -377,3 +385,17 @@ def test_clock_offset_per_source(mem: Memory) -> None:
     occ = mem.occurrences("the mug")
     assert occ.count == 1 and {h.source for h in occ.moments[0].hits} == {"glove-l", "glove-r"}
     assert mem.count("the mug", source="glove-r") == 1
+
+
+def test_temporal_is_built_from_its_parts_and_memory_asks_it(kitchen) -> None:
+    """One temporal API: a Temporal made from the store, registry, ranker, space and lock
+    alone (no Memory) answers as ``memory.count`` does, and ``memory.count`` is the very
+    method of ``memory.temporal`` (no second implementation); ``match=`` is one Match."""
+    mem, _ = kitchen
+    alone = Temporal(mem.store, mem.registry, mem.ranker, mem.space, mem.lock)
+    assert alone.count("picked up the mug", session=S) == mem.count("picked up the mug", session=S)
+    assert alone.count("picked up the mug", session=S) >= 1
+    assert mem.count.__func__ is Temporal.count
+    assert mem.last.__self__ is mem.temporal
+    strict = Match(threshold=1e6)
+    assert mem.count("picked up the mug", scope=Scope(session=S), match=strict) == 0

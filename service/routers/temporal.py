@@ -10,7 +10,7 @@ Every route takes the one scope dependency (``deps.ScopeDep``) and the match bar
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
@@ -83,7 +83,9 @@ class Occurrence:
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked
-        return a.memory.temporal.occurrences(self.q, a.scope, a.match, self.merge_gap, per_stream)
+        return a.memory.occurrences(
+            self.q, scope=a.scope, match=a.match, merge_gap=self.merge_gap, per_stream=per_stream
+        )
 
 
 OccurrenceDep = Annotated[Occurrence, Depends()]
@@ -152,8 +154,9 @@ class Around:
 
     def ask(self, side: Side) -> ContextOut:
         a = self.asked
-        ctx = a.memory.temporal.around(
-            side, self.anchor, self.window, a.scope, a.match, self.anchor_sense
+        around = a.memory.before if side == "before" else a.memory.after
+        ctx = around(
+            self.anchor, self.window, scope=a.scope, match=a.match, anchor_senses=self.anchor_sense
         )
         if ctx is None:
             return ContextOut(side=side, window=self.window)
@@ -202,8 +205,7 @@ def moments(
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
 ) -> MomentsOut:
-    bar = {"threshold": match.threshold, "relative": match.relative}
-    moments = memory.search_moments(q, k, gap=gap, scope=scope, **bar)
+    moments = memory.search_moments(q, k, gap=gap, scope=scope, match=match)
     return MomentsOut(moments=moments)
 
 
@@ -221,7 +223,9 @@ def timeline(
     episodes: bool = False,
     limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
 ) -> TimelineOut:
-    out = memory.temporal.timeline(replace(scope, session=session), episodes, limit)
+    out = memory.timeline(
+        session, scope.senses, scope.after, scope.before, episodes, source=scope.source, limit=limit
+    )
     if episodes:
         return TimelineOut(session=session, episodes=out)
     return TimelineOut(session=session, items=out)
