@@ -22,7 +22,8 @@ Input rules (``validate``), in this order:
 
 Vectors live in the checkpoint's space (``space_name``/``dim``), so ``Memory.add_sense``
 rejects a memory built on another space. Text queries compared with touch vectors go through
-``query_transform`` = normalize(q - centroid), the same centring the training targets had.
+``Sense.query_transform`` = normalize(q - ``query_centroid``), the centring the training
+targets had.
 """
 
 from __future__ import annotations
@@ -39,9 +40,8 @@ from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConf
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
+from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.vectors import as_unit_rows
-
-FRAME = 32
 
 
 class CalibratedWindow(np.ndarray):
@@ -126,7 +126,7 @@ class TactusEncoder(Sense):
             or arr.dtype == bool
         ):
             raise InvalidInputError(f"touch window must be numeric, got dtype {arr.dtype}")
-        if arr.ndim != 3 or arr.shape[1:] != (FRAME, FRAME):
+        if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE:
             raise InvalidInputError(f"touch window must have shape (K, 32, 32), got {arr.shape}")
         k = arr.shape[0]
         if not 1 <= k <= self.frames:
@@ -175,7 +175,7 @@ class TactusEncoder(Sense):
         else:
             items = list(batch)
         if not items:
-            return np.zeros((0, self.frames, FRAME, FRAME), np.float32)
+            return np.zeros((0, self.frames, *FRAME_SHAPE), np.float32)
         # validated windows (what Memory passes) are trusted; raw ones are validated here
         trusted = calibrated is not False
         checked = [
@@ -200,11 +200,6 @@ class TactusEncoder(Sense):
         with torch.inference_mode():
             z = batched_forward(self.model, wins, self.batch_size, self.device, self.dim)
         return as_unit_rows(z, self.dim, what="touch embedding")
-
-    def query_transform(self, queries: np.ndarray) -> np.ndarray:
-        """(N, D) text-query vectors -> normalize(q - centroid), comparable with touch vectors."""
-        q = np.asarray(queries, dtype=np.float32)
-        return as_unit_rows(q - self.query_centroid, self.dim, what="query")
 
     def classify(
         self, windows: Any, k: int = 3, *, calibrated: bool | None = None, scores: bool = False

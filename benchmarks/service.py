@@ -180,7 +180,7 @@ def child_main(data: str, port: int, touch: str) -> None:
     import uvicorn
 
     from tactus_memory.service.app import create_app
-    from tactus_memory.service.settings import Settings
+    from tactus_memory.settings import Settings
 
     settings = Settings(data=data, port=port, log_level="warning", touch=touch != "stand-in")
     app = create_app(settings)

@@ -44,7 +44,7 @@ from tactus_memory.service.routers import (
     touch_stream,
     ui,
 )
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -67,7 +67,6 @@ in natural language.
 
 def open_store(settings: Settings) -> Any:
     """The memory at ``settings.data`` in the configured space, no senses added yet."""
-    from tactus_memory.maintenance import MaintenanceConfig
     from tactus_memory.memory import Memory
 
     return Memory.open(
@@ -75,7 +74,8 @@ def open_store(settings: Settings) -> Any:
         space=settings.space,
         space_path=settings.space_path,
         space_dim=settings.space_dim,
-        maintenance=MaintenanceConfig(maintain=settings.maintain),
+        read_consistency_interval=settings.read_consistency,
+        maintenance=settings.maintenance(),
     )
 
 

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.touch.profile import FRAME_SHAPE
 
-FRAME_SHAPE = (32, 32)
 NPY_TYPES = ("application/x-npy", "application/octet-stream")
 
 

@@ -25,8 +25,8 @@ from tactus_memory.memory import Memory
 from tactus_memory.query import Scope
 from tactus_memory.rows import PreparedWrite
 from tactus_memory.service.problems import ServiceUnavailable
-from tactus_memory.service.settings import Settings
 from tactus_memory.service.writes import Writer
+from tactus_memory.settings import Settings
 
 
 @dataclass

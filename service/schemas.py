@@ -20,16 +20,20 @@ from tactus_memory.limits import (
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
 from tactus_memory.models import ClockOffset, Evidence, Moment, TimelineItem
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
+from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.vectors import MAX_COMPONENT
 
-MAX_BATCH = 4096
+#: vectors (and ids) in one JSON write request, far below the library's limits.MAX_BATCH:
+#: 4,096 vectors of 384 floats are ~15 MB of JSON, about the default body limit
+MAX_JSON_ITEMS = 4096
 #: windows in one JSON touch batch (64 x K=8 frames is ~2.6 MB of JSON; send larger
 #: batches as .npy, which has no such limit besides the body size)
 MAX_JSON_WINDOWS = 64
 
 #: a valid raw STAG-like frame (values 500-690: a real dynamic range, never all-zero)
-_FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(32)] for r in range(32)]
-_FRAME_EXAMPLE_2 = [[500.0 + (11 * r + 5 * c) % 187 for c in range(32)] for r in range(32)]
+_ROWS, _COLS = FRAME_SHAPE
+_FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(_COLS)] for r in range(_ROWS)]
+_FRAME_EXAMPLE_2 = [[500.0 + (11 * r + 5 * c) % 187 for c in range(_COLS)] for r in range(_ROWS)]
 
 
 class Strict(BaseModel):
@@ -54,10 +58,10 @@ Component = Annotated[
 #: a vector: at least one component of magnitude >= 1e-11 (an all-zero vector has no
 #: direction; tactus_memory/vectors.py refuses norms below 1e-12)
 NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
-#: (32,) one row of a frame
-Row = Annotated[list[Value], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
+#: (32,) one row of a frame (touch/profile.py: FRAME_SHAPE)
+Row = Annotated[list[Value], Field(json_schema_extra={"minItems": _COLS, "maxItems": _COLS})]
 #: (32, 32) one frame
-Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": 32, "maxItems": 32})]
+Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": _ROWS, "maxItems": _ROWS})]
 #: (K, 32, 32) a window, 1 <= K <= MAX_WINDOW_FRAMES
 Window = Annotated[list[Frame], Field(min_length=1, max_length=MAX_WINDOW_FRAMES)]
 #: an item id (the store's rule)
@@ -119,7 +123,7 @@ class TouchBatchIn(Strict):
         None,
         description="B item ids (default: generated), all different.",
         min_length=1,
-        max_length=MAX_BATCH,
+        max_length=MAX_JSON_ITEMS,
         json_schema_extra={"uniqueItems": True},
     )
 
@@ -157,16 +161,18 @@ class VectorsIn(Strict):
     )
     vectors: list[Annotated[list[Component], Field(min_length=1, json_schema_extra=NONZERO)]] = (
         Field(
-            min_length=1, max_length=MAX_BATCH, description="(N, D) vectors, D = the space's dim."
+            min_length=1,
+            max_length=MAX_JSON_ITEMS,
+            description="(N, D) vectors, D = the space's dim.",
         )
     )
     t: list[float] = Field(
-        min_length=1, max_length=MAX_BATCH, description="One start time per vector (422 else)."
+        min_length=1, max_length=MAX_JSON_ITEMS, description="One start time per vector (422 else)."
     )
     t_end: list[float] | None = Field(None, description="One end time (>= t) per vector.")
     meta: Meta | list[Meta] | None = None
     ids: list[ItemId] | None = Field(
-        None, min_length=1, max_length=MAX_BATCH, json_schema_extra={"uniqueItems": True}
+        None, min_length=1, max_length=MAX_JSON_ITEMS, json_schema_extra={"uniqueItems": True}
     )
 
 

@@ -18,15 +18,9 @@ from __future__ import annotations
 
 import os
 from datetime import timedelta
-from typing import Any
-
-from pydantic import field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from tactus_memory.errors import InvalidInputError
-
-#: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
-DEFAULT_READ_CONSISTENCY_S = 1.0
+from tactus_memory.settings import Settings
 
 #: AWS environment variable -> LanceDB storage option (first variable set wins)
 S3_ENV: dict[str, tuple[str, ...]] = {
@@ -39,26 +33,11 @@ S3_ENV: dict[str, tuple[str, ...]] = {
 }
 
 
-class ConnectSettings(BaseSettings):
-    """``TACTUS_READ_CONSISTENCY``: seconds (float), or ``off``/``none`` for never."""
-
-    model_config = SettingsConfigDict(env_prefix="TACTUS_", extra="ignore")
-
-    read_consistency: float | None = DEFAULT_READ_CONSISTENCY_S
-
-    @field_validator("read_consistency", mode="before")
-    @classmethod
-    def _off(cls, value: Any) -> Any:
-        if isinstance(value, str) and value.strip().lower() in {"off", "none", "never", ""}:
-            return None
-        return value
-
-
 def read_consistency_interval(value: float | timedelta | None | str = "env") -> timedelta | None:
     """The interval to connect with: a timedelta/seconds as given, None for never, or (the
     default ``"env"``) ``TACTUS_READ_CONSISTENCY`` / 1 s."""
     if isinstance(value, str) and value == "env":
-        value = ConnectSettings().read_consistency
+        value = Settings().read_consistency
     if value is None or isinstance(value, timedelta):
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:

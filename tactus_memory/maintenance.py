@@ -25,8 +25,8 @@ Three jobs, run by one process per store (the *maintainer*: ``tactus maintain``,
 Disk then stays near the live data: the extra is what compaction rewrote within the last
 ``retain_seconds`` plus the small tier-0 tail (measured by ``benchmarks/disk.py``).
 
-Knobs: :class:`MaintenanceConfig` (pydantic-settings, env ``TACTUS_*``; README section
-"Always-on: disk, maintenance, replicas, object storage").
+Knobs: :class:`MaintenanceConfig` (settings ``TACTUS_*``, :mod:`tactus_memory.settings`;
+README section "Always-on: disk, maintenance, replicas, object storage").
 """
 
 from __future__ import annotations
@@ -41,18 +41,16 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import BaseModel, Field
 
 log = logging.getLogger(__name__)
 
 MiB = 1024 * 1024
 
 
-class MaintenanceConfig(BaseSettings):
-    """The maintenance policy. Every field also reads ``TACTUS_<NAME>`` from the environment."""
-
-    model_config = SettingsConfigDict(env_prefix="TACTUS_", extra="ignore")
+class MaintenanceConfig(BaseModel):
+    """The maintenance policy. Its fields are settings too (``TACTUS_<NAME>``, see
+    :class:`tactus_memory.settings.Settings`, whose ``maintenance()`` builds one)."""
 
     maintain: bool = Field(
         True,

@@ -55,11 +55,6 @@ class StoredSense(Sense):
     def embed(self, batch: Sequence[Any]) -> np.ndarray:
         raise self._not_loaded()
 
-    def query_transform(self, queries: np.ndarray) -> np.ndarray:
-        if self.query_centroid is None:
-            return queries
-        return as_unit_rows(queries - self.query_centroid[None, :], self.dim, what="query")
-
     def provenance(self) -> dict[str, Any]:
         return dict(self._provenance)
 

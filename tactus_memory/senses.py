@@ -59,6 +59,9 @@ class Sense(ABC):
     dim: int
     #: the space this sense maps into; None means "whatever space it is bound to"
     space_name: str | None = None
+    #: (D,) vector removed from text queries compared with this sense (the touch
+    #: sense's target centroid); None: text queries are compared as they are
+    query_centroid: np.ndarray | None = None
     #: keyword options ``validate`` takes (``Memory.add(..., options=...)`` passes these on;
     #: e.g. the touch sense's ``calibrated``); options a sense does not declare are not its own
     validate_options: frozenset[str] = frozenset()
@@ -85,11 +88,14 @@ class Sense(ABC):
         (N, D) float32, L2-normalised."""
 
     def query_transform(self, queries: np.ndarray) -> np.ndarray:
-        """queries: (N, D) text-query vectors -> (N, D) vectors comparable with this sense.
-
-        Identity by default; the touch sense removes its target centroid here.
-        """
-        return queries
+        """queries: (N, D) text-query vectors -> (N, D) vectors comparable with this sense:
+        normalize(q - query_centroid), the centring the sense's training targets had, or the
+        queries as they are when the sense has no centroid. The registry stores the centroid,
+        so a sense reopened from the store transforms queries exactly so."""
+        if self.query_centroid is None:
+            return queries
+        q = np.asarray(queries, dtype=np.float32)
+        return as_unit_rows(q - self.query_centroid[None, :], self.dim, what="query")
 
     def to_row(self, item: Any) -> dict[str, Any]:
         """Extra stored columns for one validated item: ``text`` and/or ``raw`` (npy bytes)."""

@@ -47,6 +47,7 @@ from tactus_memory.connect import normalise_uri, storage_options_for
 from tactus_memory.connect import read_consistency_interval as consistency_from
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
 from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
+from tactus_memory.settings import Settings
 from tactus_memory.tables import (
     IndexConfig,
     items_schema,
@@ -100,7 +101,7 @@ class Store:
 
         self.uri = normalise_uri(uri)
         self.index = index or IndexConfig()
-        self.maintenance = maintenance or MaintenanceConfig()
+        self.maintenance = maintenance or Settings().maintenance()
         self.storage_options = storage_options_for(self.uri, storage_options)
         self.read_consistency = consistency_from(read_consistency_interval)
         self.db = lancedb.connect(

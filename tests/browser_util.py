@@ -123,7 +123,7 @@ def serve(data: str, port: int, token: str | None) -> None:
 
     from tactus_memory.memory import Memory
     from tactus_memory.service.app import create_app
-    from tactus_memory.service.settings import Settings
+    from tactus_memory.settings import Settings
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     memory = Memory.open(data, space=MiniLMSpace())

@@ -206,7 +206,7 @@ def test_serving_loads_nothing_of_training_plotting_or_mat_reading(tmp_path: Pat
     code = (
         "import sys\n"
         "from tactus_memory.service.app import create_app\n"
-        "from tactus_memory.service.settings import Settings\n"
+        "from tactus_memory.settings import Settings\n"
         f"app = create_app(Settings(data={str(tmp_path / 'm')!r}))\n"
         "assert 'touch' in app.state.tactus.memory.senses, app.state.tactus.touch_unavailable\n"
         f"bad = sorted(m for m in sys.modules if m.startswith({NOT_SERVED!r}))\n"

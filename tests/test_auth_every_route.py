@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from starlette.routing import BaseRoute, Route, WebSocketRoute
 
 from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 from tests.test_service import assert_problem
 from tests.test_service_helpers import make_memory
 

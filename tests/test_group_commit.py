@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 from tactus_memory.errors import InvalidInputError, OverloadedError
 from tactus_memory.ingest import GroupCommitter
 from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 from tests.test_service_helpers import StandInTouch, make_memory, window
 
 POISON = -7.0  # a window whose first value is this makes PoisonTouch.embed fail

@@ -23,6 +23,7 @@ from tactus_memory.maintenance import (
 )
 from tactus_memory.memory import Memory
 from tactus_memory.senses import Sense, array_to_bytes
+from tactus_memory.settings import Settings
 from tactus_memory.tables import IndexConfig
 from tests.fakes import HashingSpace
 
@@ -236,13 +237,16 @@ def test_index_refresh_is_incremental(tmp_path: Path) -> None:
 
 
 def test_maintenance_config_reads_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The policy's fields are settings: the environment reaches them through Settings, and
+    a store opened without a policy takes the one the settings describe."""
     monkeypatch.setenv("TACTUS_MAINTAIN", "0")
     monkeypatch.setenv("TACTUS_RETAIN_SECONDS", "300")
-    cfg = MaintenanceConfig()
+    cfg = Settings().maintenance()
+    assert isinstance(cfg, MaintenanceConfig)
     assert cfg.maintain is False and cfg.retain_seconds == 300.0
     monkeypatch.setenv("TACTUS_FAN_IN", "1")
     with pytest.raises(ValueError, match="fan_in"):
-        MaintenanceConfig()
+        Settings()
 
 
 def test_plan_absorbs_stragglers_between_larger_fragments() -> None:

@@ -16,11 +16,12 @@ import lance
 import numpy as np
 import pytest
 
-from tactus_memory.connect import ConnectSettings, read_consistency_interval, storage_options_for
+from tactus_memory.connect import read_consistency_interval, storage_options_for
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
+from tactus_memory.settings import Settings
 from tactus_memory.tables import IndexConfig
 from tests.fakes import HashingSpace
 from tests.replicas import STALENESS, open_replica, start_writer, wait_for
@@ -37,7 +38,7 @@ def test_read_consistency_from_env_and_arguments(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setenv("TACTUS_READ_CONSISTENCY", "0.25")
     assert read_consistency_interval() == timedelta(seconds=0.25)
     monkeypatch.setenv("TACTUS_READ_CONSISTENCY", "off")
-    assert ConnectSettings().read_consistency is None and read_consistency_interval() is None
+    assert Settings().read_consistency is None and read_consistency_interval() is None
     assert read_consistency_interval(2) == timedelta(seconds=2)
     assert read_consistency_interval(None) is None
     with pytest.raises(InvalidInputError, match="read consistency"):

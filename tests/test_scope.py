@@ -13,7 +13,7 @@ from tactus_memory.errors import DynamicRangeError, InvalidInputError
 from tactus_memory.memory import Memory
 from tactus_memory.query import Scope, embed_query
 from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 from tactus_memory.touch.profile import STAG_GLOVE
 from tactus_memory.where import Where
 from tests import test_encoder

@@ -12,7 +12,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 from tests.test_service_helpers import make_memory, npy_bytes, window
 from tests.threads import run_threads
 
@@ -611,6 +611,24 @@ def test_settings_from_environment(monkeypatch):
     assert (s.data, s.max_body_bytes, s.window, s.stride) == ("/srv/mem", 5000, 16, 4)
     assert s.token is not None and s.token.get_secret_value() == "abc"
     assert "abc" not in repr(s)
+
+
+def test_settings_file_then_environment_then_flags(monkeypatch, tmp_path):
+    """One settings object, three places: a TOML file (--config / TACTUS_CONFIG), the
+    environment over it, keyword arguments (the CLI's flags) over both."""
+    for name in ("TACTUS_DATA", "TACTUS_WINDOW", "TACTUS_STRIDE", "TACTUS_RETAIN_SECONDS"):
+        monkeypatch.delenv(name, raising=False)
+    path = tmp_path / "tactus.toml"
+    path.write_text('data = "/from/file"\nwindow = 4\nstride = 3\nretain_seconds = 99.0\n')
+    monkeypatch.setenv("TACTUS_CONFIG", str(path))
+    monkeypatch.setenv("TACTUS_STRIDE", "2")
+    s = Settings(window=6)
+    assert (s.data, s.window, s.stride) == ("/from/file", 6, 2)
+    assert s.maintenance().retain_seconds == 99.0
+    monkeypatch.delenv("TACTUS_CONFIG")
+    assert Settings(config=str(path)).data == "/from/file"
+    with pytest.raises(ValueError, match="no settings file"):
+        Settings(config=str(tmp_path / "missing.toml"))
 
 
 def test_serve_command_builds_settings_and_runs_uvicorn(monkeypatch, tmp_path):

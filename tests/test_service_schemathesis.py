@@ -25,7 +25,7 @@ from fastapi.testclient import TestClient
 
 from benchmarks.serving import free_port
 from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 from tests.test_service_helpers import make_memory, window
 
 ROOT = Path(__file__).resolve().parents[1]

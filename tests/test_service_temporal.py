@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 
 from tactus_memory.memory import Memory
 from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 from tests.fakes import HashingSpace
 from tests.kitchen import kitchen_memory
 from tests.test_temporal import IDLE, MUG_GRASPS, NOTES, S, fill_kitchen

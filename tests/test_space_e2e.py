@@ -306,7 +306,7 @@ def client(tiny_qwen: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     from fastapi.testclient import TestClient
 
     from tactus_memory.service.app import create_app
-    from tactus_memory.service.settings import Settings
+    from tactus_memory.settings import Settings
 
     data = tmp_path_factory.mktemp("served") / "memory"
     settings = Settings(

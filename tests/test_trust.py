@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 
 from tactus_memory.errors import IdConflictError
 from tactus_memory.service.app import create_app
-from tactus_memory.service.settings import Settings
+from tactus_memory.settings import Settings
 from tests import test_service
 from tests.test_service import assert_problem
 from tests.test_service_helpers import window

@@ -49,6 +49,7 @@ from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_WINDOW_FRAMES
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import bearer, token_ok
 from tactus_memory.service.problems import problem_body, problem_for_exception
+from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import WindowStream
 
 log = logging.getLogger("tactus_memory.service")
@@ -287,7 +288,7 @@ def _parse(
         arr = load_npy(data, f"binary frame {index}")
         if arr.ndim == 2:
             arr = arr[None]
-        if arr.ndim != 3 or arr.shape[1:] != (32, 32):
+        if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE:
             raise InvalidInputError(
                 f"binary frame {index} has shape {arr.shape}, expected (32, 32) or (N, 32, 32)"
             )

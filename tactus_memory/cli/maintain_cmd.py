@@ -44,7 +44,7 @@ def maintain(
     removed). Run exactly one per store; start the servers with ``--no-maintain``.
     """
     from tactus_memory.errors import TactusError
-    from tactus_memory.maintenance import MaintenanceConfig
+    from tactus_memory.settings import Settings
     from tactus_memory.store import Store
 
     location = _data_dir(data)
@@ -54,7 +54,7 @@ def maintain(
     if retain is not None:
         given["retain_seconds"] = retain
     try:
-        cfg = MaintenanceConfig(**given)
+        cfg = Settings(**given).maintenance()
         store = Store(location, maintenance=cfg)
     except (TactusError, ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)

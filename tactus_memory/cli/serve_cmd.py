@@ -59,6 +59,13 @@ def serve(
         ),
     ] = False,
     log_level: Annotated[str | None, typer.Option(help="uvicorn log level (default info).")] = None,
+    config: Annotated[
+        str | None,
+        typer.Option(
+            help="A TOML file of settings (the TACTUS_ names without the prefix, lower case: "
+            'data = "/srv/memory"); flags and the environment win over it (env TACTUS_CONFIG).'
+        ),
+    ] = None,
     debug: Annotated[
         bool, typer.Option("--debug", help="Show the full traceback of a startup error.")
     ] = False,
@@ -70,8 +77,8 @@ def serve(
     options given here win. On a fresh store the default senses are registered: text, and
     touch with the shipped checkpoint.
     """
-    from tactus_memory.service.settings import Settings
     from tactus_memory.service.startup import check_location, explain
+    from tactus_memory.settings import Settings
 
     given = {
         "host": host,
@@ -86,6 +93,7 @@ def serve(
         "window": window,
         "stride": stride,
         "log_level": log_level,
+        "config": config,
     }
     overrides = {k: v for k, v in given.items() if v is not None}
     if no_touch:

@@ -36,6 +36,7 @@ from pydantic import BaseModel, Field
 import tactus_memory.recordings.decode as decode
 from tactus_memory.errors import TactusError, UnknownSenseError
 from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
+from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import WindowStream
 from tactus_memory.where import Where, validate_id
 
@@ -45,8 +46,6 @@ Memory = Any
 
 #: items per commit (per sense and topic); a crash loses at most this many per topic
 DEFAULT_BATCH = 256
-#: touch frame shape when the sense does not say (the STAG glove raster, stag-format.md)
-DEFAULT_FRAME_SHAPE = (32, 32)
 NS = 1_000_000_000
 
 
@@ -335,7 +334,7 @@ class _Ingest:
                 if shape is None:
                     sense = self.memory.senses[topic.sense]
                     fs = getattr(sense, "frame_shape", None)
-                    shape = shapes[m.topic] = tuple(fs) if fs else DEFAULT_FRAME_SHAPE  # type: ignore[assignment]
+                    shape = shapes[m.topic] = tuple(fs) if fs else FRAME_SHAPE  # type: ignore[assignment]
                 frame = decode.touch_frame(m.msg, m.msgtype, shape, where)  # (H, W)
                 ws = streams.setdefault(m.topic, WindowStream(self.window, self.stride))
                 done = ws.push(frame, [t])

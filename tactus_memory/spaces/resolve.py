@@ -13,19 +13,19 @@ option to pass.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from tactus_memory import spaces as registry
 from tactus_memory.errors import SpaceConfigError
+from tactus_memory.settings import Settings
 from tactus_memory.spaces import QWEN3VL_ALIASES
 from tactus_memory.spaces.base import Space
 
-ENV_SPACE = "TACTUS_SPACE"
 ENV_SPACE_PATH = "TACTUS_SPACE_PATH"
-ENV_SPACE_DIM = "TACTUS_SPACE_DIM"
 PATH_HINT = f"pass --space-path DIR (or set {ENV_SPACE_PATH}; in Python space_path=DIR)"
 
 
@@ -38,17 +38,18 @@ class SpaceChoice:
     dim: int | None = None
 
     def with_env(self) -> SpaceChoice:
-        """Fill the fields not given from ``TACTUS_SPACE``/``_PATH``/``_DIM``."""
-        dim = self.dim
-        if dim is None and os.environ.get(ENV_SPACE_DIM):
-            raw = os.environ[ENV_SPACE_DIM]
-            if not raw.strip().isdigit():
-                raise SpaceConfigError(f"{ENV_SPACE_DIM}={raw!r} is not a whole number")
-            dim = int(raw)
+        """Fill the fields not given from the settings (``TACTUS_SPACE``/``_PATH``/``_DIM``,
+        or the settings file)."""
+        try:
+            env = Settings()
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            name = "TACTUS_" + "_".join(str(p) for p in err["loc"]).upper()
+            raise SpaceConfigError(f"{name}={err['input']!r}: {err['msg']}") from None
         return SpaceChoice(
-            name=self.name or os.environ.get(ENV_SPACE) or None,
-            path=self.path or os.environ.get(ENV_SPACE_PATH) or None,
-            dim=dim,
+            name=self.name or env.space or None,
+            path=self.path or env.space_path or None,
+            dim=self.dim if self.dim is not None else env.space_dim,
         )
 
 

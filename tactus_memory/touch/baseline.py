@@ -46,6 +46,7 @@ from tqdm.auto import tqdm
 
 from tactus_memory import __version__
 from tactus_memory.touch.model import BasicBlock, batched_forward
+from tactus_memory.touch.profile import FRAME_SHAPE
 
 if TYPE_CHECKING:
     from tactus_memory.touch.train import TrainData
@@ -90,12 +91,12 @@ class StagCNN(nn.Module):
         self.fc = nn.Linear(128, n_classes)
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
-        if frames.ndim != 4 or tuple(frames.shape[1:]) != (self.frames, 32, 32):
+        if frames.ndim != 4 or tuple(frames.shape[1:]) != (self.frames, *FRAME_SHAPE):
             raise ValueError(
                 f"frames must be (B, {self.frames}, 32, 32), got {tuple(frames.shape)}"
             )
         b, n = frames.shape[:2]
-        f = self.trunk(frames.reshape(b * n, 1, 32, 32))  # (B*N, 128, 8, 8)
+        f = self.trunk(frames.reshape(b * n, 1, *FRAME_SHAPE))  # (B*N, 128, 8, 8)
         f = f.reshape(b, n * 128, f.shape[2], f.shape[3])  # channel concat of the N frames
         return self.fc(self.fuse(f).mean(dim=(2, 3)))
 

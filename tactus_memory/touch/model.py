@@ -35,7 +35,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-FRAME_SIZE = 32  # STAG rasterises the 548-taxel glove into 32x32 frames (stag-format.md)
+from tactus_memory.touch.profile import FRAME_SHAPE
 
 
 @dataclass
@@ -126,7 +126,7 @@ class Trunk(nn.Module):
         self.stages = nn.Sequential(*layers)
         self.out_channels = c_in
         # spatial size of the output map for a 32x32 input
-        self.out_size = FRAME_SIZE // cfg.stem_stride // (2 ** (len(cfg.widths) - 1))
+        self.out_size = FRAME_SHAPE[0] // cfg.stem_stride // (2 ** (len(cfg.widths) - 1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.stages(self.stem(x))
@@ -182,7 +182,7 @@ class TactusModel(nn.Module):
 
     def pad_frames(self, frames: torch.Tensor) -> torch.Tensor:
         """(B, k, 32, 32) with k <= K -> (B, K, 32, 32), repeating the last frame."""
-        if frames.ndim != 4 or frames.shape[-2:] != (FRAME_SIZE, FRAME_SIZE):
+        if frames.ndim != 4 or tuple(frames.shape[-2:]) != FRAME_SHAPE:
             raise ValueError(f"frames must be (B, K, 32, 32), got {tuple(frames.shape)}")
         k, big_k = frames.shape[1], self.cfg.frames
         if k < 1:
@@ -201,7 +201,7 @@ class TactusModel(nn.Module):
         """(B, K, 32, 32) -> pooled fused features (B, C), before the projector."""
         frames = self.pad_frames(frames)
         b, k = frames.shape[:2]
-        x = self.shape_input(frames.reshape(b * k, 1, FRAME_SIZE, FRAME_SIZE))
+        x = self.shape_input(frames.reshape(b * k, 1, *FRAME_SHAPE))
         f = self.drop(self.trunk(x))  # (B*K, C, h, w)
         f = f.reshape(b, k * f.shape[1], f.shape[2], f.shape[3])  # concat frames on channels
         return self.fuse(f).mean(dim=(2, 3))

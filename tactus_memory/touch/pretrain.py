@@ -40,13 +40,14 @@ from tqdm.auto import tqdm
 
 from tactus_memory import __version__
 from tactus_memory.touch.checkpoint import load_resume, resume_path, save_resume
-from tactus_memory.touch.model import FRAME_SIZE, TactusConfig, Trunk, get_config
+from tactus_memory.touch.model import TactusConfig, Trunk, get_config
+from tactus_memory.touch.profile import FRAME_SHAPE
 
 log = logging.getLogger(__name__)
 
 MASK_RATIO = 0.6  # paper, Pretraining (HTT setting for taxel sensors)
 PATCH = 4  # 4x4 patches on a 32x32 frame -> an 8x8 grid of 64 patches
-GRID = FRAME_SIZE // PATCH
+GRID = FRAME_SHAPE[0] // PATCH
 N_PATCHES = GRID * GRID
 MIN_PATCH_STD = 0.02  # calibrated units (= 3 raw counts at 150 counts/unit): std floor
 COLLAPSE_RATIO = 0.95  # warn when loss / mean-prediction baseline stays above this
@@ -64,7 +65,7 @@ def unpatchify(p: torch.Tensor) -> torch.Tensor:
     """(N, 64, 16) -> (N, 32, 32); inverse of ``patchify``."""
     n = p.shape[0]
     x = p.reshape(n, GRID, GRID, PATCH, PATCH).permute(0, 1, 3, 2, 4)
-    return x.reshape(n, FRAME_SIZE, FRAME_SIZE)
+    return x.reshape(n, *FRAME_SHAPE)
 
 
 def patch_targets(x: torch.Tensor, min_std: float = MIN_PATCH_STD) -> torch.Tensor:

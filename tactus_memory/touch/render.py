@@ -32,7 +32,12 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile, taxel_mask_from_spec
+from tactus_memory.touch.profile import (
+    FRAME_SHAPE,
+    STAG_GLOVE,
+    SensorProfile,
+    taxel_mask_from_spec,
+)
 
 #: default pixels per taxel: a frame is 32*4 = 128 px square
 SCALE = 4
@@ -86,7 +91,7 @@ class Layout:
     columns: int
     scale: int
     gap: int
-    size: int = 32
+    size: int = FRAME_SHAPE[0]
 
     @property
     def rows(self) -> int:
@@ -119,7 +124,7 @@ def as_frames(window: Any) -> np.ndarray:
     arr = arr.astype(np.float32)
     if arr.ndim == 2:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (32, 32) or arr.shape[0] == 0:
+    if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE or arr.shape[0] == 0:
         raise InvalidInputError(f"touch window has shape {arr.shape}, expected (K, 32, 32)")
     if not np.isfinite(arr).all():
         raise InvalidInputError("touch window contains NaN or inf")

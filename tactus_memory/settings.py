@@ -1,21 +1,54 @@
-"""Service settings: environment variables with the ``TACTUS_`` prefix (pydantic-settings).
+"""The one settings object (pydantic-settings): what the library, the service and the CLI
+can be told, from three places, highest first:
+
+1. command-line flags and keyword arguments (``Settings(data=...)``; ``tactus serve --data``),
+2. the environment, ``TACTUS_<FIELD>`` (``TACTUS_DATA=/srv/memory``, ``TACTUS_TOKEN=...``),
+3. a TOML file of the same field names, named by ``--config FILE`` / ``TACTUS_CONFIG``.
 
 ``TACTUS_DATA=/srv/memory TACTUS_TOKEN=s3cret tactus serve`` equals
-``tactus serve --data /srv/memory --token s3cret``; command-line flags win over the environment.
+``tactus serve --data /srv/memory --token s3cret`` and a ``tactus.toml`` holding
+``data = "/srv/memory"`` and ``token = "s3cret"`` passed as ``--config tactus.toml``.
+The maintenance policy's fields (:class:`~tactus_memory.maintenance.MaintenanceConfig`) are
+fields here too (``TACTUS_RETAIN_SECONDS``, ...); :meth:`Settings.maintenance` gives them as
+the policy object the store takes.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 from pydantic import Field, SecretStr, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
 
 from tactus_memory.limits import MAX_WINDOW_FRAMES
+from tactus_memory.maintenance import MaintenanceConfig
+
+#: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
+DEFAULT_READ_CONSISTENCY_S = 1.0
+#: group commit defaults (tactus_memory.ingest): 25 ms is under one 30 Hz frame period
+#: (33 ms), so a glove's window never waits for more than about one frame; a 64-glove tick
+#: at 30 Hz carries ~6-60 windows; 1024 pending items are ~4 s of 64 gloves at 30 Hz
+DEFAULT_COMMIT_TICK_MS = 25.0
+DEFAULT_COMMIT_MAX_BATCH = 256
+DEFAULT_COMMIT_MAX_PENDING = 1024
 
 
-class Settings(BaseSettings):
-    """Everything the service can be told. Every field reads ``TACTUS_<NAME>`` too."""
+class Settings(BaseSettings, MaintenanceConfig):
+    """Everything tactus-memory can be told. Every field reads ``TACTUS_<NAME>`` too."""
 
     model_config = SettingsConfigDict(env_prefix="TACTUS_", extra="ignore")
+
+    config: str | None = Field(
+        None,
+        description="A TOML file of settings (these field names as keys); flags and the "
+        "environment win over it.",
+    )
 
     data: str = Field(
         "./tactus-memory",
@@ -68,20 +101,26 @@ class Settings(BaseSettings):
         le=256,
         description="Worker threads for reads (search, sessions); writes never take them.",
     )
+    read_consistency: float | None = Field(
+        DEFAULT_READ_CONSISTENCY_S,
+        ge=0.0,
+        description="Seconds between re-reads of the latest version (replicas sharing a store "
+        "see each other's commits within it); off/none: never.",
+    )
     commit_tick_ms: float = Field(
-        25.0,
+        DEFAULT_COMMIT_TICK_MS,
         ge=0.0,
         le=1000.0,
         description="Group commit: how long the oldest queued write waits for company (ms).",
     )
     commit_max_batch: int = Field(
-        256,
+        DEFAULT_COMMIT_MAX_BATCH,
         ge=1,
         le=100_000,
         description="Group commit: most items embedded and committed at once.",
     )
     commit_max_pending: int = Field(
-        1024,
+        DEFAULT_COMMIT_MAX_PENDING,
         ge=1,
         le=1_000_000,
         description="Group commit: items queued before writes are refused (503 + Retry-After).",
@@ -98,11 +137,35 @@ class Settings(BaseSettings):
         True, description="Register the shipped touch encoder on startup when it is available."
     )
     log_level: str = "info"
-    maintain: bool = Field(
-        True,
-        description="This server maintains the store (compaction, cleanup). Replicas sharing "
-        "a store run with maintain=False (`--no-maintain`) beside one `tactus maintain`.",
-    )
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        """Flags/keywords, then the environment, then the TOML file they name (if any)."""
+        named = init_settings().get("config") or env_settings().get("config")
+        if not named:
+            return init_settings, env_settings
+        if not Path(named).is_file():
+            raise ValueError(f"config: no settings file at {named}")
+        return init_settings, env_settings, TomlConfigSettingsSource(settings_cls, Path(named))
+
+    @field_validator("read_consistency", mode="before")
+    @classmethod
+    def _never(cls, value: Any) -> Any:
+        """``off``/``none``/``never`` (or empty): never re-read (None)."""
+        if isinstance(value, str) and value.strip().lower() in {"off", "none", "never", ""}:
+            return None
+        return value
+
+    def maintenance(self) -> MaintenanceConfig:
+        """The maintenance policy these settings describe."""
+        return MaintenanceConfig(**self.model_dump(include=set(MaintenanceConfig.model_fields)))
 
     @field_validator("token")
     @classmethod
