@@ -37,6 +37,7 @@ import numpy as np
 
 from tactus_memory import __version__
 from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
+from tactus_memory.plugins import register
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
@@ -56,6 +57,7 @@ class CalibratedWindow(np.ndarray):
         return out[()] if return_scalar else out
 
 
+@register("touch")
 class TactusEncoder(Sense):
     """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``)."""
 
@@ -105,6 +107,15 @@ class TactusEncoder(Sense):
     @classmethod
     def from_pretrained(cls, path: str | os.PathLike[str], **kw: Any) -> TactusEncoder:
         return cls(path, **kw)
+
+    @classmethod
+    def create(cls, space: Space, /, **config: Any) -> TactusEncoder:
+        return cls(config.pop("checkpoint", None), **config)
+
+    def config(self) -> dict[str, Any]:
+        """The checkpoint's path (None: the shipped one, wherever this install keeps it)."""
+        shipped = self.ckpt.path.resolve() == default_checkpoint_path().resolve()
+        return {"name": self.name, "checkpoint": None if shipped else str(self.ckpt.path.resolve())}
 
     # -- input ------------------------------------------------------------------------------
 

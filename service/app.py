@@ -22,6 +22,7 @@ from fastapi import Depends, FastAPI
 from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
+from tactus_memory.plugins import create_sense
 from tactus_memory.service.deps import ServiceState, require_token
 from tactus_memory.service.middleware import (
     AllowMiddleware,
@@ -89,25 +90,26 @@ def open_memory(settings: Settings) -> tuple[Any, str | None]:
 
 
 def register_default_senses(memory: Any, settings: Settings) -> str | None:
-    """Touch (shipped checkpoint) and image (vision spaces); text comes with the memory."""
+    """The senses the store records, rebuilt from their records (``memory.restore_senses``),
+    then the defaults still missing, by registered name (:mod:`tactus_memory.plugins`): touch
+    (``settings.touch_checkpoint`` or the shipped checkpoint) and image (vision spaces); text
+    comes with the memory. Returns why touch is unavailable, or None."""
+    if settings.touch and settings.touch_checkpoint and "touch" not in memory.senses:
+        # asked for by name: it wins over the store's record, and a failure stops the start
+        memory.add_sense(create_sense("touch", memory.space, checkpoint=settings.touch_checkpoint))
+    for name, reason in memory.restore_senses(skip=() if settings.touch else ("touch",)).items():
+        log.warning("sense %r is searchable but not rebuilt: %s", name, reason)
     why: str | None = None
-    if "touch" not in memory.senses:
-        if not settings.touch:
-            why = "disabled by settings (TACTUS_TOUCH=false)"
-        else:
-            try:
-                from tactus_memory.adapters.touch import TactusEncoder
-
-                memory.add_sense(TactusEncoder(settings.touch_checkpoint))
-            except Exception as exc:  # noqa: BLE001  (any failure: serve the rest, say why)
-                if settings.touch_checkpoint:  # asked for by name: a failure stops the start
-                    raise
-                why = f"the touch encoder could not be loaded ({type(exc).__name__}: {exc})"
-                log.warning("touch disabled: %s", why)
-    if "image" not in memory.senses and getattr(memory.space, "has_vision", False):
-        from tactus_memory.senses import ImageSense
-
-        memory.add_sense(ImageSense(memory.space))
+    if not settings.touch:
+        why = "disabled by settings (TACTUS_TOUCH=false)"
+    elif "touch" not in memory.senses:
+        try:
+            memory.add_sense(create_sense("touch", memory.space))
+        except Exception as exc:  # noqa: BLE001  (any failure: serve the rest, say why)
+            why = f"the touch encoder could not be loaded ({type(exc).__name__}: {exc})"
+            log.warning("touch disabled: %s", why)
+    if "image" not in memory.senses and memory.space.has_vision:
+        memory.add_sense(create_sense("image", memory.space))
     return why
 
 

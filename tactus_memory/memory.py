@@ -17,11 +17,12 @@ cosines are calibrated into z-scores (see :mod:`tactus_memory.scoring`) so sense
 fairly. Time filters use overlap semantics: an item spanning ``[t, t_end]`` matches
 ``after``/``before`` when ``t_end >= after`` and ``t <= before``.
 
-Senses: "text" is registered on open. Other live senses must be re-added after a reopen, but
-their registration (name, modality, dim, provenance, optional ``query_centroid``, score
-calibration) is persisted, so a sense with rows can be *searched* without its live object:
-its query transform is rebuilt from the stored centroid (``q - c``, renormalised). A sense
-object that exposes ``query_centroid`` (a (D,) array) must use exactly that transform.
+Senses: "text" is registered on open. Other live senses are rebuilt after a reopen by
+``memory.restore_senses()`` (from the record each registered sense leaves in the store) or
+re-added with ``add_sense``; their registration (name, modality, dim, provenance, optional
+``query_centroid``, score calibration) is persisted, so a sense with rows can be *searched*
+without its live object: its query transform is rebuilt from the stored centroid
+(``q - c``, renormalised).
 
 Where the parts live: result models in :mod:`tactus_memory.models`, the sense registry
 (live/stored senses, counts, calibration) in :mod:`tactus_memory.registry`, the ranked search
@@ -39,7 +40,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from datetime import timedelta
 from typing import Any
 
@@ -175,6 +176,11 @@ class Memory:
         """Register a live sense. Raises SenseConflictError on a duplicate name or a space or
         dimension mismatch (also against a persisted registration of the same name)."""
         self.registry.add_sense(sense)
+
+    def restore_senses(self, skip: Collection[str] = ()) -> dict[str, str]:
+        """Rebuild the live senses this store records (all but ``skip``) from their records
+        (:mod:`tactus_memory.plugins`); returns why each that could not be was not."""
+        return self.registry.restore(skip)
 
     def sense_info(self) -> list[SenseInfo]:
         """Every sense the store knows, live or not, with row counts and calibration."""

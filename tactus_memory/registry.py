@@ -1,6 +1,10 @@
 """The sense registry: live senses (can embed), senses known only from the store (can be
 searched: their vectors and query transform are stored), row counts per sense and each
 sense's score calibration. ``Memory`` owns one; nothing else writes the senses table.
+
+Each live sense of a registered class (:mod:`tactus_memory.plugins`) also leaves a record in
+the store's meta table (``sense_config:<name>``: its registered name and ``config()``), from
+which :meth:`SenseRegistry.restore` rebuilds it after a reopen.
 """
 
 from __future__ import annotations
@@ -9,13 +13,14 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from typing import Any
 
 import numpy as np
 
 from tactus_memory.errors import SenseConflictError, UnknownSenseError
 from tactus_memory.models import SenseInfo
+from tactus_memory.plugins import lookup, registered_name
 from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
@@ -24,6 +29,9 @@ from tactus_memory.vectors import as_unit_rows, vector_column
 from tactus_memory.where import Where
 
 log = logging.getLogger(__name__)
+
+#: meta key prefix of a sense's record: {"kind": registered name, "config": {...}}
+RECORD_KEY = "sense_config:"
 
 
 class StoredSense(Sense):
@@ -45,8 +53,9 @@ class StoredSense(Sense):
 
     def _not_loaded(self) -> UnknownSenseError:
         return UnknownSenseError(
-            f"sense {self.name!r} has rows in this store but is not loaded; "
-            f"call memory.add_sense(...) with its encoder to add or embed {self.name!r} items"
+            f"sense {self.name!r} has rows in this store but is not loaded; call "
+            "memory.restore_senses() (rebuilds it from the store's record) or "
+            f"memory.add_sense(...) with its encoder to add or embed {self.name!r} items"
         )
 
     def validate(self, item: Any) -> Any:
@@ -156,8 +165,34 @@ class SenseRegistry:
                         "updated": time.time(),
                     }
                 )
+            kind = registered_name(sense)
+            if kind is not None:
+                record = json.dumps({"kind": kind, "config": sense.config()}, sort_keys=True)
+                if self.store.get_meta(RECORD_KEY + name) != record:
+                    self.store.set_meta(RECORD_KEY + name, record)
             self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
             self._live[name] = sense
+
+    def restore(self, skip: Collection[str] = ()) -> dict[str, str]:
+        """Rebuild the live senses the store records (each not live yet, but those in
+        ``skip``) through the plug-in registry; returns why each sense that could not be
+        rebuilt was not (a missing checkpoint, a space without vision, no record)."""
+        failed: dict[str, str] = {}
+        for name in sorted(self._stored):
+            if name in self._live or name in skip:
+                continue
+            raw = self.store.get_meta(RECORD_KEY + name)
+            if raw is None:
+                failed[name] = "the store has no record of how to build it"
+                continue
+            record = json.loads(raw)
+            try:
+                self.add_sense(
+                    lookup("sense", record["kind"]).create(self.space, **record["config"])
+                )
+            except Exception as exc:  # noqa: BLE001  (reported per sense; it stays searchable)
+                failed[name] = f"{type(exc).__name__}: {exc}"
+        return failed
 
     def live_sense(self, name: str) -> Sense:
         validate_sense_name(name)

@@ -4,6 +4,9 @@ Shape of the plug-in (after LanceDB's embedding registry): a name, a modality, `
 ``embed`` for stored items (source side), ``query_transform`` for text queries compared
 against this sense (query side), input validation, provenance, and lazy model loading.
 The memory never branches on a sense's name; everything sense-specific lives here.
+
+Every sense class registers under a name (``@register("text")``, :mod:`tactus_memory.plugins`);
+``config()`` is what a store records to rebuild it with ``create(space, **config)``.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from tactus_memory.errors import (
     SenseConflictError,
 )
 from tactus_memory.limits import MAX_TEXT_CHARS, SENSE_NAME_RE
+from tactus_memory.plugins import register
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
 
@@ -65,6 +69,17 @@ class Sense(ABC):
     #: keyword options ``validate`` takes (``Memory.add(..., options=...)`` passes these on;
     #: e.g. the touch sense's ``calibrated``); options a sense does not declare are not its own
     validate_options: frozenset[str] = frozenset()
+    #: what ``tactus_memory.plugins.register`` files it under
+    plugin_kind = "sense"
+
+    @classmethod
+    def create(cls, space: Space, /, **config: Any) -> Sense:
+        """The sense from what a store recorded (``config()``), in the memory's ``space``."""
+        return cls(space, **config)  # type: ignore[call-arg]
+
+    def config(self) -> dict[str, Any]:
+        """JSON keywords that rebuild this sense with :meth:`create` (recorded in the store)."""
+        return {"name": self.name}
 
     def bind(self, space: Space) -> None:
         """Called by ``Memory.add_sense``. Raises ``SenseConflictError`` on a space mismatch."""
@@ -121,6 +136,7 @@ class Sense(ABC):
         }
 
 
+@register("text")
 class TextSense(Sense):
     """Notes and captions, embedded by the space's text model (document side)."""
 
@@ -151,6 +167,7 @@ class TextSense(Sense):
         return {"encoder": "space-text", "space": self.space.describe()}
 
 
+@register("image")
 class ImageSense(Sense):
     """Camera frames, embedded by the space's vision tower (only for spaces with vision)."""
 
@@ -199,6 +216,7 @@ def thumbnail(image: np.ndarray, side: int) -> np.ndarray:
     return np.asarray(img.convert("RGB"), dtype=np.uint8)
 
 
+@register("vector")
 class VectorSense(Sense):
     """Precomputed embeddings from an encoder that lives elsewhere (e.g. an IMU motion model).
 
@@ -229,6 +247,13 @@ class VectorSense(Sense):
             "version": version,
             "checkpoint_sha256": checkpoint_sha256,
         }
+
+    @classmethod
+    def create(cls, space: Space, /, **config: Any) -> VectorSense:
+        return cls(**config)
+
+    def config(self) -> dict[str, Any]:
+        return {"name": self.name, "dim": self.dim, "space": self.space_name, **self._provenance}
 
     def validate(self, item: Any) -> np.ndarray:
         return as_unit_rows(item, self.dim, what=f"{self.name} vector")[0]

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,7 +23,9 @@ from tactus_memory.errors import (
     UnknownSenseError,
 )
 from tactus_memory.memory import Memory
+from tactus_memory.plugins import register
 from tactus_memory.senses import Sense, VectorSense
+from tactus_memory.spaces.base import Space
 from tests.fakes import HashingSpace
 from tests.motion import MOTION_DIM, motion_memory
 from tests.threads import run_threads
@@ -506,3 +509,49 @@ def test_upsert_cannot_move_an_id_between_senses_and_keeps_counts(mem: Memory) -
     assert mem._sense_counts() == {"text": 1}
     assert [s.name for s in mem.sense_info() if s.rows] == ["text"]
     assert mem.get_item("x1").text == "a new note"
+
+
+@register("audio")
+class AudioSense(Sense):
+    """A new sense is one class and its registration: a toy "audio" sense whose clips are
+    mono float arrays, embedded by the space's text model from a coarse loudness word."""
+
+    modality = "audio"
+
+    def __init__(self, space: Space, name: str = "audio") -> None:
+        self.name, self.space, self.dim = name, space, space.dim
+
+    def validate(self, item: Any) -> np.ndarray:
+        clip = np.asarray(item, dtype=np.float32)
+        if clip.ndim != 1 or clip.size == 0 or not np.isfinite(clip).all():
+            raise InvalidInputError("an audio clip is a non-empty finite (N,) array")
+        return clip
+
+    def embed(self, batch: Sequence[np.ndarray]) -> np.ndarray:
+        words = ["loud" if float(np.abs(c).mean()) > 0.5 else "quiet" for c in batch]
+        return self.space.embed_texts(words)
+
+
+def test_a_reopened_store_restores_its_senses_from_its_records(tmp_path) -> None:
+    """Every registered sense leaves a record; restore_senses rebuilds it after a reopen
+    (a built-in VectorSense with its config, a new AudioSense registered in this test), and
+    names the one it cannot rebuild (its record names a class nobody registered)."""
+    path = str(tmp_path / "mem")
+    mem = Memory.open(path, space=HashingSpace(), background=False)
+    mem.add_sense(VectorSense("motion", dim=64, encoder="imu-net", version="2"))
+    mem.add_sense(AudioSense(mem.space))
+    mem.add("s1", "audio", np.ones(8), t=1.0)
+    mem.store.set_meta("sense_config:ghost", '{"kind": "nobody-registered", "config": {}}')
+    mem.store.put_sense_row({**mem.store.sense_rows()[0], "name": "ghost"})
+    del mem
+    again = Memory.open(path, space=HashingSpace(), background=False)
+    assert sorted(again.senses) == ["text"]
+    failed = again.restore_senses()
+    assert sorted(again.senses) == ["audio", "motion", "text"], failed
+    assert list(failed) == ["ghost"] and "nobody-registered" in failed["ghost"]
+    motion = again.senses["motion"]
+    assert isinstance(motion, VectorSense) and motion.provenance()["encoder"] == "imu-net"
+    assert isinstance(again.senses["audio"], AudioSense)
+    again.add("s1", "audio", np.zeros(8), t=2.0)
+    assert {s.name: s.rows for s in again.sense_info()}["audio"] == 2
+    assert again.restore_senses(skip=("ghost",)) == {}

@@ -726,3 +726,24 @@ def test_stream_idle_windows_are_acknowledged_not_stored(memory):
     assert first["type"] == "idle" and first["seq"] == 0
     assert second["type"] == "stored" and second["seq"] == 1
     assert [it.sense for it in memory.timeline("idle")] == ["touch"]
+
+
+def test_the_service_rebuilds_the_senses_its_store_records(tmp_path):
+    """A reopened store's senses come back live from their records (the plug-in registry),
+    not only the ones the service knows by name: a "motion" VectorSense added in Python takes
+    vectors over HTTP after a restart."""
+    from tactus_memory.memory import Memory
+    from tactus_memory.senses import VectorSense
+
+    path = str(tmp_path / "mem")
+    with Memory.open(path, background=False) as mem:
+        mem.add_sense(VectorSense("motion", dim=mem.space.dim, encoder="imu-net"))
+    app = create_app(Settings(data=path, touch=False))
+    memory = app.state.tactus.memory
+    assert memory.senses["motion"].provenance()["encoder"] == "imu-net"
+    with TestClient(app) as client:
+        vec = [0.0] * memory.space.dim
+        vec[3] = 1.0
+        body = {"sense": "motion", "vectors": [vec], "t": [1.0]}
+        r = client.post("/sessions/s1/vectors", json=body)
+        assert r.status_code == 201, r.text

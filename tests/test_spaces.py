@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import CapabilityError, InvalidInputError
+from tactus_memory.plugins import known
 from tactus_memory.senses import ImageSense, TextSense
-from tactus_memory.spaces import KNOWN_SPACES, get_space
+from tactus_memory.spaces import get_space
 from tactus_memory.spaces.minilm import MiniLMSpace, default_model_path
 
 pytestmark = pytest.mark.slow
@@ -157,7 +158,7 @@ def test_registry() -> None:
         get_space("minilm", dim=128)
     with pytest.raises(ValueError, match="known spaces: minilm, minilm-l6, qwen3vl"):
         get_space("clip")
-    assert set(KNOWN_SPACES) >= {"minilm", "minilm-l6", "qwen3vl", "qwen3-vl-embedding-2b"}
+    assert set(known("space")) >= {"minilm", "minilm-l6", "qwen3vl", "qwen3-vl-embedding-2b"}
     with pytest.raises(FileNotFoundError):
         get_space("qwen3vl", path="/nonexistent/qwen3-vl")
 

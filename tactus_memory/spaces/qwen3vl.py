@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import CapabilityError, InvalidInputError
+from tactus_memory.plugins import register
 from tactus_memory.spaces.base import Space, check_texts
 from tactus_memory.vectors import as_unit_rows
 
@@ -141,6 +142,7 @@ def _read_hidden_size(path: Path) -> int:
 # -- the space ---------------------------------------------------------------------------------
 
 
+@register("qwen3vl", "qwen3-vl-embedding-2b")
 class Qwen3VLSpace(Space):
     """Qwen3-VL-Embedding-2B from a local folder; text and image embeddings in one space.
 
@@ -152,6 +154,15 @@ class Qwen3VLSpace(Space):
     """
 
     has_vision = True
+    needs_path = True
+
+    @classmethod
+    def create(cls, path: str | None = None, dim: int | None = None) -> Qwen3VLSpace:
+        if path is None:
+            raise ValueError(
+                "space 'qwen3-vl-embedding-2b' needs path= a local Qwen3-VL-Embedding-2B folder"
+            )
+        return cls(path, dim=dim)  # None: the model's full size (2048 for the 2B)
 
     def __init__(
         self,

@@ -21,8 +21,8 @@ from pydantic import ValidationError
 
 from tactus_memory import spaces as registry
 from tactus_memory.errors import SpaceConfigError
+from tactus_memory.plugins import lookup
 from tactus_memory.settings import Settings
-from tactus_memory.spaces import QWEN3VL_ALIASES
 from tactus_memory.spaces.base import Space
 
 ENV_SPACE_PATH = "TACTUS_SPACE_PATH"
@@ -63,7 +63,11 @@ def _base_name(name: str) -> str:
 
 
 def needs_path(name: str) -> bool:
-    return _base_name(name) in QWEN3VL_ALIASES
+    """Whether the space registered as ``name`` needs a model folder (False: unknown name)."""
+    try:
+        return bool(lookup("space", _base_name(name)).needs_path)
+    except ValueError:
+        return False
 
 
 def resolve_space(
