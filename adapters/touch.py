@@ -38,6 +38,7 @@ import numpy as np
 from tactus_memory import __version__
 from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
 from tactus_memory.plugins import register
+from tactus_memory.recordings.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
@@ -63,6 +64,8 @@ class TactusEncoder(Sense):
 
     modality = "touch"
     validate_options = frozenset({"calibrated"})
+    message_types = (IMAGE, *ARRAYS)
+    windowed = True
 
     def __init__(
         self,
@@ -118,6 +121,10 @@ class TactusEncoder(Sense):
         return {"name": self.name, "checkpoint": None if shipped else str(self.ckpt.path.resolve())}
 
     # -- input ------------------------------------------------------------------------------
+
+    def from_message(self, msg: Any, msgtype: str, where: str) -> np.ndarray:
+        """One recorded touch message -> one (32, 32) frame (``recordings.decode``)."""
+        return touch_frame(msg, msgtype, FRAME_SHAPE, where)
 
     def validate(self, item: Any, *, calibrated: bool | None = None) -> np.ndarray:
         """One window (K, 32, 32), raw or calibrated -> calibrated float32 (K, 32, 32).

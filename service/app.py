@@ -182,9 +182,8 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, images, search, items, touch, ui, recordings):
+    for module in (sessions, senses, images, search, items, touch, touch_stream, ui, recordings):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
-    app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)
     app.include_router(ui.page_router)  # the browser page: static, no data, no token
     return app

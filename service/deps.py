@@ -1,4 +1,6 @@
-"""Dependencies shared by the routers (``Annotated`` aliases, FastAPI style)."""
+"""Dependencies shared by the routers (``Annotated`` aliases, FastAPI style). They take an
+``HTTPConnection``, so the WebSocket route declares the same ones as the HTTP routes (a
+failure refuses the socket with the same problem, see ``problems.py``)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ import hmac
 from dataclasses import dataclass, replace
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Path, Query, Request
+from fastapi import Depends, HTTPException, Path, Query
 from starlette.requests import HTTPConnection
 
 from tactus_memory.ingest import GroupCommitter
@@ -120,16 +122,29 @@ def bearer(authorization: str | None) -> str | None:
     return value.strip()
 
 
-def require_token(request: Request, settings: SettingsDep) -> None:
-    """Every HTTP route but /health: ``Authorization: Bearer <token>`` when a token is set."""
+def require_token(conn: HTTPConnection, settings: SettingsDep) -> None:
+    """Every route but the open ones: ``Authorization: Bearer <token>`` when a token is set
+    (a WebSocket may pass ``?token=`` instead: browsers cannot set its headers)."""
     if settings.token is None:
         return
-    if not token_ok(settings, bearer(request.headers.get("authorization"))):
+    presented = bearer(conn.headers.get("authorization"))
+    websocket = conn.scope["type"] == "websocket"
+    if websocket and presented is None:
+        presented = conn.query_params.get("token")
+    if not token_ok(settings, presented):
+        how = " or ?token=" if websocket else ""
         raise HTTPException(
             401,
-            "missing or wrong bearer token: send 'Authorization: Bearer <token>'",
+            f"missing or wrong bearer token: send 'Authorization: Bearer <token>'{how}",
             headers={"WWW-Authenticate": 'Bearer realm="tactus"'},
         )
+
+
+def require_writable(state: StateDep) -> None:
+    """Writes outside the HTTP write methods (a WebSocket stream) on a read-only store: 503
+    (HTTP writes are refused by ``middleware.ReadOnlyMiddleware``, before their body)."""
+    if state.read_only:
+        raise ServiceUnavailable("the store is read-only: writes are refused")
 
 
 def require_touch(state: StateDep) -> None:
@@ -142,6 +157,7 @@ def require_touch(state: StateDep) -> None:
 
 Authorized = Depends(require_token)
 TouchAvailable = Depends(require_touch)
+Writable = Depends(require_writable)
 
 
 # --------------------------------------------------------------------------- the scope

@@ -8,6 +8,10 @@ Every error response of the service is ``application/problem+json``::
 Library errors (``tactus_memory.errors``) map to statuses in :data:`ERROR_STATUS`; request
 validation errors (FastAPI/pydantic) become 422 with every failing field named in ``detail``;
 anything unexpected is logged and answered with a 500 problem (never a bare traceback).
+
+WebSocket routes use the same dependencies as HTTP routes and the same handlers: a refused
+connection is accepted, sent ``{"type": "error", "error": {problem}}`` and closed with
+1008 (policy violation) or, for a 503, 1013 (try again later).
 """
 
 from __future__ import annotations
@@ -15,13 +19,16 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections.abc import Awaitable, Callable
 from typing import Any, TypedDict
 
 from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
+from fastapi.exceptions import RequestValidationError, WebSocketRequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import HTTPConnection
+from starlette.websockets import WebSocket
 from typing_extensions import Unpack
 
 from tactus_memory import errors
@@ -156,6 +163,35 @@ def problem_for_exception(exc: BaseException) -> dict[str, Any]:
     return problem_body(status, str(exc), slug=slug, title=title)
 
 
+#: WebSocket close codes (RFC 6455): a refused request, and a server that cannot serve now
+POLICY_VIOLATION = 1008
+TRY_AGAIN_LATER = 1013
+
+
+async def refuse_websocket(websocket: WebSocket, body: dict[str, Any]) -> None:
+    """Refuse a WebSocket with a problem: accept, send it as an error message, close."""
+    await websocket.accept()
+    await websocket.send_text(json.dumps({"type": "error", "error": body}))
+    code = TRY_AGAIN_LATER if body["status"] == 503 else POLICY_VIOLATION
+    await websocket.close(code=code, reason=str(body["detail"])[:120])
+
+
+Handler = Callable[[Any, Any], Awaitable[JSONResponse]]
+
+
+def _for_both(handler: Handler) -> Handler:
+    """An HTTP problem handler that also refuses WebSockets with the same problem."""
+
+    async def handle(conn: HTTPConnection, exc: Exception) -> Any:
+        response = await handler(conn, exc)
+        if conn.scope["type"] != "websocket":
+            return response
+        await refuse_websocket(conn, json.loads(bytes(response.body)))  # type: ignore[arg-type]
+        return None
+
+    return handle
+
+
 def _loc(loc: tuple[Any, ...] | list[Any]) -> str:
     parts = [str(p) for p in loc]
     if parts and parts[0] in ("body", "query", "path", "header") and len(parts) > 1:
@@ -217,8 +253,9 @@ def install_problem_handlers(app: FastAPI) -> None:
         )
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        method = getattr(request, "method", "WEBSOCKET")
         if is_store_failure(exc):  # a damaged or vanished store file: say so, no traceback
-            log.error("store failure on %s %s: %s", request.method, request.url.path, short(exc))
+            log.error("store failure on %s %s: %s", method, request.url.path, short(exc))
             return problem_response(
                 503,
                 f"the store could not be read or written: {short(exc)}",
@@ -229,7 +266,9 @@ def install_problem_handlers(app: FastAPI) -> None:
         return await internal(request, exc)
 
     async def internal(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        log.exception(
+            "unhandled error on %s %s", getattr(request, "method", "WEBSOCKET"), request.url.path
+        )
         return problem_response(
             500,
             f"internal error ({type(exc).__name__}); see the server log",
@@ -237,16 +276,21 @@ def install_problem_handlers(app: FastAPI) -> None:
             instance=request.url.path,
         )
 
-    app.add_exception_handler(errors.TactusError, tactus_error)  # type: ignore[arg-type]
-    app.add_exception_handler(StarletteHTTPException, http_error)  # type: ignore[arg-type]
-    app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
-    app.add_exception_handler(ServiceUnavailable, unavailable)  # type: ignore[arg-type]
-    # RuntimeError/OSError (LanceDB's I/O errors among them) are answered here, inside the
-    # app, so that they are logged once; the catch-all below is Starlette's last resort,
-    # which logs and then re-raises to the server.
-    app.add_exception_handler(RuntimeError, unexpected)
-    app.add_exception_handler(OSError, unexpected)
-    app.add_exception_handler(Exception, unexpected)
+    handlers: list[tuple[type[Exception], Handler]] = [
+        (errors.TactusError, tactus_error),
+        (StarletteHTTPException, http_error),
+        (RequestValidationError, validation_error),
+        (WebSocketRequestValidationError, validation_error),
+        (ServiceUnavailable, unavailable),
+        # RuntimeError/OSError (LanceDB's I/O errors among them) are answered here, inside
+        # the app, so that they are logged once; the catch-all below is Starlette's last
+        # resort, which logs and then re-raises to the server.
+        (RuntimeError, unexpected),
+        (OSError, unexpected),
+        (Exception, unexpected),
+    ]
+    for cls, handler in handlers:
+        app.add_exception_handler(cls, _for_both(handler))
 
 
 #: ``responses=`` for routes: the problem model documented for the error statuses.

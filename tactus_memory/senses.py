@@ -26,6 +26,7 @@ from tactus_memory.errors import (
 )
 from tactus_memory.limits import MAX_TEXT_CHARS, SENSE_NAME_RE
 from tactus_memory.plugins import register
+from tactus_memory.recordings.decode import COMPRESSED, IMAGE, STRING, camera_image
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
 
@@ -71,6 +72,15 @@ class Sense(ABC):
     validate_options: frozenset[str] = frozenset()
     #: what ``tactus_memory.plugins.register`` files it under
     plugin_kind = "sense"
+    #: ROS 2 message types a recording topic of this sense may carry (``from_message``)
+    message_types: tuple[str, ...] = ()
+    #: whether items are windows cut from a stream of messages (touch: frames -> windows)
+    windowed: bool = False
+
+    def from_message(self, msg: Any, msgtype: str, where: str) -> Any:
+        """One decoded ROS 2 message of a recording -> this sense's raw input (a windowed
+        sense: one frame). ``where`` names the message in errors (RecordingError)."""
+        raise InvalidInputError(f"{where}: sense {self.name!r} does not read recordings")
 
     @classmethod
     def create(cls, space: Space, /, **config: Any) -> Sense:
@@ -148,6 +158,11 @@ class TextSense(Sense):
         self.dim = space.dim
         self.space_name = space.name
 
+    message_types = (STRING,)
+
+    def from_message(self, msg: Any, msgtype: str, where: str) -> str:
+        return str(msg.data)
+
     def validate(self, item: Any) -> str:
         if not isinstance(item, str):
             raise InvalidInputError(f"text sense takes a string, got {type(item).__name__}")
@@ -183,6 +198,11 @@ class ImageSense(Sense):
         self.space = space
         self.dim = space.dim
         self.space_name = space.name
+
+    message_types = (IMAGE, COMPRESSED)
+
+    def from_message(self, msg: Any, msgtype: str, where: str) -> np.ndarray:
+        return camera_image(msg, msgtype, where)
 
     def validate(self, item: Any) -> np.ndarray:
         """(H, W, 3) uint8, or a PIL image of any mode (converted to RGB)."""

@@ -10,7 +10,9 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.recordings.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.senses import Sense, array_to_bytes
+from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.vectors import as_unit_rows
 
 
@@ -18,12 +20,17 @@ class StandInTouch(Sense):
     """A touch sense for tests: a fixed random projection of the flattened window mean."""
 
     modality = "touch"
+    message_types = (IMAGE, *ARRAYS)  # reads recorded touch topics as the touch sense does
+    windowed = True
 
     def __init__(self, dim: int, name: str = "touch", seed: int = 0) -> None:
         self.name = name
         self.dim = dim
         rng = np.random.default_rng(seed)
         self.proj = rng.standard_normal((32 * 32, dim)).astype(np.float32)
+
+    def from_message(self, msg: Any, msgtype: str, where: str) -> np.ndarray:
+        return touch_frame(msg, msgtype, FRAME_SHAPE, where)
 
     def validate(self, item: Any) -> np.ndarray:
         arr = np.asarray(item, dtype=np.float32)

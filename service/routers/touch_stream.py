@@ -39,15 +39,15 @@ import logging
 import math
 import time
 import uuid
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, Depends, WebSocket, WebSocketDisconnect
 
 from tactus_memory.errors import InvalidInputError, OverloadedError, TactusError
-from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_WINDOW_FRAMES
+from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
-from tactus_memory.service.deps import bearer, token_ok
+from tactus_memory.service.deps import SessionId, SettingsDep, StateDep, TouchAvailable, Writable
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import WindowStream
@@ -57,8 +57,6 @@ log = logging.getLogger("tactus_memory.service")
 router = APIRouter(tags=["touch"])
 
 QUEUE_WINDOWS = 256
-POLICY_VIOLATION = 1008
-TRY_AGAIN_LATER = 1013
 
 
 class StreamParams:
@@ -114,10 +112,22 @@ def _frame_time(obj: Any, index: int) -> float:
     return float(t)
 
 
-@router.websocket("/sessions/{session}/touch/stream", name="touch_stream")
-async def touch_stream(websocket: WebSocket, session: str) -> None:
-    state = websocket.app.state.tactus
-    settings = state.settings
+def stream_params(websocket: WebSocket, settings: SettingsDep) -> StreamParams:
+    """The connection's query parameters (a bad one refuses the socket: 422, 1008)."""
+    return StreamParams(websocket.query_params, settings.window, settings.stride)
+
+
+@router.websocket(
+    "/sessions/{session}/touch/stream", name="touch_stream", dependencies=[Writable, TouchAvailable]
+)
+async def touch_stream(
+    websocket: WebSocket,
+    session: SessionId,
+    state: StateDep,
+    params: Annotated[StreamParams, Depends(stream_params)],
+) -> None:
+    """The token, the session id, a writable store and the touch sense are checked by the
+    same dependencies as the HTTP routes (the app includes this router with the token)."""
     memory = state.memory
     send_lock = asyncio.Lock()
 
@@ -125,40 +135,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
         async with send_lock:
             await websocket.send_text(json.dumps(message))
 
-    async def refuse(status: int, detail: str, code: int) -> None:
-        await send({"type": "error", "error": problem_body(status, detail)})
-        await websocket.close(code=code, reason=detail[:120])
-
     await websocket.accept()
-    presented = bearer(websocket.headers.get("authorization")) or websocket.query_params.get(
-        "token"
-    )
-    if not token_ok(settings, presented):
-        await refuse(
-            401,
-            "missing or wrong token: send 'Authorization: Bearer <token>' or ?token=",
-            POLICY_VIOLATION,
-        )
-        return
-    if not ID_RE.fullmatch(session):
-        await refuse(
-            422,
-            f"invalid session id {session[:60]!r}: use {ID_DESCRIPTION.rstrip('.')}",
-            POLICY_VIOLATION,
-        )
-        return
-    if state.read_only:
-        await refuse(503, "the store is read-only: writes are refused", TRY_AGAIN_LATER)
-        return
-    if "touch" not in memory.senses:
-        why = state.touch_unavailable or "no sense named 'touch' is registered in this memory"
-        await refuse(503, f"touch is not available on this server: {why}", TRY_AGAIN_LATER)
-        return
-    try:
-        params = StreamParams(websocket.query_params, settings.window, settings.stride)
-    except InvalidInputError as exc:
-        await refuse(422, str(exc), POLICY_VIOLATION)
-        return
 
     stream_id = "ws-" + uuid.uuid4().hex[:16]
     windower = WindowStream(params.window, params.stride)  # the library's stream windowing
@@ -202,7 +179,7 @@ async def touch_stream(websocket: WebSocket, session: str) -> None:
             if message["type"] == "websocket.disconnect":
                 break
             try:
-                frames = _parse(message, frame_index, params, settings.max_ws_message_bytes)
+                frames = _parse(message, frame_index, params, state.settings.max_ws_message_bytes)
             except TactusError as exc:
                 await send(
                     {"type": "error", "error": problem_for_exception(exc), "frame": frame_index}

@@ -1,7 +1,7 @@
-"""ROS 2 messages -> what a sense takes: text, touch frames, camera images.
-
-Supported per sense modality (anything else on a mapped topic is a :class:`RecordingError`
-naming the topic and the type):
+"""ROS 2 message formats -> what a sense takes: text, touch frames, camera images. Each sense
+says which message types it reads and decodes its own (``Sense.message_types``,
+``Sense.from_message``, using the readers here); the built-in ones (anything else on a mapped
+topic is a :class:`RecordingError` naming the topic and the type):
 
 * ``text``: ``std_msgs/msg/String``;
 * ``touch``: ``sensor_msgs/msg/Image`` single-channel (``mono16``/``16UC1``: raw sensor units;
@@ -28,13 +28,6 @@ ARRAYS = {
     "std_msgs/msg/Int16MultiArray": np.int16,
     "std_msgs/msg/UInt16MultiArray": np.uint16,
     "std_msgs/msg/Float32MultiArray": np.float32,
-}
-
-#: message types each modality understands
-SUPPORTED: dict[str, tuple[str, ...]] = {
-    "text": (STRING,),
-    "touch": (IMAGE, *ARRAYS),
-    "image": (IMAGE, COMPRESSED),
 }
 
 #: single-channel encodings for touch: (numpy dtype, scale to calibrated pressure or None=raw)
@@ -66,12 +59,12 @@ def default_modality(msgtype: str, encoding: str | None = None) -> str | None:
     return None
 
 
-def check_supported(topic: str, msgtype: str, modality: str) -> None:
-    if msgtype not in SUPPORTED.get(modality, ()):
-        known = ", ".join(SUPPORTED.get(modality, ())) or "none"
+def check_supported(topic: str, msgtype: str, sense: str, supported: tuple[str, ...]) -> None:
+    """RecordingError unless ``msgtype`` is one the sense reads (its ``message_types``)."""
+    if msgtype not in supported:
         raise RecordingError(
-            f"topic {topic!r} has type {msgtype!r}, which cannot become {modality} "
-            f"(supported for {modality}: {known})"
+            f"topic {topic!r} has type {msgtype!r}, which cannot become {sense} "
+            f"(supported for {sense}: {', '.join(supported) or 'none'})"
         )
 
 

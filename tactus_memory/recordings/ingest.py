@@ -35,8 +35,8 @@ from pydantic import BaseModel, Field
 
 import tactus_memory.recordings.decode as decode
 from tactus_memory.errors import TactusError, UnknownSenseError
+from tactus_memory.plugins import lookup
 from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
-from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import WindowStream
 from tactus_memory.where import Where, validate_id
 
@@ -120,7 +120,6 @@ class _Topic:
 
     topic: str
     sense: str
-    modality: str
     source: str
     skip_reason: str | None = None  # every message skipped for this reason
 
@@ -162,8 +161,10 @@ class _Ingest:
         self.messages = 0
         self.pending: dict[str, _Batch] = {}
         self.plan = self._plan(topics)
-        touch = [memory.senses[p.sense] for p in self.plan.values() if p.modality == "touch"]
-        k = window or (int(getattr(touch[0], "frames", 8)) if touch else 8)
+        windowed = [
+            s for p in self.plan.values() if (s := memory.senses.get(p.sense)) and s.windowed
+        ]
+        k = window or (int(getattr(windowed[0], "frames", 8)) if windowed else 8)
         self.window, self.stride = int(k), int(stride or k)
 
     # ------------------------------------------------------------------ planning
@@ -188,10 +189,10 @@ class _Ingest:
                         "only ROS 2 CDR messages are read"
                     )
             if sense in live:
-                modality = str(live[sense].modality)
+                supported = live[sense].message_types
                 reason = None
             elif sense == "image" and not getattr(self.memory.space, "has_vision", False):
-                modality = "image"
+                supported = lookup("sense", "image").message_types
                 reason = f"image: space {self.memory.space.name!r} has no vision, images not stored"
             else:
                 raise UnknownSenseError(
@@ -199,8 +200,8 @@ class _Ingest:
                     f"(registered: {', '.join(sorted(live))})"
                 )
             for info in found:
-                decode.check_supported(topic, info.msgtype, modality)
-            plan[topic] = _Topic(topic, sense, modality, topic_source(topic), reason)
+                decode.check_supported(topic, info.msgtype, sense, supported)
+            plan[topic] = _Topic(topic, sense, topic_source(topic), reason)
         return plan
 
     def _t0_ns(self) -> int | None:
@@ -305,7 +306,6 @@ class _Ingest:
         name = rec.path.name
         index: Counter[str] = Counter()
         streams: dict[str, WindowStream] = {}
-        shapes: dict[str, tuple[int, int]] = {}
         for m in rec.messages([t for t in self.plan]):
             topic = self.plan[m.topic]
             self.messages += 1
@@ -319,23 +319,15 @@ class _Ingest:
             t = ns / NS if t0 is None else (ns - t0) / NS
             where = f"{name} topic {m.topic!r} message {i}"
             meta = {"topic": m.topic, "type": m.msgtype, "recording": name}
-            if topic.modality == "text":
-                item = self._accept(topic, str(m.msg.data))
-                if item is not None:
-                    self._queue(topic, _item_id(self.session, digest, m.topic, ns, i), item,
-                                t, t, meta)  # fmt: skip
-            elif topic.modality == "image":
-                item = self._accept(topic, decode.camera_image(m.msg, m.msgtype, where))
+            sense = self.memory.senses[topic.sense]
+            raw = sense.from_message(m.msg, m.msgtype, where)  # the sense decodes its own
+            if not sense.windowed:
+                item = self._accept(topic, raw)
                 if item is not None:
                     self._queue(topic, _item_id(self.session, digest, m.topic, ns, i), item,
                                 t, t, meta)  # fmt: skip
             else:
-                shape = shapes.get(m.topic)
-                if shape is None:
-                    sense = self.memory.senses[topic.sense]
-                    fs = getattr(sense, "frame_shape", None)
-                    shape = shapes[m.topic] = tuple(fs) if fs else FRAME_SHAPE  # type: ignore[assignment]
-                frame = decode.touch_frame(m.msg, m.msgtype, shape, where)  # (H, W)
+                frame = raw  # (H, W)
                 ws = streams.setdefault(m.topic, WindowStream(self.window, self.stride))
                 done = ws.push(frame, [t])
                 for w in range(len(done)):

@@ -29,7 +29,7 @@ from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 from tactus_memory import __version__
-from tactus_memory.hashing import file_sha256 as file_sha256
+from tactus_memory.hashing import file_sha256
 from tactus_memory.touch.model import TactusConfig, TactusModel
 from tactus_memory.touch.targets import Targets
 
