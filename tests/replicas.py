@@ -32,7 +32,7 @@ def open_replica(uri: str, *, maintain: bool, **kw: Any) -> Memory:
     )
 
 
-def wait_for(check: Callable[[], bool], timeout: float = 10.0) -> float:
+def wait_for(check: Callable[[], bool], timeout: float = 60.0) -> float:
     """Poll ``check()`` until true; return the seconds it took (fail after ``timeout``)."""
     t0 = time.monotonic()
     while not check():

@@ -12,6 +12,7 @@ import io
 import json
 import re
 import shutil
+import time
 from pathlib import Path
 
 import httpx
@@ -405,10 +406,13 @@ def test_real_grasp_heat_map_shows_the_contact_area(page, served, tmp_path, stag
     r, c = np.unravel_index(int(np.argmax(np.where(mask, cal[0], -1))), mask.shape)
     want = f"frame 1, row {r}, column {c}: "
     readout = page.locator(f'{HIT}[data-id="{item}"] output.taxel-value')
-    for attempt in range(100):  # the first hover fetches touch.json; later ones read it
+    deadline = time.monotonic() + TIMEOUT_MS / 1000  # a liveness bound, as every wait here
+    attempt = 0
+    while True:  # the first hover fetches touch.json; later ones read it
         img.hover(position={"x": (c * 5 + 1 + attempt % 3) / k, "y": (r * 5 + 2) / k})
-        if readout.text_content():
+        if readout.text_content() or time.monotonic() > deadline:
             break
+        attempt += 1
         page.wait_for_timeout(100)
     text = readout.text_content()
     assert text.startswith(want) and text.endswith(" calibrated (contact)"), text

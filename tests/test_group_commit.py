@@ -23,6 +23,11 @@ from tests.test_service_helpers import StandInTouch, make_memory, window
 POISON = -7.0  # a window whose first value is this makes PoisonTouch.embed fail
 
 
+#: a tick no test waits out: batches in these tests are due by count (max_batch) or by
+#: close(), so they do not depend on how fast a loaded machine runs the writers
+LONG_TICK = 60.0
+
+
 class PoisonTouch(StandInTouch):
     """Embedding fails for the whole batch when one window in it is poisoned (as a real
     encoder would on, say, a value its kernels cannot take); counts its embed calls."""
@@ -68,7 +73,9 @@ def test_concurrent_writes_share_one_embed_and_one_commit(memory):
     before_versions = versions(memory)
     text_calls = memory.space.calls
     n = 24
-    with GroupCommitter(memory, tick=0.5) as gc:
+    # the batch is due when all n items are queued (max_batch), not when a clock says so:
+    # however slowly a loaded machine starts the threads, the 24 writes meet in one batch
+    with GroupCommitter(memory, tick=LONG_TICK, max_batch=n) as gc:
         start = threading.Barrier(n)
         futures: list[Any] = [None] * n
 
@@ -101,7 +108,7 @@ def test_bad_write_fails_alone_and_neighbours_commit(memory):
     memory.add_sense(touch)
     bad = window(seed=1)
     bad[0, 0, 0] = POISON
-    with GroupCommitter(memory, tick=0.3) as gc:
+    with GroupCommitter(memory, tick=LONG_TICK, max_batch=6) as gc:  # due once all 6 queued
         # Invalid per item: refused at submit, before it can join a batch.
         with pytest.raises(InvalidInputError, match="t_end"):
             gc.submit("s", "touch", [window()], t=[5.0], t_end=[1.0])
@@ -123,7 +130,7 @@ def test_full_queue_pushes_back(memory):
     gc = GroupCommitter(memory, tick=0.0, max_pending=3, retry_after=2.5)
     try:
         first = gc.submit("a", "touch", [window(), window(seed=1)], t=[0.0, 1.0])
-        assert touch.entered.wait(10)  # being committed: still counts against the limit
+        assert touch.entered.wait(60)  # being committed: still counts against the limit
         second = gc.submit("b", "touch", [window(seed=2)], t=[2.0])
         with pytest.raises(OverloadedError, match="queue is full") as err:
             gc.submit("c", "text", ["one too many"], t=[3.0])
@@ -141,7 +148,7 @@ def test_upserts_and_appends_in_one_commit(memory):
     first = memory.add("s", "text", "old text", t=1.0, id="note-1")
     assert first == "note-1"
     before = versions(memory)
-    with GroupCommitter(memory, tick=0.3) as gc:
+    with GroupCommitter(memory, tick=LONG_TICK, max_batch=2) as gc:  # due once both queued
         a = gc.submit("s", "text", ["new text"], t=[1.0], ids=["note-1"])
         b = gc.submit("s", "text", ["another"], t=[2.0])
         assert a.result(timeout=30) == ["note-1"] and len(b.result(timeout=30)) == 1
@@ -164,8 +171,10 @@ def test_close_commits_what_is_queued(memory):
 def test_http_writes_share_commits(tmp_path):
     memory = make_memory(tmp_path / "mem")
     before = versions(memory)
-    app = create_app(Settings(commit_tick_ms=300), memory=memory)
     n = 12
+    # the longest tick the settings allow, and a batch due at n items: writes share commits
+    # however slowly a loaded machine runs the threads
+    app = create_app(Settings(commit_tick_ms=1000, commit_max_batch=n), memory=memory)
     with TestClient(app) as c:
         results: list[Any] = [None] * n
         start = threading.Barrier(n)
@@ -204,7 +213,7 @@ def test_http_full_queue_is_503_with_retry_after(tmp_path):
         th = threading.Thread(target=post_touch)
         th.start()
         try:
-            assert touch.entered.wait(10)
+            assert touch.entered.wait(60)
             r = c.post("/sessions/n/text", json={"text": "refused", "t": 1.0})
             assert r.status_code == 503, r.text
             assert int(r.headers["retry-after"]) >= 1
@@ -225,8 +234,9 @@ def _frames(n: int, seed: int = 0) -> list[np.ndarray]:
 def test_websocket_streams_go_through_the_group_committer(tmp_path):
     memory = make_memory(tmp_path / "mem")
     before = versions(memory)
-    app = create_app(Settings(commit_tick_ms=200), memory=memory)
     gloves, windows_each = 4, 3
+    settings = Settings(commit_tick_ms=1000, commit_max_batch=gloves * windows_each)
+    app = create_app(settings, memory=memory)
     with TestClient(app) as c:
         streams = [
             c.websocket_connect(f"/sessions/glove-{g}/touch/stream?window=2&stride=2")
@@ -267,7 +277,7 @@ def test_websocket_full_queue_sends_error_frame(tmp_path):
             assert ws.receive_json()["type"] == "ready"
             frames = _frames(2)
             ws.send_json({"frame": frames[0].tolist(), "t": 0.0})
-            assert touch.entered.wait(10)
+            assert touch.entered.wait(60)
             ws.send_json({"frame": frames[1].tolist(), "t": 1.0})
             refused = ws.receive_json()
             assert refused["type"] == "error" and refused["windows"] == [1]
@@ -307,7 +317,7 @@ def test_reads_do_not_wait_for_writes(tmp_path):
         for th in writers:
             th.start()
         try:
-            assert touch.entered.wait(10)
+            assert touch.entered.wait(60)
             for _ in range(5):  # more reads than read threads: none waits on the stuck commit
                 r = c.get("/search", params={"q": "soft sponge", "k": 1})
                 assert r.status_code == 200 and r.json()["hits"][0]["text"] == "a soft sponge"
