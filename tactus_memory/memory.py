@@ -76,8 +76,16 @@ log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- memory
+#: the temporal questions Memory answers: ``memory.count(q, session=...)`` IS
+#: ``memory.temporal.count`` (one implementation, one docstring; see the end of this module)
+TEMPORAL_QUESTIONS = (
+    "matches", "occurrences", "count", "last", "first", "before", "after", "search_moments",
+    "timeline", "segment_episodes", "episodes", "set_clock_offset", "clock_offsets",
+)  # fmt: skip
+
+
 def _temporal(name: str) -> Any:
-    """``memory.<name>`` IS ``memory.temporal.<name>``: one implementation, one docstring."""
+    """``memory.<name>`` is ``memory.temporal.<name>``."""
     return property(lambda self: getattr(self.temporal, name), doc=getattr(Temporal, name).__doc__)
 
 
@@ -99,21 +107,6 @@ class Memory:
         self.ranker = Ranker(store, self.registry)
         self.temporal = Temporal(store, self.registry, self.ranker, space, self.lock)
         self.add_sense(TextSense(space))
-
-    # the temporal questions (tactus_memory.temporal): memory.count(q, session=...), ...
-    matches = _temporal("matches")
-    occurrences = _temporal("occurrences")
-    count = _temporal("count")
-    last = _temporal("last")
-    first = _temporal("first")
-    before = _temporal("before")
-    after = _temporal("after")
-    search_moments = _temporal("search_moments")
-    timeline = _temporal("timeline")
-    segment_episodes = _temporal("segment_episodes")
-    episodes = _temporal("episodes")
-    set_clock_offset = _temporal("set_clock_offset")
-    clock_offsets = _temporal("clock_offsets")
 
     # ----------------------------------------------------------- construction
     @classmethod
@@ -484,3 +477,7 @@ class Memory:
         from tactus_memory.recordings.export import export_rerun
 
         return export_rerun(self, session, path, **kw)
+
+
+for _name in TEMPORAL_QUESTIONS:
+    setattr(Memory, _name, _temporal(_name))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -93,6 +94,7 @@ def _overlaps(item: TimelineItem | Episode, after: float | None, before: float |
     )
 
 
+@dataclass(eq=False)
 class Temporal:
     """Temporal operators, moments, episodes and clock offsets over one store.
 
@@ -100,20 +102,14 @@ class Temporal:
     every sense with rows.
     """
 
-    def __init__(
-        self,
-        store: Store,
-        registry: SenseRegistry,
-        ranker: Ranker,
-        space: Space,
-        lock: threading.RLock,
-    ) -> None:
-        self.store = store
-        self.registry = registry
-        self.ranker = ranker
-        self.space = space
-        self.lock = lock
-        self.clocks = Clocks(store, lock)
+    store: Store
+    registry: SenseRegistry
+    ranker: Ranker
+    space: Space
+    lock: threading.RLock
+
+    def __post_init__(self) -> None:
+        self.clocks = Clocks(self.store, self.lock)
 
     # ----------------------------------------------------------- clock offsets
     def set_clock_offset(self, session: str, sense: str, offset: float, source: str = "") -> None:
