@@ -17,7 +17,7 @@ what the service offers (tests/test_client_parity.py runs one scenario against b
 ``httpx.Client`` keeps the connections open; a 503 or 429 with ``Retry-After`` is retried
 after that many seconds (at most ``retries`` times, each wait at most ``max_retry_wait``);
 a problem answer raises the library's own exception named by its type
-(:data:`~tactus_memory.errors.ERROR_STATUS`), else :class:`RemoteError`.
+(:func:`~tactus_memory.client_errors.problem_error`).
 
 Differences, because HTTP offers no more: text ``add_many`` is one request per note (not one
 commit); writes take no ``source`` (a touch stream sets its own); touch frames are raw sensor
@@ -36,15 +36,10 @@ import httpx
 import numpy as np
 from typing_extensions import Unpack
 
+from tactus_memory.client_errors import problem_error
 from tactus_memory.client_stream import TouchStream
 from tactus_memory.episodes import Episode
-from tactus_memory.errors import (
-    ERROR_STATUS,
-    InvalidInputError,
-    NotFoundError,
-    OverloadedError,
-    TactusError,
-)
+from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
 from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
@@ -67,24 +62,8 @@ from tactus_memory.query import Scope, ScopeKwargs
 from tactus_memory.questions import AroundKwargs, OccurrenceKwargs
 from tactus_memory.rows import WriteKwargs, check_batch, per_item
 
-#: a problem type's slug -> the library exception the client raises for it
-ERROR_BY_SLUG = {slug: cls for cls, (_, slug, _) in ERROR_STATUS.items()}
 #: retry answers: overload (503, the write queue) and rate limits (429)
 RETRY_STATUSES = (429, 503)
-
-
-class RemoteError(TactusError):
-    """A problem the service answered that no library error names (401, 413, 500, a 503
-    without Retry-After ...). ``status`` and ``problem`` (the problem details) say which."""
-
-    def __init__(self, status: int, problem: Mapping[str, Any]) -> None:
-        super().__init__(f"{status} {problem.get('title', '')}: {problem.get('detail', '')}")
-        self.status = status
-        self.problem = dict(problem)
-
-
-class AuthenticationError(RemoteError):
-    """401/403: no token, or the wrong one."""
 
 
 def retry_after(response: httpx.Response) -> float | None:
@@ -102,7 +81,7 @@ def retry_after(response: httpx.Response) -> float | None:
 
 
 def error_from(response: httpx.Response) -> TactusError:
-    """A problem answer -> the library's exception for its type (or :class:`RemoteError`)."""
+    """A problem answer -> the library's exception for its type (or :class:`~tactus_memory.client_errors.RemoteError`)."""
     try:
         problem = response.json()
     except ValueError:
@@ -110,22 +89,6 @@ def error_from(response: httpx.Response) -> TactusError:
     if not isinstance(problem, dict):
         problem = {"detail": str(problem)[:500]}
     return problem_error(response.status_code, problem, retry_after(response))
-
-
-def problem_error(
-    status: int, problem: Mapping[str, Any], retry: float | None = None
-) -> TactusError:
-    """Problem details -> the library's exception for their type (or :class:`RemoteError`)."""
-    detail = str(problem.get("detail", ""))
-    slug = str(problem.get("type", "")).rpartition(":")[2]
-    cls = ERROR_BY_SLUG.get(slug)
-    if cls is OverloadedError:
-        return OverloadedError(detail, retry or 1.0)
-    if cls is not None:
-        return cls(detail)
-    if status in (401, 403):
-        return AuthenticationError(status, problem)
-    return RemoteError(status, problem)
 
 
 def scope_params(scope: Scope) -> dict[str, Any]:

@@ -27,6 +27,7 @@ import numpy as np
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
+from tactus_memory.client_errors import problem_error
 from tactus_memory.errors import InvalidInputError
 
 
@@ -71,8 +72,6 @@ class TouchStream:
         first = json.loads(self._ws.recv(timeout=self.timeout))
         if first.get("type") != "ready":
             self._stack.close()
-            from tactus_memory.client import problem_error  # (client imports this module)
-
             problem = first.get("error", {})
             raise problem_error(int(problem.get("status", 500)), problem)
         self.window, self.stride = int(first["window"]), int(first["stride"])

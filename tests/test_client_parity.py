@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from pydantic import BaseModel
 
-from tactus_memory.client import AuthenticationError, Client, RemoteError
+from tactus_memory.client import Client
+from tactus_memory.client_errors import AuthenticationError, RemoteError
 from tactus_memory.errors import (
     IdConflictError,
     InvalidIdError,
