@@ -81,7 +81,7 @@ def retry_after(response: httpx.Response) -> float | None:
 
 
 def error_from(response: httpx.Response) -> TactusError:
-    """A problem answer -> the library's exception for its type (or :class:`~tactus_memory.client_errors.RemoteError`)."""
+    """A problem answer -> the library's exception for its type (see ``problem_error``)."""
     try:
         problem = response.json()
     except ValueError:
