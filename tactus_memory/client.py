@@ -27,6 +27,7 @@ units unless ``options={"calibrated": True}``; an unset ``t`` is this machine's 
 from __future__ import annotations
 
 import io
+import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from email.utils import parsedate_to_datetime
@@ -61,6 +62,7 @@ from tactus_memory.models import (
 from tactus_memory.query import Scope, ScopeKwargs
 from tactus_memory.questions import AroundKwargs, OccurrenceKwargs
 from tactus_memory.rows import WriteKwargs, check_batch, per_item
+from tactus_memory.senses import VectorSense
 
 #: retry answers: overload (503, the write queue) and rate limits (429)
 RETRY_STATUSES = (429, 503)
@@ -117,6 +119,17 @@ def npy(array: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.asarray(array), allow_pickle=False)
     return buf.getvalue()
+
+
+def image_bytes(image: Any) -> bytes:
+    """An image item as encoded bytes: bytes as they are, a PIL image as PNG."""
+    if isinstance(image, (bytes, bytearray)):
+        return bytes(image)
+    if hasattr(image, "save"):
+        buf = io.BytesIO()
+        image.save(buf, format="PNG")
+        return buf.getvalue()
+    raise InvalidInputError(f"an image is PNG/JPEG bytes or a PIL image, not {type(image)}")
 
 
 class Client:
@@ -219,6 +232,8 @@ class Client:
         n = len(items)
         batch = check_batch(n, kw.get("t"), kw.get("t_end"), kw.get("meta"), kw.get("ids"))
         metas = per_item(kw.get("meta"), n, "meta")
+        # batch bodies take a meta per item or none at all (an absent meta is stored as {})
+        batch_meta = None if all(m is None for m in metas) else [m or {} for m in metas]
         ids = batch.ids if batch.upsert else None
         base = f"/sessions/{session}"
         if sense == "text":
@@ -228,6 +243,18 @@ class Client:
                 if ids is not None:
                     body["id"] = ids[i]
                 out += self.request("POST", base + "/text", json=body).json()["ids"]
+            return out
+        if sense == "image":  # multipart, one request per image: encoded bytes or a PIL image
+            out = []
+            for i, image in enumerate(items):
+                form = {"t": str(batch.t[i]), "t_end": str(batch.t_end[i])}
+                if metas[i] is not None:
+                    form["meta"] = json.dumps(metas[i])
+                if ids is not None:
+                    form["id"] = ids[i]
+                files = {"file": ("image", image_bytes(image))}
+                r = self.request("POST", base + "/image", data=form, files=files)
+                out += r.json()["ids"]
             return out
         if sense == "touch":
             calibrated = bool((kw.get("options") or {}).get("calibrated", False))
@@ -246,7 +273,7 @@ class Client:
                 "windows": [np.asarray(w).tolist() for w in items],
                 "t": batch.t,
                 "t_end": batch.t_end,
-                "meta": metas,
+                "meta": batch_meta,
                 "ids": ids,
                 "calibrated": calibrated,
             }
@@ -256,10 +283,21 @@ class Client:
             "vectors": [np.asarray(v, dtype=float).tolist() for v in items],
             "t": batch.t,
             "t_end": batch.t_end,
-            "meta": metas,
+            "meta": batch_meta,
             "ids": ids,
         }
         return self.request("POST", base + "/vectors", json=body).json()["ids"]
+
+    def add_sense(self, sense: VectorSense) -> None:
+        """Register a :class:`~tactus_memory.senses.VectorSense` (precomputed vectors): the
+        one kind of sense the service registers over HTTP (``POST /senses``)."""
+        if not isinstance(sense, VectorSense):
+            raise InvalidInputError(
+                f"over HTTP only a VectorSense can be registered, not {type(sense).__name__}"
+            )
+        body = {"name": sense.name, "dim": sense.dim, "space": sense.space_name}
+        body.update(sense.provenance())
+        self.request("POST", "/senses", json={k: v for k, v in body.items() if v is not None})
 
     def delete_session(self, session: str) -> int:
         """Delete every item of a session; returns the rows removed (0 for a session that

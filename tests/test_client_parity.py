@@ -23,6 +23,7 @@ from tactus_memory.errors import (
     UnknownSenseError,
 )
 from tactus_memory.memory import Memory
+from tactus_memory.senses import VectorSense
 from tests.test_service_helpers import window
 from tests.test_service_uvicorn import Server
 
@@ -75,6 +76,9 @@ def scenario(mem: Any) -> dict[str, Any]:
     )
     out["touch_ids"] = len(touch)
     mem.add_many("hall", "touch", [window(seed=7)], t=[5.0], meta=[{"glove": "left"}])
+    mem.add_sense(VectorSense("motion", 384, encoder="imu-tcn", version="1.2"))
+    motion = np.random.default_rng(3).standard_normal((2, 384))
+    out["motion"] = mem.add_many("kitchen", "motion", motion, t=[3.0, 4.0], ids=["m1", "m2"])
     names = {i.id: f"{i.sense}@{i.t}" for s in ("kitchen", "hall") for i in mem.timeline(s)}
 
     def ask(key: str, fn: Callable[[], Any]) -> None:
@@ -89,6 +93,7 @@ def scenario(mem: Any) -> dict[str, Any]:
     ask("search_moments", lambda: mem.search_moments("wiped the table", k=2, session="kitchen"))
     ask("search_like", lambda: mem.search_like("touch", window(seed=1), k=2))
     ask("search_like_text", lambda: mem.search_like("text", "a sponge", k=1))
+    ask("search_like_vector", lambda: mem.search_like("motion", vector=motion[1], k=1))
     ask("last", lambda: mem.last("the mug", senses=["text"]))
     ask("first", lambda: mem.first("the mug", senses=["text"], session="kitchen"))
     ask("none", lambda: mem.last("the mug", senses=["text"], after=100.0))
@@ -116,6 +121,8 @@ def scenario(mem: Any) -> dict[str, Any]:
     ask("e_shape", lambda: mem.add("kitchen", "touch", np.zeros((8, 32, 31)) + 600, t=1.0))
     ask("e_nan", lambda: mem.add("kitchen", "touch", np.full((8, 32, 32), np.nan), t=1.0))
     ask("e_t_end", lambda: mem.add("kitchen", "text", "x", t=5.0, t_end=1.0))
+    ask("e_dim", lambda: mem.add("kitchen", "motion", np.ones(3), t=1.0))
+    ask("e_sense_dup", lambda: mem.add_sense(VectorSense("motion", 384, encoder="other")))
     ask("delete", lambda: mem.delete_session("hall"))
     ask("deleted", mem.session_ids)
     ask("e_delete", lambda: mem.delete_session("hall"))
@@ -130,6 +137,7 @@ def test_memory_and_client_answer_alike(local, remote) -> None:
     assert want["e_session"] == "raised NotFoundError" and want["e_k"] == "raised InvalidInputError"
     assert want["e_conflict"] == "raised IdConflictError"
     assert want["none"] is None and want["delete"] == 1
+    assert want["search_like_vector"][0]["id"] == "motion@4.0"  # m2, named by sense@t
     for key in want:
         assert got[key] == want[key], key
 
