@@ -195,3 +195,13 @@ def test_http_real_store_behind_the_token(real_store, tmp_path) -> None:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
         stop_process(proc)
+
+
+def test_cli_refuses_an_empty_token_and_a_missing_store(tmp_path) -> None:
+    for args, words in [
+        (("mcp", "--http", "--token", " ", "--data", str(tmp_path)), "token is empty"),
+        (("mcp", "--data", str(tmp_path / "none")), "no memory at"),
+    ]:
+        run = subprocess.run(tactus(*args), capture_output=True, text=True, timeout=120)
+        assert run.returncode == 2 and words in run.stderr, run.stderr
+        assert run.stdout == ""  # stdout belongs to the protocol

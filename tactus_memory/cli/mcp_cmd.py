@@ -52,15 +52,24 @@ def mcp(
         from tactus_memory.mcp_server.server import build_server
     except ImportError as exc:
         fail(f"the MCP server needs the mcp extra: pip install 'tactus-memory[mcp]' ({exc})")
+    settings = None
+    if http:  # the service's settings: the same token (--token or TACTUS_TOKEN) and checks
+        from pydantic import ValidationError
+
+        from tactus_memory.service.settings import Settings
+
+        given = {"host": host, "token": token, "data": data}
+        overrides = {k: v for k, v in given.items() if v is not None}
+        try:
+            settings = Settings(**overrides, port=MCP_DEFAULT_PORT if port is None else port)
+        except ValidationError as exc:
+            fail("; ".join(e["msg"] for e in exc.errors()))
     memory = _open(data, space, space_path, space_dim)
     server = build_server(memory, allow_writes=allow_writes)
-    if not http:
+    if settings is None:
         server.run("stdio")  # stdout is the protocol's: nothing else may print there
         return
     from tactus_memory.service.mcp_http import run_mcp_http
-    from tactus_memory.service.settings import Settings
 
-    given = {"host": host, "token": token, "data": memory.store.uri}
-    overrides = {k: v for k, v in given.items() if v is not None}
-    settings = Settings(**overrides, port=MCP_DEFAULT_PORT if port is None else port)
+    settings = settings.model_copy(update={"data": memory.store.uri})
     run_mcp_http(server, settings, say=lambda line: typer.echo(line, err=True))
