@@ -64,7 +64,12 @@ def mcp(
             settings = Settings(**overrides, port=MCP_DEFAULT_PORT if port is None else port)
         except ValidationError as exc:
             fail("; ".join(e["msg"] for e in exc.errors()))
-    memory = _open(data, space, space_path, space_dim)
+    from tactus_memory.maintenance import MaintenanceConfig
+
+    # beside `tactus serve` on the same store: compaction and cleanup stay with that process
+    # (or `tactus maintain`), as for a replica; this one only reads and adds a few notes
+    keep_out = MaintenanceConfig(maintain=False)
+    memory = _open(data, space, space_path, space_dim, maintenance=keep_out)
     server = build_server(memory, allow_writes=allow_writes)
     if settings is None:
         server.run("stdio")  # stdout is the protocol's: nothing else may print there
