@@ -100,6 +100,10 @@ async def drive(client: Client, *, writes: bool = False) -> dict[str, Any]:
     return results
 
 
+def broken(*args: Any, **kwargs: Any) -> Any:
+    raise RuntimeError("disk on fire at /secret/path")
+
+
 def test_tools_in_process(tmp_path) -> None:
     memory = make_memory(tmp_path / "mem")
     fill(memory)
@@ -118,6 +122,13 @@ def test_tools_in_process(tmp_path) -> None:
             assert memory.get_item(stored["id"]).text == "door shut"
             r = await client.call_tool("remember", {"session": "kitchen", "text": "x", "meta": 3})
             assert r.is_error
+            # an unexpected failure below the tools: a tool error naming the tool, no internals,
+            # and the server goes on answering
+            memory.search = broken
+            r = await client.call_tool("search", {"query": "mug"})
+            assert r.is_error and r.content[0].text == "Error executing tool search"
+            r = await client.call_tool("sessions", {})
+            assert not r.is_error and json.loads(r.content[0].text)["sessions"][0]["n"] == 5
 
     anyio.run(main)
     assert schema_seen["k"]["maximum"] == 50 and "description" in schema_seen["session"]
