@@ -122,6 +122,11 @@ def bearer(authorization: str | None) -> str | None:
     return value.strip()
 
 
+#: the 401's detail and challenge, for the API routes and the MCP endpoint (service/mcp_http.py)
+TOKEN_REFUSED = "missing or wrong bearer token: send 'Authorization: Bearer <token>'"
+BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="tactus"'}
+
+
 def require_token(conn: HTTPConnection, settings: SettingsDep) -> None:
     """Every route but the open ones: ``Authorization: Bearer <token>`` when a token is set
     (a WebSocket may pass ``?token=`` instead: browsers cannot set its headers)."""
@@ -133,11 +138,7 @@ def require_token(conn: HTTPConnection, settings: SettingsDep) -> None:
         presented = conn.query_params.get("token")
     if not token_ok(settings, presented):
         how = " or ?token=" if websocket else ""
-        raise HTTPException(
-            401,
-            f"missing or wrong bearer token: send 'Authorization: Bearer <token>'{how}",
-            headers={"WWW-Authenticate": 'Bearer realm="tactus"'},
-        )
+        raise HTTPException(401, TOKEN_REFUSED + how, headers=BEARER_CHALLENGE)
 
 
 def require_writable(state: StateDep) -> None:
