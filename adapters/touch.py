@@ -18,7 +18,10 @@ Input rules (``validate``), in this order:
    max-scaling defect of the paper: raw readings sit around 500-1000), and so does a window
    with no reading above the sensor offset;
 4. raw windows are calibrated with the checkpoint's sensor profile,
-   ``clip((raw - 500) / 150, 0, 1)`` for the STAG glove.
+   ``clip((raw - 500) / 150, 0, 1)`` for the STAG glove;
+5. an idle window (no frame with contact, ``touch.windows.window_idle`` on the calibrated
+   window) raises ``IdleWindowError``: an idle hand is never stored as a grasp, whether it
+   came over HTTP, the WebSocket stream, a recording or Python (``keep_idle=True`` keeps it).
 
 Vectors live in the checkpoint's space (``space_name``/``dim``), so ``Memory.add_sense``
 rejects a memory built on another space. Text queries compared with touch vectors go through
@@ -36,13 +39,19 @@ from typing import Any
 import numpy as np
 
 from tactus_memory import __version__
-from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
+from tactus_memory.errors import (
+    DynamicRangeError,
+    IdleWindowError,
+    InvalidInputError,
+    SenseConflictError,
+)
 from tactus_memory.plugins import register
 from tactus_memory.recordings.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.touch.windows import CONTACT_LEVEL, CONTACT_MIN_TAXELS, window_idle
 from tactus_memory.vectors import as_unit_rows
 
 
@@ -63,7 +72,7 @@ class TactusEncoder(Sense):
     """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``)."""
 
     modality = "touch"
-    validate_options = frozenset({"calibrated"})
+    validate_options = frozenset({"calibrated", "keep_idle"})
     message_types = (IMAGE, *ARRAYS)
     windowed = True
 
@@ -126,14 +135,27 @@ class TactusEncoder(Sense):
         """One recorded touch message -> one (32, 32) frame (``recordings.decode``)."""
         return touch_frame(msg, msgtype, FRAME_SHAPE, where)
 
-    def validate(self, item: Any, *, calibrated: bool | None = None) -> np.ndarray:
+    def validate(
+        self, item: Any, *, calibrated: bool | None = None, keep_idle: bool = False
+    ) -> np.ndarray:
         """One window (K, 32, 32), raw or calibrated -> calibrated float32 (K, 32, 32).
 
         ``calibrated`` None guesses (float values in [0, 1] are calibrated); a window this
         method returned (a :class:`CalibratedWindow`) comes back as it is unless it is
-        passed as raw (``calibrated=False``, an error)."""
+        passed as raw (``calibrated=False``, an error). An idle window raises
+        :class:`~tactus_memory.errors.IdleWindowError` unless ``keep_idle``."""
         if isinstance(item, CalibratedWindow) and calibrated is not False:
             return item
+        window = self._calibrated(item, calibrated)
+        if not keep_idle and window_idle(window):
+            raise IdleWindowError(
+                f"idle touch window: no frame has {CONTACT_MIN_TAXELS} taxels at the contact "
+                f"level ({CONTACT_LEVEL:.3g} calibrated); an idle hand is never stored as a grasp"
+            )
+        return window
+
+    def _calibrated(self, item: Any, calibrated: bool | None) -> np.ndarray:
+        """The checks of :meth:`validate` but the idle rule, and the one calibration."""
         try:
             arr = np.asarray(item)
         except (ValueError, TypeError) as exc:
@@ -196,10 +218,10 @@ class TactusEncoder(Sense):
             return np.zeros((0, self.frames, *FRAME_SHAPE), np.float32)
         # validated windows (what Memory passes) are trusted; raw ones are validated here
         trusted = calibrated is not False
-        checked = [
+        checked = [  # embedding any window is allowed (the evaluation embeds idle ones too)
             w
             if trusted and isinstance(w, CalibratedWindow)
-            else self.validate(w, calibrated=calibrated)
+            else self.validate(w, calibrated=calibrated, keep_idle=True)
             for w in items
         ]
         return np.stack([np.asarray(self._pad(w)) for w in checked])

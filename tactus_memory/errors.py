@@ -60,6 +60,11 @@ class DynamicRangeError(TactusError, ValueError):
     """Calibrated pressure uses too few intensity levels or looks already normalised."""
 
 
+class IdleWindowError(InvalidInputError):
+    """A touch window with no contact (an idle hand): the touch sense never stores one as a
+    grasp, whichever way it arrives (``tactus_memory.touch.windows``)."""
+
+
 class SpaceConfigError(TactusError, ValueError):
     """A space cannot be built as asked: its model folder is missing, not given, or holds
     another model than the one a store was created with. One line naming the option to pass."""
@@ -88,5 +93,6 @@ ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
     CapabilityError: (400, "capability", "Not supported by this memory"),
     DataFormatError: (422, "data-format", "Invalid data format"),
     DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
+    IdleWindowError: (422, "idle-window", "Idle touch window"),
     OverloadedError: (503, "overloaded", "Write queue full"),
 }

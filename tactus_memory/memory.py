@@ -373,9 +373,12 @@ class Memory:
         q = as_unit_rows(vector, self.space.dim, what="query vector")
         if q.shape[0] != 1:
             raise InvalidInputError(f"one query vector expected, got {q.shape[0]}")
-        where = Scope.of(**scope)
-        base = where.where()
-        return self.rank(q, k, self.resolve_senses(where.senses), base, transform=transform)
+        return self._rank_in(q, k, Scope.of(**scope), transform)
+
+    def _rank_in(self, q: np.ndarray, k: int, where: Scope, transform: bool) -> list[Hit]:
+        """:meth:`rank` the (1, D) unit query ``q`` over the scope's senses and filters."""
+        names = self.resolve_senses(where.senses)
+        return self.rank(q, k, names, where.where(), transform=transform)
 
     def search_like(
         self,
@@ -402,7 +405,7 @@ class Memory:
         where = Scope.of(**scope)
         if not where.senses:
             where = Scope.of(where, senses=[sense])
-        return self.search_vector(q[0], k, scope=where)
+        return self._rank_in(q[:1], check_k(k), where, transform=False)  # unit rows, once
 
     def rank(
         self, q: np.ndarray, k: int, senses: Sequence[str], base: Where, **kw: Any

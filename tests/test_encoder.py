@@ -8,7 +8,12 @@ import pytest
 import torch
 
 from tactus_memory.adapters.touch import TactusEncoder
-from tactus_memory.errors import DynamicRangeError, InvalidInputError, SenseConflictError
+from tactus_memory.errors import (
+    DynamicRangeError,
+    IdleWindowError,
+    InvalidInputError,
+    SenseConflictError,
+)
 from tactus_memory.senses import bytes_to_array
 from tactus_memory.touch.checkpoint import default_checkpoint_path, save_checkpoint
 from tactus_memory.touch.model import create_model
@@ -216,3 +221,18 @@ def test_shipped_default_classifies_real_windows_above_chance(shipped, stag_subs
     # in-sample, so it must be near perfect: measured 1.000 (52/52); a broken pipeline or a
     # half-trained model falls below. The held-out gate is tests/test_touch_heldout.py.
     assert acc >= 0.95
+
+
+def test_the_idle_rule_belongs_to_the_touch_sense(enc) -> None:
+    """A resting glove (raw readings at the sensor's pedestal, a few taxels brushed) is refused
+    by validate with IdleWindowError, whatever way it came in; keep_idle keeps it; embedding
+    (the evaluation's path) takes it; one taxel more of contact and it is a window again."""
+    rest = np.full((8, 32, 32), 512, np.int16)  # stag-format.md: rest 510-516 raw
+    rest[:, 3, 4] = 700  # one pressed taxel: below CONTACT_MIN_TAXELS
+    with pytest.raises(IdleWindowError, match="idle touch window"):
+        enc.validate(rest)
+    kept = enc.validate(rest, keep_idle=True)
+    assert kept.shape == (8, 32, 32) and float(kept.max()) == pytest.approx(1.0)
+    assert enc.embed([rest]).shape == (1, enc.dim)
+    rest[:, 3, 5] = 700  # two taxels at contact level in a frame: touching
+    assert enc.validate(rest).shape == (8, 32, 32)

@@ -10,7 +10,7 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import IdleWindowError, InvalidInputError
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.test_service_helpers import make_memory, npy_bytes, window
@@ -726,6 +726,27 @@ def test_stream_idle_windows_are_acknowledged_not_stored(memory):
     assert first["type"] == "idle" and first["seq"] == 0
     assert second["type"] == "stored" and second["seq"] == 1
     assert [it.sense for it in memory.timeline("idle")] == ["touch"]
+
+
+def test_idle_windows_are_refused_the_same_way_from_every_entry_point(memory):
+    """The idle rule is the touch sense's: the same resting window is refused over HTTP
+    (JSON and .npy: 422 idle-window), from Python (IdleWindowError) and on the stream (an
+    "idle" ack, above); nothing is stored, and a window with contact is."""
+    rest = np.full((2, 32, 32), 512, np.int16)  # raw resting reading, no taxel in contact
+    with pytest.raises(IdleWindowError):
+        memory.add("py", "touch", rest, t=1.0)
+    app = create_app(Settings(), memory=memory)
+    with TestClient(app) as c:
+        r = c.post("/sessions/http/touch", json={"frames": rest.tolist(), "t": 1.0})
+        assert_problem(r, 422, "idle")["type"].endswith("idle-window")
+        headers = {"content-type": "application/x-npy"}
+        r = c.post("/sessions/http/touch?t=1", content=npy_bytes(rest), headers=headers)
+        assert_problem(r, 422, "idle")
+        press = rest.copy()
+        press[:, :4, :4] = 620
+        r = c.post("/sessions/http/touch", json={"frames": press.tolist(), "t": 2.0})
+        assert r.status_code == 201, r.text
+    assert {s.id: s.n for s in memory.sessions()} == {"http": 1}
 
 
 def test_the_service_rebuilds_the_senses_its_store_records(tmp_path):

@@ -9,10 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import IdleWindowError, InvalidInputError
 from tactus_memory.recordings.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.senses import Sense, array_to_bytes
 from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.touch.windows import calibrated_frames, window_idle
 from tactus_memory.vectors import as_unit_rows
 
 
@@ -22,6 +23,7 @@ class StandInTouch(Sense):
     modality = "touch"
     message_types = (IMAGE, *ARRAYS)  # reads recorded touch topics as the touch sense does
     windowed = True
+    validate_options = frozenset({"keep_idle"})
 
     def __init__(self, dim: int, name: str = "touch", seed: int = 0) -> None:
         self.name = name
@@ -32,12 +34,14 @@ class StandInTouch(Sense):
     def from_message(self, msg: Any, msgtype: str, where: str) -> np.ndarray:
         return touch_frame(msg, msgtype, FRAME_SHAPE, where)
 
-    def validate(self, item: Any) -> np.ndarray:
+    def validate(self, item: Any, *, keep_idle: bool = False) -> np.ndarray:
         arr = np.asarray(item, dtype=np.float32)
         if arr.ndim != 3 or arr.shape[1:] != (32, 32):
             raise InvalidInputError(f"touch window has shape {arr.shape}, expected (K, 32, 32)")
         if not np.isfinite(arr).all():
             raise InvalidInputError("touch window contains NaN or inf")
+        if not keep_idle and window_idle(calibrated_frames(arr)):  # the touch sense's rule
+            raise IdleWindowError("idle touch window: no contact")
         return arr
 
     def embed(self, batch: Sequence[np.ndarray]) -> np.ndarray:

@@ -19,8 +19,9 @@ Protocol (all server messages are JSON objects with a ``type``):
   A partial window left at disconnect is not stored.
 * when the server's write queue is full the window is refused, not stored:
   ``{"type": "error", "error": {status 503...}, "windows": [seq], "retry_after": 1.0}``.
-* an idle window (no contact, ``tactus_memory.touch.windows``) is not stored (an idle hand
-  must never match "holding a ..."): ``{"type": "idle", "seq": n, "t": ..., "t_end": ...}``.
+* an idle window (no contact: the touch sense refuses it, ``tactus_memory.touch.windows``) is
+  not stored (an idle hand must never match "holding a ..."):
+  ``{"type": "idle", "seq": n, "t": ..., "t_end": ...}``.
 
 Each window is validated on arrival and handed to the service's group committer
 (``tactus_memory.ingest``): the windows of every glove and the HTTP writes that arrive within
@@ -44,7 +45,7 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Depends, WebSocket, WebSocketDisconnect
 
-from tactus_memory.errors import InvalidInputError, OverloadedError, TactusError
+from tactus_memory.errors import IdleWindowError, InvalidInputError, OverloadedError, TactusError
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import SessionId, SettingsDep, StateDep, TouchAvailable, Writable
@@ -138,7 +139,9 @@ async def touch_stream(
     await websocket.accept()
 
     stream_id = "ws-" + uuid.uuid4().hex[:16]
-    windower = WindowStream(params.window, params.stride)  # the library's stream windowing
+    # the library's stream windowing, without a profile: the touch sense calibrates each
+    # window once (its own profile) and refuses an idle one (IdleWindowError)
+    windower = WindowStream(params.window, params.stride, profile=None)
     # windows handed to the group committer, waiting for their commit (bounded: when full,
     # the receive loop stops reading and TCP pushes back on the glove)
     acks: asyncio.Queue[tuple[int, float, float, asyncio.Future[list[str]]] | None]
@@ -189,21 +192,8 @@ async def touch_stream(
             for frame, t in frames:
                 frame_index += 1
                 done = windower.push(frame, [t])
-                for win, t_first, t_last, idle in zip(
-                    done.frames, done.t, done.t_end, done.idle, strict=True
-                ):
-                    if idle:  # no contact: never embedded as a grasp (touch/windows.py)
-                        await send(
-                            {
-                                "type": "idle",
-                                "seq": seq,
-                                "t": float(t_first),
-                                "t_end": float(t_last),
-                            }
-                        )
-                        seq += 1
-                        continue
-                    try:  # the sense's own checks (range, calibration), before queueing
+                for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
+                    try:  # the sense's own checks (range, calibration, idle), before queueing
                         write = memory.prepare_write(
                             session,
                             "touch",
@@ -214,6 +204,9 @@ async def touch_stream(
                             options={"calibrated": params.calibrated},
                         )
                         fut = asyncio.wrap_future(state.open_committer().submit_prepared(write))
+                    except IdleWindowError:  # no contact: never stored as a grasp
+                        span = {"t": float(t_first), "t_end": float(t_last)}
+                        await send({"type": "idle", "seq": seq, **span})
                     except TactusError as exc:  # invalid window, or the write queue is full
                         await send(_window_error(exc, seq, stream_id))
                     else:

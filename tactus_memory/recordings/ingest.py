@@ -34,9 +34,10 @@ from typing import Any
 from pydantic import BaseModel, Field
 
 import tactus_memory.recordings.decode as decode
-from tactus_memory.errors import TactusError, UnknownSenseError
+from tactus_memory.errors import IdleWindowError, TactusError, UnknownSenseError
 from tactus_memory.plugins import lookup
 from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
+from tactus_memory.rows import options_for
 from tactus_memory.touch.windows import WindowStream
 from tactus_memory.where import Where, validate_id
 
@@ -259,9 +260,14 @@ class _Ingest:
             self._flush(self.plan[name])
 
     def _accept(self, topic: _Topic, item: Any) -> Any | None:
-        """The sense's own checks; a refused item is skipped with the reason."""
+        """The sense's own checks; a refused item is skipped with the reason (an idle touch
+        window, refused by the touch sense's idle rule, unless ``keep_idle``)."""
+        sense = self.memory.senses[topic.sense]
         try:
-            return self.memory.senses[topic.sense].validate(item)
+            return sense.validate(item, **options_for(sense, {"keep_idle": self.keep_idle}))
+        except IdleWindowError:  # no contact: never embedded as a grasp (touch/windows.py)
+            self.skipped[f"{topic.sense}: idle window (no contact)"] += 1
+            return None
         except TactusError as exc:
             # numbers blanked so that one kind of refusal is one reason in the summary
             why = re.sub(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", str(exc))
@@ -328,14 +334,11 @@ class _Ingest:
                                 t, t, meta)  # fmt: skip
             else:
                 frame = raw  # (H, W)
-                ws = streams.setdefault(m.topic, WindowStream(self.window, self.stride))
-                done = ws.push(frame, [t])
+                if m.topic not in streams:  # no profile: the sense calibrates, and judges idle
+                    streams[m.topic] = WindowStream(self.window, self.stride, profile=None)
+                done = streams[m.topic].push(frame, [t])
                 for w in range(len(done)):
                     window = done.frames[w]  # (K, H, W)
-                    if done.idle[w] and not self.keep_idle:
-                        # no contact: never embedded as a grasp (touch/windows.py)
-                        self.skipped[f"{topic.sense}: idle window (no contact)"] += 1
-                        continue
                     item = self._accept(topic, window)
                     if item is None:
                         continue

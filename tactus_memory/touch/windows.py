@@ -15,11 +15,15 @@ window through here, so a recording and a live glove are cut the same way.
 **Contact and idle.** Every window carries ``contact`` (Wn,): the most taxels at or above
 :data:`CONTACT_LEVEL` (calibrated) in any one of its frames. A window whose ``contact`` is below
 :data:`CONTACT_MIN_TAXELS` is *idle*: the hand touched nothing worth naming. Decision: idle
-windows are **not embedded as grasps**. Callers that store windows drop them (or store them
-only when asked, for diagnostics), so an idle hand can never match "holding a ..." (the
-stream evaluation, ``tactus eval --stream``, measures how often idle windows pass the match bar
-when they *are* embedded: that is the failure this rule removes). Raw frames are calibrated with
-the STAG glove profile for this test; calibrated frames (float, all in [0, 1]) are used as is.
+windows are **not embedded as grasps**. The rule belongs to the touch sense: its ``validate``
+refuses an idle window (:func:`window_idle` on the window it calibrated with its own profile;
+``IdleWindowError``) unless asked to keep it, so every way in (HTTP, the WebSocket stream,
+recordings, Python) stores the same windows, and an idle hand can never match "holding a ..."
+(the stream evaluation, ``tactus eval --stream``, measures how often idle windows pass the
+match bar when they *are* embedded: that is the failure this rule removes). Windowing itself
+computes ``contact`` only when given a ``profile`` (the evaluation, contact-aware selection);
+the service and recording ingest cut windows without it, so frames are calibrated once, by the
+sense.
 
 **Contact-aware frame selection.** With ``span > window`` a window is cut from ``span``
 consecutive frames and keeps the ``window`` frames with the most contact (ties: earliest), in
@@ -52,13 +56,14 @@ CONTACT_MIN_TAXELS = 2
 class Windows:
     """``frames`` (Wn, K, H, W); ``t``/``t_end`` (Wn,) float64 span of each window;
     ``start`` (Wn,) int64 index of each window's first frame in the run; ``contact`` (Wn,)
-    int64 peak contact taxels per window (see the module docstring)."""
+    int64 peak contact taxels per window (see the module docstring), None when cut without a
+    profile."""
 
     frames: np.ndarray
     t: np.ndarray
     t_end: np.ndarray
     start: np.ndarray
-    contact: np.ndarray
+    contact: np.ndarray | None
 
     def __len__(self) -> int:
         return int(self.frames.shape[0])
@@ -66,12 +71,15 @@ class Windows:
     @property
     def idle(self) -> np.ndarray:
         """(Wn,) bool: windows with no contact (never embedded as grasps)."""
+        if self.contact is None:
+            raise ValueError("these windows were cut without a profile: contact is unknown")
         return self.contact < CONTACT_MIN_TAXELS
 
     def take(self, mask: np.ndarray) -> Windows:
         """The windows where ``mask`` (Wn,) bool is True."""
         m = np.asarray(mask, dtype=bool)
-        return Windows(self.frames[m], self.t[m], self.t_end[m], self.start[m], self.contact[m])
+        contact = None if self.contact is None else self.contact[m]
+        return Windows(self.frames[m], self.t[m], self.t_end[m], self.start[m], contact)
 
 
 def calibrated_frames(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
@@ -89,6 +97,13 @@ def contact_taxels(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> n
     """(..., H, W) frames -> (...) int64 taxels at or above :data:`CONTACT_LEVEL`."""
     cal = calibrated_frames(frames, profile)
     return (cal >= np.float32(CONTACT_LEVEL)).sum(axis=(-2, -1)).astype(np.int64)
+
+
+def window_idle(calibrated: np.ndarray) -> bool:
+    """Whether a calibrated window (K, H, W) in [0, 1] is idle: no frame has
+    :data:`CONTACT_MIN_TAXELS` taxels at :data:`CONTACT_LEVEL` (no calibration here)."""
+    peak = (np.asarray(calibrated) >= np.float32(CONTACT_LEVEL)).sum(axis=(-2, -1)).max()
+    return int(peak) < CONTACT_MIN_TAXELS
 
 
 def _select(spans: np.ndarray, counts: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -127,16 +142,19 @@ def cut_windows(
     window: int,
     stride: int,
     span: int | None = None,
-    profile: SensorProfile = STAG_GLOVE,
+    profile: SensorProfile | None = STAG_GLOVE,
 ) -> Windows:
     """frames (N, H, W) + times (N,) -> :class:`Windows` (Wn, K, H, W), K = ``window``.
 
     Each window is cut from ``span`` (default K) consecutive frames starting every ``stride``
     frames; with ``span > K`` it keeps the K frames with the most contact. Wn = 0 when N < span,
     else ``(N - span) // stride + 1``. ``times`` must be as long as ``frames``. ``profile``
-    calibrates raw frames for the contact test only; the frames are returned as given.
+    calibrates raw frames for the contact count only (the frames are returned as given); None
+    skips the count (``contact`` None; ``span`` must equal ``window`` then).
     """
     k, s, span = _check(window, stride, span)
+    if profile is None and span != k:
+        raise InvalidInputError("contact-aware selection (span > window) needs a profile")
     arr = np.asarray(frames)
     if arr.ndim != 3:
         raise InvalidInputError(f"frames must be (N, H, W), got shape {arr.shape}")
@@ -148,6 +166,8 @@ def cut_windows(
         return _empty(arr.shape[1:], k, arr.dtype)
     starts = np.arange(0, n - span + 1, s, dtype=np.int64)
     idx = starts[:, None] + np.arange(span, dtype=np.int64)[None, :]  # (Wn, span)
+    if profile is None:
+        return Windows(arr[idx], ts[starts], ts[starts + span - 1], starts, None)
     counts = contact_taxels(arr, profile)[idx]  # (Wn, span)
     frames_out, kept = _select(arr[idx], counts, k)
     return Windows(frames_out, ts[starts], ts[starts + span - 1], starts, kept.max(axis=1))
@@ -163,7 +183,7 @@ class WindowStream:
         stride: int,
         *,
         span: int | None = None,
-        profile: SensorProfile = STAG_GLOVE,
+        profile: SensorProfile | None = STAG_GLOVE,
     ) -> None:
         self.window, self.stride, self.span = _check(window, stride, span)
         self.profile = profile
