@@ -71,3 +71,9 @@ class OverloadedError(TactusError):
     def __init__(self, message: str, retry_after: float = 1.0) -> None:
         super().__init__(message)
         self.retry_after = retry_after
+
+
+class StoreDamagedError(TactusError):
+    """The store fails its integrity check (a data file missing or truncated, a manifest
+    unreadable): writes are refused so nothing lands in a store that cannot be read back
+    (HTTP 503). ``tactus maintain --check`` lists the damage."""
