@@ -25,7 +25,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from typing_extensions import Unpack
 
 from tactus_memory import errors
-from tactus_memory.service.readiness import is_store_failure, short
+from tactus_memory.service.readiness import is_store_failure, no_paths, short
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -46,6 +46,7 @@ ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {
     errors.DataFormatError: (422, "data-format", "Invalid data format"),
     errors.DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
     errors.OverloadedError: (503, "overloaded", "Write queue full"),
+    errors.StoreDamagedError: (503, "store-damaged", "Store is damaged"),
 }
 
 HTTP_TITLES = {
@@ -117,7 +118,7 @@ def problem_body(
         "type": TYPE_BASE + (slug or f"http-{status}"),
         "title": title or HTTP_TITLES.get(status, "Error"),
         "status": status,
-        "detail": detail,
+        "detail": no_paths(detail) if status >= 500 else detail,  # never where the store is
     }
     if instance is not None:
         body["instance"] = instance
