@@ -49,13 +49,34 @@ def _lance_message(exc: BaseException, uri: str) -> str:
 
 
 def check_table(name: str, uri: str, storage_options: dict[str, str] | None = None) -> list[Damage]:
-    """The damage of one Lance table at ``uri`` (empty: intact)."""
+    """The damage of one Lance table at ``uri`` (empty: intact). A problem seen while the
+    table moved on to a newer version (a compaction and cleanup removed the files of the
+    version being checked) is checked again on the newer one, so it is not called damage."""
+    import lance
+
+    damage: list[Damage] = []
+    for _ in range(3):
+        version, damage = _check_once(name, uri, storage_options)
+        if not damage:
+            return damage
+        try:
+            latest = lance.dataset(uri, storage_options=storage_options or None).version
+        except Exception:  # noqa: BLE001  (the manifest itself: the damage stands)
+            return damage
+        if latest == version:
+            return damage
+    return damage
+
+
+def _check_once(
+    name: str, uri: str, storage_options: dict[str, str] | None
+) -> tuple[int | None, list[Damage]]:
     import lance
 
     try:
         ds = lance.dataset(uri, storage_options=storage_options or None)
     except Exception as exc:  # noqa: BLE001  (any failure to open is the answer)
-        return [Damage(name, f"the latest manifest cannot be read: {_lance_message(exc, uri)}")]
+        return None, [Damage(name, f"the manifest cannot be read: {_lance_message(exc, uri)}")]
     out: list[Damage] = []
     if not is_remote_uri(uri):
         for frag in ds.get_fragments():
@@ -85,7 +106,7 @@ def check_table(name: str, uri: str, storage_options: dict[str, str] | None = No
             ds.validate()
         except Exception as exc:  # noqa: BLE001  (Lance's own verdict)
             out.append(Damage(name, f"Lance validation failed: {_lance_message(exc, uri)}"))
-    return out
+    return int(ds.version), out
 
 
 def check_store(
