@@ -77,3 +77,23 @@ class StoreDamagedError(TactusError):
     """The store fails its integrity check (a data file missing or truncated, a manifest
     unreadable): writes are refused so nothing lands in a store that cannot be read back
     (HTTP 503). ``tactus maintain --check`` lists the damage."""
+
+
+#: exception class -> (HTTP status, problem type slug, title): how the service answers each
+#: error (``service/problems.py``, the most specific class wins, MRO order) and how
+#: ``tactus_memory.Client`` raises it again from the problem's type.
+ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
+    InvalidIdError: (422, "invalid-id", "Invalid identifier"),
+    DimensionMismatchError: (422, "dimension-mismatch", "Dimension mismatch"),
+    InvalidInputError: (422, "invalid-input", "Invalid input"),
+    UnknownSenseError: (404, "unknown-sense", "Unknown sense"),
+    NotFoundError: (404, "not-found", "Not found"),
+    SenseConflictError: (409, "sense-conflict", "Sense conflict"),
+    IdConflictError: (409, "id-conflict", "Item id conflict"),
+    SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
+    CapabilityError: (400, "capability", "Not supported by this memory"),
+    DataFormatError: (422, "data-format", "Invalid data format"),
+    DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
+    OverloadedError: (503, "overloaded", "Write queue full"),
+    StoreDamagedError: (503, "store-damaged", "Store is damaged"),
+}
