@@ -290,3 +290,24 @@ def test_head_wherever_get_and_options_behind_the_routes_token(tmp_path):
         assert ok.status_code == 204
         assert ok.headers["allow"] == "DELETE, GET, HEAD, OPTIONS"
         assert c.options("/health").status_code == 204  # an open route stays open
+
+
+def test_clock_offsets_of_a_store_written_before_are_read_and_moved_to_session_rows(tmp_path):
+    """Stores written before issue 29 keep every offset in one meta value (CLOCK_KEY)."""
+    import json
+
+    from tactus_memory.clocks import CLOCK_KEY, CLOCK_PREFIX
+
+    memory = make_memory(tmp_path / "mem")
+    old = {"a": {"touch/": 2.0}, "b": {"text/l": -1.0, "touch/": 3.0}}
+    memory.store.set_meta(CLOCK_KEY, json.dumps(old))
+    assert [(o.session, o.sense, o.offset) for o in memory.clock_offsets("b")] == [
+        ("b", "text", -1.0),
+        ("b", "touch", 3.0),
+    ]
+    memory.set_clock_offset("c", "touch", 5.0)  # the first clock write moves the old table
+    assert memory.store.get_meta(CLOCK_KEY) is None
+    assert set(memory.store.meta_items(CLOCK_PREFIX)) == {"clock:a", "clock:b", "clock:c"}
+    assert len(memory.clock_offsets()) == 4
+    memory.delete_session("b")
+    assert {o.session for o in memory.clock_offsets()} == {"a", "c"}
