@@ -150,6 +150,9 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         touch_unavailable=touch_why,
         read_only=store_read_only(memory.store.uri),
     )
+    damage = memory.store.integrity.damage(0)
+    if damage:  # served (reads where they can), but unhealthy and refusing writes
+        log.error("the store is damaged, writes are refused: %s", "; ".join(map(str, damage)))
     if state.read_only:
         log.warning(
             "the store at %s is read-only: serving reads, refusing writes", memory.store.uri
@@ -184,9 +187,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     app.state.tactus = state
     install_problem_handlers(app)
     app.add_middleware(BodyLimitMiddleware, max_body_bytes=settings.max_body_bytes)
-    app.add_middleware(
-        ReadOnlyMiddleware, read_only=lambda: state.read_only, where=memory.store.uri
-    )
+    app.add_middleware(ReadOnlyMiddleware, read_only=lambda: state.read_only)
     app.add_middleware(AllowMiddleware)
     install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 

@@ -103,6 +103,13 @@ ItemIdPath = Annotated[
 ]
 
 
+#: the routes no token guards (README "Trust"): probes, the static page, the API docs
+OPEN_PATHS = frozenset(
+    {"/live", "/health", "/ready", "/", "/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc"}
+)
+OPEN_PREFIXES = ("/static/",)
+
+
 def token_ok(settings: Settings, presented: str | None) -> bool:
     """Constant-time check of a presented token (True when no token is configured)."""
     if settings.token is None:

@@ -335,6 +335,7 @@ class SessionsOut(BaseModel):
 class DeletedOut(BaseModel):
     id: str
     deleted: int = Field(description="Items removed.")
+    clock_offsets: int = Field(0, description="Clock offsets removed.")
 
 
 class HealthOut(BaseModel):

@@ -1,12 +1,18 @@
-"""Per-stream clock offsets: ``set(session, sense, offset, source)`` records that a stream's
-clock runs ``offset`` seconds behind its session's reference clock, so its items are placed at
-``t + offset`` (``t_aligned``) for grouping, ordering and every ``after``/``before`` bound of
-the temporal operators (:mod:`tactus_memory.temporal`). Offsets live in the store's ``meta``
-table (``Store.clock_table``): persisted, shared by the processes that open the store.
+"""Per-stream clock offsets: ``Clocks.set(session, sense, offset, source)`` records that a
+stream's clock runs ``offset`` seconds behind its session's reference clock, so its items are
+placed at ``t + offset`` (``t_aligned``) for grouping, ordering and every ``after``/``before``
+bound of the temporal operators (:mod:`tactus_memory.temporal`).
+
+Stored in the store's meta table, one row per session (key ``clock:<session>``, value JSON
+``{"sense/source": offset}``), so a PUT writes one small row (one JSON of every session's
+offsets grew with each new session: 3,060 PUTs left a 141 MB meta table) and deleting a
+session deletes its row. Stores written before keep all offsets under :data:`CLOCK_KEY` in one
+JSON value: they are read as they are and moved to per-session rows on the next clock write.
 """
 
 from __future__ import annotations
 
+import json
 import threading
 from collections.abc import Mapping
 
@@ -16,6 +22,55 @@ from tactus_memory.models import ClockOffset
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import Store
 from tactus_memory.where import finite_float, validate_id, validate_source
+
+#: the meta key of every session's offsets in one JSON value (stores written before)
+CLOCK_KEY = "clock_offsets"
+#: the meta key of one session's offsets is this prefix + the session id
+CLOCK_PREFIX = "clock:"
+
+Streams = dict[str, float]  # "sense/source" -> offset
+
+
+def clock_table(store: Store) -> dict[str, Streams]:
+    """Every clock offset: session -> {"sense/source": offset}."""
+    table: dict[str, Streams] = json.loads(store.get_meta(CLOCK_KEY) or "{}")
+    for key, value in store.meta_items(CLOCK_PREFIX).items():
+        table[key.removeprefix(CLOCK_PREFIX)] = json.loads(value)
+    return {session: streams for session, streams in table.items() if streams}
+
+
+def session_clock(store: Store, session: str) -> Streams:
+    """One session's offsets (one meta row, not the whole table)."""
+    raw = store.get_meta(CLOCK_PREFIX + session)
+    if raw is not None:
+        return json.loads(raw)
+    legacy = store.get_meta(CLOCK_KEY)
+    return dict(json.loads(legacy).get(session, {})) if legacy else {}
+
+
+def put_session_clock(store: Store, session: str, streams: Streams) -> None:
+    """Replace one session's offsets (none: its row is deleted). Call under the memory lock."""
+    legacy = store.get_meta(CLOCK_KEY)
+    if legacy is not None:  # move the old one-value table to per-session rows first
+        rows = {
+            CLOCK_PREFIX + s: json.dumps(v, sort_keys=True) for s, v in json.loads(legacy).items()
+        }
+        if rows:
+            store.set_meta_many(rows)
+        store.delete_meta(CLOCK_KEY)
+    if streams:
+        store.set_meta(CLOCK_PREFIX + session, json.dumps(streams, sort_keys=True))
+    elif store.get_meta(CLOCK_PREFIX + session) is not None:
+        store.delete_meta(CLOCK_PREFIX + session)
+
+
+def drop_session_clock(store: Store, session: str) -> int:
+    """Delete every clock offset of ``session``; returns how many there were."""
+    n = len(session_clock(store, session))
+    if n:
+        put_session_clock(store, session, {})
+    return n
+
 
 #: (session, sense, source) -> offset in seconds
 Offsets = Mapping[tuple[str, str, str], float]
@@ -37,7 +92,7 @@ class Clocks:
     def offsets(self) -> dict[tuple[str, str, str], float]:
         """(session, sense, source) -> offset, for every recorded stream."""
         out: dict[tuple[str, str, str], float] = {}
-        for session, streams in self.store.clock_table().items():
+        for session, streams in clock_table(self.store).items():
             for key, value in streams.items():
                 sense, source = key.split("/", 1)
                 out[(session, sense, source)] = float(value)
@@ -58,30 +113,27 @@ class Clocks:
                 "time shift, and t + offset must stay a finite number"
             )
         with self.lock:
-            table = self.store.clock_table()
-            streams = table.setdefault(session, {})
+            streams = session_clock(self.store, session)
             key = f"{sense}/{source}"
             if value == 0.0:
                 streams.pop(key, None)
-                if not streams:
-                    table.pop(session)
             else:
                 streams[key] = value
-            self.store.put_clock_table(table)
+            put_session_clock(self.store, session, streams)  # this session's row only
 
     def listed(self, session: str | None = None) -> list[ClockOffset]:
-        """Every recorded clock offset (of one session), sorted."""
+        """Every recorded clock offset (of one session: its one meta row), sorted."""
         if session is not None:
-            validate_id(session, "session id")
+            streams = session_clock(self.store, validate_id(session, "session id"))
+            offsets = {(session, *k.split("/", 1)): float(v) for k, v in streams.items()}
+        else:
+            offsets = self.offsets()
         return [
             ClockOffset(session=s, sense=sense, source=source, offset=v)
-            for (s, sense, source), v in sorted(self.offsets().items())
-            if session is None or s == session
+            for (s, sense, source), v in sorted(offsets.items())
         ]
 
-    def drop_session(self, session: str) -> None:
-        """Forget every offset of ``session`` (one meta write; its items were deleted)."""
+    def drop_session(self, session: str) -> int:
+        """Forget every offset of ``session`` (its items were deleted); returns how many."""
         with self.lock:
-            table = self.store.clock_table()
-            if table.pop(session, None):
-                self.store.put_clock_table(table)
+            return drop_session_clock(self.store, session)

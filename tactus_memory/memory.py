@@ -58,8 +58,11 @@ from tactus_memory.rows import (
     PreparedWrite,
     WriteKwargs,
     check_batch,
+    claim_ids,
     embed_groups,
+    embed_isolated,
     options_for,
+    resolve_shared_ids,
     summarise,
     writes_table,
 )
@@ -104,6 +107,7 @@ class Memory:
         self.registry = SenseRegistry(store, space, self.lock)
         # live rows for the index threshold: the table's own count, as Store.maintain uses
         self._maintenance = Background(store, store.count, background=background)
+        store.on_commit = self._schedule_maintenance  # every table, not only items
         self.ranker = Ranker(store, self.registry)
         self.temporal = Temporal(store, self.registry, self.ranker, space, self.lock)
         self.add_sense(TextSense(space))
@@ -134,8 +138,6 @@ class Memory:
         through :func:`~tactus_memory.spaces.resolve.resolve_space`: a Qwen3-VL store reopens
         with ``space_path=DIR``, and a missing or other model folder raises a one-line
         :class:`~tactus_memory.errors.SpaceConfigError`.
-
-        :class:`~tactus_memory.errors.SpaceMismatchError` naming both.
 
         Several processes may open one store: each sees the others' commits within
         ``read_consistency_interval`` (default ``TACTUS_READ_CONSISTENCY`` or 1 s), and only
@@ -186,12 +188,6 @@ class Memory:
     def resolve_senses(self, senses: Sequence[str] | None) -> list[str]:
         """The senses a search covers: the named ones (checked), or every sense with rows."""
         return self.registry.resolve(senses)
-
-    def _sense_counts(self) -> dict[str, int]:
-        return self.registry.counts()
-
-    def _probe_vectors(self) -> np.ndarray:
-        return self.registry.probe_vectors()
 
     # ----------------------------------------------------------- writes
     def add(
@@ -263,35 +259,42 @@ class Memory:
         canon = [s.validate(x, **opts) for x in items]
         return PreparedWrite(session, s, canon, batch, source)
 
-    def commit_writes(self, writes: Sequence[PreparedWrite]) -> list[list[str]]:
+    def commit_writes(
+        self, writes: Sequence[PreparedWrite], *, isolate: bool = False
+    ) -> list[list[str]]:
         """Embed prepared writes (ONE ``embed`` call per sense across all of them) and store
         them all in ONE LanceDB commit; returns each write's ids, in order.
 
         All-or-nothing: if embedding or the commit fails nothing is written (vectors already
-        computed stay on the writes, so a retry of fewer writes does not embed them again).
-        Appends are one append; if any write is an upsert, all rows go in one merge-insert.
+        computed stay on the writes). Appends are one append; if any write is an upsert, all
+        rows go in one merge-insert. ``isolate`` (the group committer): a write whose
+        embedding fails or whose id clashes (with another write of this commit, or another
+        session's row) gets its ``error`` and is left out, the rest still commit once (an
+        identical repeat of an id is written once, :func:`~tactus_memory.rows.resolve_shared_ids`).
+        Once the rows are stored nothing raises: a failing step after the commit is logged
+        and its caches dropped, so no caller retries (and duplicates) a stored write.
         """
         live = [w for w in writes if len(w)]
         if not live:
             return [list(w.ids) for w in writes]
-        embed_groups(live, self.space.dim)
-        upsert = any(w.batch.upsert for w in live)
-        all_ids = [i for w in live for i in w.ids]
-        if upsert and len(set(all_ids)) != len(all_ids):
-            raise InvalidInputError("the same id appears in two writes of one commit")
-        data = writes_table(self.store.schema, live)
+        if isolate:
+            embed_isolated(live, self.space.dim)
+            resolve_shared_ids(live)
+        else:
+            embed_groups(live, self.space.dim)
+            all_ids = [i for w in live if w.batch.upsert for i in w.ids]
+            if len(set(all_ids)) != len(all_ids):
+                raise InvalidInputError("the same id appears in two writes of one commit")
         with self.lock:
-            replaced = [0] * len(live)  # rows each write replaces (of its own sense)
-            if upsert:  # under the commit lock: no racing writer can slip in between
-                for n, w in enumerate(live):
-                    if w.batch.upsert:
-                        replaced[n] = self.store.owned_count(w.ids, w.session, w.sense.name)
+            replaced = claim_ids(self.store, live, isolate)  # under the lock: no racing writer
+            ok = [w for w in live if w.error is None]
+            if not ok:
+                return [list(w.ids) for w in writes]
             before = self.store.version()
-            self.store.write(data, upsert=upsert)
-            self.registry.note_commit(before)
-            for w, r in zip(live, replaced, strict=True):
-                self.registry.note_write(w.sense.name, len(w) - r)
-        self._schedule_maintenance()
+            self.store.write(
+                writes_table(self.store.schema, ok), upsert=any(w.batch.upsert for w in ok)
+            )
+            self.registry.note_writes(before, ok, replaced)  # never raises: the rows are stored
         return [list(w.ids) for w in writes]
 
     def delete(self, ids: Sequence[str] | str) -> int:
@@ -304,11 +307,12 @@ class Memory:
     def delete_session(self, session: str) -> int:
         """Delete every item of a session and its clock offsets; returns the rows removed."""
         deleted = self._delete(Where().session(session).sql())
-        self.temporal.clocks.drop_session(session)
+        self.temporal.clocks.drop_session(session)  # its one meta row
         return deleted
 
     def _delete(self, where: str | None) -> int:
         with self.lock:
+            self.store.integrity.require()  # before counting: a damaged store may not count
             n = self.store.count(where)
             if n:
                 self.store.delete(where)
@@ -324,7 +328,12 @@ class Memory:
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
-        self._maintenance.schedule()
+        """After every commit of any table (``Store.on_commit``). Never raises: the commit
+        is stored; maintenance is scheduled again after the next one."""
+        try:
+            self._maintenance.schedule()
+        except Exception:  # noqa: BLE001
+            log.exception("scheduling maintenance after a commit failed")
 
     def optimize(self) -> None:
         """Build/retrain indexes if due and compact now (blocking)."""

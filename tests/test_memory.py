@@ -427,9 +427,9 @@ def test_upsert_keeps_sense_counts_exact(mem: Memory) -> None:
     mem.add_many("s1", "text", ["a b", "c d"], ids=["x1", "x2"])
     mem.search("a", k=1)  # counts are cached from here on
     mem.add_many("s1", "text", ["e f", "g h"], ids=["x3", "x4"])
-    assert mem._sense_counts() == {"text": 4}
+    assert mem.registry.counts() == {"text": 4}
     mem.add_many("s1", "text", ["a b c", "i j"], ids=["x1", "x5"])  # one replaces, one is new
-    assert mem._sense_counts() == {"text": 5} == {"text": len(mem)}
+    assert mem.registry.counts() == {"text": 5} == {"text": len(mem)}
 
 
 def _reference(mem: Memory, q: np.ndarray, k: int, where: str | None = None) -> list[str]:
@@ -451,7 +451,7 @@ def test_grouped_search_equals_per_sense_reference(tmp_path, k: int) -> None:
     dim = 32
     mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(dim=dim))
     rng = np.random.default_rng(k)
-    gap = -mem._probe_vectors().mean(axis=0)
+    gap = -mem.registry.probe_vectors().mean(axis=0)
     gap /= np.linalg.norm(gap)
     for name, n, shift in (("a", 200, 0.0), ("b", 150, 4.0), ("c", 4, 0.0)):
         mem.add_sense(VectorSense(name, dim=dim))
@@ -506,7 +506,7 @@ def test_upsert_cannot_move_an_id_between_senses_and_keeps_counts(mem: Memory) -
     with pytest.raises(IdConflictError, match="x1"):  # same id as a motion row: refused
         mem.add("s1", "motion", np.ones(64), id="x1")
     mem.add("s1", "text", "a new note", id="x1")  # same session and sense: upsert
-    assert mem._sense_counts() == {"text": 1}
+    assert mem.registry.counts() == {"text": 1}
     assert [s.name for s in mem.sense_info() if s.rows] == ["text"]
     assert mem.get_item("x1").text == "a new note"
 
