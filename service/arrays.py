@@ -1,5 +1,9 @@
 """Turning request payloads into arrays: JSON without NaN, ``.npy`` bodies, touch frames.
 
+The edge checks what a request is made of, once: parseable, numeric, the shape (windows
+(K, 32, 32), batches (B, K, 32, 32)) and the size; what the numbers mean (finite, range,
+calibration, idle) is the touch sense's check, once (``TactusEncoder.validate``). A stream
+frame is no item, so its own finiteness is checked here (the error names the frame).
 Every failure raises ``InvalidInputError`` with a message naming the problem, so it becomes a
 422 problem in the one mapping (``errors.ERROR_STATUS``).
 """
@@ -68,8 +72,9 @@ MAX_FRAME_VALUE = 1e6
 NPY_MAGIC = b"\x93NUMPY"
 
 
-def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
-    """``.npy`` bytes -> a finite float32 array (no pickles, numeric dtypes only)."""
+def load_npy(raw: bytes, what: str = "npy body", *, frames: bool = False) -> np.ndarray:
+    """``.npy`` bytes -> a float32 array (no pickles, numeric dtypes only); ``frames``: stream
+    frames, checked finite too (:func:`finite_frames`)."""
     if not raw:
         raise InvalidInputError(f"{what} is empty")
     arr = _npy_fast(raw)
@@ -95,9 +100,7 @@ def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
     if arr.dtype.kind not in "biuf":
         raise InvalidInputError(f"{what} has dtype {arr.dtype}; use a numeric dtype")
     out = arr.astype(np.float32, copy=False)
-    if not np.isfinite(out).all():
-        raise InvalidInputError(f"{what} contains NaN or inf")
-    return _in_range(out, what)
+    return _in_range(finite_frames(out, what) if frames else out, what)
 
 
 def _in_range(arr: np.ndarray, what: str) -> np.ndarray:
@@ -110,16 +113,22 @@ def _in_range(arr: np.ndarray, what: str) -> np.ndarray:
 
 
 def as_float_array(value: Any, what: str) -> np.ndarray:
-    """Nested lists -> a finite float32 array; ragged or non-numeric input is named."""
+    """Nested lists (parsed JSON: no NaN) -> a float32 array; ragged or non-numeric input is
+    named, and numbers beyond float32 (inf) fail the range check."""
     try:
         arr = np.asarray(value, dtype=np.float32)
     except (ValueError, TypeError):
         raise InvalidInputError(
             f"{what} is ragged or not numeric: every frame must be 32 rows of 32 numbers"
         ) from None
+    return _in_range(arr, what)
+
+
+def finite_frames(arr: np.ndarray, what: str) -> np.ndarray:
+    """Stream frames: no NaN or inf (the error names the frame, not a later window)."""
     if not np.isfinite(arr).all():
         raise InvalidInputError(f"{what} contains NaN or inf")
-    return _in_range(arr, what)
+    return arr
 
 
 def as_window(value: Any, what: str = "touch window") -> np.ndarray:
@@ -139,7 +148,7 @@ def as_windows(value: Any, what: str = "touch windows") -> np.ndarray:
 
 
 def as_frame(value: Any, what: str = "frame") -> np.ndarray:
-    """One frame (32, 32)."""
+    """One stream frame (32, 32) of parsed JSON (which holds no NaN; inf is out of range)."""
     arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
     if arr.shape != FRAME_SHAPE:
         raise InvalidInputError(f"{what} has shape {arr.shape}, expected (32, 32)")

@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import asyncio
 import hmac
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Path, Query
 from starlette.requests import HTTPConnection
+from typing_extensions import Unpack
 
 from tactus_memory.ingest import GroupCommitter
 
@@ -25,7 +27,7 @@ from tactus_memory.limits import (
 )
 from tactus_memory.memory import Memory
 from tactus_memory.query import Scope
-from tactus_memory.rows import PreparedWrite
+from tactus_memory.rows import WriteKwargs
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.writes import Writer
 from tactus_memory.settings import Settings
@@ -61,10 +63,16 @@ class ServiceState:
             )
         return self.committer
 
-    async def commit(self, write: PreparedWrite) -> list[str]:
-        """Queue a prepared write for the next group commit; returns its ids after the
-        commit (raises OverloadedError at once when the queue is full: 503 + Retry-After)."""
-        return await asyncio.wrap_future(self.open_committer().submit_prepared(write))
+    async def write(
+        self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[WriteKwargs]
+    ) -> list[str]:
+        """Every HTTP write: the one library call, ``GroupCommitter.submit`` (the sense
+        validates the items, the write is queued), run on the writer threads; returns the ids
+        once the group commit stored them (OverloadedError at once when the queue is full:
+        503 + Retry-After)."""
+        assert self.writer is not None
+        queued = await self.writer.run(self.open_committer().submit, session, sense, items, **kw)
+        return await asyncio.wrap_future(queued)
 
 
 def get_state(conn: HTTPConnection) -> ServiceState:

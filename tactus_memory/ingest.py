@@ -42,17 +42,14 @@ from typing_extensions import Unpack
 
 from tactus_memory.errors import OverloadedError
 from tactus_memory.memory import Memory
-from tactus_memory.rows import BatchKwargs, PreparedWrite
+from tactus_memory.rows import PreparedWrite, WriteKwargs
+from tactus_memory.settings import (
+    DEFAULT_COMMIT_MAX_BATCH,
+    DEFAULT_COMMIT_MAX_PENDING,
+    DEFAULT_COMMIT_TICK_MS,
+)
 
 log = logging.getLogger(__name__)
-
-#: default seconds the oldest queued write waits for company: 25 ms is under one 30 Hz frame
-#: period (33 ms), so a glove's window never waits for more than about one frame
-DEFAULT_TICK_S = 0.025
-#: most items in one commit (a 64-glove tick at 30 Hz carries ~6-60 windows)
-DEFAULT_MAX_BATCH = 256
-#: most items queued or committing before submit pushes back (~4 s of 64 gloves at 30 Hz)
-DEFAULT_MAX_PENDING = 1024
 
 
 @dataclass
@@ -89,9 +86,9 @@ class GroupCommitter:
         self,
         memory: Memory,
         *,
-        tick: float = DEFAULT_TICK_S,
-        max_batch: int = DEFAULT_MAX_BATCH,
-        max_pending: int = DEFAULT_MAX_PENDING,
+        tick: float = DEFAULT_COMMIT_TICK_MS / 1000.0,
+        max_batch: int = DEFAULT_COMMIT_MAX_BATCH,
+        max_pending: int = DEFAULT_COMMIT_MAX_PENDING,
         retry_after: float = 1.0,
         encode_threads: int | None = None,
     ) -> None:
@@ -114,15 +111,16 @@ class GroupCommitter:
 
     # ------------------------------------------------------------------ submit
     def submit(
-        self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[BatchKwargs]
+        self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[WriteKwargs]
     ) -> Future[list[str]]:
-        """Validate a write now (``Memory.add_many``'s arguments; typed errors raise here) and
-        queue it; the future gives its ids after the commit that stored it."""
-        write = self.memory.prepare_write(session, sense, items, **kw)
-        return self.submit_prepared(write)
+        """THE write call of every entry point that shares commits (HTTP, the WebSocket
+        stream): validate the write now (``Memory.add_many``'s arguments, the sense's
+        ``validate`` with ``options``; typed errors raise here, before anything is queued)
+        and queue it; the future gives its ids after the commit that stored it. Raises
+        OverloadedError when the queue is full."""
+        return self._enqueue(self.memory.prepare_write(session, sense, items, **kw))
 
-    def submit_prepared(self, write: PreparedWrite) -> Future[list[str]]:
-        """Queue an already prepared write. Raises OverloadedError when the queue is full."""
+    def _enqueue(self, write: PreparedWrite) -> Future[list[str]]:
         fut: Future[list[str]] = Future()
         n = len(write)
         if n == 0:

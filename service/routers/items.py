@@ -1,11 +1,12 @@
 """Writes of text, images and precomputed vectors into a session.
 
-The write path (every write route, touch and the WebSocket stream included): the body is
-parsed and validated (``Memory.prepare_write``: a bad item fails its own request at once),
-then queued for the group committer (``tactus_memory.ingest``): writes of every session that
-arrive within one tick are embedded in one call per sense and stored in ONE LanceDB commit;
-the 201 is sent only after that commit returned, so an acknowledged write survives a crash
-of the server. A full queue answers 503 with ``Retry-After``.
+The write path (every write route, touch and the WebSocket stream included): the edge parses
+the body and checks shapes and sizes (``schemas.py``, ``arrays.py``), then makes ONE library
+call, ``GroupCommitter.submit`` (``deps.ServiceState.write``): the sense validates the items
+(a bad item fails its own request at once) and the write is queued; writes of every session
+that arrive within one tick are embedded in one call per sense and stored in ONE LanceDB
+commit; the 201 is sent only after that commit returned, so an acknowledged write survives a
+crash of the server. A full queue answers 503 with ``Retry-After``.
 """
 
 from __future__ import annotations
@@ -32,10 +33,8 @@ router = APIRouter(prefix="/sessions/{session}", tags=["items"])
     response_model=StoredOut,
     responses=problem_responses(404, 413, 422),
 )
-async def add_text(
-    session: SessionId, body: TextIn, memory: MemoryDep, state: StateDep
-) -> StoredOut:
-    write = memory.prepare_write(
+async def add_text(session: SessionId, body: TextIn, state: StateDep) -> StoredOut:
+    ids = await state.write(
         session,
         "text",
         [body.text],
@@ -44,7 +43,6 @@ async def add_text(
         meta=[body.meta],
         ids=None if body.id is None else [body.id],
     )
-    ids = await state.commit(write)
     return StoredOut(ids=ids, count=1)
 
 
@@ -57,23 +55,13 @@ async def add_text(
     response_model=StoredOut,
     responses=problem_responses(404, 413, 422),
 )
-async def add_vectors(
-    session: SessionId, body: VectorsIn, memory: MemoryDep, writer: WriterDep, state: StateDep
-) -> StoredOut:
+async def add_vectors(session: SessionId, body: VectorsIn, state: StateDep) -> StoredOut:
     n = len(body.vectors)
     if len(body.t) != n:
         raise InvalidInputError(f"t has {len(body.t)} entries for {n} vectors")
-    write = await writer.run(
-        memory.prepare_write,
-        session,
-        body.sense,
-        body.vectors,
-        t=body.t,
-        t_end=body.t_end,
-        meta=body.meta,
-        ids=body.ids,
+    ids = await state.write(
+        session, body.sense, body.vectors, t=body.t, t_end=body.t_end, meta=body.meta, ids=body.ids
     )
-    ids = await state.commit(write)
     return StoredOut(ids=ids, count=len(ids))
 
 
@@ -110,8 +98,7 @@ async def add_image(
         if not isinstance(meta_obj, dict):
             raise InvalidInputError("meta must be a JSON object")
     image = await writer.run(decode_image, await file.read())
-    write = await writer.run(
-        memory.prepare_write,
+    ids = await state.write(
         session,
         "image",
         [image],
@@ -120,5 +107,4 @@ async def add_image(
         meta=[meta_obj],
         ids=None if id is None else [id],
     )
-    ids = await state.commit(write)
     return StoredOut(ids=ids, count=1)

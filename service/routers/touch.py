@@ -16,8 +16,6 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.memory import Memory
-from tactus_memory.rows import PreparedWrite
 from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
 from tactus_memory.service.deps import (
     MemoryDep,
@@ -60,30 +58,6 @@ def _validate(model: type, obj: Any) -> Any:
     except ValidationError as exc:
         errs = [{**e, "loc": ("body", *e.get("loc", ()))} for e in exc.errors(include_url=False)]
         raise RequestValidationError(errs) from None
-
-
-def _prepare(
-    memory: Memory,
-    session: str,
-    windows: list[np.ndarray],
-    t: list[float],
-    t_end: list[float] | None,
-    meta: Any,
-    ids: list[str] | None,
-    calibrated: bool,
-) -> PreparedWrite:
-    """The prepared write for the group committer: the edge checked the shape; the touch
-    sense checks range and calibration, once."""
-    return memory.prepare_write(
-        session,
-        "touch",
-        windows,
-        t=t,
-        t_end=t_end,
-        meta=meta,
-        ids=ids,
-        options={"calibrated": calibrated},
-    )
 
 
 @dataclass
@@ -159,9 +133,16 @@ async def add_touch(
     ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
     raw = await request.body()
     up = _upload(ctype, raw, t, t_end, calibrated)
-    # one t (t_end) per window: checked by the library (rows.per_item: 422 naming the count)
-    write = await writer.run(
-        _prepare, memory, session, up.windows, up.t, up.t_end, up.meta, up.ids, up.calibrated
+    # the edge checked shapes and sizes; the touch sense checks the rest (range, calibration,
+    # idle) once, and one t (t_end) per window is the library's check (rows.per_item)
+    ids = await state.write(
+        session,
+        "touch",
+        up.windows,
+        t=up.t,
+        t_end=up.t_end,
+        meta=up.meta,
+        ids=up.ids,
+        options={"calibrated": up.calibrated},
     )
-    ids = await state.commit(write)
     return StoredOut(ids=ids, count=len(ids))

@@ -129,7 +129,6 @@ async def touch_stream(
 ) -> None:
     """The token, the session id, a writable store and the touch sense are checked by the
     same dependencies as the HTTP routes (the app includes this router with the token)."""
-    memory = state.memory
     send_lock = asyncio.Lock()
 
     async def send(message: dict[str, Any]) -> None:
@@ -194,7 +193,7 @@ async def touch_stream(
                 done = windower.push(frame, [t])
                 for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
                     try:  # the sense's own checks (range, calibration, idle), before queueing
-                        write = memory.prepare_write(
+                        queued = state.open_committer().submit(  # the one library write call
                             session,
                             "touch",
                             [win],
@@ -203,7 +202,7 @@ async def touch_stream(
                             source=stream_id,
                             options={"calibrated": params.calibrated},
                         )
-                        fut = asyncio.wrap_future(state.open_committer().submit_prepared(write))
+                        fut = asyncio.wrap_future(queued)
                     except IdleWindowError:  # no contact: never stored as a grasp
                         span = {"t": float(t_first), "t_end": float(t_last)}
                         await send({"type": "idle", "seq": seq, **span})
@@ -255,7 +254,7 @@ def _parse(
     if data is not None:
         if len(data) > max_bytes:
             raise InvalidInputError(f"message is {len(data)} bytes; the limit is {max_bytes}")
-        arr = load_npy(data, f"binary frame {index}")
+        arr = load_npy(data, f"binary frame {index}", frames=True)
         if arr.ndim == 2:
             arr = arr[None]
         if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE:
