@@ -176,6 +176,8 @@ def _score_mode(
             }
             for i in idx
         ],
+        # the "raw" mode stores idle windows on purpose: what the idle rule prevents is measured
+        options={"keep_idle": True},
     )
     k = min(len(idx), MAX_K)
     present = set(stream.rec_object.values())
