@@ -321,8 +321,8 @@ class Memory:
 
     def validate_item(self, sense: str, item: Any, options: Mapping[str, Any] | None = None) -> Any:
         """``item`` checked (and canonicalised) by the live ``sense``, as ``add`` would store
-        it; ``add``/``add_many`` take the result as it is (a stream validates each window
-        before queueing its write)."""
+        it (the touch sense: calibrated, idle refused); ``add``/``add_many`` take the result as
+        it is, without checking or calibrating it again."""
         s = self.registry.live_sense(sense)
         return s.validate(item, **options_for(s, options))
 
