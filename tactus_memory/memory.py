@@ -66,9 +66,11 @@ from tactus_memory.rows import (
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
+from tactus_memory.spatial import PlaceQuestions, Places
 from tactus_memory.store import HIT_COLUMNS, IndexConfig, Store, Where, validate_id, validate_source
 from tactus_memory.temporal import Temporal
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import DEFAULT_FRAME
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +91,7 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- memory
-class Memory(TemporalQuestions):
+class Memory(TemporalQuestions, PlaceQuestions):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -101,6 +103,7 @@ class Memory(TemporalQuestions):
         self.background = background
         self.lock = threading.RLock()
         store.bind_space(space.name, int(space.dim), space.fingerprint())
+        self.places = Places(store, self.lock)  # adds the place columns to an old store
         self.registry = SenseRegistry(store, space, self.lock)
         # live rows for the index threshold: the table's own count, as Store.maintain uses
         self._maintenance = Background(store, store.count, background=background)
@@ -201,11 +204,15 @@ class Memory(TemporalQuestions):
         id: str | None = None,  # noqa: A002  (the public contract names it id)
         source: str = "",
         options: Mapping[str, Any] | None = None,
+        position: Sequence[float] | None = None,
+        frame: str = DEFAULT_FRAME,
     ) -> str:
         """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
         to ``t``. Passing ``id`` makes the call an idempotent upsert of that session's item of
         that sense; an id already used by another session or sense raises
-        :class:`~tactus_memory.errors.IdConflictError` (nothing is written)."""
+        :class:`~tactus_memory.errors.IdConflictError` (nothing is written). ``position``
+        ``(x, y, z)`` in ``frame`` says where it happened (default: from the session's
+        poses, :mod:`tactus_memory.spatial`)."""
         return self.add_many(
             session,
             sense,
@@ -216,6 +223,8 @@ class Memory(TemporalQuestions):
             ids=None if id is None else [id],
             source=source,
             options=options,
+            position=None if position is None else [position],
+            frame=frame,
         )[0]
 
     def add_many(
@@ -243,8 +252,12 @@ class Memory(TemporalQuestions):
         ids: Sequence[str] | None = None,
         source: str = "",
         options: Mapping[str, Any] | None = None,
+        position: Any = None,
+        frame: str = DEFAULT_FRAME,
     ) -> PreparedWrite:
-        """Validate one write (``add_many``'s arguments) without embedding or storing it.
+        """Validate one write (``add_many``'s arguments) without embedding or storing it;
+        ``position``: one ``(x, y, z)`` for every item or one per item (None: placed from the
+        session's poses), in ``frame``.
 
         Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
         alone or with the writes of other sessions (group commit, ``tactus_memory.ingest``).
@@ -253,7 +266,7 @@ class Memory(TemporalQuestions):
         source = validate_source(source)
         s = self.registry.live_sense(sense)
         items = list(items)
-        batch = check_batch(len(items), t, t_end, meta, ids)
+        batch = check_batch(len(items), t, t_end, meta, ids, position, frame)
         opts = options_for(s, options)
         canon = [s.validate(x, **opts) for x in items]
         return PreparedWrite(session, s, canon, batch, source)
@@ -274,8 +287,9 @@ class Memory(TemporalQuestions):
         all_ids = [i for w in live for i in w.ids]
         if upsert and len(set(all_ids)) != len(all_ids):
             raise InvalidInputError("the same id appears in two writes of one commit")
-        data = writes_table(self.store.schema, live)
         with self.lock:
+            self.places.fill(live)  # under the lock: poses added meanwhile are seen
+            data = writes_table(self.store.schema, live)
             replaced = [0] * len(live)  # rows each write replaces (of its own sense)
             if upsert:  # under the commit lock: no racing writer can slip in between
                 for n, w in enumerate(live):
@@ -297,8 +311,10 @@ class Memory(TemporalQuestions):
         return self._delete(where)
 
     def delete_session(self, session: str) -> int:
-        """Delete every item of a session and its clock offsets; returns the rows removed."""
+        """Delete every item of a session, its poses and clock offsets; returns the item rows
+        removed."""
         deleted = self._delete(Where().session(session).sql())
+        self.places.delete_session(session)
         with self.lock:  # every offset of the session in one meta write
             table = self.store.clock_table()
             if table.pop(session, None):

@@ -76,7 +76,10 @@ META = "meta"
 #: meta key holding every clock offset as JSON
 CLOCK_KEY = "clock_offsets"
 #: columns returned by searches (everything except the vector and raw bytes)
-HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
+HIT_COLUMNS = [
+    *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
+    *("x", "y", "z", "frame"),
+]
 
 
 def _upsert(table: Table, key: str, data: pa.Table) -> None:

@@ -49,6 +49,38 @@ def finite_float(value: Any, what: str) -> float:
     return out
 
 
+#: the frame positions are in unless one is named (REP 105's world-fixed frame)
+DEFAULT_FRAME = "map"
+#: a place filter: ``((x, y, z), radius)``, metres in the items' frame
+Near = tuple[tuple[float, float, float], float]
+
+
+def check_position(value: Any, what: str = "position") -> tuple[float, float, float]:
+    """Three finite numbers ``(x, y, z)``."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 3:
+        raise InvalidInputError(f"{what} must be three numbers (x, y, z), got {value!r}")
+    x, y, z = (finite_float(v, f"{what} coordinate") for v in value)
+    return x, y, z
+
+
+def check_near(near: Any) -> Near:
+    """``((x, y, z), radius)`` with finite coordinates and a finite radius > 0."""
+    if isinstance(near, (str, bytes)) or not hasattr(near, "__len__") or len(near) != 2:
+        raise InvalidInputError(f"near must be ((x, y, z), radius), got {near!r}")
+    center = check_position(near[0], "near centre")
+    radius = finite_float(near[1], "near radius")
+    if radius <= 0:
+        raise InvalidInputError(f"near radius must be > 0, got {radius!r}")
+    return center, radius
+
+
+def validate_frame(value: Any) -> str:
+    """A frame name (``map``, ``odom``, ...): an id, one leading ``/`` dropped (ROS 1 style)."""
+    if isinstance(value, str) and value.startswith("/"):
+        value = value[1:]
+    return validate_id(value, "frame")
+
+
 def _sql_str(value: str) -> str:
     return "'" + value.replace("'", "''") + "'"
 
@@ -132,6 +164,23 @@ class Where:
             self.parts.append(f"t >= {_sql_float(finite_float(start, 'start'))}")
         if end is not None:
             self.parts.append(f"t < {_sql_float(finite_float(end, 'end'))}")
+        return self
+
+    def frame(self, frame: str | None) -> Where:
+        return self._eq("frame", frame, validate_frame)
+
+    def near(self, near: Near | None) -> Where:
+        """Items placed within ``radius`` of ``(x, y, z)`` (unplaced items never match). The
+        bounding box comes first so the x/y/z scalar indexes answer it; the sphere test
+        then runs on the rows in the box only."""
+        if near is not None:
+            (x, y, z), r = check_near(near)
+            for col, c in (("x", x), ("y", y), ("z", z)):
+                lo, hi = _sql_float(c - r), _sql_float(c + r)
+                self.parts.append(f"{col} >= {lo} AND {col} <= {hi}")
+            terms = [f"({col} - {_sql_float(c)}) * ({col} - {_sql_float(c)})" for col, c in (
+                ("x", x), ("y", y), ("z", z))]  # fmt: skip
+            self.parts.append(f"{' + '.join(terms)} <= {_sql_float(r * r)}")
         return self
 
     def sql(self) -> str | None:
