@@ -429,7 +429,7 @@ class Memory(TemporalQuestions, PlaceQuestions):
     # ----------------------------------------------------------- reads
     def get_item(self, id: str, *, vector: bool = False) -> Item:  # noqa: A002
         """One stored item with ``raw`` decoded (by its sense when live, else as npy/text)."""
-        cols = [*HIT_COLUMNS, "raw", "created"] + (["vector"] if vector else [])
+        cols = [*HIT_COLUMNS, "raw", "created", "orientation"] + (["vector"] if vector else [])
         rows = self.store.scan(Where().ids([id]).sql(), cols, limit=1).to_pylist()
         if not rows:
             raise NotFoundError(f"no item with id {id!r}")

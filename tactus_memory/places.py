@@ -63,8 +63,8 @@ def check_poses(
         i = int(np.flatnonzero(steps <= 0)[0]) + 1
         kind = "duplicate" if steps[i - 1] == 0 else "unsorted"
         raise InvalidInputError(
-            f"t must be strictly increasing: {kind} time {ts[i]!r} at index {i} "
-            f"(after {ts[i - 1]!r})"
+            f"t must be strictly increasing: {kind} time {float(ts[i])!r} at index {i} "
+            f"(after {float(ts[i - 1])!r})"
         )
     if orientation is None:
         return ts, pos, None
