@@ -221,15 +221,14 @@ class PlaceQuestions:
         after: float | None = None,
         before: float | None = None,
         senses: Sequence[str] | None = None,
+        source: str | None = None,
         frame: str | None = None,
     ) -> list[TimelineItem]:
         """What happened within ``radius`` of ``position`` (in ``frame``, default any), in
         aligned time order (``after``/``before`` with overlap semantics). At most
         TIMELINE_MAX items; more raise InvalidInputError (narrow the scope)."""
         near: Near = check_near((position, radius))
-        scope = Scope(
-            session=session, senses=senses, after=after, before=before, near=near, frame=frame
-        )
+        scope = Scope(session, senses, source, after, before, near, frame)
         lo, hi = scope.bounds()
         offsets = self.temporal.offsets()
         pad = max((abs(v) for v in offsets.values()), default=0.0)
