@@ -47,6 +47,7 @@ class PoseStore:
         self._table: Any = None
         self._cache: dict[str, tuple[int, list[Trajectory]]] = {}
         self._lock = threading.Lock()
+        self._writes = 0
         add_place_columns(store)
         if POSES in store._table_names():
             self._table = store.db.open_table(POSES)
@@ -91,7 +92,11 @@ class PoseStore:
             },
             schema=poses_schema(),
         )
-        self._create().add(data)
+        table = self._create()
+        table.add(data)
+        self._writes += 1
+        if self.store.maintenance.maintain and self._writes % self.store.index.compact_every == 0:
+            table.optimize()  # small appends (a stream of pose batches) into few fragments
 
     def rows(self, session: str, frame: str | None = None) -> pa.Table:
         """The session's poses (every column), in storage order."""

@@ -258,3 +258,15 @@ def test_real_where_was_i_holding_the_drill(tmp_path, minilm_space) -> None:
     hits = mem.search("coffee mug", k=4, near=((10.0, 0.0, 0.5), 3.0))
     assert [h.text for h in hits][0] == "put the coffee mug on the kitchen shelf"
     assert all(abs(h.position[0] - 10.0) <= 3.0 for h in hits)
+
+
+def test_many_small_pose_batches_are_compacted(tmp_path, hashing_space) -> None:
+    from tactus_memory.store import IndexConfig
+
+    mem = Memory.open(str(tmp_path / "m"), hashing_space, background=False,
+                      index=IndexConfig(compact_every=4))  # fmt: skip
+    for i in range(4):  # four appends: the fourth compacts them into one fragment
+        mem.add_poses("s1", T[i * 10 : (i + 1) * 10], POS[i * 10 : (i + 1) * 10])
+    table = mem.places.poses._table
+    assert len(table.to_lance().get_fragments()) == 1
+    assert len(mem.trajectory("s1")[0].t) == 40

@@ -154,3 +154,9 @@ def test_real_server_poses_where_and_at(tmp_path) -> None:
             assert [h["position"] for h in hits] == [[10.0, 0.0, 0.0]]
     finally:
         server.stop()
+
+
+def test_at_takes_its_place_once(client) -> None:
+    r = client.get("/at", params={"x": 0, "y": 0, "z": 0, "r": 1, "near": "0,0,0,1"})
+    assert_problem(r, 422, "drop near")
+    assert_problem(client.get("/at", params={"x": 0, "y": 0, "z": 0, "r": 0}), 422)

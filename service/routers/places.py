@@ -151,6 +151,8 @@ def at(
     z: Annotated[float, Query(allow_inf_nan=False)],
     r: Annotated[float, Query(gt=0.0, allow_inf_nan=False, description="Radius (m).")],
 ) -> AtOut:
+    if scope.near is not None:
+        raise InvalidInputError("/at takes the place as x, y, z and r; drop near")
     items = memory.at(
         (x, y, z),
         r,
