@@ -15,10 +15,12 @@ from tactus_memory.ingest import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
+    FRAME_PATTERN,
     ID_DESCRIPTION,
     ID_PATTERN,
     MAX_ID_CHARS,
     MAX_TEXT_CHARS,
+    NEAR_PATTERN,
     SENSE_NAME_PATTERN,
     SOURCE_PATTERN,
 )
@@ -184,8 +186,9 @@ BeforeQ = Annotated[
 NearQ = Annotated[
     str | None,
     Query(
-        max_length=400,
-        description="Only items placed within r metres of (x, y, z): `near=x,y,z,r`.",
+        max_length=100,
+        pattern=NEAR_PATTERN,
+        description="Only items placed within r metres of (x, y, z): `near=x,y,z,r` (r > 0).",
         examples=["2.0,0.5,0,1.5"],
     ),
 ]
@@ -193,6 +196,7 @@ FrameQ = Annotated[
     str | None,
     Query(
         max_length=MAX_ID_CHARS + 1,
+        pattern=FRAME_PATTERN,
         description="Only items placed in this frame (e.g. `map`).",
     ),
 ]

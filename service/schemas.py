@@ -11,6 +11,7 @@ from tactus_memory.limits import (
     ID_DESCRIPTION,
     ID_PATTERN,
     MAX_CLOCK_OFFSET,
+    MAX_COORDINATE,
     MAX_ID_CHARS,
     MAX_K,
     MAX_TEXT_CHARS,
@@ -66,9 +67,11 @@ Window = Annotated[list[Frame], Field(min_length=1, max_length=MAX_WINDOW_FRAMES
 #: an item id (the store's rule)
 ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
 
-#: (3,) a position (x, y, z) and (4,) a unit quaternion (x, y, z, w), as JSON arrays
-Point = Annotated[list[float], Field(min_length=3, max_length=3)]
-Quaternion = Annotated[list[float], Field(min_length=4, max_length=4)]
+#: (3,) a position (x, y, z) in metres and (4,) a unit quaternion (x, y, z, w), JSON arrays
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+Point = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+Quaternion = Annotated[list[Annotated[float, Field(ge=-1.001, le=1.001)]],
+                       Field(min_length=4, max_length=4)]  # fmt: skip
 
 T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
 T_END_DESC = "End time in seconds (>= t); defaults to t."

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.limits import MAX_COORDINATE
 from tactus_memory.where import DEFAULT_FRAME, check_position
 
 #: an item is placed only when a pose lies within this many seconds of the middle of its
@@ -58,6 +59,11 @@ def check_poses(
         raise InvalidInputError(f"position has {pos.shape[0]} rows for {n} times")
     _finite(ts, "t")
     _finite(pos, "position")
+    far = np.flatnonzero((np.abs(pos) > MAX_COORDINATE).any(axis=1))
+    if far.size:
+        raise InvalidInputError(
+            f"position {int(far[0])} is beyond +-{MAX_COORDINATE:g} m: {pos[far[0]].tolist()}"
+        )
     steps = np.diff(ts)
     if (steps <= 0).any():
         i = int(np.flatnonzero(steps <= 0)[0]) + 1

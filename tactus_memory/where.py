@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError
-from tactus_memory.limits import ID_DESCRIPTION, ID_RE
+from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_COORDINATE
 from tactus_memory.senses import validate_sense_name
 
 
@@ -60,6 +60,8 @@ def check_position(value: Any, what: str = "position") -> tuple[float, float, fl
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 3:
         raise InvalidInputError(f"{what} must be three numbers (x, y, z), got {value!r}")
     x, y, z = (finite_float(v, f"{what} coordinate") for v in value)
+    if max(abs(x), abs(y), abs(z)) > MAX_COORDINATE:
+        raise InvalidInputError(f"{what} is beyond +-{MAX_COORDINATE:g} m: {value!r}")
     return x, y, z
 
 
@@ -69,8 +71,10 @@ def check_near(near: Any) -> Near:
         raise InvalidInputError(f"near must be ((x, y, z), radius), got {near!r}")
     center = check_position(near[0], "near centre")
     radius = finite_float(near[1], "near radius")
-    if radius <= 0:
-        raise InvalidInputError(f"near radius must be > 0, got {radius!r}")
+    if not 0 < radius <= MAX_COORDINATE:
+        raise InvalidInputError(
+            f"near radius must be > 0 and <= {MAX_COORDINATE:g}, got {radius!r}"
+        )
     return center, radius
 
 

@@ -270,3 +270,12 @@ def test_many_small_pose_batches_are_compacted(tmp_path, hashing_space) -> None:
     table = mem.places.poses._table
     assert len(table.to_lance().get_fragments()) == 1
     assert len(mem.trajectory("s1")[0].t) == 40
+
+
+def test_coordinates_are_bounded(mem) -> None:
+    with pytest.raises(InvalidInputError, match="beyond"):
+        mem.add_poses("s1", [0.0], [[2e9, 0, 0]])
+    with pytest.raises(InvalidInputError, match="beyond"):
+        mem.add("s1", "text", "x", t=1.0, position=(0, 0, -2e9))
+    with pytest.raises(InvalidInputError, match="near radius"):
+        mem.search("x", near=((0, 0, 0), 1e200))  # r * r would not be a finite number

@@ -14,7 +14,7 @@ from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.limits import ID_PATTERN, MAX_ID_CHARS, MAX_K, SOURCE_PATTERN
+from tactus_memory.limits import ID_PATTERN, MAX_COORDINATE, MAX_ID_CHARS, MAX_K, SOURCE_PATTERN
 from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.service.arrays import NPY_TYPES, loads_strict, read_npy
 from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId
@@ -42,6 +42,7 @@ POSES_BODY: dict[str, Any] = {
     },
 }
 FrameQ = Annotated[str, Query(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
+Coordinate = Annotated[float, Query(ge=-MAX_COORDINATE, le=MAX_COORDINATE, description="m")]
 SourceQ = Annotated[str, Query(pattern=SOURCE_PATTERN, max_length=MAX_ID_CHARS)]
 
 
@@ -103,14 +104,19 @@ async def add_poses(
 @router.get(
     "/sessions/{session}/poses",
     summary="A session's trajectory, one per frame",
+    description="404 for a session with neither items nor poses.",
     response_model=TrajectoriesOut,
+    responses=problem_responses(404, 422),
 )
 def get_poses(
     session: SessionId,
     memory: MemoryDep,
     frame: Annotated[FrameQ | None, Query(description="Only this frame.")] = None,
 ) -> TrajectoriesOut:
-    return TrajectoriesOut(session=session, trajectories=memory.trajectory(session, frame))
+    trajectories = memory.trajectory(session, frame)
+    if not trajectories and not memory.trajectory(session):
+        memory.session(session)  # 404 for a session that has neither items nor poses
+    return TrajectoriesOut(session=session, trajectories=trajectories)
 
 
 @router.get(
@@ -146,10 +152,10 @@ def where(
 def at(
     memory: MemoryDep,
     scope: ScopeDep,
-    x: Annotated[float, Query(allow_inf_nan=False)],
-    y: Annotated[float, Query(allow_inf_nan=False)],
-    z: Annotated[float, Query(allow_inf_nan=False)],
-    r: Annotated[float, Query(gt=0.0, allow_inf_nan=False, description="Radius (m).")],
+    x: Coordinate,
+    y: Coordinate,
+    z: Coordinate,
+    r: Annotated[float, Query(gt=0.0, le=MAX_COORDINATE, description="Radius (m).")],
 ) -> AtOut:
     if scope.near is not None:
         raise InvalidInputError("/at takes the place as x, y, z and r; drop near")
