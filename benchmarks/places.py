@@ -5,7 +5,7 @@ LanceDB runs (does the place filter use the x/y/z scalar indexes, or scan every 
 Data: ``benchmarks/memory.py``'s 384-d Gaussian-mixture vectors (two vector senses, 50
 sessions), each row placed uniformly in a 200 m x 200 m x 2 m warehouse (``frame`` map).
 Indexes: the store's own (``Store.build_indexes``: IVF_SQ on the vector; BTREE on id,
-session, t and x, y, z; BITMAP on sense). Search at the library level with a precomputed
+session, t and x, y; BITMAP on sense). Search at the library level with a precomputed
 query vector (``Memory.search_vector``), so text embedding is excluded.
 
     python benchmarks/places.py                       # 1M rows (a few minutes on 2 cores)

@@ -299,20 +299,22 @@ class Store:
         allowed: int | None = None,
         total: int | None = None,
         columns: Sequence[str] = HIT_COLUMNS,
+        flat: bool = True,
     ) -> pa.Table:
         """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
 
         ``allowed``: how many rows pass ``where`` (``total``: rows in the table). A selective
         filter (allowed <= ``flat_max``) is answered by an exact flat scan of the allowed
-        rows; otherwise the ANN index is probed, with more partitions the more selective the
-        filter, so that about ``min_candidates`` allowed rows are scored.
+        rows (unless ``flat`` is False); otherwise the ANN index is probed, with more
+        partitions the more selective the filter, so that about ``min_candidates`` allowed
+        rows are scored.
         """
         cfg = self.index
         q = self.items.search(vector, vector_column_name="vector").distance_type("cosine")
         if where:
             q = q.where(where, prefilter=True)
         indexed = self.has_vector_index()
-        if indexed and where and allowed is not None and allowed <= cfg.flat_max:
+        if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
             q = q.bypass_vector_index()
         elif indexed:
             nprobes = cfg.nprobes

@@ -119,8 +119,8 @@ class IndexConfig:
     #: run maintenance (size-tiered compaction, incremental index update, version cleanup:
     #: :mod:`tactus_memory.maintenance`) after this many appends by this process
     compact_every: int = 64
-    #: scalar index type per column (x, y, z: a ``near=`` filter's box is answered from
-    #: the indexes, not a scan; benchmarks/places.py)
+    #: scalar index type per column (x, y: a ``near=`` filter's box is answered from the
+    #: indexes, not a scan; z is not indexed, see Where.near; benchmarks/places.py)
     scalar: dict[str, str] = field(
         default_factory=lambda: {
             "id": "BTREE",
@@ -129,7 +129,6 @@ class IndexConfig:
             "t": "BTREE",
             "x": "BTREE",
             "y": "BTREE",
-            "z": "BTREE",
         }
     )
 

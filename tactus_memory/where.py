@@ -111,6 +111,15 @@ class Where:
     """
 
     parts: list[str] = field(default_factory=list)
+    #: conditions checked only on the rows ``parts`` let through (a place filter's sphere,
+    #: after its indexed box); :meth:`count_sql` leaves them out to estimate cheaply
+    refine: list[str] = field(default_factory=list)
+    #: the rows that pass are scattered over the table (a place filter): reading each one's
+    #: vector for an exact scan costs more than the ANN index's prefiltered search
+    scattered: bool = False
+
+    def copy(self) -> Where:
+        return Where(list(self.parts), list(self.refine), self.scattered)
 
     def _eq(self, column: str, value: str | None, check: Callable[[Any], str]) -> Where:
         if value is not None:
@@ -175,17 +184,25 @@ class Where:
 
     def near(self, near: Near | None) -> Where:
         """Items placed within ``radius`` of ``(x, y, z)`` (unplaced items never match). The
-        bounding box comes first so the x/y/z scalar indexes answer it; the sphere test
-        then runs on the rows in the box only."""
+        x/y bounding box comes first so the x and y scalar indexes answer it; the sphere test
+        (z included: robots mostly share one floor, so a z index would select almost every
+        row) then runs on the rows in the box only (benchmarks/places.py)."""
         if near is not None:
             (x, y, z), r = check_near(near)
-            for col, c in (("x", x), ("y", y), ("z", z)):
+            for col, c in (("x", x), ("y", y)):
                 lo, hi = _sql_float(c - r), _sql_float(c + r)
                 self.parts.append(f"{col} >= {lo} AND {col} <= {hi}")
             terms = [f"({col} - {_sql_float(c)}) * ({col} - {_sql_float(c)})" for col, c in (
                 ("x", x), ("y", y), ("z", z))]  # fmt: skip
-            self.parts.append(f"{' + '.join(terms)} <= {_sql_float(r * r)}")
+            self.refine.append(f"{' + '.join(terms)} <= {_sql_float(r * r)}")
+            self.scattered = True
         return self
 
     def sql(self) -> str | None:
+        every = [*self.parts, *self.refine]
+        return " AND ".join(f"({p})" for p in every) if every else None
+
+    def count_sql(self) -> str | None:
+        """The filter without its refine conditions: a superset of :meth:`sql`'s rows that
+        the scalar indexes alone answer (to size a search, not to return rows)."""
         return " AND ".join(f"({p})" for p in self.parts) if self.parts else None

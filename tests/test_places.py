@@ -279,3 +279,27 @@ def test_coordinates_are_bounded(mem) -> None:
         mem.add("s1", "text", "x", t=1.0, position=(0, 0, -2e9))
     with pytest.raises(InvalidInputError, match="near radius"):
         mem.search("x", near=((0, 0, 0), 1e200))  # r * r would not be a finite number
+
+
+def test_near_on_an_indexed_store_matches_the_exact_answer(tmp_path, hashing_space) -> None:
+    """With the ANN and x/y scalar indexes built, a place filter takes the prefiltered ANN
+    path (its rows are scattered): the hits are the exact top k of the rows in the sphere."""
+    from tactus_memory.senses import VectorSense
+    from tactus_memory.store import IndexConfig
+
+    cfg = IndexConfig(threshold=400, scalar_threshold=400, rows_per_partition=100)
+    mem = Memory.open(str(tmp_path / "ix"), hashing_space, background=False, index=cfg)
+    mem.add_sense(VectorSense("motion", dim=hashing_space.dim))
+    rng = np.random.default_rng(3)
+    vecs = rng.standard_normal((600, hashing_space.dim)).astype(np.float32)
+    vecs /= np.linalg.norm(vecs, axis=1, keepdims=True)
+    pos = np.column_stack([rng.uniform(0, 50, 600), rng.uniform(0, 50, 600), np.zeros(600)])
+    ids = mem.add_many("s1", "motion", list(vecs), t=np.arange(600.0).tolist(), position=pos)
+    mem.optimize()
+    assert mem.store.has_vector_index() and mem.store.has_scalar_indexes()
+    centre, r = (25.0, 25.0, 0.0), 8.0
+    inside = np.flatnonzero(np.linalg.norm(pos - centre, axis=1) <= r)
+    for q in vecs[:5]:
+        hits = mem.search_vector(q, k=5, near=(centre, r))
+        want = inside[np.argsort(-(vecs[inside] @ q))[:5]]
+        assert [h.id for h in hits] == [ids[i] for i in want]
