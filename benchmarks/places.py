@@ -10,6 +10,7 @@ query vector (``Memory.search_vector``), so text embedding is excluded.
 
     python benchmarks/places.py                       # 1M rows (a few minutes on 2 cores)
     python benchmarks/places.py --rows 100000         # quick
+    python benchmarks/places.py --placement walk      # rows along per-session random walks
 
 Writes JSON (default ``benchmarks/results/places.json``; one entry per row count).
 """
@@ -42,6 +43,28 @@ HEIGHT = 2.0
 #: place filters measured: (name, radius in metres); ~0.2 % and ~3 % of the rows
 RADII = (("near_5m", 5.0), ("near_20m", 20.0))
 CENTRE = (100.0, 100.0, 1.0)
+
+
+def place_rows(data: dict[str, np.ndarray], how: str, rng: np.random.Generator) -> np.ndarray:
+    """(N, 3) positions: ``uniform`` over the warehouse (the worst case for the place filter:
+    the rows near a place are scattered over the whole table), or ``walk``: each session's
+    rows, in time order, follow its own random walk (1 m steps, reflected at the walls), as
+    a robot's do, so the rows near a place come in runs."""
+    n = len(data["t"])
+    if how == "uniform":
+        return np.column_stack([rng.uniform(0, SIDE, n), rng.uniform(0, SIDE, n),
+                                rng.uniform(0, HEIGHT, n)])  # fmt: skip
+    pos = np.empty((n, 3))
+    for s in np.unique(data["session"]):
+        idx = np.flatnonzero(data["session"] == s)
+        idx = idx[np.argsort(data["t"][idx], kind="stable")]
+        steps = rng.normal(0, 1.0, (idx.size, 2))
+        walk = rng.uniform(0, SIDE, 2) + np.cumsum(steps, axis=0)
+        walk = np.abs(np.mod(walk, 2 * SIDE) - SIDE)  # reflect into [0, SIDE]
+        walk = SIDE - walk if s % 2 else walk
+        pos[idx, :2] = walk
+        pos[idx, 2] = rng.uniform(0, HEIGHT)
+    return pos
 
 
 def ingest_placed(
@@ -84,12 +107,10 @@ def plan(mem: Any, vector: np.ndarray, sql: str) -> dict[str, Any]:
 def run(n: int, args: argparse.Namespace) -> dict[str, Any]:
     print(f"== {n} rows", flush=True)
     data = make_data(n, args.centroids, seed=n)
-    rng = np.random.default_rng(11)
-    pos = np.column_stack([rng.uniform(0, SIDE, n), rng.uniform(0, SIDE, n),
-                           rng.uniform(0, HEIGHT, n)])  # fmt: skip
+    pos = place_rows(data, args.placement, np.random.default_rng(11))
     queries = mixture(args.queries, data["centroids"], np.random.default_rng(7))
     root = tempfile.mkdtemp(prefix=f"tactus-places-{n}-", dir=args.tmp)
-    out: dict[str, Any] = {"rows": n, "queries": args.queries}
+    out: dict[str, Any] = {"rows": n, "queries": args.queries, "placement": args.placement}
     try:
         cfg = IndexConfig(threshold=10**12)  # no background index during the bulk load
         mem = open_memory(os.path.join(root, "mem"), cfg, background=False)
@@ -146,6 +167,7 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=100)
     ap.add_argument("--centroids", type=int, default=1000)
     ap.add_argument("--batch", type=int, default=10_000)
+    ap.add_argument("--placement", choices=["uniform", "walk"], default="uniform")
     ap.add_argument("--tmp", default=None, help="where the stores are built (default: /tmp)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "places.json"))
     args = ap.parse_args()
@@ -160,7 +182,9 @@ def main() -> None:
             "platform": platform.platform(),
             "load_avg_end": os.getloadavg(),
         }
-        merged[str(n)] = res
+        res["placement"] = args.placement
+        key = str(n) if args.placement == "uniform" else f"{n}-{args.placement}"
+        merged[key] = res
         path.write_text(json.dumps(merged, indent=1) + "\n")
         print(f"wrote {path}", flush=True)
 
