@@ -2,11 +2,13 @@
 
 Stores created before places existed get the place columns (all null) when they are opened:
 one metadata-only LanceDB commit (``add_columns``), so old items are simply unplaced until
-poses arrive (then :meth:`tactus_memory.spatial.Places.place_items` backfills them).
+poses arrive (then :meth:`tactus_memory.spatial.Places.place_items` backfills them). Where
+the store cannot be written, it is read as it is (``Store.present``): every item unplaced.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
@@ -19,6 +21,8 @@ from tactus_memory.tables import place_fields, poses_schema
 
 if TYPE_CHECKING:
     import pyarrow as pa
+
+log = logging.getLogger(__name__)
 
 #: the table of session trajectories
 POSES = "poses"
@@ -33,8 +37,12 @@ def add_place_columns(store: Store) -> bool:
     missing = [f for f in place_fields() if f.name not in store.items.schema.names]
     if not missing:
         return False
-    with store.commit_lock:
-        store.items.add_columns(missing)
+    try:
+        with store.commit_lock:
+            store.items.add_columns(missing)
+    except Exception:  # noqa: BLE001  (read-only storage: read on, every item unplaced)
+        log.warning("could not add the place columns to %s; its items read as unplaced", store.uri)
+        return False
     store._schema = None  # the cached schema is stale now
     return True
 

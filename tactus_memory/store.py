@@ -326,7 +326,7 @@ class Store:
                 q = q.refine_factor(cfg.refine_factor)
             if cfg.ef:  # HNSW needs ef >= the candidates it returns
                 q = q.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
-        return q.select([*columns, "_distance"]).limit(k).to_arrow()
+        return q.select([*self.present(columns), "_distance"]).limit(k).to_arrow()
 
     def partitions(self) -> int:
         """IVF partitions of the current vector index (from the store's bookkeeping)."""
@@ -339,7 +339,12 @@ class Store:
         q = self.items.search()
         if where:
             q = q.where(where)
-        return q.select(list(columns)).limit(limit).to_arrow()
+        return q.select(self.present(columns)).limit(limit).to_arrow()
+
+    def present(self, columns: Sequence[str]) -> list[str]:
+        """``columns`` the items table has (a store made before places, opened where it
+        cannot be written, has no place columns: its items read as unplaced)."""
+        return [c for c in columns if c in self.schema.names]
 
     # ----------------------------------------------------------- indexes & compaction
     def has_vector_index(self) -> bool:

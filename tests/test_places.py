@@ -215,19 +215,43 @@ def test_delete_session_deletes_its_poses(walk) -> None:
     assert walk.places.poses.rows("s1").num_rows == 0
 
 
-def test_store_made_before_places_opens_and_is_backfilled(tmp_path, hashing_space) -> None:
+def _old_store(path, space) -> list[str]:
+    """A store whose items table has the schema from before places (no place columns)."""
     import lancedb
 
-    old = pa.schema([f for f in items_schema(hashing_space.dim) if f.name not in
+    old = pa.schema([f for f in items_schema(space.dim) if f.name not in
                      {p.name for p in place_fields()}])  # fmt: skip
-    path = tmp_path / "old"
-    mem = Memory.open(str(path), hashing_space, background=False)
+    mem = Memory.open(str(path), space, background=False)
     ids = mem.add_many("s1", "text", ["old drill note", "old mug note"], t=[1.0, 3.0])
     rows = mem.store.scan(None, old.names).select(old.names).cast(old)
     db = lancedb.connect(str(path))
     db.drop_table("items")
     db.create_table("items", rows, schema=old)
     assert "x" not in db.open_table("items").schema.names
+    return ids
+
+
+def test_old_store_that_cannot_be_written_reads_as_unplaced(
+    tmp_path, hashing_space, monkeypatch
+) -> None:
+    from lancedb.table import LanceTable
+
+    ids = _old_store(tmp_path / "old", hashing_space)
+
+    def refuse(*_a, **_k):
+        raise OSError("read-only file system")
+
+    monkeypatch.setattr(LanceTable, "add_columns", refuse)
+    mem = Memory.open(str(tmp_path / "old"), hashing_space, background=False)
+    assert "x" not in mem.store.schema.names
+    assert [h.id for h in mem.search("old drill note", k=1)] == [ids[0]]
+    assert mem.get_item(ids[0]).position is None
+    assert [it.position for it in mem.timeline("s1")] == [None, None]
+
+
+def test_store_made_before_places_opens_and_is_backfilled(tmp_path, hashing_space) -> None:
+    path = tmp_path / "old"
+    ids = _old_store(path, hashing_space)
 
     reopened = Memory.open(str(path), hashing_space, background=False)
     assert {"x", "y", "z", "frame", "placed"} <= set(reopened.store.schema.names)
