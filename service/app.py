@@ -36,6 +36,7 @@ from tactus_memory.service.routers import (
     health,
     images,
     items,
+    places,
     recordings,
     search,
     senses,
@@ -56,6 +57,8 @@ in natural language.
 * Write: `POST /sessions/{id}/touch` (raw sensor units by default), `/text`, `/image`,
   `/vectors`; live touch over the WebSocket `/sessions/{id}/touch/stream`.
 * Read: `GET /search?q=...`, `POST /search/like`, `GET /sessions`, `GET /senses`.
+* Where: `POST /sessions/{id}/poses` (the trajectory), `GET /where?q=...`,
+  `GET /at?x=&y=&z=&r=`; every search takes `near=x,y,z,r` and `frame=`.
 * Errors are RFC 9457 problem details (`application/problem+json`).
 * Every write is acknowledged (201) only after its LanceDB commit.
 * With a token configured, send `Authorization: Bearer <token>` on every route but the open
@@ -191,7 +194,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, images, search, items, touch, ui, recordings):
+    for module in (sessions, senses, images, search, items, touch, ui, recordings, places):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)

@@ -70,9 +70,11 @@ from tactus_memory.rows import (
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
+from tactus_memory.spatial import PlaceQuestions, Places
 from tactus_memory.store import HIT_COLUMNS, IndexConfig, Store, Where, validate_id, validate_source
 from tactus_memory.temporal import Temporal
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import DEFAULT_FRAME
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +95,7 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- memory
-class Memory(TemporalQuestions):
+class Memory(TemporalQuestions, PlaceQuestions):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -105,6 +107,7 @@ class Memory(TemporalQuestions):
         self.background = background
         self.lock = threading.RLock()
         store.bind_space(space.name, int(space.dim), space.fingerprint())
+        self.places = Places(store, self.lock)  # adds the place columns to an old store
         self.registry = SenseRegistry(store, space, self.lock)
         # live rows for the index threshold: the table's own count, as Store.maintain uses
         self._maintenance = Background(store, store.count, background=background)
@@ -204,11 +207,15 @@ class Memory(TemporalQuestions):
         id: str | None = None,  # noqa: A002  (the public contract names it id)
         source: str = "",
         options: Mapping[str, Any] | None = None,
+        position: Sequence[float] | None = None,
+        frame: str = DEFAULT_FRAME,
     ) -> str:
         """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
         to ``t``. Passing ``id`` makes the call an idempotent upsert of that session's item of
         that sense; an id already used by another session or sense raises
-        :class:`~tactus_memory.errors.IdConflictError` (nothing is written)."""
+        :class:`~tactus_memory.errors.IdConflictError` (nothing is written). ``position``
+        ``(x, y, z)`` in ``frame`` says where it happened (default: from the session's
+        poses, :mod:`tactus_memory.spatial`)."""
         return self.add_many(
             session,
             sense,
@@ -219,6 +226,8 @@ class Memory(TemporalQuestions):
             ids=None if id is None else [id],
             source=source,
             options=options,
+            position=None if position is None else [position],
+            frame=frame,
         )[0]
 
     def add_many(
@@ -246,8 +255,12 @@ class Memory(TemporalQuestions):
         ids: Sequence[str] | None = None,
         source: str = "",
         options: Mapping[str, Any] | None = None,
+        position: Any = None,
+        frame: str = DEFAULT_FRAME,
     ) -> PreparedWrite:
-        """Validate one write (``add_many``'s arguments) without embedding or storing it.
+        """Validate one write (``add_many``'s arguments) without embedding or storing it;
+        ``position``: one ``(x, y, z)`` for every item or one per item (None: placed from the
+        session's poses), in ``frame``.
 
         Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
         alone or with the writes of other sessions (group commit, ``tactus_memory.ingest``).
@@ -256,7 +269,7 @@ class Memory(TemporalQuestions):
         source = validate_source(source)
         s = self.registry.live_sense(sense)
         items = list(items)
-        batch = check_batch(len(items), t, t_end, meta, ids)
+        batch = check_batch(len(items), t, t_end, meta, ids, position, frame)
         opts = options_for(s, options)
         canon = [s.validate(x, **opts) for x in items]
         return PreparedWrite(session, s, canon, batch, source)
@@ -292,6 +305,7 @@ class Memory(TemporalQuestions):
             ok = [w for w in live if w.error is None]
             if not ok:
                 return [list(w.ids) for w in writes]
+            self.places.fill(ok)  # under the lock: poses added meanwhile are seen
             before = self.store.version()
             self.store.write(
                 writes_table(self.store.schema, ok), upsert=any(w.batch.upsert for w in ok)
@@ -307,8 +321,10 @@ class Memory(TemporalQuestions):
         return self._delete(where)
 
     def delete_session(self, session: str) -> int:
-        """Delete every item of a session and its clock offsets; returns the rows removed."""
+        """Delete every item of a session, its poses and clock offsets; returns the item rows
+        removed."""
         deleted = self._delete(Where().session(session).sql())
+        self.places.delete_session(session)
         with self.lock:  # every offset of the session: its one meta row
             drop_session_clock(self.store, session)
         return deleted
@@ -427,7 +443,7 @@ class Memory(TemporalQuestions):
     # ----------------------------------------------------------- reads
     def get_item(self, id: str, *, vector: bool = False) -> Item:  # noqa: A002
         """One stored item with ``raw`` decoded (by its sense when live, else as npy/text)."""
-        cols = [*HIT_COLUMNS, "raw", "created"] + (["vector"] if vector else [])
+        cols = [*HIT_COLUMNS, "raw", "created", "orientation"] + (["vector"] if vector else [])
         rows = self.store.scan(Where().ids([id]).sql(), cols, limit=1).to_pylist()
         if not rows:
             raise NotFoundError(f"no item with id {id!r}")

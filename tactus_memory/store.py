@@ -68,7 +68,10 @@ ITEMS = "items"
 SENSES = "senses"
 META = "meta"
 #: columns returned by searches (everything except the vector and raw bytes)
-HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
+HIT_COLUMNS = [
+    *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
+    *("x", "y", "z", "frame"),
+]
 
 
 def _upsert(table: Table, key: str, data: pa.Table) -> None:
@@ -322,20 +325,22 @@ class Store:
         allowed: int | None = None,
         total: int | None = None,
         columns: Sequence[str] = HIT_COLUMNS,
+        flat: bool = True,
     ) -> pa.Table:
         """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
 
         ``allowed``: how many rows pass ``where`` (``total``: rows in the table). A selective
         filter (allowed <= ``flat_max``) is answered by an exact flat scan of the allowed
-        rows; otherwise the ANN index is probed, with more partitions the more selective the
-        filter, so that about ``min_candidates`` allowed rows are scored.
+        rows (unless ``flat`` is False); otherwise the ANN index is probed, with more
+        partitions the more selective the filter, so that about ``min_candidates`` allowed
+        rows are scored.
         """
         cfg = self.index
         q = self.items.search(vector, vector_column_name="vector").distance_type("cosine")
         if where:
             q = q.where(where, prefilter=True)
         indexed = self.has_vector_index()
-        if indexed and where and allowed is not None and allowed <= cfg.flat_max:
+        if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
             q = q.bypass_vector_index()
         elif indexed:
             nprobes = cfg.nprobes
@@ -347,7 +352,7 @@ class Store:
                 q = q.refine_factor(cfg.refine_factor)
             if cfg.ef:  # HNSW needs ef >= the candidates it returns
                 q = q.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
-        return q.select([*columns, "_distance"]).limit(k).to_arrow()
+        return q.select([*self.present(columns), "_distance"]).limit(k).to_arrow()
 
     def partitions(self) -> int:
         """IVF partitions of the current vector index (from the store's bookkeeping)."""
@@ -360,7 +365,12 @@ class Store:
         q = self.items.search()
         if where:
             q = q.where(where)
-        return q.select(list(columns)).limit(limit).to_arrow()
+        return q.select(self.present(columns)).limit(limit).to_arrow()
+
+    def present(self, columns: Sequence[str]) -> list[str]:
+        """``columns`` the items table has (a store made before places, opened where it
+        cannot be written, has no place columns: its items read as unplaced)."""
+        return [c for c in columns if c in self.schema.names]
 
     # ----------------------------------------------------------- indexes & compaction
     def has_vector_index(self) -> bool:

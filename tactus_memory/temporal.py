@@ -245,13 +245,15 @@ class Temporal:
         """What happened in the ``window`` seconds before the best match of ``anchor``
         (items of its session that start in ``[a.t - window, a.t)``, aligned) or after it
         (``[a.t_end, a.t_end + window]``, the anchor excluded). The anchor is searched in
-        ``anchor_senses`` within the scope's session and time bounds; the items are of the
-        scope's senses and source. None when nothing matches the anchor."""
+        ``anchor_senses`` within the scope's session, time bounds and place (near, frame);
+        the items are of the scope's senses and source. None when nothing matches the
+        anchor."""
         window = check_seconds(window, "window")
         names = None if scope.senses is None else self.memory.resolve_senses(scope.senses)
         anchor_scope = Scope(
-            session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before
-        )
+            session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before,
+            near=scope.near, frame=scope.frame,
+        )  # fmt: skip
         found = self.matches(anchor, anchor_scope, match)
         if not found:
             return None
@@ -313,6 +315,8 @@ class Temporal:
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
         after, before = scope.bounds()
+        if episodes and (scope.near is not None or scope.frame is not None):
+            raise InvalidInputError("near/frame select items, not episodes: drop one of them")
         if episodes:
             eps = self._episodes(session, names, scope.source)
             eps = [e for e in eps if _overlaps(e, after, before)]
