@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from typing_extensions import Unpack
 
+from tactus_memory.clocks import session_clock
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
@@ -44,7 +45,7 @@ WHERE_POOL_FACTOR = 4
 
 def _stream_offsets(store: Store, session: str) -> dict[str, float]:
     """ "sense/source" -> clock offset of one session."""
-    return {k: float(v) for k, v in store.clock_table().get(session, {}).items()}
+    return {k: float(v) for k, v in session_clock(store, session).items()}
 
 
 class Places:
