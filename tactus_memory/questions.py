@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing_extensions import Unpack
 
 from tactus_memory.episodes import Episode
+from tactus_memory.grasps import GraspRule, check_group
 from tactus_memory.matching import MatchKwargs, split_match
 from tactus_memory.query import Scope, embed_query
 from tactus_memory.spaces.base import Space
@@ -31,11 +32,18 @@ from tactus_memory.temporal import (
 
 
 class OccurrenceKwargs(MatchKwargs, total=False):
-    """``occurrences``/``count`` keywords: the scope, the match bar, ``merge_gap`` and
-    ``per_stream``."""
+    """``occurrences``/``count`` keywords: the scope, the match bar, ``merge_gap``,
+    ``per_stream`` and ``group``."""
 
     merge_gap: float
     per_stream: bool
+    group: str | None
+
+
+def grasp_rule(group: str | None) -> GraspRule | None:
+    """``group="grasp"``: the grasp rule (questions asked of grasps, not windows); None:
+    items. Anything else raises InvalidInputError."""
+    return GraspRule() if check_group(group, ("grasp",)) else None
 
 
 class AroundKwargs(MatchKwargs, total=False):
@@ -66,28 +74,41 @@ class TemporalQuestions:
         *,
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
+        group: str | None = None,
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
-        """Distinct occurrences of ``query`` (see :meth:`Temporal.occurrences`)."""
+        """Distinct occurrences of ``query`` (see :meth:`Temporal.occurrences`);
+        ``group="grasp"``: of grasps matched on their pooled score."""
         scope, match = split_match(kw)
-        return self.temporal.occurrences(query, scope, match, merge_gap, per_stream)
+        rule = grasp_rule(group)
+        return self.temporal.occurrences(query, scope, match, merge_gap, per_stream, rule)
 
     def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
         """How many distinct times ``query`` happened (see :meth:`occurrences`)."""
         return self.occurrences(query, **kw).count
 
     def last(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        *,
+        merge_gap: float = DEFAULT_MERGE_GAP,
+        group: str | None = None,
+        **kw: Unpack[MatchKwargs],
     ) -> Moment | None:
         """The most recent occurrence of ``query`` (latest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, **kw).moments
+        moments = self.occurrences(query, merge_gap=merge_gap, group=group, **kw).moments
         return moments[-1] if moments else None
 
     def first(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        *,
+        merge_gap: float = DEFAULT_MERGE_GAP,
+        group: str | None = None,
+        **kw: Unpack[MatchKwargs],
     ) -> Moment | None:
         """The earliest occurrence of ``query`` (earliest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, **kw).moments
+        moments = self.occurrences(query, merge_gap=merge_gap, group=group, **kw).moments
         return moments[0] if moments else None
 
     def before(
@@ -111,11 +132,19 @@ class TemporalQuestions:
         return self.temporal.around(side, anchor, window, scope, match, anchor_senses)
 
     def search_moments(
-        self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        k: int = 10,
+        *,
+        gap: float = DEFAULT_MOMENT_GAP,
+        group: str | None = None,
+        **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
-        """Search grouped into moments (see :meth:`Temporal.moments`)."""
+        """Search grouped into moments (see :meth:`Temporal.moments`); ``group="grasp"``:
+        moments of grasps (pooled), not of single windows."""
         scope, match = split_match(kw)
-        return self.temporal.moments(embed_query(self.space, query), k, scope, match, gap)
+        q = embed_query(self.space, query)
+        return self.temporal.moments(q, k, scope, match, gap, grasp_rule(group))
 
     def timeline(
         self,

@@ -46,8 +46,12 @@ def search(
     scope: ScopeDep,
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many hits.")] = 10,
     group: Annotated[
-        Literal["moment"] | None,
-        Query(description="`moment`: merge hits close in time into moments across senses."),
+        Literal["moment", "grasp"] | None,
+        Query(
+            description="`moment`: merge hits close in time into moments across senses; "
+            "`grasp`: one hit per grasp (a stream's contiguous windows), ranked by the grasp's "
+            "pooled embedding, with the grasp's t/t_end."
+        ),
     ] = None,
     gap: Annotated[
         float | None,
@@ -62,6 +66,10 @@ def search(
         return SearchOut(
             hits=[HitOut.model_validate(h, from_attributes=True) for h in best], moments=moments
         )
+    if group == "grasp":
+        grasps = memory.search(q, k=k, group="grasp", scope=scope)
+        _timing(response, t0)
+        return SearchOut(hits=_out(grasps).hits, grasps=grasps)
     hits = memory.search(q, k=k, scope=scope)
     _timing(response, t0)
     return _out(hits)
