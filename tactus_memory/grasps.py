@@ -1,6 +1,6 @@
 """Grasps: a stream's contiguous windows grouped into the moments a user asks about.
 
-A touch stream stores overlapping K-frame windows (8 frames, a new one every 4 at ~30 Hz); a
+A touch stream stores overlapping K-frame windows (8 frames, a new one every 4); a
 question ("when was I holding the screwdriver?") is about a grasp, seconds long. A *grasp* is
 a maximal run of one stream's items (one session + sense + source), in time order ``(t, id)``,
 with no boundary between consecutive items, where item *i* starts a new grasp when
@@ -22,12 +22,19 @@ Computed at query time from the stored windows, not stored: no write-path change
 change, a new rule or checkpoint applies to old data at once; the cost is one scan per
 neighbourhood (a few ms each; candidates of one grasp share one read).
 
-Defaults: ``max_gap`` 0.5 s (15 frames at 30 Hz: a release longer than one dropped window,
-~0.03 s of hole, and shorter than the 2 s occurrence merge gap); ``min_cos`` 0.2: consecutive
-windows of one recording have a median cosine of 0.87-0.96 with the shipped checkpoint
-(10th percentile 0.20-0.57 while the hand moves), valid grasps of different objects a median
-of -0.41-0.15 (:mod:`tactus_memory.episodes`), so 0.2 cuts most object changes and rarely a
-grasp. Not tuned beyond these figures; ``tactus eval --stream --group grasp`` measures them.
+Defaults: ``max_gap`` 0.5 s: one dropped idle window between two kept ones leaves a hole of
+one frame (0.14 s on the STAG glove's ~7.4 Hz, 0.03 s at 30 Hz), two or more (a release of
+about a second at 7.4 Hz) leave 0.68 s or more; well under the 2 s occurrence merge gap.
+``min_cos`` 0.2: consecutive windows of one recording have a median cosine of 0.87-0.96 with
+the shipped checkpoint (10th percentile 0.20-0.57 while the hand moves), valid grasps of
+different objects a median of -0.41-0.15 (:mod:`tactus_memory.episodes`), so 0.2 cuts most
+object changes and rarely a grasp. Not tuned beyond these figures; ``tactus eval --stream
+--group grasp`` measures the result.
+
+Scores: a grasp's pooled vector is scored with its sense's calibration (estimated on single
+stored windows). Pooling averages noise away, so pooled scores run higher than window scores
+for the right object and for near misses alike: ranking grasps against each other is sound,
+but the match bar (``MATCH_Z``) was set on windows and is not re-measured for grasps.
 """
 
 from __future__ import annotations

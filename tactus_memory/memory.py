@@ -463,6 +463,14 @@ class Memory(TemporalQuestions):
         """Every session id, sorted."""
         return [s.id for s in self.sessions()]
 
+    def reembed(self, sense: str, encoder: Sense, **kw: Any) -> Any:
+        """Recompute every stored vector of ``sense`` with ``encoder`` from the stored raw
+        inputs, swapped in one commit, resumable: :func:`tactus_memory.reembed.reembed`
+        (returns its ReembedReport; keywords ``batch``, ``on_batch``)."""
+        from tactus_memory.reembed import reembed
+
+        return reembed(self, sense, encoder, **kw)
+
     # ----------------------------------------------------------- recordings
     def ingest_recording(
         self, path: Any, *, session: str, topics: dict[str, str], **kw: Any
