@@ -189,13 +189,11 @@ def reembed(
         late = [i for i in current if i not in staged]
         if late:
             staging.add(_vector_table(late, _embed(store, encoder, late, dim), tag))
-        new = staging.search().limit(None).to_arrow()
-        ids = new.column("id").to_pylist()
-        vecs = np.stack(new.column("vector").to_numpy(zero_copy_only=False)).astype(np.float32)
-        with store.commit_lock:  # THE swap: one commit
-            if ids:
-                upd = _vector_table(ids, vecs)
-                store.items.merge_insert("id").when_matched_update_all().execute(upd)
+        if current:
+            # streamed from the staging table (memory stays bounded), one commit
+            new = staging.search().select(["id", "vector"]).limit(None).to_batches()
+            with store.commit_lock:  # THE swap
+                store.items.merge_insert("id").when_matched_update_all().execute(new)
         memory.registry.replace_sense(encoder)
         missing = _ids(store, missing_where)
     store.db.drop_table(name)
