@@ -63,6 +63,11 @@ GRASP_READ_S = 30.0
 GRASP_MAX_S = 600.0
 #: group values the search and temporal operators take
 GROUPS = ("moment", "grasp")
+#: how a grasp is scored: ``mean`` the pooled vector of every member (the paper's
+#: recording-level pooling), ``top`` the pooled vector of its GRASP_TOP members closest to the
+#: query, ``max`` its best member window
+POOLS = ("mean", "top", "max")
+GRASP_TOP = 3
 
 
 @dataclass(frozen=True)
@@ -71,8 +76,11 @@ class GraspRule:
 
     max_gap: float = GRASP_MAX_GAP
     min_cos: float = GRASP_MIN_COS
+    pool: str = "mean"  # one of POOLS
 
     def __post_init__(self) -> None:
+        if self.pool not in POOLS:
+            raise InvalidInputError(f"unknown grasp pool {self.pool!r}; use one of {POOLS}")
         if finite_float(self.max_gap, "max_gap") < 0:
             raise InvalidInputError(f"max_gap must be >= 0, got {self.max_gap!r}")
         if not -1.0 <= finite_float(self.min_cos, "min_cos") <= 1.0:
@@ -120,7 +128,7 @@ def pooled(vectors: np.ndarray) -> np.ndarray:
 @dataclass
 class GraspRows:
     """One grasp found around candidate evidence: member ids (time order), stored span,
-    pooled vector (D,), and the candidates (search hits) it contains."""
+    pooled vector (D,), member vectors (n, D), and the candidates (search hits) it holds."""
 
     session: str
     sense: str
@@ -129,7 +137,17 @@ class GraspRows:
     t: float
     t_end: float
     vector: np.ndarray
+    members: np.ndarray
     candidates: list[Evidence]
+
+    def cosine(self, q: np.ndarray, pool: str) -> float:
+        """The grasp's cosine to the (D,) query ``q`` under ``pool`` (see POOLS)."""
+        if pool == "mean":
+            return float(self.vector @ q)
+        cos = self.members @ q
+        if pool == "max":
+            return float(cos.max())
+        return float(pooled(self.members[np.argsort(-cos)[:GRASP_TOP]]) @ q)
 
 
 def _merge(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -215,6 +233,7 @@ def _grasps_in(
                 t=float(t[members].min()),
                 t_end=float(t_end[members].max()),
                 vector=pooled(vecs[members]),
+                members=vecs[members],
                 candidates=[c for c in cands if c.id in mine],
             )
         )
@@ -224,15 +243,16 @@ def _grasps_in(
 def pool_grasps(
     memory: RankedSearch, q: np.ndarray, sense: str, hits: Sequence[Evidence], rule: GraspRule
 ) -> list[Grasp]:
-    """One sense's candidate evidence -> the grasps holding it, scored by their pooled vector
-    against the sense's transformed query ``q`` (1, D), calibrated like any hit of the sense;
-    best first. Times: the grasp's span, aligned by its stream's clock offset."""
+    """One sense's candidate evidence -> the grasps holding it, scored (``rule.pool``; default
+    the pooled vector) against the sense's transformed query ``q`` (1, D), calibrated like any
+    hit of the sense; best first. Times: the grasp's span, aligned by its stream's clock
+    offset."""
     qs = memory.ranker.query_for(q, sense)[0]
     calib = memory.ranker.registry.calibration(sense)
     out = []
     for g in find_grasps(memory.store, memory.space.dim, hits, rule):
         best = max(g.candidates, key=lambda e: (e.score, -e.t, e.id))
-        cos = float(g.vector @ qs)
+        cos = g.cosine(qs, rule.pool)
         off = best.t_aligned - best.t
         fields = best.model_dump(exclude={"t", "t_end", "t_aligned", "t_end_aligned", "score"})
         fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids)

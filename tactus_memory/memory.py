@@ -340,6 +340,7 @@ class Memory(TemporalQuestions):
         *,
         group: str | None = None,
         gap: float | None = None,
+        pool: str = "mean",
         **scope: Unpack[ScopeKwargs],
     ) -> list[Hit] | list[Moment] | list[Grasp]:
         """Natural-language search over the scope's senses (default: every sense with rows).
@@ -347,10 +348,11 @@ class Memory(TemporalQuestions):
         Filters: ``session``, ``senses``, ``source``, ``after``/``before`` (or one ``scope=``
         :class:`Scope`). ``group="moment"`` returns Moments instead (see
         :meth:`search_moments`), ``group="grasp"`` one Grasp per grasp, ranked by its pooled
-        vector (:mod:`tactus_memory.grasps`); the query is embedded once either way."""
+        vector (``pool``: see :mod:`tactus_memory.grasps`); the query is embedded once."""
         where = Scope.of(**scope)
         if check_group(group) == "grasp":
-            return self.temporal.grasps(embed_query(self.space, query), k, where, GraspRule())
+            rule = GraspRule(pool=pool)
+            return self.temporal.grasps(embed_query(self.space, query), k, where, rule)
         if group is not None:
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return self.search_moments(query, k, gap=gap, scope=where)

@@ -38,12 +38,13 @@ class OccurrenceKwargs(MatchKwargs, total=False):
     merge_gap: float
     per_stream: bool
     group: str | None
+    pool: str
 
 
-def grasp_rule(group: str | None) -> GraspRule | None:
-    """``group="grasp"``: the grasp rule (questions asked of grasps, not windows); None:
-    items. Anything else raises InvalidInputError."""
-    return GraspRule() if check_group(group, ("grasp",)) else None
+def grasp_rule(group: str | None, pool: str = "mean") -> GraspRule | None:
+    """``group="grasp"``: the grasp rule with ``pool`` (questions asked of grasps, not
+    windows); None: items. Anything else raises InvalidInputError."""
+    return GraspRule(pool=pool) if check_group(group, ("grasp",)) else None
 
 
 class AroundKwargs(MatchKwargs, total=False):
@@ -75,12 +76,13 @@ class TemporalQuestions:
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
         group: str | None = None,
+        pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
         """Distinct occurrences of ``query`` (see :meth:`Temporal.occurrences`);
-        ``group="grasp"``: of grasps matched on their pooled score."""
+        ``group="grasp"``: of grasps matched on their ``pool`` score (grasps.POOLS)."""
         scope, match = split_match(kw)
-        rule = grasp_rule(group)
+        rule = grasp_rule(group, pool)
         return self.temporal.occurrences(query, scope, match, merge_gap, per_stream, rule)
 
     def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
@@ -93,10 +95,12 @@ class TemporalQuestions:
         *,
         merge_gap: float = DEFAULT_MERGE_GAP,
         group: str | None = None,
+        pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> Moment | None:
         """The most recent occurrence of ``query`` (latest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, group=group, **kw).moments
+        occ = self.occurrences(query, merge_gap=merge_gap, group=group, pool=pool, **kw)
+        moments = occ.moments
         return moments[-1] if moments else None
 
     def first(
@@ -105,10 +109,12 @@ class TemporalQuestions:
         *,
         merge_gap: float = DEFAULT_MERGE_GAP,
         group: str | None = None,
+        pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> Moment | None:
         """The earliest occurrence of ``query`` (earliest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, group=group, **kw).moments
+        occ = self.occurrences(query, merge_gap=merge_gap, group=group, pool=pool, **kw)
+        moments = occ.moments
         return moments[0] if moments else None
 
     def before(
@@ -138,13 +144,14 @@ class TemporalQuestions:
         *,
         gap: float = DEFAULT_MOMENT_GAP,
         group: str | None = None,
+        pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
         """Search grouped into moments (see :meth:`Temporal.moments`); ``group="grasp"``:
         moments of grasps (pooled), not of single windows."""
         scope, match = split_match(kw)
         q = embed_query(self.space, query)
-        return self.temporal.moments(q, k, scope, match, gap, grasp_rule(group))
+        return self.temporal.moments(q, k, scope, match, gap, grasp_rule(group, pool))
 
     def timeline(
         self,

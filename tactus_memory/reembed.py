@@ -12,7 +12,10 @@ How it stays safe:
    merge-insert commit on ``id`` (under the memory's write lock; rows written meanwhile are
    embedded first). A reader (this process or a replica) sees the version before that
    commit, every row the old encoder's, or the one after, every row the new one's: never a
-   mix. Rows deleted meanwhile are simply not matched.
+   mix. Rows deleted meanwhile are simply not matched. Writes from *other processes* are
+   not under this lock: run it where the store's writer runs (the service's process, or with
+   the service stopped), else rows another process adds during the swap keep the old vectors
+   (a rerun then redoes them).
 3. **Provenance.** The sense's registration (provenance with the checkpoint sha256, query
    centroid) is replaced by the new encoder's right after the swap and its score calibration
    re-estimated; the provenance is per sense (no row carries its own), so after the swap

@@ -117,8 +117,17 @@ def test_search_by_grasp_returns_one_hit_per_grasp_with_its_span(day) -> None:
     assert scores == sorted(scores, reverse=True)
     # pooling helps: the best single mug window scores below its grasp's pooled score
     assert all(g.score > g.window_score for g in grasps)
+    # the other pools: its best window, the mean of its 3 windows closest to the query
+    best = mem.search(q, k=1, senses=["touch"], session=S, group="grasp", pool="max")[0]
+    assert best.score == pytest.approx(best.window_score)
+    top = mem.search(q, k=1, senses=["touch"], session=S, group="grasp", pool="top")[0]
+    vecs = np.stack([mem.get_item(i, vector=True).vector for i in top.ids])
+    qv = mem.space.embed_texts([q], query=True)[0]
+    assert top.cosine == pytest.approx(float(pooled(vecs[np.argsort(-(vecs @ qv))[:3]]) @ qv))
     with pytest.raises(InvalidInputError, match="grasp"):
         mem.search(q, group="episode")
+    with pytest.raises(InvalidInputError, match="pool"):
+        mem.search(q, group="grasp", pool="median")
 
 
 def test_last_count_and_moments_by_grasp(day) -> None:
@@ -155,3 +164,5 @@ def test_grasps_over_http(day) -> None:
         assert r.status_code == 200 and r.json()["moments"][0]["t"] == pytest.approx(100.0)
         r = c.get("/search", params={**params, "group": "window"})
         assert r.status_code == 422
+        r = c.get("/search", params={**params, "group": "grasp", "pool": "max"})
+        assert r.status_code == 200 and set(r.json()["grasps"][0]["ids"]) == set(ids[3])

@@ -66,12 +66,17 @@ def test_stream_eval_scores_windows_and_grasps(pair, stream, minilm_space) -> No
     present = set(stream.rec_object.values())
     queries = {c: q for c, q in load_queries().items() if c in present}
     out = evaluate_stream(
-        pair.a, stream, queries, space=minilm_space, modes=("served",), groups=(None, "grasp")
-    )
-    w, g = out["served"], out["served_grasp"]
-    assert w["group"] is None and g["group"] == "grasp"
+        pair.a, stream, queries, space=minilm_space, modes=("served",), groups=(None, "grasp"),
+        pools=("mean", "max"),
+    )  # fmt: skip
+    w, g, gmax = out["served"], out["served_grasp"], out["served_grasp_max"]
+    assert w["group"] is None and g["group"] == gmax["group"] == "grasp"
+    assert g["pool"] == "mean" and gmax["pool"] == "max"
     assert w["queries_scored"] == g["queries_scored"] == sum(len(q) for q in queries.values())
-    for m in (w, g):
+    # a grasp scored by its best window ranks first exactly when that window does, and the
+    # right object's grasp is never behind its first window's rank
+    assert gmax["r@1"] == pytest.approx(w["r@1"]) and gmax["r@5"] >= w["r@5"]
+    for m in (w, g, gmax):
         for key in ("r@1", "r@5", "mrr", "last_correct", "count_exact"):
             assert 0.0 <= m[key] <= 1.0
         assert m["r@1"] <= m["r@5"]
@@ -84,10 +89,12 @@ def test_cli_eval_stream_group_grasp(pair, tmp_path) -> None:
     js = tmp_path / "eval.json"
     args = ["eval", "--checkpoint", str(pair.a), "--data", str(pair.stag[0])]
     args += ["--holdout", "one-per-object@blindfolded", "--no-analysis", "--votes", "1"]
-    r = CliRunner().invoke(app, [*args, "--stream", "--group", "grasp", "--json", str(js)])
+    grasp = ["--stream", "--group", "grasp", "--grasp-pool", "mean", "--grasp-pool", "top"]
+    r = CliRunner().invoke(app, [*args, *grasp, "--json", str(js)])
     assert r.exit_code == 0, (r.output, r.exception)
     stream = json.loads(js.read_text())["stream"]
     assert stream["served_grasp"]["group"] == "grasp" and stream["served"]["group"] is None
-    assert "by grasp" in r.output
+    assert stream["served_grasp_top"]["pool"] == "top"
+    assert "by grasp (mean)" in r.output and "by grasp (top)" in r.output
     r = CliRunner().invoke(app, [*args, "--group", "grasp", "--json", str(js)])
     assert r.exit_code == 2  # --group needs --stream

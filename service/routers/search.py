@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Response
 from tactus_memory.limits import MAX_K
 from tactus_memory.query import Scope
 from tactus_memory.service.arrays import as_window
-from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep
+from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, ScopeDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import HitOut, SearchLikeIn, SearchOut
 
@@ -57,6 +57,7 @@ def search(
         float | None,
         Query(ge=0.0, le=3600.0, description="With group=moment: seconds that still join hits."),
     ] = None,
+    pool: GraspPool = "mean",
 ) -> SearchOut:
     t0 = time.perf_counter()
     if group == "moment":
@@ -67,7 +68,7 @@ def search(
             hits=[HitOut.model_validate(h, from_attributes=True) for h in best], moments=moments
         )
     if group == "grasp":
-        grasps = memory.search(q, k=k, group="grasp", scope=scope)
+        grasps = memory.search(q, k=k, group="grasp", pool=pool, scope=scope)
         _timing(response, t0)
         return SearchOut(hits=_out(grasps).hits, grasps=grasps)
     hits = memory.search(q, k=k, scope=scope)

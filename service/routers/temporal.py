@@ -18,7 +18,14 @@ from fastapi import APIRouter, Depends, Query
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
 from tactus_memory.matching import Match
 from tactus_memory.questions import grasp_rule
-from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId, StreamScopeDep
+from tactus_memory.service.deps import (
+    GraspPool,
+    MemoryDep,
+    QueryText,
+    ScopeDep,
+    SessionId,
+    StreamScopeDep,
+)
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import (
     ClockIn,
@@ -89,10 +96,11 @@ class Occurrence:
     q: QueryText
     merge_gap: MergeGap = DEFAULT_MERGE_GAP
     group: GroupGrasp = None
+    pool: GraspPool = "mean"
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked
-        rule = grasp_rule(self.group)
+        rule = grasp_rule(self.group, self.pool)
         return a.memory.temporal.occurrences(
             self.q, a.scope, a.match, self.merge_gap, per_stream, rule
         )
@@ -214,9 +222,10 @@ def moments(
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
     group: GroupGrasp = None,
+    pool: GraspPool = "mean",
 ) -> MomentsOut:
     bar = {"threshold": match.threshold, "relative": match.relative}
-    moments = memory.search_moments(q, k, gap=gap, group=group, scope=scope, **bar)
+    moments = memory.search_moments(q, k, gap=gap, group=group, pool=pool, scope=scope, **bar)
     return MomentsOut(moments=moments)
 
 

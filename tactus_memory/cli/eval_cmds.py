@@ -96,6 +96,12 @@ def eval_cmd(
         help="with --stream: 'grasp' also scores every mode grasp-grouped (<mode>_grasp: search, "
         "last and count rank grasps, a stream's contiguous windows pooled)",
     ),
+    grasp_pool: list[str] = typer.Option(
+        ["mean"],
+        "--grasp-pool",
+        help="with --group grasp: how a grasp is scored, repeat to compare: mean (every "
+        "window pooled) | top (its 3 windows closest to the query) | max (its best window)",
+    ),
 ) -> None:
     """Score checkpoints on STAG: top-1/3, voting, recording level, per class, confusion.
     The analyses embed phrasings in each checkpoint's space: a Qwen3-VL checkpoint needs
@@ -107,6 +113,8 @@ def eval_cmd(
         raise typer.BadParameter("--stream needs --holdout (the recordings to stream)")
     if group not in (None, "grasp") or (group and not stream):
         raise typer.BadParameter(f"--group takes 'grasp', with --stream; got {group!r}")
+    if bad := [p for p in grasp_pool if p not in ("mean", "top", "max")]:
+        raise typer.BadParameter(f"--grasp-pool takes mean, top or max; got {bad}")
     set_threads(threads)
     from tactus_memory.errors import SpaceConfigError
     from tactus_memory.touch.eval_runs import load_eval_data, run_eval
@@ -138,6 +146,7 @@ def eval_cmd(
                 holdout or "",
                 limit=stream_limit,
                 groups=groups,
+                pools=grasp_pool,
             )
             for c in checkpoint
         ]
@@ -152,10 +161,10 @@ def eval_cmd(
                 f"MRR {s.get('mrr')} idle-pass(all windows) {a.get('match_idle_rate')} "
                 f"leakage {r['leakage']['status']}"
             )
-            if group:
-                g = r.get(f"served_{group}", {})
+            for pool in grasp_pool if group else []:
+                g = r.get(f"served_{group}" + ("" if pool == "mean" else f"_{pool}"), {})
                 typer.echo(
-                    f"stream {r['checkpoint']} by {group}: R@1 {g.get('r@1')} "
+                    f"stream {r['checkpoint']} by {group} ({pool}): R@1 {g.get('r@1')} "
                     f"R@5 {g.get('r@5')} MRR {g.get('mrr')} last {g.get('last_correct')} "
                     f"count exact {g.get('count_exact')}"
                 )

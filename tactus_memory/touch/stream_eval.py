@@ -23,9 +23,10 @@ windowing keeps (idle windows are not embedded: the policy of ``touch/windows.py
 which is what the idle pass rate is measured on.
 
 ``groups=(None, "grasp")`` (``--group grasp``) also scores each mode grasp-grouped
-(``<mode>_grasp``): the search, ``last`` and ``count`` rank grasps (``group="grasp"``,
-:mod:`tactus_memory.grasps`); a grasp is right when every window it pools comes from the
-queried object's recording, and the match-bar rates are over the grasps the search returned.
+(``<mode>_grasp``; ``<mode>_grasp_<pool>`` for each other pool of ``pools``): the search,
+``last`` and ``count`` rank grasps (``group="grasp"``, :mod:`tactus_memory.grasps`); a grasp is
+right when every window it pools comes from the queried object's recording, and the match-bar
+rates are over the grasps the search returned.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.grasps import POOLS
 from tactus_memory.touch.targets import class_phrases
 from tactus_memory.touch.windows import cut_windows
 
@@ -189,6 +191,7 @@ def _score_mode(
     queries: dict[str, list[str]],
     bar: float,
     group: str | None = None,
+    pool: str = "mean",
 ) -> dict[str, Any]:
     """Ask every query of the windows ``idx`` stored as ``ids`` (by window, or by grasp with
     ``group="grasp"``) and score."""
@@ -202,7 +205,7 @@ def _score_mode(
         objs = {stream.obj[i] for i in members}
         return (objs.pop() if len(objs) == 1 else None), bool(stream.idle[members].all())
 
-    ask = {"session": SESSION, "senses": ["touch"], "group": group}
+    ask = {"session": SESSION, "senses": ["touch"], "group": group, "pool": pool}
     k = min(len(idx), MAX_K)
     present = set(stream.rec_object.values())
     per_class: dict[str, dict[str, Any]] = {}
@@ -269,6 +272,7 @@ def _score_mode(
             r_all[n] += rs[n]
     return {
         "group": group,
+        "pool": pool if group else None,
         "windows_stored": int(len(idx)),
         "idle_windows_stored": n_idle_kept,
         "queries_scored": len(rr_all),
@@ -317,7 +321,7 @@ def stream_markdown(result: dict[str, Any]) -> str:
     def f(x: Any) -> str:
         return "-" if x is None else f"{x:.3f}"
 
-    for mode in [m + ("" if g is None else f"_{g}") for m in MODES for g in GROUPS]:
+    for mode in [k for k in result if k.split("_grasp")[0] in MODES]:
         m = result.get(mode)
         if not m or "mrr" not in m:
             continue
@@ -344,6 +348,7 @@ def run_stream_eval(
     span: int | None = None,
     space: Space | None = None,
     groups: Sequence[str | None] = (None,),
+    pools: Sequence[str] = ("mean",),
 ) -> dict[str, Any]:
     """The whole stream evaluation from loaded data: the recordings ``holdout`` names (the
     training grammar, e.g. ``one-per-object@blindfolded``; the first ``limit`` when > 0)."""
@@ -371,6 +376,7 @@ def run_stream_eval(
         space=space,
         data_fingerprint=data.fingerprint(),
         groups=groups,
+        pools=pools,
     )
     out["holdout"] = holdout
     out["span"] = span or STREAM_WINDOW
@@ -388,6 +394,7 @@ def evaluate_stream(
     workdir: str | Path | None = None,
     data_fingerprint: str | None = None,
     groups: Sequence[str | None] = (None,),
+    pools: Sequence[str] = ("mean",),
 ) -> dict[str, Any]:
     """Score ``checkpoint`` (None: the shipped one) on ``stream`` with ``queries``; one real
     memory per mode in a temporary directory. Returns the metrics JSON (per mode).
@@ -408,6 +415,9 @@ def evaluate_stream(
     for g in groups:
         if g not in GROUPS:
             raise InvalidInputError(f"unknown stream group {g!r}; groups are {GROUPS}")
+    for p in pools:
+        if p not in POOLS:
+            raise InvalidInputError(f"unknown grasp pool {p!r}; pools are {POOLS}")
     enc = TactusEncoder(checkpoint)
     meta = enc.ckpt.meta
     out: dict[str, Any] = {
@@ -436,9 +446,12 @@ def evaluate_stream(
                 mem.add_sense(enc)
                 idx = np.flatnonzero(keep)
                 ids = _store(mem, stream, idx)
-                for g in groups:
+                runs = [(g, p) for g in groups for p in (pools if g else ["mean"])]
+                for g, pool in runs:
                     key = mode if g is None else f"{mode}_{g}"
-                    out[key] = _score_mode(mem, stream, idx, ids, queries, MATCH_Z["touch"], g)
+                    key += "" if pool == "mean" else f"_{pool}"
+                    bar = MATCH_Z["touch"]
+                    out[key] = _score_mode(mem, stream, idx, ids, queries, bar, g, pool)
             finally:
                 mem.close()
     return out
