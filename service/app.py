@@ -19,6 +19,7 @@ from typing import Any
 
 import anyio.to_thread
 from fastapi import Depends, FastAPI
+from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
@@ -120,6 +121,14 @@ def serving_torch_threads() -> int:
     return max(1, (os.cpu_count() or 2) // 2)
 
 
+def operation_id(route: APIRoute) -> str:
+    """An operation's id is its route's name, which says what it does (``search``,
+    ``add_touch``, ``last``), so a client generated from ``/openapi.json`` has methods of
+    those names (FastAPI's default, ``search_search_get``, repeats the path and the method).
+    Route names are unique across the app (tests/test_openapi_names.py checks it)."""
+    return route.name
+
+
 def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     settings = settings or Settings()
     if settings.torch_threads is not None:
@@ -168,6 +177,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         description=DESCRIPTION,
         lifespan=lifespan,
         responses=problem_responses(500),
+        generate_unique_id_function=operation_id,
     )
     app.state.tactus = state
     install_problem_handlers(app)
