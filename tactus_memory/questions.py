@@ -7,6 +7,7 @@ the :class:`~tactus_memory.temporal.Temporal` object; ``Memory`` inherits these 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 from typing_extensions import Unpack
 
@@ -39,6 +40,12 @@ class OccurrenceKwargs(MatchKwargs, total=False):
     per_stream: bool
     group: str | None
     pool: str
+
+
+def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:
+    """The grasp keywords (``group``, ``pool``) popped from ``kw``, as the service's query
+    parameters (the remote Client's questions)."""
+    return {k: kw.pop(k) for k in ("group", "pool") if kw.get(k) is not None}
 
 
 def grasp_rule(group: str | None, pool: str = "mean") -> GraspRule | None:
