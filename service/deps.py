@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import hmac
 from dataclasses import dataclass, replace
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import Depends, HTTPException, Path, Query, Request
 from starlette.requests import HTTPConnection
@@ -252,3 +252,13 @@ def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = Non
 
 ScopeDep = Annotated[Scope, Depends(scope)]
 StreamScopeDep = Annotated[Scope, Depends(stream_scope)]
+
+
+#: how group=grasp scores a grasp (tactus_memory.grasps.POOLS)
+GraspPool = Annotated[
+    Literal["mean", "top", "max"],
+    Query(
+        description="With group=grasp: `mean` scores the pooled vector of every window of the "
+        "grasp, `top` of its 3 windows closest to the query, `max` its best window."
+    ),
+]

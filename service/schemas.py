@@ -19,7 +19,7 @@ from tactus_memory.limits import (
     SOURCE_PATTERN,
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
-from tactus_memory.models import Place, Position, TrajectoryOut
+from tactus_memory.models import Grasp, Place, Position, TrajectoryOut
 from tactus_memory.places import MAX_POSES
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
 from tactus_memory.temporal import ClockOffset, Evidence, Moment, TimelineItem
@@ -252,6 +252,11 @@ class SearchOut(BaseModel):
         None,
         description="With group=moment: hits grouped into moments, each carrying every sense's "
         "evidence (hits then holds each moment's best member, in moment order).",
+    )
+    grasps: list[Grasp] | None = Field(
+        None,
+        description="With group=grasp: one entry per grasp, best first (its member ids, span and "
+        "pooled score; hits then holds the same grasps as hits).",
     )
 
 

@@ -52,6 +52,7 @@ from tactus_memory.matching import (
 from tactus_memory.models import (
     ClockOffset,
     Context,
+    Grasp,
     Hit,
     Moment,
     Occurrences,
@@ -60,7 +61,7 @@ from tactus_memory.models import (
     TimelineItem,
 )
 from tactus_memory.query import Scope, ScopeKwargs
-from tactus_memory.questions import AroundKwargs, OccurrenceKwargs
+from tactus_memory.questions import AroundKwargs, OccurrenceKwargs, grasp_params
 from tactus_memory.rows import WriteKwargs, check_batch, per_item
 from tactus_memory.senses import VectorSense
 
@@ -321,15 +322,18 @@ class Client:
         *,
         group: str | None = None,
         gap: float | None = None,
+        pool: str = "mean",
         **scope: Unpack[ScopeKwargs],
-    ) -> list[Hit] | list[Moment]:
+    ) -> list[Hit] | list[Moment] | list[Grasp]:
         """Natural-language search (see :meth:`Memory.search`)."""
-        params = {"q": query, "k": k, **scope_params(Scope.of(**scope))}
+        params = {"q": query, "k": k, "pool": pool, **scope_params(Scope.of(**scope))}
         if group is not None:
             params["group"] = group
         if gap is not None:
             params["gap"] = gap
         body = self._get("/search", params)
+        if group == "grasp":
+            return [Grasp.model_validate(g) for g in body["grasps"] or []]
         if group is not None:
             return [Moment.model_validate(m) for m in body["moments"] or []]
         return [Hit.model_validate(h) for h in body["hits"]]
@@ -338,8 +342,9 @@ class Client:
         self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
     ) -> list[Moment]:
         """Search grouped into moments (see :meth:`Memory.search_moments`)."""
+        params = {"q": query, "k": k, "gap": gap, **grasp_params(kw := dict(kw))}
         scope, match = split_match(kw)
-        params = {"q": query, "k": k, "gap": gap, **scope_params(scope), **match_params(match)}
+        params.update(scope_params(scope), **match_params(match))
         return [Moment.model_validate(m) for m in self._get("/moments", params)["moments"]]
 
     def search_like(
@@ -379,8 +384,9 @@ class Client:
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
         """Distinct occurrences of ``query`` (see :meth:`Memory.occurrences`)."""
+        extra = grasp_params(kw)
         scope, match = split_match(kw)
-        params = {"q": query, "merge_gap": merge_gap, "per_stream": per_stream}
+        params = {"q": query, "merge_gap": merge_gap, "per_stream": per_stream, **extra}
         params.update(scope_params(scope), **match_params(match))
         return Occurrences.model_validate(self._get("/count", params))
 
@@ -389,8 +395,9 @@ class Client:
         return self.occurrences(query, **kw).count
 
     def _one(self, path: str, query: str, merge_gap: float, kw: MatchKwargs) -> Moment | None:
-        scope, match = split_match(dict(kw))
-        params = {"q": query, "merge_gap": merge_gap, **scope_params(scope)}
+        extra = grasp_params(kw := dict(kw))
+        scope, match = split_match(kw)
+        params = {"q": query, "merge_gap": merge_gap, **scope_params(scope), **extra}
         params.update(match_params(match))
         moment = self._get(path, params)["moment"]
         return None if moment is None else Moment.model_validate(moment)

@@ -47,10 +47,11 @@ from typing_extensions import Unpack
 
 from tactus_memory.clocks import drop_session_clock
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.grasps import GraspRule, check_group
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
 from tactus_memory.maintenance import Background, MaintenanceConfig
 from tactus_memory.matching import DEFAULT_MOMENT_GAP
-from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
+from tactus_memory.models import Grasp, Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.questions import TemporalQuestions
 from tactus_memory.ranking import Ranker
@@ -369,16 +370,19 @@ class Memory(TemporalQuestions, PlaceQuestions):
         *,
         group: str | None = None,
         gap: float | None = None,
+        pool: str = "mean",
         **scope: Unpack[ScopeKwargs],
-    ) -> list[Hit] | list[Moment]:
+    ) -> list[Hit] | list[Moment] | list[Grasp]:
         """Natural-language search over the scope's senses (default: every sense with rows).
 
         Filters: ``session``, ``senses``, ``source``, ``after``/``before`` (or one ``scope=``
         :class:`Scope`). ``group="moment"`` returns Moments instead (see
-        :meth:`search_moments`); the query is embedded once either way."""
+        :meth:`search_moments`), ``group="grasp"`` one Grasp per grasp, ranked by its pooled
+        vector (``pool``: see :mod:`tactus_memory.grasps`); the query is embedded once."""
         where = Scope.of(**scope)
-        if group is not None and group != "moment":
-            raise InvalidInputError(f"unknown group {group!r}; use group='moment'")
+        if check_group(group) == "grasp":
+            rule = GraspRule(pool=pool)
+            return self.temporal.grasps(embed_query(self.space, query), k, where, rule)
         if group is not None:
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return self.search_moments(query, k, gap=gap, scope=where)
@@ -490,6 +494,14 @@ class Memory(TemporalQuestions, PlaceQuestions):
     def session_ids(self) -> list[str]:
         """Every session id, sorted."""
         return [s.id for s in self.sessions()]
+
+    def reembed(self, sense: str, encoder: Sense, **kw: Any) -> Any:
+        """Recompute every stored vector of ``sense`` with ``encoder`` from the stored raw
+        inputs, swapped in one commit, resumable: :func:`tactus_memory.reembed.reembed`
+        (returns its ReembedReport; keywords ``batch``, ``on_batch``)."""
+        from tactus_memory.reembed import reembed
+
+        return reembed(self, sense, encoder, **kw)
 
     # ----------------------------------------------------------- recordings
     def ingest_recording(

@@ -132,6 +132,17 @@ class Evidence(TimelineItem):
     match: bool = False
 
 
+class Grasp(Evidence):
+    """One grasp (:mod:`tactus_memory.grasps`): contiguous items of one stream, ranked by their
+    pooled vector. ``id`` is its best-scoring member among the search's candidates; ``t`` /
+    ``t_end`` (and the aligned pair) span every member; ``score``/``cosine`` are the pooled
+    vector's; ``window_score`` the best member's own; ``ids`` every member, in time order."""
+
+    n: int
+    ids: list[str]
+    window_score: float
+
+
 class Moment(BaseModel):
     """Hits of one session that happen together. ``t``/``t_end`` span the members on the
     aligned clock; ``score`` = best member score + CORROBORATION_BONUS per other sense with a

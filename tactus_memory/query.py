@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     import threading
 
     from tactus_memory.models import Hit
+    from tactus_memory.ranking import Ranker
     from tactus_memory.spaces.base import Space
     from tactus_memory.store import Store
 
@@ -124,11 +125,13 @@ def split_scope(kw: Mapping[str, Any]) -> tuple[Scope, dict[str, Any]]:
 
 class RankedSearch(Protocol):
     """What the temporal operators need from a memory (``Memory`` provides it): the store,
-    the space, the write lock, the sense resolver and the one ranked search path."""
+    the space, the write lock, the ranker, the sense resolver and the one ranked search
+    path."""
 
     store: Store
     space: Space
     lock: threading.RLock
+    ranker: Ranker  # per-sense query transforms and calibrations (grasp scoring)
 
     def resolve_senses(self, senses: Sequence[str] | None) -> list[str]: ...
 

@@ -7,10 +7,12 @@ the :class:`~tactus_memory.temporal.Temporal` object; ``Memory`` inherits these 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 from typing_extensions import Unpack
 
 from tactus_memory.episodes import Episode
+from tactus_memory.grasps import GraspRule, check_group
 from tactus_memory.matching import MatchKwargs, split_match
 from tactus_memory.query import Scope, embed_query
 from tactus_memory.spaces.base import Space
@@ -32,11 +34,25 @@ from tactus_memory.where import Near
 
 
 class OccurrenceKwargs(MatchKwargs, total=False):
-    """``occurrences``/``count`` keywords: the scope, the match bar, ``merge_gap`` and
-    ``per_stream``."""
+    """``occurrences``/``count`` keywords: the scope, the match bar, ``merge_gap``,
+    ``per_stream`` and ``group``."""
 
     merge_gap: float
     per_stream: bool
+    group: str | None
+    pool: str
+
+
+def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:
+    """The grasp keywords (``group``, ``pool``) popped from ``kw``, as the service's query
+    parameters (the remote Client's questions)."""
+    return {k: kw.pop(k) for k in ("group", "pool") if kw.get(k) is not None}
+
+
+def grasp_rule(group: str | None, pool: str = "mean") -> GraspRule | None:
+    """``group="grasp"``: the grasp rule with ``pool`` (questions asked of grasps, not
+    windows); None: items. Anything else raises InvalidInputError."""
+    return GraspRule(pool=pool) if check_group(group, ("grasp",)) else None
 
 
 class AroundKwargs(MatchKwargs, total=False):
@@ -67,28 +83,46 @@ class TemporalQuestions:
         *,
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
+        group: str | None = None,
+        pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
-        """Distinct occurrences of ``query`` (see :meth:`Temporal.occurrences`)."""
+        """Distinct occurrences of ``query`` (see :meth:`Temporal.occurrences`);
+        ``group="grasp"``: of grasps matched on their ``pool`` score (grasps.POOLS)."""
         scope, match = split_match(kw)
-        return self.temporal.occurrences(query, scope, match, merge_gap, per_stream)
+        rule = grasp_rule(group, pool)
+        return self.temporal.occurrences(query, scope, match, merge_gap, per_stream, rule)
 
     def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
         """How many distinct times ``query`` happened (see :meth:`occurrences`)."""
         return self.occurrences(query, **kw).count
 
     def last(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        *,
+        merge_gap: float = DEFAULT_MERGE_GAP,
+        group: str | None = None,
+        pool: str = "mean",
+        **kw: Unpack[MatchKwargs],
     ) -> Moment | None:
         """The most recent occurrence of ``query`` (latest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, **kw).moments
+        occ = self.occurrences(query, merge_gap=merge_gap, group=group, pool=pool, **kw)
+        moments = occ.moments
         return moments[-1] if moments else None
 
     def first(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        *,
+        merge_gap: float = DEFAULT_MERGE_GAP,
+        group: str | None = None,
+        pool: str = "mean",
+        **kw: Unpack[MatchKwargs],
     ) -> Moment | None:
         """The earliest occurrence of ``query`` (earliest aligned start), or None."""
-        moments = self.occurrences(query, merge_gap=merge_gap, **kw).moments
+        occ = self.occurrences(query, merge_gap=merge_gap, group=group, pool=pool, **kw)
+        moments = occ.moments
         return moments[0] if moments else None
 
     def before(
@@ -112,11 +146,20 @@ class TemporalQuestions:
         return self.temporal.around(side, anchor, window, scope, match, anchor_senses)
 
     def search_moments(
-        self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        k: int = 10,
+        *,
+        gap: float = DEFAULT_MOMENT_GAP,
+        group: str | None = None,
+        pool: str = "mean",
+        **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
-        """Search grouped into moments (see :meth:`Temporal.moments`)."""
+        """Search grouped into moments (see :meth:`Temporal.moments`); ``group="grasp"``:
+        moments of grasps (pooled), not of single windows."""
         scope, match = split_match(kw)
-        return self.temporal.moments(embed_query(self.space, query), k, scope, match, gap)
+        q = embed_query(self.space, query)
+        return self.temporal.moments(q, k, scope, match, gap, grasp_rule(group, pool))
 
     def timeline(
         self,

@@ -49,10 +49,7 @@ class Ranker:
         active = [name for name in senses if counts.get(name, 0) > 0]
         groups: list[tuple[np.ndarray, list[str]]] = []
         for name in active:
-            qs = q
-            if transform:
-                s = self.registry.search_sense(name)
-                qs = as_unit_rows(s.query_transform(q), self.space.dim, what="query")
+            qs = self.query_for(q, name) if transform else q
             for vec, names in groups:
                 if np.array_equal(vec, qs):
                     names.append(name)
@@ -65,6 +62,11 @@ class Ranker:
             scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
         scored.sort(key=lambda x: -x[0])
         return [hit_from_row(row, score, cos) for score, cos, row in scored[:k]]
+
+    def query_for(self, q: np.ndarray, name: str) -> np.ndarray:
+        """The (1, D) text query ``q`` as sense ``name`` compares it: its query transform."""
+        s = self.registry.search_sense(name)
+        return as_unit_rows(s.query_transform(q), self.space.dim, what="query")
 
     def _search_group(
         self,

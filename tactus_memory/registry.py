@@ -163,6 +163,14 @@ class SenseRegistry:
             self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
             self._live[name] = sense
 
+    def replace_sense(self, sense: Sense) -> None:
+        """Register ``sense`` in place of the sense of its name (live or stored): a new encoder
+        for rows already stored (re-embedding). Its provenance and query centroid are
+        persisted and the score calibration is re-estimated (if the encoder changed)."""
+        with self.lock:
+            self._live.pop(validate_sense_name(sense.name), None)
+            self.add_sense(sense)
+
     def live_sense(self, name: str) -> Sense:
         validate_sense_name(name)
         if name in self._live:

@@ -32,6 +32,7 @@ from tactus_memory.episodes import (
     segment,
 )
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.grasps import GraspRule, pool_grasps
 from tactus_memory.limits import MAX_CLOCK_OFFSET, MAX_K
 from tactus_memory.matching import (  # re-exported: `from tactus_memory.temporal import ...`
     CORROBORATION_BONUS,
@@ -59,11 +60,11 @@ from tactus_memory.matching import (  # re-exported: `from tactus_memory.tempora
 from tactus_memory.models import ClockOffset as ClockOffset
 from tactus_memory.models import Context as Context
 from tactus_memory.models import Evidence as Evidence
+from tactus_memory.models import Grasp, row_fields
 from tactus_memory.models import Moment as Moment
 from tactus_memory.models import Occurrences as Occurrences
 from tactus_memory.models import Side as Side
 from tactus_memory.models import TimelineItem as TimelineItem
-from tactus_memory.models import row_fields
 from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import HIT_COLUMNS, Where, finite_float, validate_id
@@ -102,6 +103,8 @@ __all__ = [
 ]
 
 Offsets = Mapping[tuple[str, str, str], float]
+#: the grasp rule a question groups by (None: items, not grasps)
+Rule = GraspRule | None
 
 
 def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
@@ -175,10 +178,12 @@ class Temporal:
 
     # ----------------------------------------------------------- scoring
     def evidence(
-        self, q: np.ndarray, scope: Scope, match: Match, per_sense: int
+        self, q: np.ndarray, scope: Scope, match: Match, per_sense: int, grasp: Rule = None
     ) -> tuple[list[Evidence], bool]:
         """Every candidate of the (1, D) query ``q`` (all senses in scope), scored and flagged;
-        and whether a sense was capped (``per_sense`` candidates, all matching)."""
+        and whether a sense was capped (``per_sense`` candidates, all matching). With a
+        ``grasp`` rule, the candidates' grasps (:mod:`tactus_memory.grasps`) instead, each
+        scored and flagged by its pooled vector."""
         relative = check_relative(match.relative)
         offsets = self.offsets()
         base = scope.where(_pad(offsets, scope.session))
@@ -189,27 +194,33 @@ class Temporal:
         capped = False
         for name in names:
             hits = self.memory.rank(q, per_sense, [name], base, transform=True)
-            flags = match_flags([h.score for h in hits], bars[name], relative)
-            capped = capped or (len(hits) >= per_sense and all(flags))
-            for h, flag in zip(hits, flags, strict=True):
+            evs = []
+            for h in hits:
                 off = offsets.get((h.session, h.sense, h.source), 0.0)
-                e = Evidence(
-                    **h.model_dump(exclude={"score", "cosine"}),
-                    t_aligned=h.t + off,
-                    t_end_aligned=h.t_end + off,
-                    score=h.score,
-                    cosine=h.cosine,
-                    match=flag,
+                evs.append(
+                    Evidence(
+                        **h.model_dump(exclude={"score", "cosine"}),
+                        t_aligned=h.t + off,
+                        t_end_aligned=h.t_end + off,
+                        score=h.score,
+                        cosine=h.cosine,
+                    )
                 )
+            if grasp is not None:
+                evs = pool_grasps(self.memory, q, name, evs, grasp)
+            flags = match_flags([e.score for e in evs], bars[name], relative)
+            capped = capped or (len(hits) >= per_sense and all(flags))
+            for e, flag in zip(evs, flags, strict=True):
+                e.match = flag
                 if _overlaps(e, after, before):
                     out.append(e)
         return out, capped
 
-    def matches(self, query: str, scope: Scope, match: Match) -> list[Evidence]:
-        """Every item matching ``query`` (see :mod:`tactus_memory.matching`), in aligned time
-        order."""
+    def matches(self, query: str, scope: Scope, match: Match, grasp: Rule = None) -> list[Evidence]:
+        """Every item (with a ``grasp`` rule: every grasp) matching ``query`` (see
+        :mod:`tactus_memory.matching`), in aligned time order."""
         q = embed_query(self.memory.space, query)
-        ev, _ = self.evidence(q, scope, match, MATCH_CANDIDATES)
+        ev, _ = self.evidence(q, scope, match, MATCH_CANDIDATES, grasp)
         return sorted((e for e in ev if e.match), key=lambda e: (e.t_aligned, e.sense, e.id))
 
     # ----------------------------------------------------------- last / first / count
@@ -220,13 +231,15 @@ class Temporal:
         match: Match,
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
+        grasp: Rule = None,
     ) -> Occurrences:
-        """Distinct occurrences of ``query``: matching items merged per session when their
-        aligned spans overlap or lie within ``merge_gap`` seconds. ``per_stream=True`` merges
-        only within one stream (session + sense + source): a grasp and its note count twice."""
+        """Distinct occurrences of ``query``: matching items (with a ``grasp`` rule: grasps,
+        matched on their pooled score) merged per session when their aligned spans overlap or
+        lie within ``merge_gap`` seconds. ``per_stream=True`` merges only within one stream
+        (session + sense + source): a grasp and its note count twice."""
         gap = check_seconds(merge_gap, "merge_gap")
         q = embed_query(self.memory.space, query)
-        ev, capped = self.evidence(q, scope, match, MATCH_CANDIDATES)
+        ev, capped = self.evidence(q, scope, match, MATCH_CANDIDATES, grasp)
         moments = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
         return Occurrences(
             query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments
@@ -445,21 +458,30 @@ class Temporal:
         scope: Scope,
         match: Match,
         gap: float = DEFAULT_MOMENT_GAP,
+        grasp: Rule = None,
     ) -> list[Moment]:
         """Search with the (1, D) query embedding ``q``, then group hits of one session whose
         aligned spans overlap or lie within ``gap`` seconds into moments carrying every
         sense's evidence; best ``k`` moments.
 
         Candidates: the top max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN) per sense that score
-        at least MOMENT_MIN_Z (above the sense's null mean). Score: see :class:`Moment`.
+        at least MOMENT_MIN_Z (above the sense's null mean); with a ``grasp`` rule, their
+        grasps. Score: see :class:`Moment`.
         """
         k = check_k(k)
         gap = check_seconds(gap, "gap")
         pool = min(MAX_K, max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN))
-        ev, _ = self.evidence(q, scope, match, pool)
+        ev, _ = self.evidence(q, scope, match, pool, grasp)
         moments = group_moments([e for e in ev if e.match or e.score >= MOMENT_MIN_Z], gap)
         moments.sort(key=lambda m: (-m.score, m.t, m.session))
         return moments[:k]
+
+    def grasps(self, q: np.ndarray, k: int, scope: Scope, rule: GraspRule) -> list[Grasp]:
+        """Search ranked by grasp: the top max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN)
+        windows per sense, grouped into their grasps, best ``k`` grasps by pooled score."""
+        pool = min(MAX_K, max(check_k(k) * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN))
+        ev, _ = self.evidence(q, scope, Match(), pool, rule)
+        return sorted(ev, key=lambda g: (-g.score, g.t_aligned, g.id))[:k]  # type: ignore[return-value]
 
 
 def _streams(tbl: Any) -> dict[tuple[str, str], np.ndarray]:

@@ -11,13 +11,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Query
 
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
 from tactus_memory.matching import Match
-from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId, StreamScopeDep
+from tactus_memory.questions import grasp_rule
+from tactus_memory.service.deps import (
+    GraspPool,
+    MemoryDep,
+    QueryText,
+    ScopeDep,
+    SessionId,
+    StreamScopeDep,
+)
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import (
     ClockIn,
@@ -52,6 +60,12 @@ Relative = Annotated[
 MergeGap = Annotated[
     float, Query(ge=0.0, le=1e9, description="Matches this close (s) are one occurrence.")
 ]
+GroupGrasp = Annotated[
+    Literal["grasp"] | None,
+    Query(
+        description="`grasp`: ask of grasps (a stream's contiguous windows, pooled), not windows."
+    ),
+]
 
 
 def match_bar(threshold: Threshold = None, relative: Relative = RELATIVE_KEEP) -> Match:
@@ -81,10 +95,15 @@ class Occurrence:
     asked: AskedDep
     q: QueryText
     merge_gap: MergeGap = DEFAULT_MERGE_GAP
+    group: GroupGrasp = None
+    pool: GraspPool = "mean"
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked
-        return a.memory.temporal.occurrences(self.q, a.scope, a.match, self.merge_gap, per_stream)
+        rule = grasp_rule(self.group, self.pool)
+        return a.memory.temporal.occurrences(
+            self.q, a.scope, a.match, self.merge_gap, per_stream, rule
+        )
 
 
 OccurrenceDep = Annotated[Occurrence, Depends()]
@@ -202,9 +221,11 @@ def moments(
     match: MatchDep,
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
+    group: GroupGrasp = None,
+    pool: GraspPool = "mean",
 ) -> MomentsOut:
     bar = {"threshold": match.threshold, "relative": match.relative}
-    moments = memory.search_moments(q, k, gap=gap, scope=scope, **bar)
+    moments = memory.search_moments(q, k, gap=gap, group=group, pool=pool, scope=scope, **bar)
     return MomentsOut(moments=moments)
 
 

@@ -51,6 +51,42 @@ TrainHoldout = Annotated[
         "--data file whose path contains SUBSTR) | recordings@NAME,NAME",
     ),
 ]
+#: the recipe options ``tactus train`` and ``tactus distill`` share (the ladder's options:
+#: checkpoints README); each command keeps its own defaults
+ModelName = Annotated[str, typer.Option("--model", help="architecture in configs/")]
+Pretrained = Annotated[Path | None, typer.Option("--pretrained", help="MAE checkpoint")]
+Steps = Annotated[int, typer.Option("--steps", help="optimizer steps")]
+Batch = Annotated[int, typer.Option("--batch", help="windows per step")]
+Device = Annotated[str, typer.Option("--device", help="auto | cpu | cuda")]
+Half = Annotated[bool, typer.Option("--half", help="store float16 weights")]
+Positives = Annotated[
+    str,
+    typer.Option("--positives", help="valid (labelled frames) | contact (+ every contact frame)"),
+]
+Balance = Annotated[
+    str,
+    typer.Option("--balance", help="none | recording | class: how batches draw training windows"),
+]
+Consecutive = Annotated[
+    float,
+    typer.Option("--consecutive", help="share of training windows cut as K consecutive frames"),
+]
+Augment = Annotated[str, typer.Option("--augment", help="default | strong | pressed-noise")]
+WeightDecay = Annotated[float, typer.Option("--weight-decay", help="AdamW weight decay")]
+InputGamma = Annotated[
+    float | None,
+    typer.Option("--input-gamma", help="model input: pressure ** gamma (default: the config's)"),
+]
+InputBlur = Annotated[
+    float | None,
+    typer.Option(
+        "--input-blur", help="model input: Gaussian blur sigma, px (default: the config's)"
+    ),
+]
+Dropout = Annotated[
+    float | None,
+    typer.Option("--dropout", help="Dropout2d on trunk features (default: the config's)"),
+]
 #: the recordings ``tactus eval`` and ``tactus baseline eval`` score
 ScoredHoldout = Annotated[
     str | None,

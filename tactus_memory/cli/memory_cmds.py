@@ -1,4 +1,4 @@
-"""``tactus search`` and ``tactus sessions``: query a memory from the shell.
+"""``tactus search``, ``tactus sessions`` and ``tactus reembed``: a memory from the shell.
 
 The data directory is ``--data``, else ``$TACTUS_DATA``, else ``./memory``. The store's own
 recorded space is used (MiniLM by default), so the query is embedded like the stored notes.
@@ -149,3 +149,32 @@ def sessions(
             f"{s.t_max:g}",
         ),
     )
+
+
+@app.command("reembed")
+def reembed(
+    checkpoint: str = typer.Option(
+        ..., "--checkpoint", help="the new touch checkpoint (.safetensors), or 'default'"
+    ),
+    data: MemoryData = None,
+    sense: str = typer.Option("touch", "--sense", help="the touch sense to re-embed"),
+    batch: int = typer.Option(256, "--batch", min=1, help="rows embedded and staged per commit"),
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
+) -> None:
+    """Recompute every stored vector of a touch sense with a new checkpoint, from the stored
+    raw windows; swapped in one commit (readers see all old or all new vectors), resumable
+    after a kill (rerun the same command). Rows without a raw window are listed."""
+    from tactus_memory.errors import TactusError
+
+    try:
+        from tactus_memory.adapters import TactusEncoder
+
+        memory = _open(data, space, space_path, space_dim)
+        enc = TactusEncoder(None if checkpoint == "default" else checkpoint, name=sense)
+        report = memory.reembed(sense, enc, batch=batch)
+    except (TactusError, FileNotFoundError, ValueError) as exc:
+        fail(str(exc))
+        return
+    _print_json(report.model_dump())
