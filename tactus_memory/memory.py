@@ -45,10 +45,11 @@ from typing import Any
 import numpy as np
 from typing_extensions import Unpack
 
+from tactus_memory.connect import DEFAULT_MEMORY
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
 from tactus_memory.maintenance import Background, MaintenanceConfig
-from tactus_memory.matching import DEFAULT_MOMENT_GAP
+from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
 from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.questions import TemporalQuestions
@@ -112,7 +113,7 @@ class Memory(TemporalQuestions):
     @classmethod
     def open(
         cls,
-        path: str = "./memory",
+        path: str = DEFAULT_MEMORY,
         space: Space | str | None = None,
         *,
         space_path: str | None = None,
@@ -355,7 +356,8 @@ class Memory(TemporalQuestions):
         k = check_k(k)
         base = where.where()
         names = self.resolve_senses(where.senses)
-        return self.rank(embed_query(self.space, query), k, names, base, transform=True)
+        hits = self.rank(embed_query(self.space, query), k, names, base, transform=True)
+        return mark_matches(hits)
 
     def search_vector(
         self,
@@ -373,7 +375,9 @@ class Memory(TemporalQuestions):
             raise InvalidInputError(f"one query vector expected, got {q.shape[0]}")
         where = Scope.of(**scope)
         base = where.where()
-        return self.rank(q, k, self.resolve_senses(where.senses), base, transform=transform)
+        return mark_matches(
+            self.rank(q, k, self.resolve_senses(where.senses), base, transform=transform)
+        )
 
     def search_like(
         self,

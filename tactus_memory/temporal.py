@@ -52,6 +52,7 @@ from tactus_memory.matching import (  # re-exported: `from tactus_memory.tempora
     make_moment,
     match_flags,
     resolve_thresholds,
+    sense_bar,
 )
 
 # re-exported (`X as X`): `from tactus_memory.temporal import Moment, ...` keeps working
@@ -190,17 +191,20 @@ class Temporal:
         capped = False
         for name in names:
             hits = self.memory.rank(q, per_sense, [name], base, transform=True)
-            flags = match_flags([h.score for h in hits], bars[name], relative)
+            scores = [h.score for h in hits]
+            flags = match_flags(scores, bars[name], relative)
+            bar = sense_bar(scores, bars[name], relative)
             capped = capped or (len(hits) >= per_sense and all(flags))
             for h, flag in zip(hits, flags, strict=True):
                 off = offsets.get((h.session, h.sense, h.source), 0.0)
                 e = Evidence(
-                    **h.model_dump(exclude={"score", "cosine"}),
+                    **h.model_dump(exclude={"score", "cosine", "match", "bar"}),
                     t_aligned=h.t + off,
                     t_end_aligned=h.t_end + off,
                     score=h.score,
                     cosine=h.cosine,
                     match=flag,
+                    bar=bar,
                 )
                 if _overlaps(e, after, before):
                     out.append(e)

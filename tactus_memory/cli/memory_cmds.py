@@ -17,6 +17,7 @@ import typer
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import MemoryData
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
+from tactus_memory.connect import DEFAULT_MEMORY, ENV_MEMORY
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -26,7 +27,7 @@ if TYPE_CHECKING:
 
 
 def _data_dir(data: str | None) -> str:
-    return data or os.environ.get("TACTUS_DATA") or "./memory"
+    return data or os.environ.get(ENV_MEMORY) or DEFAULT_MEMORY
 
 
 def _open(
