@@ -212,7 +212,9 @@ def moments(
     "/sessions/{session}/timeline",
     summary="A session in time order: items, or episodes",
     description="Items (or, with `episodes=true`, episodes: stretches of one stream whose "
-    "embeddings stay coherent) in aligned time order. Times filter by overlap.",
+    "embeddings stay coherent) in aligned time order. Times filter by overlap. A read: "
+    "episodes not yet stored are computed for the answer and not written (store them with "
+    "`POST /sessions/{session}/episodes`).",
     response_model=TimelineOut,
 )
 def timeline(
