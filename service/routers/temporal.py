@@ -84,6 +84,8 @@ class Occurrence:
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked
+        if a.scope.session is not None:
+            a.memory.session(a.scope.session)  # an unknown session: 404, as /timeline says
         return a.memory.temporal.occurrences(self.q, a.scope, a.match, self.merge_gap, per_stream)
 
 
@@ -94,7 +96,8 @@ OccurrenceDep = Annotated[Occurrence, Depends()]
     "/last",
     summary="The most recent occurrence of something",
     description="Matching items (per-sense calibrated threshold), merged into occurrences; the "
-    "one that started last. `moment` is null when nothing matches.",
+    "one that started last. `moment` is null when nothing matches; an unknown `session` is "
+    "a 404.",
     response_model=MomentOut,
 )
 def last(question: OccurrenceDep) -> MomentOut:
