@@ -177,9 +177,9 @@ def test_readme_quickstarts_run_as_written_on_a_fresh_copy(tmp_path: Path) -> No
         # the recording went into the store the server serves (it answered 404 before)
         assert (clone / "run1-served.rrd").stat().st_size > 1000
         assert (clone / "run1.rrd").stat().st_size > 1000
-        sessions = httpx.get(base + "/sessions").json()["sessions"]
-        assert {"s1", "run1"} <= {s["id"] for s in sessions}
-        assert "s2" not in {s["id"] for s in sessions}  # the Python quickstart deleted it
+        assert '"deleted":' in shell  # the delete example
+        sessions = {s["id"] for s in httpx.get(base + "/sessions").json()["sessions"]}
+        assert "run1" in sessions and not {"s1", "s2"} & sessions, sessions  # both deleted
         page_search(base, tmp_path)
     finally:
         stop_process(server)
