@@ -71,7 +71,7 @@ def serve(
     touch with the shipped checkpoint.
     """
     from tactus_memory.service.settings import Settings
-    from tactus_memory.service.startup import check_location, explain
+    from tactus_memory.service.startup import check_checkpoint, check_location, explain
 
     given = {
         "host": host,
@@ -97,6 +97,7 @@ def serve(
         settings = Settings(**overrides)
         where = settings.data
         check_location(settings.data)
+        check_checkpoint(settings.touch_checkpoint if settings.touch else None)
         if settings.torch_threads is None:
             from tactus_memory.service.app import serving_torch_threads
 
