@@ -20,6 +20,7 @@ from typing import Any
 
 import anyio.to_thread
 from fastapi import Depends, FastAPI
+from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
@@ -135,6 +136,14 @@ def serving_torch_threads() -> int:
     return max(1, (os.cpu_count() or 2) // 2)
 
 
+def operation_id(route: APIRoute) -> str:
+    """An operation's id is its route's name, which says what it does (``search``,
+    ``add_touch``, ``last``), so a client generated from ``/openapi.json`` has methods of
+    those names (FastAPI's default, ``search_search_get``, repeats the path and the method).
+    Route names are unique across the app (tests/test_openapi_names.py checks it)."""
+    return route.name
+
+
 #: what a background loader gets and returns: the state (to name its step in
 #: ``state.starting``) -> why touch is unavailable, or None
 Loader = Callable[[ServiceState], "str | None"]
@@ -207,6 +216,7 @@ def create_app(
         description=DESCRIPTION,
         lifespan=lifespan,
         responses=problem_responses(500),
+        generate_unique_id_function=operation_id,
     )
     app.state.tactus = state
     install_problem_handlers(app)

@@ -1,7 +1,7 @@
 """Turning request payloads into arrays: JSON without NaN, ``.npy`` bodies, touch frames.
 
 Every failure raises ``InvalidInputError`` with a message naming the problem, so it becomes a
-422 problem in the one mapping (``problems.ERROR_STATUS``).
+422 problem in the one mapping (``errors.ERROR_STATUS``).
 """
 
 from __future__ import annotations

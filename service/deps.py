@@ -124,16 +124,17 @@ def bearer(authorization: str | None) -> str | None:
     return value.strip()
 
 
+#: the 401's detail and challenge, for the API routes and the MCP endpoint (service/mcp_http.py)
+TOKEN_REFUSED = "missing or wrong bearer token: send 'Authorization: Bearer <token>'"
+BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="tactus"'}
+
+
 def require_token(request: Request, settings: SettingsDep) -> None:
     """Every HTTP route but /health: ``Authorization: Bearer <token>`` when a token is set."""
     if settings.token is None:
         return
     if not token_ok(settings, bearer(request.headers.get("authorization"))):
-        raise HTTPException(
-            401,
-            "missing or wrong bearer token: send 'Authorization: Bearer <token>'",
-            headers={"WWW-Authenticate": 'Bearer realm="tactus"'},
-        )
+        raise HTTPException(401, TOKEN_REFUSED, headers=BEARER_CHALLENGE)
 
 
 def require_touch(state: StateDep) -> None:

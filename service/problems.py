@@ -5,7 +5,7 @@ Every error response of the service is ``application/problem+json``::
     {"type": "urn:tactus-memory:problem:invalid-input", "title": "Invalid input",
      "status": 422, "detail": "touch window contains NaN or inf", "instance": "/sessions/s1/touch"}
 
-Library errors (``tactus_memory.errors``) map to statuses in :data:`ERROR_STATUS`; request
+Library errors (``tactus_memory.errors``) map to statuses in ``errors.ERROR_STATUS``; request
 validation errors (FastAPI/pydantic) become 422 with every failing field named in ``detail``;
 anything unexpected is logged and answered with a 500 problem (never a bare traceback).
 """
@@ -25,6 +25,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from typing_extensions import Unpack
 
 from tactus_memory import errors
+from tactus_memory.errors import ERROR_STATUS
 from tactus_memory.service.readiness import is_store_failure, short
 
 log = logging.getLogger("tactus_memory.service")
@@ -32,21 +33,6 @@ log = logging.getLogger("tactus_memory.service")
 PROBLEM_JSON = "application/problem+json"
 TYPE_BASE = "urn:tactus-memory:problem:"
 
-#: exception class -> (status, slug, title). The most specific class wins (MRO order).
-ERROR_STATUS: dict[type[BaseException], tuple[int, str, str]] = {
-    errors.InvalidIdError: (422, "invalid-id", "Invalid identifier"),
-    errors.DimensionMismatchError: (422, "dimension-mismatch", "Dimension mismatch"),
-    errors.InvalidInputError: (422, "invalid-input", "Invalid input"),
-    errors.UnknownSenseError: (404, "unknown-sense", "Unknown sense"),
-    errors.NotFoundError: (404, "not-found", "Not found"),
-    errors.SenseConflictError: (409, "sense-conflict", "Sense conflict"),
-    errors.IdConflictError: (409, "id-conflict", "Item id conflict"),
-    errors.SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
-    errors.CapabilityError: (400, "capability", "Not supported by this memory"),
-    errors.DataFormatError: (422, "data-format", "Invalid data format"),
-    errors.DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
-    errors.OverloadedError: (503, "overloaded", "Write queue full"),
-}
 
 HTTP_TITLES = {
     400: "Bad request",

@@ -11,6 +11,7 @@ __version__ = "0.1.0"
 
 _LAZY = {
     "Memory": "tactus_memory.memory",
+    "Client": "tactus_memory.client",
     "Hit": "tactus_memory.memory",
     "Sense": "tactus_memory.senses",
     "TextSense": "tactus_memory.senses",

@@ -71,3 +71,22 @@ class OverloadedError(TactusError):
     def __init__(self, message: str, retry_after: float = 1.0) -> None:
         super().__init__(message)
         self.retry_after = retry_after
+
+
+#: exception class -> (HTTP status, problem type slug, title): how the service answers each
+#: error (``service/problems.py``, the most specific class wins, MRO order) and how
+#: ``tactus_memory.Client`` raises it again from the problem's type.
+ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
+    InvalidIdError: (422, "invalid-id", "Invalid identifier"),
+    DimensionMismatchError: (422, "dimension-mismatch", "Dimension mismatch"),
+    InvalidInputError: (422, "invalid-input", "Invalid input"),
+    UnknownSenseError: (404, "unknown-sense", "Unknown sense"),
+    NotFoundError: (404, "not-found", "Not found"),
+    SenseConflictError: (409, "sense-conflict", "Sense conflict"),
+    IdConflictError: (409, "id-conflict", "Item id conflict"),
+    SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
+    CapabilityError: (400, "capability", "Not supported by this memory"),
+    DataFormatError: (422, "data-format", "Invalid data format"),
+    DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
+    OverloadedError: (503, "overloaded", "Write queue full"),
+}

@@ -171,7 +171,7 @@ def _around_route(side: Side) -> Callable[[Around], ContextOut]:
     def route(question: AroundDep) -> ContextOut:
         return question.ask(side)
 
-    route.__name__ = f"{side}_anchor"
+    route.__name__ = side  # the operation id: `before` / `after` (app.operation_id)
     return route
 
 
@@ -265,6 +265,6 @@ def get_clock(session: SessionId, memory: MemoryDep) -> ClockOut:
     summary="Set a stream's clock offset (t_aligned = t + offset)",
     response_model=ClockOut,
 )
-def put_clock(session: SessionId, body: ClockIn, memory: MemoryDep) -> ClockOut:
+def set_clock(session: SessionId, body: ClockIn, memory: MemoryDep) -> ClockOut:
     memory.set_clock_offset(session, body.sense, body.offset, source=body.source)
     return ClockOut(offsets=memory.clock_offsets(session))

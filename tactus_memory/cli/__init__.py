@@ -12,6 +12,7 @@ from tactus_memory.cli import (  # noqa: F401  (imported for their registrations
     data_cmds,
     eval_cmds,
     maintain_cmd,
+    mcp_cmd,
     memory_cmds,
     recording_cmds,
     serve_cmd,

@@ -51,14 +51,16 @@ def _open(
     space: str | None = None,
     space_path: str | None = None,
     space_dim: int | None = None,
+    **open_kw: Any,
 ) -> Memory:
-    """The memory at ``data`` in its recorded space (the space options find its model)."""
+    """The memory at ``data`` in its recorded space (the space options find its model);
+    ``open_kw`` go to :meth:`Memory.open` (e.g. ``maintenance=``)."""
     from tactus_memory.memory import Memory
 
     location = _data_dir(data)
     if "://" not in location and not Path(location).is_dir():
         fail(f"no memory at {location!r} (set --data or TACTUS_DATA, or ask a server with --url)")
-    return Memory.open(location, space=space, space_path=space_path, space_dim=space_dim)
+    return Memory.open(location, space=space, space_path=space_path, space_dim=space_dim, **open_kw)
 
 
 def one_source(data: str | None, url: str | None) -> None:

@@ -1,0 +1,310 @@
+"""The memory as MCP tools (the official ``mcp`` SDK, v2): :func:`build_server`.
+
+```python
+server = build_server(Memory.open("./memory"))          # read-only tools
+server.run()                                            # stdio, for an agent that starts it
+```
+
+Tools: ``search``, ``last``, ``first``, ``count``, ``before``, ``after``, ``timeline``,
+``sessions``, and ``remember`` (store a note) only with ``allow_writes=True``. Arguments are
+typed and documented (the JSON schema an agent sees); results are the compact models of
+:mod:`tactus_memory.mcp_server.results` (text content: one line of JSON; structured content:
+the same object). A library error (unknown session, bad time range, ...) is a tool error
+carrying the library's message; the server keeps serving.
+
+The scope arguments (``session``, ``senses``, ``after``, ``before``) are one set of
+``Annotated`` aliases shared by every tool and turned into one :class:`~tactus_memory.query.
+Scope` by :func:`scope_of`; a place filter (``near``: a named place or x, y and a radius, once
+the memory knows places) is one more alias there and one more ``Scope`` field, and a
+``where`` tool sits beside ``last``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from collections.abc import Callable
+from typing import Annotated, Any, TypeVar
+
+from mcp.server.mcpserver import MCPServer
+from mcp.server.mcpserver.exceptions import ToolError
+from mcp.types import CallToolResult, TextContent, ToolAnnotations
+from pydantic import BaseModel, Field
+
+import tactus_memory
+from tactus_memory.errors import TactusError
+from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS, MAX_TEXT_CHARS
+from tactus_memory.matching import DEFAULT_MERGE_GAP, DEFAULT_WINDOW
+from tactus_memory.mcp_server.results import (
+    Compactor,
+    ContextResult,
+    CountResult,
+    OccurrenceResult,
+    Remembered,
+    SearchResult,
+    SessionsResult,
+    TimelineResult,
+)
+from tactus_memory.memory import Memory
+from tactus_memory.query import Scope
+
+log = logging.getLogger(__name__)
+
+#: most hits a tool returns at once (an agent reads them all; the library allows MAX_K)
+MAX_TOOL_K = 50
+#: most timeline items a tool returns at once
+MAX_TOOL_ITEMS = 500
+
+INSTRUCTIONS = (
+    "A robot's memory of what it touched, heard and was told, searchable in words. Times are "
+    "seconds on each session's clock (`when` gives wall-clock time where known). Ask `sessions` "
+    "first to learn the session ids and time spans; `search` finds items (touch windows carry a "
+    "contact summary); `last`/`first`/`count` answer when and how often something happened; "
+    "`before`/`after` list what happened around a moment; `timeline` reads a session in order."
+)
+
+# ----------------------------------------------------------------- arguments
+QueryArg = Annotated[
+    str,
+    Field(
+        min_length=1,
+        max_length=MAX_TEXT_CHARS,
+        description="What to look for, in words (e.g. 'holding a warm mug').",
+    ),
+]
+KArg = Annotated[int, Field(ge=1, le=MAX_TOOL_K, description="How many results.")]
+SessionArg = Annotated[
+    str | None,
+    Field(
+        pattern=ID_PATTERN,
+        max_length=MAX_ID_CHARS,
+        description="Only this session (default: every session). " + ID_DESCRIPTION,
+    ),
+]
+SensesArg = Annotated[
+    list[str] | None,
+    Field(description="Only these senses, e.g. ['touch'] or ['text'] (default: every sense)."),
+]
+AfterArg = Annotated[
+    float | None, Field(description="Only items still going on at or after this time (s).")
+]
+BeforeArg = Annotated[float | None, Field(description="Only items started at or before (s).")]
+MergeGapArg = Annotated[
+    float, Field(ge=0.0, le=1e9, description="Matches this close (s) count as one occurrence.")
+]
+
+R = TypeVar("R")
+
+
+def scope_of(
+    session: str | None, senses: list[str] | None, after: float | None, before: float | None
+) -> Scope:
+    """The scope arguments of a tool -> the library's one :class:`Scope`."""
+    return Scope(session=session, senses=senses, after=after, before=before)
+
+
+def compact(result: BaseModel) -> CallToolResult:
+    """One line of JSON as text (what a model reads) and the same object as structured
+    content (what a program reads); empty fields are left out."""
+    body = result.model_dump(mode="json", exclude_none=True)
+    text = result.model_dump_json(exclude_none=True)
+    return CallToolResult(content=[TextContent(type="text", text=text)], structured_content=body)
+
+
+def tool_errors(fn: Callable[..., R]) -> Callable[..., R]:
+    """The library's typed errors become tool errors with its message (anything else is the
+    SDK's unexpected-error path: logged with its traceback, the server keeps serving)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> R:
+        try:
+            return fn(*args, **kwargs)
+        except TactusError as exc:
+            raise ToolError(str(exc)) from exc
+
+    return wrapper
+
+
+class MemoryTools:
+    """The tools over one memory (each a method; :func:`build_server` registers them)."""
+
+    def __init__(self, memory: Memory) -> None:
+        self.memory = memory
+        self.compactor = Compactor(memory.store)
+
+    @tool_errors
+    def search(
+        self,
+        query: QueryArg,
+        k: KArg = 5,
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+    ) -> SearchResult:
+        """Find remembered items (touch windows, notes, ...) that match a description, best
+        first. Each hit says when (t, t_end), which sense, its score and its id."""
+        hits = self.memory.search(query, k, scope=scope_of(session, senses, after, before))
+        return compact(SearchResult(query=query, hits=self.compactor.items(hits)))  # type: ignore[return-value]
+
+    def _occurrence(self, which: int, query: str, scope: Scope, gap: float) -> OccurrenceResult:
+        moments = self.memory.occurrences(query, merge_gap=gap, scope=scope).moments
+        if not moments:
+            return OccurrenceResult(query=query, found=False)
+        (moment,) = self.compactor.moments([moments[which]])
+        return OccurrenceResult(query=query, found=True, moment=moment)
+
+    @tool_errors
+    def last(
+        self,
+        query: QueryArg,
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        merge_gap: MergeGapArg = DEFAULT_MERGE_GAP,
+    ) -> OccurrenceResult:
+        """When did this last happen? The most recent occurrence (found: false if never)."""
+        scope = scope_of(session, senses, after, before)
+        return compact(self._occurrence(-1, query, scope, merge_gap))  # type: ignore[return-value]
+
+    @tool_errors
+    def first(
+        self,
+        query: QueryArg,
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        merge_gap: MergeGapArg = DEFAULT_MERGE_GAP,
+    ) -> OccurrenceResult:
+        """When did this first happen? The earliest occurrence (found: false if never)."""
+        scope = scope_of(session, senses, after, before)
+        return compact(self._occurrence(0, query, scope, merge_gap))  # type: ignore[return-value]
+
+    @tool_errors
+    def count(
+        self,
+        query: QueryArg,
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        merge_gap: MergeGapArg = DEFAULT_MERGE_GAP,
+    ) -> CountResult:
+        """How many distinct times did this happen? Also answers yes/no (count > 0)."""
+        scope = scope_of(session, senses, after, before)
+        occ = self.memory.occurrences(query, merge_gap=merge_gap, scope=scope)
+        moments = self.compactor.moments(occ.moments)
+        result = CountResult(query=query, count=occ.count, capped=occ.capped, occurrences=moments)
+        return compact(result)  # type: ignore[return-value]
+
+    def _around(
+        self, side: str, anchor: str, window: float, scope: Scope, anchor_senses: Any
+    ) -> Any:
+        ask = self.memory.before if side == "before" else self.memory.after
+        ctx = ask(anchor, window, scope=scope, anchor_senses=anchor_senses)
+        if ctx is None:
+            return compact(ContextResult(side=side, window=window, items=[]))
+        items = self.compactor.items([ctx.anchor, *ctx.items])
+        result = ContextResult(side=side, window=window, anchor=items[0], items=items[1:])
+        return compact(result)
+
+    @tool_errors
+    def before(
+        self,
+        anchor: Annotated[QueryArg, Field(description="The moment to look before, in words.")],
+        window: Annotated[float, Field(gt=0, le=1e6, description="Seconds before it.")] = (
+            DEFAULT_WINDOW
+        ),
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        anchor_senses: Annotated[
+            list[str] | None, Field(description="Search the anchor only in these senses.")
+        ] = None,
+    ) -> ContextResult:
+        """What happened just before something? The anchor's best match, then the items of its
+        session that start in the `window` seconds before it."""
+        scope = scope_of(session, senses, None, None)
+        return self._around("before", anchor, window, scope, anchor_senses)
+
+    @tool_errors
+    def after(
+        self,
+        anchor: Annotated[QueryArg, Field(description="The moment to look after, in words.")],
+        window: Annotated[float, Field(gt=0, le=1e6, description="Seconds after it.")] = (
+            DEFAULT_WINDOW
+        ),
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        anchor_senses: Annotated[
+            list[str] | None, Field(description="Search the anchor only in these senses.")
+        ] = None,
+    ) -> ContextResult:
+        """What happened just after something? The anchor's best match, then the items of its
+        session that start in the `window` seconds after it ends."""
+        scope = scope_of(session, senses, None, None)
+        return self._around("after", anchor, window, scope, anchor_senses)
+
+    @tool_errors
+    def timeline(
+        self,
+        session: Annotated[
+            str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Session id.")
+        ],
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        limit: Annotated[
+            int, Field(ge=1, le=MAX_TOOL_ITEMS, description="Most items returned.")
+        ] = 50,
+    ) -> TimelineResult:
+        """A session's items in time order (narrow with after/before for long sessions)."""
+        items = self.memory.timeline(session, senses, after, before, limit=limit)
+        result = TimelineResult(session=session, items=self.compactor.items(items))
+        return compact(result)  # type: ignore[return-value]
+
+    @tool_errors
+    def sessions(self) -> SessionsResult:
+        """Every session: its id, item counts per sense, and its time span (t_min, t_max)."""
+        return compact(SessionsResult(sessions=self.memory.sessions()))  # type: ignore[return-value]
+
+    @tool_errors
+    def remember(
+        self,
+        session: Annotated[
+            str,
+            Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Session id."),
+        ],
+        text: Annotated[
+            str, Field(min_length=1, max_length=MAX_TEXT_CHARS, description="The note.")
+        ],
+        t: Annotated[float | None, Field(description="When (s); default: now (unix).")] = None,
+        meta: Annotated[
+            dict[str, Any] | None, Field(description="Free JSON stored with the note.")
+        ] = None,
+    ) -> Remembered:
+        """Store a note in the memory (e.g. what the robot was told or decided)."""
+        t = time.time() if t is None else t
+        item_id = self.memory.add(session, "text", text, t=t, meta=meta)
+        return compact(Remembered(id=item_id, session=session, t=t))  # type: ignore[return-value]
+
+
+#: the read-only tools, in the order an agent sees them
+READ_TOOLS = ("sessions", "search", "last", "first", "count", "before", "after", "timeline")
+
+
+def build_server(memory: Memory, *, allow_writes: bool = False) -> MCPServer:
+    """An MCP server whose tools read (and with ``allow_writes``, add notes to) ``memory``."""
+    server = MCPServer(
+        "tactus-memory", instructions=INSTRUCTIONS, version=tactus_memory.__version__
+    )
+    tools = MemoryTools(memory)
+    read_only = ToolAnnotations(read_only_hint=True, open_world_hint=False)
+    for name in READ_TOOLS:
+        server.add_tool(getattr(tools, name), name=name, annotations=read_only)
+    if allow_writes:
+        writes = ToolAnnotations(read_only_hint=False, destructive_hint=False)
+        server.add_tool(tools.remember, name="remember", annotations=writes)
+    return server
