@@ -26,7 +26,8 @@ $(VENV)/.base: pyproject.toml
 	  echo "torch $(TORCH_VERSION) already in $(VENV)"; \
 	elif [ -n "$(TORCH_INDEX)" ] && $(PY) scripts/reachable.py "$(TORCH_INDEX)/torch/"; then \
 	  echo "installing torch $(TORCH_VERSION) (CPU build) from $(TORCH_INDEX)"; \
-	  $(PIP) install -q torch==$(TORCH_VERSION) --index-url $(TORCH_INDEX); \
+	  $(PIP) install -q torch==$(TORCH_VERSION) --index-url $(TORCH_INDEX) \
+	    || $(PIP) install -q torch==$(TORCH_VERSION); \
 	else \
 	  echo "installing torch $(TORCH_VERSION) from the default index"; \
 	  $(PIP) install -q torch==$(TORCH_VERSION); \
