@@ -38,6 +38,7 @@ from tactus_memory.service.routers import (
     health,
     images,
     items,
+    places,
     recordings,
     search,
     senses,
@@ -58,6 +59,8 @@ in natural language.
 * Write: `POST /sessions/{id}/touch` (raw sensor units by default), `/text`, `/image`,
   `/vectors`; live touch over the WebSocket `/sessions/{id}/touch/stream`.
 * Read: `GET /search?q=...`, `POST /search/like`, `GET /sessions`, `GET /senses`.
+* Where: `POST /sessions/{id}/poses` (the trajectory), `GET /where?q=...`,
+  `GET /at?x=&y=&z=&r=`; every search takes `near=x,y,z,r` and `frame=`.
 * Errors are RFC 9457 problem details (`application/problem+json`).
 * Every write is acknowledged (201) only after its LanceDB commit.
 * With a token configured, send `Authorization: Bearer <token>` on every route but the open
@@ -180,6 +183,9 @@ def create_app(
         read_only=store_read_only(memory.store.uri),
         starting="loading the models" if loader is not None else None,
     )
+    damage = memory.store.integrity.damage(0)
+    if damage:  # served (reads where they can), but unhealthy and refusing writes
+        log.error("the store is damaged, writes are refused: %s", "; ".join(map(str, damage)))
     if state.read_only:
         log.warning(
             "the store at %s is read-only: serving reads, refusing writes", memory.store.uri
@@ -221,16 +227,14 @@ def create_app(
     app.state.tactus = state
     install_problem_handlers(app)
     app.add_middleware(BodyLimitMiddleware, max_body_bytes=settings.max_body_bytes)
-    app.add_middleware(
-        ReadOnlyMiddleware, read_only=lambda: state.read_only, where=memory.store.uri
-    )
+    app.add_middleware(ReadOnlyMiddleware, read_only=lambda: state.read_only)
     app.add_middleware(AllowMiddleware)
     app.add_middleware(StartingMiddleware, starting=lambda: state.starting)
     install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, images, search, items, touch, ui, recordings):
+    for module in (sessions, senses, images, search, items, touch, ui, recordings, places):
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(touch_stream.router)  # checks the token itself (header or ?token=)

@@ -70,6 +70,15 @@ NPY_MAGIC = b"\x93NUMPY"
 
 def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
     """``.npy`` bytes -> a finite float32 array (no pickles, numeric dtypes only)."""
+    out = read_npy(raw, what).astype(np.float32, copy=False)
+    if not np.isfinite(out).all():
+        raise InvalidInputError(f"{what} contains NaN or inf")
+    return _in_range(out, what)
+
+
+def read_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
+    """``.npy`` bytes -> the numeric array as sent (no pickles; any numeric dtype, so float64
+    times keep their precision)."""
     if not raw:
         raise InvalidInputError(f"{what} is empty")
     arr = _npy_fast(raw)
@@ -94,10 +103,7 @@ def load_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
             _remember_header(raw, arr)
     if arr.dtype.kind not in "biuf":
         raise InvalidInputError(f"{what} has dtype {arr.dtype}; use a numeric dtype")
-    out = arr.astype(np.float32, copy=False)
-    if not np.isfinite(out).all():
-        raise InvalidInputError(f"{what} contains NaN or inf")
-    return _in_range(out, what)
+    return arr
 
 
 def _in_range(arr: np.ndarray, what: str) -> np.ndarray:

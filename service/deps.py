@@ -10,14 +10,17 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Path, Query, Request
 from starlette.requests import HTTPConnection
 
+from tactus_memory.errors import InvalidInputError
 from tactus_memory.ingest import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
+    FRAME_PATTERN,
     ID_DESCRIPTION,
     ID_PATTERN,
     MAX_ID_CHARS,
     MAX_TEXT_CHARS,
+    NEAR_PATTERN,
     SENSE_NAME_PATTERN,
     SOURCE_PATTERN,
 )
@@ -26,6 +29,7 @@ from tactus_memory.query import Scope
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.settings import Settings
 from tactus_memory.service.writes import Writer
+from tactus_memory.where import Near, check_near, validate_frame
 
 
 @dataclass
@@ -103,6 +107,13 @@ ItemIdPath = Annotated[
     str,
     Path(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Item id. " + ID_DESCRIPTION),
 ]
+
+
+#: the routes no token guards (README "Trust"): probes, the static page, the API docs
+OPEN_PATHS = frozenset(
+    {"/live", "/health", "/ready", "/", "/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc"}
+)
+OPEN_PREFIXES = ("/static/",)
 
 
 def token_ok(settings: Settings, presented: str | None) -> bool:
@@ -185,15 +196,61 @@ BeforeQ = Annotated[
 ]
 
 
+NearQ = Annotated[
+    str | None,
+    Query(
+        max_length=100,
+        pattern=NEAR_PATTERN,
+        description="Only items placed within r metres of (x, y, z): `near=x,y,z,r` (r > 0).",
+        examples=["2.0,0.5,0,1.5"],
+    ),
+]
+FrameQ = Annotated[
+    str | None,
+    Query(
+        max_length=MAX_ID_CHARS + 1,
+        pattern=FRAME_PATTERN,
+        description="Only items placed in this frame (e.g. `map`).",
+    ),
+]
+
+
+def parse_near(near: str | None) -> Near | None:
+    """``"x,y,z,r"`` -> ``((x, y, z), r)`` (checked by the library: finite, r > 0)."""
+    if near is None:
+        return None
+    parts = near.split(",")
+    if len(parts) != 4:
+        raise InvalidInputError(f"near must be 'x,y,z,r' (four numbers), got {near!r}")
+    try:
+        x, y, z, r = (float(p) for p in parts)
+    except ValueError:
+        raise InvalidInputError(f"near must be 'x,y,z,r' (four numbers), got {near!r}") from None
+    return check_near(((x, y, z), r))
+
+
 def stream_scope(
-    sense: SensesQ = None, source: SourceQ = None, after: AfterQ = None, before: BeforeQ = None
+    sense: SensesQ = None,
+    source: SourceQ = None,
+    after: AfterQ = None,
+    before: BeforeQ = None,
+    near: NearQ = None,
+    frame: FrameQ = None,
 ) -> Scope:
     """The scope's query parameters but the session (a route with the session in its path)."""
-    return Scope(senses=sense, source=source, after=after, before=before)
+    return Scope(
+        senses=sense,
+        source=source,
+        after=after,
+        before=before,
+        near=parse_near(near),
+        frame=None if frame is None else validate_frame(frame),
+    )
 
 
 def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = None) -> Scope:
-    """``sense`` (repeated), ``session``, ``source``, ``after``, ``before`` -> one
+    """``sense`` (repeated), ``session``, ``source``, ``after``, ``before``, ``near``,
+    ``frame`` -> one
     :class:`~tactus_memory.query.Scope`, what every search and temporal route passes down."""
     return replace(base, session=session)
 

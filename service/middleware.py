@@ -22,6 +22,7 @@ from starlette.exceptions import HTTPException
 from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from tactus_memory.service.deps import OPEN_PATHS, OPEN_PREFIXES, bearer, token_ok
 from tactus_memory.service.problems import PROBLEM_JSON, problem_body
 
 
@@ -137,10 +138,9 @@ class ReadOnlyMiddleware:
     """On a read-only store, writes (POST/PUT/PATCH/DELETE but the read-only POSTs) answer
     503 before reaching a route; reads go through. ``read_only()`` is asked per request."""
 
-    def __init__(self, app: ASGIApp, read_only: Callable[[], bool], where: str) -> None:
+    def __init__(self, app: ASGIApp, read_only: Callable[[], bool]) -> None:
         self.app = app
         self.read_only = read_only
-        self.where = where
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if (
@@ -150,7 +150,7 @@ class ReadOnlyMiddleware:
             and self.read_only()
         ):
             detail = (
-                f"the store at {self.where} is read-only: writes and deletes are refused; "
+                "the store is read-only: writes and deletes are refused; "
                 "reads and searches work (serve a writable copy to write)"
             )
             problem = problem_body(503, detail, slug="read-only", title="Store is read-only")
@@ -191,15 +191,43 @@ class StartingMiddleware:
 
 
 CANDIDATE_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
+UNAUTHORIZED = "missing or wrong bearer token: send 'Authorization: Bearer <token>'"
+BEARER_REALM = b'Bearer realm="tactus"'
+
+
+def _without_body(send: Send) -> Send:
+    """``send`` for a HEAD answered by its GET route: status and headers, no body bytes."""
+
+    async def head_send(message: Message) -> None:
+        if message["type"] == "http.response.body":
+            message = {**message, "body": b""}
+        await send(message)
+
+    return head_send
+
+
+def _token_ok_for(scope: Scope) -> bool:
+    """Whether an ``OPTIONS`` request may see the path's methods: the path is one of the open
+    routes (:data:`~tactus_memory.service.deps.OPEN_PATHS`), or the request carries the token
+    its routes need."""
+    path = scope["path"]
+    if path in OPEN_PATHS or path.startswith(OPEN_PREFIXES):
+        return True
+    settings = scope["app"].state.tactus.settings
+    header = dict(scope.get("headers", ())).get(b"authorization", b"").decode("latin-1")
+    return token_ok(settings, bearer(header))
 
 
 class AllowMiddleware:
-    """``OPTIONS`` and 405 answers name every method the path takes (RFC 9110 ``Allow``).
+    """``OPTIONS`` and 405 answers name every method the path takes (RFC 9110 ``Allow``), and
+    ``HEAD`` is served wherever ``GET`` is.
 
     Starlette stops at the first route whose path matches, so on a path served by several
     routes (``GET`` and ``DELETE /sessions/{id}``) its 405 said ``Allow: GET``. Here the
-    methods of every matching route are collected: ``OPTIONS`` answers 204 with them, any
-    other method the path does not take answers a 405 problem with them.
+    methods of every matching route are collected: ``OPTIONS`` answers 204 with them (behind
+    the same bearer token as the route: 401 without it), any other method the path does not
+    take answers a 405 problem with them. ``HEAD`` on a ``GET`` route runs the ``GET`` (its
+    token check included) and sends its status and headers without the body (RFC 9110 9.3.2).
     """
 
     def __init__(self, app: ASGIApp) -> None:
@@ -225,11 +253,20 @@ class AllowMiddleware:
             await self.app(scope, receive, send)  # the common case: one pass over the routes
             return
         methods = self._methods(routes, scope)
+        if "GET" in methods and "HEAD" not in methods:
+            methods.add("HEAD")
+            if method == "HEAD":
+                await self.app({**scope, "method": "GET"}, receive, _without_body(send))
+                return
         if not methods or method in methods:
             await self.app(scope, receive, send)
             return
         allow = ", ".join(sorted(methods | {"OPTIONS"}))
         if method == "OPTIONS":
+            if not _token_ok_for(scope):
+                problem = problem_body(401, UNAUTHORIZED, instance=scope["path"])
+                await send_problem(send, 401, problem, [(b"www-authenticate", BEARER_REALM)])
+                return
             await send(
                 {
                     "type": "http.response.start",

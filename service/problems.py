@@ -26,7 +26,7 @@ from typing_extensions import Unpack
 
 from tactus_memory import errors
 from tactus_memory.errors import ERROR_STATUS
-from tactus_memory.service.readiness import is_store_failure, short
+from tactus_memory.service.readiness import is_store_failure, no_paths, short
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -103,7 +103,7 @@ def problem_body(
         "type": TYPE_BASE + (slug or f"http-{status}"),
         "title": title or HTTP_TITLES.get(status, "Error"),
         "status": status,
-        "detail": detail,
+        "detail": no_paths(detail) if status >= 500 else detail,  # never where the store is
     }
     if instance is not None:
         body["instance"] = instance

@@ -1,10 +1,11 @@
 """Store checks for ``/health`` and ``/ready``, and the read-only flag.
 
-``store_problem(memory)`` is cheap: it reads the three tables' manifests (row counts) and
-one row of the items table (vector included), so a missing or truncated data file or
-manifest shows up as a reason string instead of a 500 on the next data route. It does not
-scan the whole store: a damaged fragment other than the first is found by the route that
-reads it (answered 503, see :func:`is_store_failure`).
+``store_problem(memory)`` is cheap: the store's integrity check (:mod:`tactus_memory.integrity`:
+every data file the latest manifests name present and of its recorded size, Lance's own
+validation), then the three tables' manifests (row counts) and one row of the items table,
+so a missing or truncated file shows up as a reason string instead of a 500 on the next
+data route. Reasons never carry a filesystem path (:func:`short` cuts them from Lance's
+messages): an HTTP answer must not tell where the store lives.
 
 ``store_read_only(settings, memory)``: whether the local store directory cannot be written
 (checked once at startup; object stores are assumed writable).
@@ -13,6 +14,7 @@ reads it (answered 503, see :func:`is_store_failure`).
 from __future__ import annotations
 
 import os
+import re
 from typing import Any
 
 from tactus_memory.connect import is_remote_uri, normalise_uri
@@ -30,23 +32,37 @@ def is_store_failure(exc: BaseException) -> bool:
     return False
 
 
+#: an absolute path (POSIX or file://) in an error message: a run of /segments
+_PATH = re.compile(r"(?:file://)?(?<![\w.])/?(?:[\w.@~+-]+/){2,}[\w.@~+-]*")
+
+
+def no_paths(text: str) -> str:
+    """``text`` with every filesystem path shortened to its last name (``x/y/z.lance`` ->
+    ``z.lance``): error details reach HTTP answers, the store's location must not."""
+    return _PATH.sub(lambda m: m.group(0).rstrip("/").rsplit("/", 1)[-1] or "<path>", text)
+
+
 def short(exc: BaseException, limit: int = 300) -> str:
-    """One line of an exception, without LanceDB's Rust source locations."""
+    """One line of an exception, without LanceDB's Rust source locations or any path."""
     text = " ".join(str(exc).split())
-    text = text.split(", /rustc/")[0]
-    return text[:limit]
+    text = text.split(", /rustc/")[0].split(", /home/")[0]
+    return no_paths(text)[:limit]
 
 
 def store_problem(memory: Any) -> str | None:
-    """None when the store answers (manifests + one row); else what is wrong, one line."""
+    """None when the store is intact and answers (manifests + one row); else what is
+    wrong, one line (no path)."""
     store = memory.store
+    damage = store.integrity.damage(0)  # probes check now
+    if damage:
+        return "the store is damaged: " + no_paths("; ".join(map(str, damage[:5])))
     try:
         store.count()  # items manifest
         store.scan(None, ["id", "vector"], limit=1)  # one row: a data file is readable
         store.sense_rows()  # senses table (small)
         store.get_meta("space")  # meta table
     except Exception as exc:  # noqa: BLE001  (any failure is the answer: report it)
-        return f"the store at {store.uri} cannot be read: {short(exc)}"
+        return f"the store cannot be read: {short(exc)}"
     return None
 
 

@@ -11,6 +11,7 @@ from tactus_memory.limits import (
     ID_DESCRIPTION,
     ID_PATTERN,
     MAX_CLOCK_OFFSET,
+    MAX_COORDINATE,
     MAX_ID_CHARS,
     MAX_K,
     MAX_TEXT_CHARS,
@@ -18,9 +19,12 @@ from tactus_memory.limits import (
     SOURCE_PATTERN,
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
+from tactus_memory.models import Place, Position, TrajectoryOut
+from tactus_memory.places import MAX_POSES
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
 from tactus_memory.temporal import ClockOffset, Evidence, Moment, TimelineItem
 from tactus_memory.vectors import MAX_COMPONENT
+from tactus_memory.where import DEFAULT_FRAME
 
 MAX_BATCH = 4096
 #: windows in one JSON touch batch (64 x K=8 frames is ~2.6 MB of JSON; send larger
@@ -62,6 +66,12 @@ Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": 32, "maxItems"
 Window = Annotated[list[Frame], Field(min_length=1, max_length=MAX_WINDOW_FRAMES)]
 #: an item id (the store's rule)
 ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
+
+#: (3,) a position (x, y, z) in metres and (4,) a unit quaternion (x, y, z, w), JSON arrays
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+Point = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+Quaternion = Annotated[list[Annotated[float, Field(ge=-1.001, le=1.001)]],
+                       Field(min_length=4, max_length=4)]  # fmt: skip
 
 T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
 T_END_DESC = "End time in seconds (>= t); defaults to t."
@@ -138,6 +148,10 @@ class TextIn(Strict):
     t_end: float | None = Field(None, description=T_END_DESC)
     meta: Meta | None = None
     id: str | None = Field(None, pattern=ID_PATTERN, description="Item id. " + ID_DESCRIPTION)
+    position: Point | None = Field(
+        None, description="Where it happened (x, y, z) in `frame` (default: from the poses)."
+    )
+    frame: str = Field(DEFAULT_FRAME, pattern=ID_PATTERN, description="The frame of `position`.")
 
 
 class VectorsIn(Strict):
@@ -217,6 +231,8 @@ class HitOut(BaseModel):
         description="The score this hit's sense needed to match: max(the sense's threshold, "
         "3.0 by default; 0.4 x the best score of that sense for the query).",
     )
+    position: Position | None = Field(None, description="Where it happened (x, y, z), if known.")
+    frame: str | None = Field(None, description="The frame of `position`.")
 
 
 class SearchOut(BaseModel):
@@ -339,6 +355,7 @@ class SessionsOut(BaseModel):
 class DeletedOut(BaseModel):
     id: str
     deleted: int = Field(description="Items removed.")
+    clock_offsets: int = Field(0, description="Clock offsets removed.")
 
 
 class HealthOut(BaseModel):
@@ -417,3 +434,59 @@ class SegmentIn(Strict):
 class SegmentOut(BaseModel):
     session: str
     episodes: int = Field(description="Episodes written.")
+
+
+# --------------------------------------------------------------------------- places
+
+
+class PosesIn(Strict):
+    """A batch of a session's poses: N strictly increasing times on the session clock."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "t": [0.0, 0.1, 0.2],
+                    "position": [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0]],
+                    "orientation": [[0.0, 0.0, 0.0, 1.0]] * 3,
+                    "frame": "map",
+                    "source": "odom",
+                }
+            ]
+        }
+    )
+
+    t: list[float] = Field(min_length=1, max_length=MAX_POSES, description="(N,) seconds.")
+    position: list[Point] = Field(
+        min_length=1, max_length=MAX_POSES, description="(N, 3) metres in `frame`."
+    )
+    orientation: list[Quaternion] | None = Field(
+        None, max_length=MAX_POSES, description="(N, 4) unit quaternions (x, y, z, w)."
+    )
+    frame: str = Field(DEFAULT_FRAME, pattern=ID_PATTERN, description="e.g. map, odom.")
+    source: str = Field("", max_length=MAX_ID_CHARS, pattern=SOURCE_PATTERN)
+
+
+class PosesStoredOut(BaseModel):
+    session: str
+    count: int = Field(description="Poses stored.")
+
+
+class TrajectoriesOut(BaseModel):
+    session: str
+    trajectories: list[TrajectoryOut]
+
+
+class PlacesOut(BaseModel):
+    """Where moments matching the query happened, best first."""
+
+    query: str
+    places: list[Place]
+
+
+class AtOut(BaseModel):
+    """What happened within `r` of (x, y, z), in time order."""
+
+    position: Position
+    radius: float
+    items: list[TimelineItem]

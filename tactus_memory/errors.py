@@ -73,6 +73,12 @@ class OverloadedError(TactusError):
         self.retry_after = retry_after
 
 
+class StoreDamagedError(TactusError):
+    """The store fails its integrity check (a data file missing or truncated, a manifest
+    unreadable): writes are refused so nothing lands in a store that cannot be read back
+    (HTTP 503). ``tactus maintain --check`` lists the damage."""
+
+
 #: exception class -> (HTTP status, problem type slug, title): how the service answers each
 #: error (``service/problems.py``, the most specific class wins, MRO order) and how
 #: ``tactus_memory.Client`` raises it again from the problem's type.
@@ -89,4 +95,5 @@ ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
     DataFormatError: (422, "data-format", "Invalid data format"),
     DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
     OverloadedError: (503, "overloaded", "Write queue full"),
+    StoreDamagedError: (503, "store-damaged", "Store is damaged"),
 }

@@ -12,9 +12,13 @@ How it works: :meth:`GroupCommitter.submit` validates the write in the caller's 
 One committer thread takes whatever is queued once the oldest write has waited ``tick``
 seconds (or ``max_batch`` items are waiting), embeds it with one ``embed`` call per sense and
 stores it in one commit (:meth:`Memory.commit_writes`). Each write's future resolves only
-after that commit returned, so an acknowledged write survives a crash. If the batch fails
-(one write's embedding raises, or the commit does), the writes are retried one by one, so
-only the culprit fails. The queue is bounded by ``max_pending`` items (queued or being
+after that commit returned, so an acknowledged write survives a crash. A write that fails on
+its own (its embedding raises, its id is another session's, or another write of the batch
+names the same id with other content: 409) is left out and fails alone, and the rest is
+committed once; a repeat of the same id with the same session, sense and payload is written
+once and both are acknowledged. A batch is never committed twice: a failure after the store
+write (bookkeeping) is logged and repaired, and the commit itself is idempotent by id.
+The queue is bounded by ``max_pending`` items (queued or being
 committed); beyond it :meth:`submit` raises :class:`~tactus_memory.errors.OverloadedError`
 with a ``retry_after`` hint (the service answers 503 + ``Retry-After``).
 
@@ -53,7 +57,8 @@ DEFAULT_MAX_PENDING = 1024
 
 @dataclass
 class CommitStats:
-    """Counters since start: commits made, writes and items committed, failures, retries."""
+    """Counters since start: commits made, writes and items committed, failures, and
+    ``batch_retries``: commits that left a failing write out (the rest still committed)."""
 
     commits: int = 0
     writes: int = 0
@@ -216,26 +221,38 @@ class GroupCommitter:
                     self._pending_items -= sum(len(q.write) for q in batch)
 
     def _commit(self, batch: list[_Queued]) -> None:
+        """ONE commit for the batch, never a second: a write that fails on its own (its
+        embedding, an id clash) is left out and fails alone; a failing commit fails every
+        write of the batch; once it succeeded, every other write is acknowledged whatever
+        fails after it (the bookkeeping is logged and repaired by the memory)."""
         t0 = time.perf_counter()
+        writes = [q.write for q in batch]
         try:
-            results = self.memory.commit_writes([q.write for q in batch])
-        except Exception as exc:  # noqa: BLE001  (retried one by one below)
-            if len(batch) == 1:
-                self.stats.failed_writes += 1
-                batch[0].future.set_exception(exc)
-                return
-            self.stats.batch_retries += 1
-            log.info("a batch of %d writes failed (%s); retrying one by one", len(batch), exc)
+            self.memory.commit_writes(writes, isolate=True)
+        except Exception as exc:  # noqa: BLE001  (the commit itself failed: nothing stored)
+            self.stats.failed_writes += len(batch)
+            log.warning("a commit of %d writes failed: %s", len(batch), exc)
             for q in batch:
-                self._commit([q])
+                q.future.set_exception(exc)
             return
-        dt = time.perf_counter() - t0
+        for q in batch:  # resolved first: nothing below may leave a stored write unacknowledged
+            if q.write.error is not None:
+                q.future.set_exception(q.write.error)
+            else:
+                q.future.set_result(list(q.write.ids))
+        try:
+            self._record(batch, time.perf_counter() - t0)
+        except Exception:  # noqa: BLE001  (counters only)
+            log.exception("group commit statistics failed")
+
+    def _record(self, batch: list[_Queued], seconds: float) -> None:
         s = self.stats
-        s.commits += 1
-        s.writes += len(batch)
-        items = sum(len(q.write) for q in batch)
+        failed = sum(q.write.error is not None for q in batch)
+        s.failed_writes += failed
+        s.batch_retries += bool(failed)
+        s.commits += failed < len(batch)
+        s.writes += len(batch) - failed
+        items = sum(len(q.write) for q in batch if q.write.error is None)
         s.items += items
         s.largest_batch = max(s.largest_batch, items)
-        s.commit_seconds += dt
-        for q, ids in zip(batch, results, strict=True):
-            q.future.set_result(ids)
+        s.commit_seconds += seconds

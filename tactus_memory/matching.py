@@ -209,6 +209,8 @@ def make_moment(hits: Sequence[Evidence]) -> Moment:
     """One moment from its members (see :class:`Moment` for the score)."""
     best = min(hits, key=lambda e: (-e.score, e.t_aligned, e.id))  # ties: the earliest
     corroborating = {e.sense for e in hits if e.match and e.sense != best.sense}
+    placed = [e for e in hits if e.position is not None]
+    where = min(placed, key=lambda e: (-e.score, e.t_aligned, e.id)) if placed else None
     return Moment(
         session=best.session,
         t=min(e.t_aligned for e in hits),
@@ -217,4 +219,6 @@ def make_moment(hits: Sequence[Evidence]) -> Moment:
         senses=sorted({e.sense for e in hits}),
         best=best.id,
         hits=list(hits),
+        position=None if where is None else where.position,
+        frame=None if where is None else where.frame,
     )

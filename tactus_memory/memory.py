@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from typing_extensions import Unpack
 
+from tactus_memory.clocks import drop_session_clock
 from tactus_memory.connect import DEFAULT_MEMORY
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
@@ -59,17 +60,22 @@ from tactus_memory.rows import (
     PreparedWrite,
     WriteKwargs,
     check_batch,
+    claim_ids,
     embed_groups,
+    embed_isolated,
     options_for,
+    resolve_shared_ids,
     summarise,
     writes_table,
 )
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
+from tactus_memory.spatial import PlaceQuestions, Places
 from tactus_memory.store import HIT_COLUMNS, IndexConfig, Store, Where, validate_id, validate_source
 from tactus_memory.temporal import Temporal
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import DEFAULT_FRAME
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +96,7 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- memory
-class Memory(TemporalQuestions):
+class Memory(TemporalQuestions, PlaceQuestions):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -102,9 +108,11 @@ class Memory(TemporalQuestions):
         self.background = background
         self.lock = threading.RLock()
         store.bind_space(space.name, int(space.dim), space.fingerprint())
+        self.places = Places(store, self.lock)  # adds the place columns to an old store
         self.registry = SenseRegistry(store, space, self.lock)
         # live rows for the index threshold: the table's own count, as Store.maintain uses
         self._maintenance = Background(store, store.count, background=background)
+        store.on_commit = self._schedule_maintenance  # every table, not only items
         self.ranker = Ranker(store, self.registry)
         self.temporal = Temporal(self)
         self.add_sense(TextSense(space))
@@ -135,8 +143,6 @@ class Memory(TemporalQuestions):
         through :func:`~tactus_memory.spaces.resolve.resolve_space`: a Qwen3-VL store reopens
         with ``space_path=DIR``, and a missing or other model folder raises a one-line
         :class:`~tactus_memory.errors.SpaceConfigError`.
-
-        :class:`~tactus_memory.errors.SpaceMismatchError` naming both.
 
         Several processes may open one store: each sees the others' commits within
         ``read_consistency_interval`` (default ``TACTUS_READ_CONSISTENCY`` or 1 s), and only
@@ -202,11 +208,15 @@ class Memory(TemporalQuestions):
         id: str | None = None,  # noqa: A002  (the public contract names it id)
         source: str = "",
         options: Mapping[str, Any] | None = None,
+        position: Sequence[float] | None = None,
+        frame: str = DEFAULT_FRAME,
     ) -> str:
         """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
         to ``t``. Passing ``id`` makes the call an idempotent upsert of that session's item of
         that sense; an id already used by another session or sense raises
-        :class:`~tactus_memory.errors.IdConflictError` (nothing is written)."""
+        :class:`~tactus_memory.errors.IdConflictError` (nothing is written). ``position``
+        ``(x, y, z)`` in ``frame`` says where it happened (default: from the session's
+        poses, :mod:`tactus_memory.spatial`)."""
         return self.add_many(
             session,
             sense,
@@ -217,6 +227,8 @@ class Memory(TemporalQuestions):
             ids=None if id is None else [id],
             source=source,
             options=options,
+            position=None if position is None else [position],
+            frame=frame,
         )[0]
 
     def add_many(
@@ -244,8 +256,12 @@ class Memory(TemporalQuestions):
         ids: Sequence[str] | None = None,
         source: str = "",
         options: Mapping[str, Any] | None = None,
+        position: Any = None,
+        frame: str = DEFAULT_FRAME,
     ) -> PreparedWrite:
-        """Validate one write (``add_many``'s arguments) without embedding or storing it.
+        """Validate one write (``add_many``'s arguments) without embedding or storing it;
+        ``position``: one ``(x, y, z)`` for every item or one per item (None: placed from the
+        session's poses), in ``frame``.
 
         Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
         alone or with the writes of other sessions (group commit, ``tactus_memory.ingest``).
@@ -254,40 +270,48 @@ class Memory(TemporalQuestions):
         source = validate_source(source)
         s = self.registry.live_sense(sense)
         items = list(items)
-        batch = check_batch(len(items), t, t_end, meta, ids)
+        batch = check_batch(len(items), t, t_end, meta, ids, position, frame)
         opts = options_for(s, options)
         canon = [s.validate(x, **opts) for x in items]
         return PreparedWrite(session, s, canon, batch, source)
 
-    def commit_writes(self, writes: Sequence[PreparedWrite]) -> list[list[str]]:
+    def commit_writes(
+        self, writes: Sequence[PreparedWrite], *, isolate: bool = False
+    ) -> list[list[str]]:
         """Embed prepared writes (ONE ``embed`` call per sense across all of them) and store
         them all in ONE LanceDB commit; returns each write's ids, in order.
 
         All-or-nothing: if embedding or the commit fails nothing is written (vectors already
-        computed stay on the writes, so a retry of fewer writes does not embed them again).
-        Appends are one append; if any write is an upsert, all rows go in one merge-insert.
+        computed stay on the writes). Appends are one append; if any write is an upsert, all
+        rows go in one merge-insert. ``isolate`` (the group committer): a write whose
+        embedding fails or whose id clashes (with another write of this commit, or another
+        session's row) gets its ``error`` and is left out, the rest still commit once (an
+        identical repeat of an id is written once, :func:`~tactus_memory.rows.resolve_shared_ids`).
+        Once the rows are stored nothing raises: a failing step after the commit is logged
+        and its caches dropped, so no caller retries (and duplicates) a stored write.
         """
         live = [w for w in writes if len(w)]
         if not live:
             return [list(w.ids) for w in writes]
-        embed_groups(live, self.space.dim)
-        upsert = any(w.batch.upsert for w in live)
-        all_ids = [i for w in live for i in w.ids]
-        if upsert and len(set(all_ids)) != len(all_ids):
-            raise InvalidInputError("the same id appears in two writes of one commit")
-        data = writes_table(self.store.schema, live)
+        if isolate:
+            embed_isolated(live, self.space.dim)
+            resolve_shared_ids(live)
+        else:
+            embed_groups(live, self.space.dim)
+            all_ids = [i for w in live if w.batch.upsert for i in w.ids]
+            if len(set(all_ids)) != len(all_ids):
+                raise InvalidInputError("the same id appears in two writes of one commit")
         with self.lock:
-            replaced = [0] * len(live)  # rows each write replaces (of its own sense)
-            if upsert:  # under the commit lock: no racing writer can slip in between
-                for n, w in enumerate(live):
-                    if w.batch.upsert:
-                        replaced[n] = self.store.owned_count(w.ids, w.session, w.sense.name)
+            replaced = claim_ids(self.store, live, isolate)  # under the lock: no racing writer
+            ok = [w for w in live if w.error is None]
+            if not ok:
+                return [list(w.ids) for w in writes]
+            self.places.fill(ok)  # under the lock: poses added meanwhile are seen
             before = self.store.version()
-            self.store.write(data, upsert=upsert)
-            self.registry.note_commit(before)
-            for w, r in zip(live, replaced, strict=True):
-                self.registry.note_write(w.sense.name, len(w) - r)
-        self._schedule_maintenance()
+            self.store.write(
+                writes_table(self.store.schema, ok), upsert=any(w.batch.upsert for w in ok)
+            )
+            self.registry.note_writes(before, ok, replaced)  # never raises: the rows are stored
         return [list(w.ids) for w in writes]
 
     def delete(self, ids: Sequence[str] | str) -> int:
@@ -298,16 +322,17 @@ class Memory(TemporalQuestions):
         return self._delete(where)
 
     def delete_session(self, session: str) -> int:
-        """Delete every item of a session and its clock offsets; returns the rows removed."""
+        """Delete every item of a session, its poses and clock offsets; returns the item rows
+        removed."""
         deleted = self._delete(Where().session(session).sql())
-        with self.lock:  # every offset of the session in one meta write
-            table = self.store.clock_table()
-            if table.pop(session, None):
-                self.store.put_clock_table(table)
+        self.places.delete_session(session)
+        with self.lock:  # every offset of the session: its one meta row
+            drop_session_clock(self.store, session)
         return deleted
 
     def _delete(self, where: str | None) -> int:
         with self.lock:
+            self.store.integrity.require()  # before counting: a damaged store may not count
             n = self.store.count(where)
             if n:
                 self.store.delete(where)
@@ -323,7 +348,12 @@ class Memory(TemporalQuestions):
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
-        self._maintenance.schedule()
+        """After every commit of any table (``Store.on_commit``). Never raises: the commit
+        is stored; maintenance is scheduled again after the next one."""
+        try:
+            self._maintenance.schedule()
+        except Exception:  # noqa: BLE001
+            log.exception("scheduling maintenance after a commit failed")
 
     def optimize(self) -> None:
         """Build/retrain indexes if due and compact now (blocking)."""
@@ -417,7 +447,7 @@ class Memory(TemporalQuestions):
     # ----------------------------------------------------------- reads
     def get_item(self, id: str, *, vector: bool = False) -> Item:  # noqa: A002
         """One stored item with ``raw`` decoded (by its sense when live, else as npy/text)."""
-        cols = [*HIT_COLUMNS, "raw", "created"] + (["vector"] if vector else [])
+        cols = [*HIT_COLUMNS, "raw", "created", "orientation"] + (["vector"] if vector else [])
         rows = self.store.scan(Where().ids([id]).sql(), cols, limit=1).to_pylist()
         if not rows:
             raise NotFoundError(f"no item with id {id!r}")

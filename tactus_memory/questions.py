@@ -28,6 +28,7 @@ from tactus_memory.temporal import (
     Temporal,
     TimelineItem,
 )
+from tactus_memory.where import Near
 
 
 class OccurrenceKwargs(MatchKwargs, total=False):
@@ -127,12 +128,18 @@ class TemporalQuestions:
         *,
         source: str | None = None,
         limit: int | None = None,
+        near: Near | None = None,
+        frame: str | None = None,
     ) -> list[TimelineItem] | list[Episode]:
         """The session's items (or, with ``episodes=True``, its episodes) in aligned time
-        order; ``after``/``before`` use overlap semantics on the aligned clock. Raises
+        order; ``after``/``before`` use overlap semantics on the aligned clock, ``near`` /
+        ``frame`` keep the items placed there (not episodes). Raises
         NotFoundError for an unknown session."""
         session = validate_id(session, "session id")
-        scope = Scope(session=session, senses=senses, source=source, after=after, before=before)
+        scope = Scope(
+            session=session, senses=senses, source=source, after=after, before=before,
+            near=near, frame=frame,
+        )  # fmt: skip
         return self.temporal.timeline(scope, episodes, limit)
 
     def segment_episodes(self, session: str | None = None, **rule: float) -> int:

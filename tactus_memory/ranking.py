@@ -79,15 +79,20 @@ class Ranker:
         """One ANN query for senses sharing a query vector (D,), plus follow-ups if needed."""
         total = sum(counts.values())
         every = {name for name, c in counts.items() if c > 0}
-        where = Where(list(base.parts))
+        where = base.copy()
         if set(names) != every:
             where.senses(names)
         sql = where.sql()
-        allowed = self.store.count(sql) if base.parts else sum(counts[n] for n in names)
+        # a place filter's rows are estimated from its indexed box (a superset): enough to
+        # size the search, and it spares a second pass of the sphere test over the box
+        allowed = (
+            self.store.count(where.count_sql()) if base.parts else sum(counts[n] for n in names)
+        )
         if allowed == 0:
             return []
         want = k * len(names)
-        rows = self.store.vector_search(vec, want, sql, allowed=allowed, total=total)
+        flat = not base.scattered  # scattered rows: the prefiltered ANN search is cheaper
+        rows = self.store.vector_search(vec, want, sql, allowed=allowed, total=total, flat=flat)
         out = [self._scored(row, calib) for row in rows.to_pylist()]
         if len(names) == 1 or len(out) < want:
             return out  # complete: every allowed row was a candidate or one sense only
@@ -100,9 +105,11 @@ class Ranker:
             kth = ranked[k - 1] if len(ranked) >= k else -math.inf
             if calib[name].score(floor) <= kth:
                 continue  # nothing of this sense below the floor can enter the top k
-            one = Where(list(base.parts)).sense(name).sql()
-            n_one = self.store.count(one) if base.parts else counts[name]
-            extra = self.store.vector_search(vec, k, one, allowed=n_one, total=total)
+            one = base.copy().sense(name)
+            n_one = self.store.count(one.count_sql()) if base.parts else counts[name]
+            extra = self.store.vector_search(
+                vec, k, one.sql(), allowed=n_one, total=total, flat=flat
+            )
             out = [x for x in out if x[2]["sense"] != name]
             out.extend(self._scored(row, calib) for row in extra.to_pylist())
         return out

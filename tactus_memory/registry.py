@@ -284,6 +284,21 @@ class SenseRegistry:
                 names.append(name)
         return names
 
+    def note_writes(self, before: int, writes: Sequence[Any], replaced: dict[int, int]) -> None:
+        """After this process committed ``writes`` (``PreparedWrite``; ``replaced``: rows each
+        upsert replaced, by ``id(write)``) on top of items version ``before``. Never raises:
+        the rows are stored and will be acknowledged; a failure here is logged and the counts
+        are re-read when next asked (repaired, not re-committed)."""
+        try:
+            self.note_commit(before)
+            if any(w.dup for w in writes):  # an idempotent repeat: recount
+                self.forget_counts()
+            for w in writes:
+                self.note_write(w.sense.name, len(w) - replaced.get(id(w), 0))
+        except Exception:  # noqa: BLE001  (a cache: dropped and rebuilt)
+            log.exception("bookkeeping after a commit failed; the row counts will be re-read")
+            self._counts = None
+
     def note_write(self, sense: str, n: int) -> None:
         """Keep the cached counts right after a write added n rows to ``sense`` (an upsert's
         new rows: its rows less those it replaced)."""

@@ -8,17 +8,19 @@ import math
 import time
 import uuid
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
 from tactus_memory.models import SessionSummary
+from tactus_memory.places import Placement, given_placement
 from tactus_memory.senses import Sense
-from tactus_memory.store import finite_float, validate_id
+from tactus_memory.store import Store, finite_float, validate_id
 from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import DEFAULT_FRAME, validate_frame
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -32,6 +34,8 @@ class BatchKwargs(TypedDict, total=False):
     meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None
     ids: Sequence[str] | None
     source: str
+    position: Any
+    frame: str
 
 
 class WriteKwargs(BatchKwargs, total=False):
@@ -84,6 +88,7 @@ class Batch:
     ids: list[str]
     upsert: bool
     created: float
+    place: Placement
 
 
 def check_batch(
@@ -92,9 +97,12 @@ def check_batch(
     t_end: Sequence[float | None] | float | None,
     meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None,
     ids: Sequence[str] | None,
+    position: Any = None,
+    frame: str = DEFAULT_FRAME,
 ) -> Batch:
     """The per-item values of an ``add_many`` call, checked (``t`` defaults to now, ``t_end``
-    to ``t``; ids, when given, make the write an upsert)."""
+    to ``t``; ids, when given, make the write an upsert; ``position``: one ``(x, y, z)`` for
+    every item or one per item (None: place it from the session's poses), in ``frame``)."""
     if n > MAX_BATCH:
         raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
     now = time.time()
@@ -116,14 +124,18 @@ def check_batch(
             raise InvalidInputError("ids contain duplicates")
     else:
         id_list = [uuid.uuid4().hex for _ in range(n)]
-    return Batch(ts, ends, metas, id_list, upsert, now)
+    place = given_placement(n, position, validate_frame(frame))
+    return Batch(ts, ends, metas, id_list, upsert, now, place)
 
 
 @dataclass(eq=False)
 class PreparedWrite:
     """One validated write (one session, one sense), ready for ``Memory.commit_writes``.
 
-    ``vectors`` ((n, D) unit rows) is filled in when the write is embedded.
+    ``vectors`` ((n, D) unit rows) is filled in when the write is embedded; ``error`` when a
+    group commit left this write out (its embedding failed, or its id clashed), ``dup`` the
+    rows an earlier write of the same commit already stores (same id, session, sense and
+    payload: an idempotent repeat, written once).
     """
 
     session: str
@@ -132,6 +144,8 @@ class PreparedWrite:
     batch: Batch
     source: str
     vectors: np.ndarray | None = None
+    error: Exception | None = None
+    dup: set[int] = field(default_factory=set)
 
     @property
     def ids(self) -> list[str]:
@@ -159,6 +173,72 @@ def embed_groups(writes: Sequence[PreparedWrite], dim: int) -> None:
         for w in group:
             w.vectors = vectors[at : at + len(w)]
             at += len(w)
+
+
+def embed_isolated(writes: Sequence[PreparedWrite], dim: int) -> None:
+    """:func:`embed_groups`, but a failing embedding fails only its own write: when a sense's
+    batch call raises, that sense's writes are embedded one by one and each culprit gets the
+    exception as its ``error`` (no write is committed here, so nothing is written twice)."""
+    try:
+        embed_groups(writes, dim)
+    except Exception:  # noqa: BLE001  (isolated below, write by write)
+        for w in writes:
+            if w.vectors is None:
+                try:
+                    embed_groups([w], dim)
+                except Exception as exc:  # noqa: BLE001  (this write's own failure)
+                    w.error = exc
+
+
+def _payload(w: PreparedWrite, i: int) -> tuple[Any, ...]:
+    """What an item id stores but its vector and ``created``: a repeat of it is idempotent."""
+    row = w.sense.to_row(w.canon[i])
+    b = w.batch
+    return (w.session, w.sense.name, w.source, b.t[i], b.t_end[i], b.meta[i], sorted(row.items()))
+
+
+def resolve_shared_ids(writes: Sequence[PreparedWrite]) -> None:
+    """Two writes of one commit naming the same item id (say two clients retrying the same
+    note in one tick): the later one is an idempotent repeat when its session, sense and
+    payload match the earlier row (its row is marked ``dup`` and written once), else it fails
+    alone with :class:`IdConflictError`. The rest of the commit is not affected."""
+    first: dict[str, tuple[PreparedWrite, int]] = {}
+    for w in writes:
+        w.dup.clear()  # (re-)resolved from scratch: a write may have failed since
+        if w.error is not None or not w.batch.upsert:
+            continue  # generated ids never clash
+        for i, item_id in enumerate(w.ids):
+            seen = first.get(item_id)
+            if seen is not None and _payload(*seen) != _payload(w, i):
+                w.error = IdConflictError(
+                    f"item id {item_id!r} is written by two requests at once with different "
+                    "content (or session, sense); the other one was stored, send this one again "
+                    "to replace it"
+                )
+                w.dup.clear()
+                break
+            if seen is not None:
+                w.dup.add(i)
+        if w.error is None:
+            for i, item_id in enumerate(w.ids):
+                first.setdefault(item_id, (w, i))
+
+
+def claim_ids(store: Store, writes: Sequence[PreparedWrite], isolate: bool) -> dict[int, int]:
+    """Rows each upsert replaces (of its own session and sense), by ``id(write)``. An id of
+    another session or sense raises IdConflictError (``isolate``: that write's ``error``).
+    Call it under the memory's commit lock, just before the store write."""
+    replaced: dict[int, int] = {}
+    for w in writes:
+        if w.batch.upsert and w.error is None:
+            try:
+                replaced[id(w)] = store.owned_count(w.ids, w.session, w.sense.name)
+            except IdConflictError as exc:
+                if not isolate:
+                    raise
+                w.error = exc
+                resolve_shared_ids(writes)  # a repeat of its ids is no longer a repeat
+    return replaced
 
 
 def items_table(
@@ -191,16 +271,17 @@ def items_table(
             "source": [source] * n,
             "episode": pa.nulls(n, pa.int64()),
             "created": [batch.created] * n,
+            **batch.place.columns(),
         },
         schema=schema,
     )
 
 
 def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table:
-    """The Arrow table of several embedded writes (one commit)."""
+    """The Arrow table of several embedded writes (one commit), less their ``dup`` rows."""
     import pyarrow as pa
 
-    return pa.concat_tables(
+    table = pa.concat_tables(
         [
             items_table(
                 schema,
@@ -214,6 +295,15 @@ def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table
             for w in writes
         ]
     )
+    return table.take(_row_numbers(writes)) if any(w.dup for w in writes) else table
+
+
+def _row_numbers(writes: Sequence[PreparedWrite]) -> list[int]:
+    out, at = [], 0
+    for w in writes:
+        out.extend(at + i for i in range(len(w)) if i not in w.dup)
+        at += len(w)
+    return out
 
 
 def summarise(tbl: pa.Table) -> list[SessionSummary]:

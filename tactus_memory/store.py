@@ -13,20 +13,15 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
 ``meta``   key/value strings: the space (name, dim) the store was created with, cached probe
            embeddings, index bookkeeping.
 
-Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.where.Where`
-(re-exported here, with the validators), from values that first
-pass a validator (ids and sense names by regex, numbers must be finite); string literals are
-also quote-escaped. No user string reaches LanceDB any other way.
+Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.where.Where` from
+validated values (ids and sense names by regex, finite numbers; literals quote-escaped).
 
-Indexes (:class:`IndexConfig`, defaults chosen with ``benchmarks/memory.py``): scalar
-BTREE/BITMAP indexes on id, session, sense, t from 10k rows; an IVF_SQ cosine index from
-20k rows (rows/4096 partitions, nprobes 20, refine 2), retrained when the table has grown
-4x or incremental updates have left more than 8 index segments. Filters allowing at most
-20k rows are answered by an exact flat scan of those rows. ``optimize`` (compaction plus
-incremental index update) runs every 64 appends; rows not yet indexed are still searched.
-Compaction, index refresh and version retention follow :mod:`tactus_memory.maintenance`
-(size-tiered, bounded disk) and run only in the process that owns maintenance
-(``MaintenanceConfig.maintain``); connections re-read the latest version every
+Indexes: :class:`IndexConfig` (scalar indexes from 10k rows, an IVF_SQ cosine index from 20k,
+retrained after 4x growth or 8 deltas; selective filters scan flat). Compaction, index
+refresh and version retention follow :mod:`tactus_memory.maintenance`, run by the process
+that owns maintenance, after ``compact_every`` commits of any one table (items, senses, meta:
+each counted on its own). Every write first passes the integrity check
+(:mod:`tactus_memory.integrity`). Connections re-read the latest version every
 ``read_consistency`` seconds (:mod:`tactus_memory.connect`), so replicas see each other.
 """
 
@@ -37,18 +32,17 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.connect import REMOTE_SCHEMES as REMOTE_SCHEMES  # re-exported
-from tactus_memory.connect import is_remote_uri as is_remote_uri
 from tactus_memory.connect import normalise_uri as normalise_uri
 from tactus_memory.connect import read_consistency_interval as consistency_from
 from tactus_memory.connect import storage_options_for
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
+from tactus_memory.integrity import IntegrityWatch, check_store
 from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
 from tactus_memory.tables import IndexConfig as IndexConfig  # re-exported: old import paths
 from tactus_memory.tables import (
@@ -73,10 +67,11 @@ log = logging.getLogger(__name__)
 ITEMS = "items"
 SENSES = "senses"
 META = "meta"
-#: meta key holding every clock offset as JSON
-CLOCK_KEY = "clock_offsets"
 #: columns returned by searches (everything except the vector and raw bytes)
-HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
+HIT_COLUMNS = [
+    *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
+    *("x", "y", "z", "frame"),
+]
 
 
 def _upsert(table: Table, key: str, data: pa.Table) -> None:
@@ -86,8 +81,7 @@ def _upsert(table: Table, key: str, data: pa.Table) -> None:
 
 # --------------------------------------------------------------------------- store
 class Store:
-    """Thin wrapper around one LanceDB connection. Not thread-safe for writes on its own:
-    :class:`~tactus_memory.memory.Memory` serialises writes with a lock."""
+    """One LanceDB connection; writes are serialised by the Memory's lock."""
 
     def __init__(
         self,
@@ -99,9 +93,8 @@ class Store:
         maintenance: MaintenanceConfig | None = None,
     ) -> None:
         """``read_consistency_interval``: how stale reads may be against other processes'
-        commits (``"env"``: ``TACTUS_READ_CONSISTENCY``, default 1 s; None: never re-read).
-        ``storage_options``: LanceDB object-store options; for ``s3://`` the AWS environment
-        variables fill in what is not given (:func:`tactus_memory.connect.storage_options_for`).
+        commits (``"env"``: ``TACTUS_READ_CONSISTENCY``, 1 s; None: never re-read);
+        ``storage_options``: object-store options (``connect.storage_options_for``);
         ``maintenance``: the policy, and whether this process runs it (default from env)."""
         import lancedb
 
@@ -126,7 +119,14 @@ class Store:
         self._senses: Any = None
         self._meta: Any = None
         self._maintenance = threading.Lock()
-        self._appends = 0
+        #: commits per table since maintenance last ran (each table is due on its own)
+        self._commits: dict[str, int] = {}
+        #: called after every commit of any table (Memory schedules its maintenance there)
+        self.on_commit: Callable[[], None] | None = None
+        self._busy: int | None = None  # the thread running maintain()
+        self.integrity = IntegrityWatch(
+            lambda: check_store(self.table_uris(), self.storage_options)
+        )
         self._schema: pa.Schema | None = None
         self._indexed = False
         self._scalar_indexed = False
@@ -215,26 +215,37 @@ class Store:
         return None if rows.num_rows == 0 else rows.column("value")[0].as_py()
 
     def set_meta(self, key: str, value: str) -> None:
+        self.set_meta_many({key: value})
+
+    def set_meta_many(self, values: dict[str, str]) -> None:
+        """Upsert meta keys, in one commit."""
         import pyarrow as pa
 
-        data = pa.table({"key": [key], "value": [value]}, schema=meta_schema())
+        self.integrity.require()
+        data = pa.table({"key": [*values], "value": [*values.values()]}, schema=meta_schema())
         _upsert(self._meta, "key", data)
+        self._committed(META)
 
-    # ----------------------------------------------------------- temporal state
-    def clock_table(self) -> dict[str, dict[str, float]]:
-        """Every clock offset: session -> {"sense/source": offset} (meta key CLOCK_KEY)."""
-        raw = self.get_meta(CLOCK_KEY)
-        return json.loads(raw) if raw else {}
+    def delete_meta(self, key: str) -> None:
+        self.integrity.require()
+        self._meta.delete(f"key = {_sql_str(key)}")
+        self._committed(META)
 
-    def put_clock_table(self, table: dict[str, dict[str, float]]) -> None:
-        self.set_meta(CLOCK_KEY, json.dumps(table, sort_keys=True))
+    def meta_items(self, prefix: str) -> dict[str, str]:
+        """Every meta key starting with ``prefix`` (a literal: no ``%`` or ``_``) -> value."""
+        if self._meta is None:
+            return {}
+        rows = self._meta.search().where(f"key LIKE {_sql_str(prefix + '%')}").limit(None)
+        return {r["key"]: r["value"] for r in rows.to_arrow().to_pylist()}
 
     def set_episodes(self, ids: Sequence[str], episodes: np.ndarray) -> None:
         """Write the ``episode`` column of the rows ``ids`` (an (N,) int array) in one commit."""
         import pyarrow as pa
 
+        self.integrity.require()
         data = pa.table({"id": list(ids), "episode": pa.array(episodes, pa.int64())})
         self.items.merge_insert("id").when_matched_update_all().execute(data)
+        self._committed(ITEMS)
 
     # ----------------------------------------------------------- senses registry
     def sense_rows(self) -> list[dict[str, Any]]:
@@ -245,18 +256,37 @@ class Store:
     def put_sense_row(self, row: dict[str, Any]) -> None:
         import pyarrow as pa
 
+        self.integrity.require()
         data = pa.Table.from_pylist([row], schema=senses_schema())
         _upsert(self._senses, "name", data)
+        self._committed(SENSES)
+
+    def _committed(self, table: str) -> None:
+        self._commits[table] = self._commits.get(table, 0) + 1
+        if self.on_commit is not None and self._busy != threading.get_ident():
+            self.on_commit()  # (not from maintenance's own commits: it would wait for itself)
+
+    def table_uris(self) -> dict[str, str]:
+        """name -> URI of each table the store has."""
+        tables = ((ITEMS, self._items), (SENSES, self._senses), (META, self._meta))
+        return {name: tbl.uri for name, tbl in tables if tbl is not None}
 
     # ----------------------------------------------------------- writes
     def write(self, data: pa.Table, *, upsert: bool) -> None:
-        """One LanceDB commit: append, or merge-insert on ``id`` (idempotent upsert)."""
+        """One LanceDB commit: append, or merge-insert on ``id`` (idempotent upsert). A commit
+        that raises may still have landed (a lost reply): it is retried once as a merge-insert
+        on ``id``, so the rows are stored once either way, never twice."""
+        self.integrity.require()
         with self.commit_lock:
-            if upsert:
+            try:
+                if upsert:
+                    _upsert(self.items, "id", data)
+                else:
+                    self.items.add(data)
+            except Exception as exc:  # noqa: BLE001  (retried idempotently, else raised)
+                log.warning("a commit failed (%s); retried once as a merge-insert on id", exc)
                 _upsert(self.items, "id", data)
-            else:
-                self.items.add(data)
-        self._appends += 1
+        self._committed(ITEMS)
 
     def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
         """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
@@ -271,20 +301,19 @@ class Store:
         for row in rows:
             if row["session"] != session or row["sense"] != sense:
                 raise IdConflictError(
-                    f"item id {row['id']!r} already belongs to another session or sense "
-                    f"(not {sense!r} in session {session!r}); use another id, or delete "
-                    "that item first"
+                    f"item id {row['id']!r} already belongs to another session or sense (not "
+                    f"{sense!r} in session {session!r}); use another id, or delete that item first"
                 )
         return len(rows)
 
     def delete(self, where: str) -> None:
+        self.integrity.require()
         with self.commit_lock:
             self.items.delete(where)
+        self._committed(ITEMS)
 
     def count(self, where: str | None = None) -> int:
-        if self._items is None:
-            return 0
-        return int(self.items.count_rows(where))
+        return 0 if self._items is None else int(self.items.count_rows(where))
 
     # ----------------------------------------------------------- reads
     def vector_search(
@@ -296,20 +325,22 @@ class Store:
         allowed: int | None = None,
         total: int | None = None,
         columns: Sequence[str] = HIT_COLUMNS,
+        flat: bool = True,
     ) -> pa.Table:
         """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
 
         ``allowed``: how many rows pass ``where`` (``total``: rows in the table). A selective
         filter (allowed <= ``flat_max``) is answered by an exact flat scan of the allowed
-        rows; otherwise the ANN index is probed, with more partitions the more selective the
-        filter, so that about ``min_candidates`` allowed rows are scored.
+        rows (unless ``flat`` is False); otherwise the ANN index is probed, with more
+        partitions the more selective the filter, so that about ``min_candidates`` allowed
+        rows are scored.
         """
         cfg = self.index
         q = self.items.search(vector, vector_column_name="vector").distance_type("cosine")
         if where:
             q = q.where(where, prefilter=True)
         indexed = self.has_vector_index()
-        if indexed and where and allowed is not None and allowed <= cfg.flat_max:
+        if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
             q = q.bypass_vector_index()
         elif indexed:
             nprobes = cfg.nprobes
@@ -321,7 +352,7 @@ class Store:
                 q = q.refine_factor(cfg.refine_factor)
             if cfg.ef:  # HNSW needs ef >= the candidates it returns
                 q = q.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
-        return q.select([*columns, "_distance"]).limit(k).to_arrow()
+        return q.select([*self.present(columns), "_distance"]).limit(k).to_arrow()
 
     def partitions(self) -> int:
         """IVF partitions of the current vector index (from the store's bookkeeping)."""
@@ -334,7 +365,12 @@ class Store:
         q = self.items.search()
         if where:
             q = q.where(where)
-        return q.select(list(columns)).limit(limit).to_arrow()
+        return q.select(self.present(columns)).limit(limit).to_arrow()
+
+    def present(self, columns: Sequence[str]) -> list[str]:
+        """``columns`` the items table has (a store made before places, opened where it
+        cannot be written, has no place columns: its items read as unplaced)."""
+        return [c for c in columns if c in self.schema.names]
 
     # ----------------------------------------------------------- indexes & compaction
     def has_vector_index(self) -> bool:
@@ -387,8 +423,7 @@ class Store:
         return int(self.items.schema.field("vector").type.list_size)
 
     def version(self) -> int:
-        """The items table's version as this connection sees it (changes on every commit,
-        ours or, within ``read_consistency``, another process's)."""
+        """The items table's version as this connection sees it (ours and others' commits)."""
         return 0 if self._items is None else int(self.items.version)
 
     def senses_version(self) -> int:
@@ -397,31 +432,28 @@ class Store:
     def maintainer(self) -> Maintainer:
         """The maintenance runner for this store's tables (built on first use)."""
         if self._maintainer is None:
-            tables = {
-                name: tbl.uri
-                for name, tbl in ((ITEMS, self._items), (SENSES, self._senses), (META, self._meta))
-                if tbl is not None
-            }
             self._maintainer = Maintainer(
-                tables, self.storage_options, self.maintenance, self.commit_lock
+                self.table_uris(), self.storage_options, self.maintenance, self.commit_lock
             )
         return self._maintainer
 
     def maintain(self, *, force: bool = False, wait: bool | None = None) -> bool:
         """Build/retrain indexes past the threshold, then run the maintenance policy
-        (size-tiered compaction, incremental index refresh, version cleanup).
-
-        Returns True when something ran. Only the process that owns maintenance
-        (``maintenance.maintain``) runs it unless ``force``. Safe to call from a background
-        thread: writes may go on meanwhile (LanceDB commits are optimistic; compaction
-        rebases on concurrent appends). Version cleanup runs in its own thread at most every
+        (:mod:`tactus_memory.maintenance`) on every table; True when something ran. Only the
+        owner of maintenance runs it unless ``force``; never on a damaged store. Writes may go
+        on meanwhile. Version cleanup runs in its own thread at most every
         ``cleanup_interval`` seconds; ``wait`` (default: ``force``) runs it now and waits.
         """
         wait = force if wait is None else wait
         if not (force or self.maintenance.maintain):
             return False
+        damage = self.integrity.damage(0)
+        if damage:  # a cleanup could remove the older versions a repair needs
+            log.error("the store is damaged, maintenance skipped: %s", "; ".join(map(str, damage)))
+            return False
         if not self._maintenance.acquire(blocking=force):
             return False
+        self._busy = threading.get_ident()
         try:
             cfg = self.index
             n = self.count()
@@ -432,7 +464,7 @@ class Store:
                 grown = n >= cfg.retrain_growth * int(info.get("rows", n))
                 if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
                     self.build_indexes()
-            self._appends = 0
+            self._commits = {}
             maintainer = self.maintainer()
             reports = maintainer.run(cleanup=False)
             for tbl in (self._items, self._senses, self._meta):
@@ -449,6 +481,7 @@ class Store:
                 log.debug("maintenance: %s", report)
             return True
         finally:
+            self._busy = None
             self._maintenance.release()
 
     def _start_cleanup(self) -> None:
@@ -471,4 +504,6 @@ class Store:
             self._cleanup_thread.join(timeout)
 
     def needs_maintenance(self) -> bool:
-        return self.maintenance.maintain and self._appends >= self.index.compact_every
+        """Whether some table (each counted on its own) had ``compact_every`` commits."""
+        due = max(self._commits.values(), default=0) >= self.index.compact_every
+        return self.maintenance.maintain and due

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from tactus_memory.clocks import clock_table, put_session_clock, session_clock
 from tactus_memory.episodes import (
     EPISODE_MAX_GAP,
     EPISODE_MEAN_COS,
@@ -66,12 +67,11 @@ from tactus_memory.models import TimelineItem as TimelineItem
 from tactus_memory.models import row_fields
 from tactus_memory.query import RankedSearch, Scope, check_k, embed_query
 from tactus_memory.senses import validate_sense_name
-from tactus_memory.store import CLOCK_KEY, HIT_COLUMNS, Where, finite_float, validate_id
+from tactus_memory.store import HIT_COLUMNS, Where, finite_float, validate_id
 from tactus_memory.store import validate_source as _validate_source
 from tactus_memory.vectors import vector_column
 
 __all__ = [
-    "CLOCK_KEY",
     "CORROBORATION_BONUS",
     "DEFAULT_MATCH_Z",
     "DEFAULT_MERGE_GAP",
@@ -133,7 +133,7 @@ class Temporal:
     def offsets(self) -> dict[tuple[str, str, str], float]:
         """(session, sense, source) -> offset, for every recorded stream."""
         out: dict[tuple[str, str, str], float] = {}
-        for session, streams in self.store.clock_table().items():
+        for session, streams in clock_table(self.store).items():
             for key, value in streams.items():
                 sense, source = key.split("/", 1)
                 out[(session, sense, source)] = float(value)
@@ -154,25 +154,24 @@ class Temporal:
                 "time shift, and t + offset must stay a finite number"
             )
         with self.memory.lock:
-            table = self.store.clock_table()
-            streams = table.setdefault(session, {})
+            streams = session_clock(self.store, session)
             key = f"{sense}/{source}"
             if value == 0.0:
                 streams.pop(key, None)
-                if not streams:
-                    table.pop(session)
             else:
                 streams[key] = value
-            self.store.put_clock_table(table)
+            put_session_clock(self.store, session, streams)  # this session's row only
 
     def clock_offsets(self, session: str | None = None) -> list[ClockOffset]:
         """Every recorded clock offset (of one session), sorted."""
-        if session is not None:
-            validate_id(session, "session id")
+        if session is not None:  # one meta row, not every session's
+            streams = session_clock(self.store, validate_id(session, "session id"))
+            offsets = {(session, *k.split("/", 1)): float(v) for k, v in streams.items()}
+        else:
+            offsets = self.offsets()
         return [
             ClockOffset(session=s, sense=sense, source=source, offset=v)
-            for (s, sense, source), v in sorted(self.offsets().items())
-            if session is None or s == session
+            for (s, sense, source), v in sorted(offsets.items())
         ]
 
     # ----------------------------------------------------------- scoring
@@ -250,13 +249,15 @@ class Temporal:
         """What happened in the ``window`` seconds before the best match of ``anchor``
         (items of its session that start in ``[a.t - window, a.t)``, aligned) or after it
         (``[a.t_end, a.t_end + window]``, the anchor excluded). The anchor is searched in
-        ``anchor_senses`` within the scope's session and time bounds; the items are of the
-        scope's senses and source. None when nothing matches the anchor."""
+        ``anchor_senses`` within the scope's session, time bounds and place (near, frame);
+        the items are of the scope's senses and source. None when nothing matches the
+        anchor."""
         window = check_seconds(window, "window")
         names = None if scope.senses is None else self.memory.resolve_senses(scope.senses)
         anchor_scope = Scope(
-            session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before
-        )
+            session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before,
+            near=scope.near, frame=scope.frame,
+        )  # fmt: skip
         found = self.matches(anchor, anchor_scope, match)
         if not found:
             return None
@@ -318,6 +319,8 @@ class Temporal:
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
         after, before = scope.bounds()
+        if episodes and (scope.near is not None or scope.frame is not None):
+            raise InvalidInputError("near/frame select items, not episodes: drop one of them")
         if episodes:
             eps = self._episodes(session, names, scope.source)
             eps = [e for e in eps if _overlaps(e, after, before)]

@@ -158,7 +158,7 @@ def test_sessions_list_get_delete(client):
     ids = [s["id"] for s in client.get("/sessions").json()["sessions"]]
     assert ids == ["a", "b"]
     r = client.delete("/sessions/a")
-    assert r.status_code == 200 and r.json() == {"id": "a", "deleted": 1}
+    assert r.status_code == 200 and r.json() == {"id": "a", "deleted": 1, "clock_offsets": 0}
     assert_problem(client.get("/sessions/a"), 404, "a")
     assert_problem(client.delete("/sessions/a"), 404)
     assert [s["id"] for s in client.get("/sessions").json()["sessions"]] == ["b"]

@@ -16,6 +16,7 @@ from tactus_memory.store import (
     normalise_uri,
     validate_id,
 )
+from tactus_memory.tables import place_fields
 
 HOSTILE = [
     "s1' OR 1=1 --",
@@ -121,6 +122,7 @@ def _rows(dim: int, items: list[tuple[str, str, str, float, float]]) -> pa.Table
             "source": [""] * n,
             "episode": [None] * n,
             "created": [0.0] * n,
+            **{f.name: pa.nulls(n, f.type) for f in place_fields()},  # unplaced
         },
         schema=items_schema(dim),
     )

@@ -18,7 +18,7 @@ from starlette.concurrency import run_in_threadpool
 import tactus_memory
 from tactus_memory.service.deps import StateDep
 from tactus_memory.service.problems import ServiceUnavailable, problem_responses
-from tactus_memory.service.readiness import store_problem
+from tactus_memory.service.readiness import no_paths, store_problem
 from tactus_memory.service.schemas import HealthOut, LiveOut, ReadyOut
 
 router = APIRouter(tags=["health"])
@@ -43,12 +43,13 @@ async def health(state: StateDep) -> HealthOut:
     if why is not None:
         raise ServiceUnavailable(why)
     senses = sorted(memory.senses)
+    why_touch = state.touch_unavailable
     return HealthOut(
         version=tactus_memory.__version__,
-        space=memory.space.describe(),
+        space={k: v for k, v in memory.space.describe().items() if k != "path"},  # no paths
         senses=senses,
         touch="touch" in senses,
-        touch_unavailable=None if "touch" in senses else state.touch_unavailable,
+        touch_unavailable=None if "touch" in senses or not why_touch else no_paths(why_touch),
         read_only=state.read_only,
     )
 

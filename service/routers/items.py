@@ -43,6 +43,8 @@ async def add_text(
         t_end=[body.t_end],
         meta=[body.meta],
         ids=None if body.id is None else [body.id],
+        position=None if body.position is None else [body.position],
+        frame=body.frame,
     )
     ids = await state.commit(write)
     return StoredOut(ids=ids, count=1)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
+from tactus_memory.errors import NotFoundError
 from tactus_memory.service.deps import MemoryDep, SessionId
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import DeletedOut, SessionOut, SessionsOut
@@ -32,11 +33,15 @@ def get_session(session: SessionId, memory: MemoryDep) -> SessionOut:
 
 @router.delete(
     "/{session}",
-    summary="Delete a session and everything in it",
+    summary="Delete a session and everything keyed by it (items, clock offsets)",
+    description="200 when anything was removed, whether or not the session held items (a "
+    "session with only clock offsets is a session too); 404 when nothing was there.",
     response_model=DeletedOut,
     responses=problem_responses(404, 422),
 )
 def delete_session(session: SessionId, memory: MemoryDep) -> DeletedOut:
-    memory.session(session)  # 404 when it does not exist
+    offsets = len(memory.clock_offsets(session))
     deleted = memory.delete_session(session)  # its items and its clock offsets
-    return DeletedOut(id=session, deleted=deleted)
+    if not deleted and not offsets:
+        raise NotFoundError(f"no session {session!r}")
+    return DeletedOut(id=session, deleted=deleted, clock_offsets=offsets)

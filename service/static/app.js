@@ -2,6 +2,8 @@
 // Talks to the service's own API (same origin); every data request carries the bearer token
 // the user typed (kept in sessionStorage only).
 
+import { drawMap, pickTrajectory } from "./map.js";
+
 const $ = (sel, root = document) => root.querySelector(sel);
 
 const state = {
@@ -937,6 +939,62 @@ export async function openSession(id, focusItem = null) {
     $("#timeline").replaceChildren();
     setStatus(status, `Could not load the timeline: ${err.message}`, "error");
   }
+  await loadMap(id);
+}
+
+// ------------------------------------------------------------------------------ the map
+// The session's trajectory seen from above, with the hits of a search in that session.
+async function loadMap(id) {
+  const panel = $("#map-panel");
+  const status = $("#map-status");
+  state.map = { session: id, trajectory: null };
+  $("#map").replaceChildren();
+  $("#map-hits").replaceChildren();
+  panel.hidden = false;
+  let res;
+  try {
+    res = await api(`/sessions/${encodeURIComponent(id)}/poses`);
+  } catch (err) {
+    setStatus(status, err.status === 404 ? "This server has no poses route." : `Could not load the poses: ${err.message}`, "error");
+    $("#map-form").hidden = true;
+    return;
+  }
+  const trajectory = pickTrajectory(res.trajectories || []);
+  $("#map-form").hidden = !trajectory;
+  if (!trajectory) {
+    setStatus(status, "No poses for this session: nothing to draw (POST /sessions/{id}/poses, or ingest an odometry topic).");
+    return;
+  }
+  state.map.trajectory = trajectory;
+  drawMap($("#map"), trajectory, [], null);
+  const others = (res.trajectories || []).length - 1;
+  setStatus(status, `${trajectory.position.length} poses in frame ${trajectory.frame}` + (others ? ` (${others} more frames not drawn)` : "") + ". Ask where something happened.");
+}
+
+async function onMapSearch(e) {
+  e.preventDefault();
+  const { session, trajectory } = state.map || {};
+  const q = $("#map-q").value.trim();
+  if (!session || !trajectory || !q) return;
+  const status = $("#map-status");
+  setStatus(status, "Searching…", "busy");
+  try {
+    const res = await api(`/search?${new URLSearchParams({ q, session, k: "10" })}`);
+    const hits = res.hits || [];
+    const { drawn, elsewhere } = drawMap($("#map"), trajectory, hits, (itemId) => {
+      const btn = $(`#timeline .point[data-id="${CSS.escape(itemId)}"]`);
+      if (btn) selectPoint(btn, { focus: true });
+    });
+    $("#map-hits").replaceChildren(
+      ...hits.map((hit, i) => h("li", { dataset: { id: hit.id } },
+        `#${i + 1} ${hit.sense}${hit.text ? `: ${hit.text}` : ""} — `,
+        hit.position ? `at (${hit.position.map((v) => v.toFixed(2)).join(", ")}) in ${hit.frame}` : "no place",
+      )),
+    );
+    setStatus(status, `${drawn} of ${hits.length} hits for “${q}” on the map` + (elsewhere ? ` (${elsewhere} without a place in frame ${trajectory.frame})` : "") + ".");
+  } catch (err) {
+    setStatus(status, `Search failed: ${err.message}`, "error");
+  }
 }
 
 function renderTimeline(points) {
@@ -1049,6 +1107,7 @@ function showEvidence(p) {
       ["item", p.id],
       ["session", p.session],
       p.source ? ["source", p.source] : null,
+      p.position ? ["place", `(${p.position.map((v) => v.toFixed(2)).join(", ")}) in ${p.frame}`] : null,
       p.t_stored !== undefined && p.t_stored !== p.t ? ["stored t", fmtT(p.t_stored)] : null,
       ...metaEntries(p.meta),
       prov.length ? ["encoder", prov.map(([k, v]) => `${k}: ${fmtValue(v)}`).join("; ")] : null,
@@ -1082,6 +1141,7 @@ async function start() {
   setupToken();
   $("#search-form").addEventListener("submit", onSearch);
   $("#like-form").addEventListener("submit", onLike);
+  $("#map-form").addEventListener("submit", onMapSearch);
   await refresh();
   route();
   window.addEventListener("hashchange", route); // links like #sessions/<id> work in place

@@ -11,13 +11,16 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import asdict
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import ServiceData
 from tactus_memory.cli.memory_cmds import _data_dir
+
+if TYPE_CHECKING:
+    from tactus_memory.store import Store
 
 
 @app.command()
@@ -37,11 +40,21 @@ def maintain(
     passes: Annotated[
         int | None, typer.Option(help="Stop after this many passes (default: run until killed).")
     ] = None,
+    check: Annotated[
+        bool,
+        typer.Option(
+            "--check",
+            help="Only check the store's integrity (every data file the latest manifests name "
+            "present and of its recorded size, Lance's validation): one JSON line per table, "
+            "exit 1 when damaged. Changes nothing.",
+        ),
+    ] = False,
 ) -> None:
     """Maintain a store: size-tiered compaction, incremental index refresh, version cleanup.
 
     Prints one JSON line per pass and table (version, fragments, what was compacted and
-    removed). Run exactly one per store; start the servers with ``--no-maintain``.
+    removed). Run exactly one per store; start the servers with ``--no-maintain``. A damaged
+    store is never maintained (``--check`` says what is wrong).
     """
     from tactus_memory.errors import TactusError
     from tactus_memory.maintenance import MaintenanceConfig
@@ -62,6 +75,8 @@ def maintain(
     if not store.exists:
         typer.echo(f"error: no memory at {location!r} (no items table)", err=True)
         raise typer.Exit(2)
+    if check:
+        raise typer.Exit(_check(store))
     typer.echo(
         f"maintaining {store.uri} every {cfg.maintain_interval:g}s "
         f"(retain {cfg.retain_seconds:g}s, fan-in {cfg.fan_in})",
@@ -93,3 +108,22 @@ def maintain(
     except KeyboardInterrupt:
         pass
     store.wait_for_cleanup(60)
+
+
+def _check(store: Store) -> int:
+    """``--check``: print each table's verdict (one JSON line); 1 when any is damaged."""
+    from tactus_memory.integrity import check_table
+
+    damaged = False
+    for name, uri in store.table_uris().items():
+        damage = check_table(name, uri, store.storage_options)
+        damaged |= bool(damage)
+        verdict = {"table": name, "ok": not damage, "damage": [d.detail for d in damage]}
+        typer.echo(json.dumps(verdict))
+    typer.echo(
+        f"{store.uri}: DAMAGED (writes are refused; restore the files named above from a backup)"
+        if damaged
+        else f"{store.uri}: intact",
+        err=True,
+    )
+    return 1 if damaged else 0
