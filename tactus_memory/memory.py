@@ -384,9 +384,8 @@ class Memory(TemporalQuestions, PlaceQuestions):
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return self.search_moments(query, k, gap=gap, scope=where)
         k = check_k(k)
-        base = where.where()
         names = self.resolve_senses(where.senses)
-        hits = self.rank(embed_query(self.space, query), k, names, base, transform=True)
+        hits = self.rank(embed_query(self.space, query), k, names, where.where(), transform=True)
         return mark_matches(hits)
 
     def search_vector(
@@ -404,10 +403,8 @@ class Memory(TemporalQuestions, PlaceQuestions):
         if q.shape[0] != 1:
             raise InvalidInputError(f"one query vector expected, got {q.shape[0]}")
         where = Scope.of(**scope)
-        base = where.where()
-        return mark_matches(
-            self.rank(q, k, self.resolve_senses(where.senses), base, transform=transform)
-        )
+        names = self.resolve_senses(where.senses)
+        return mark_matches(self.rank(q, k, names, where.where(), transform=transform))
 
     def search_like(
         self,

@@ -103,6 +103,7 @@ __all__ = [
 ]
 
 Offsets = Mapping[tuple[str, str, str], float]
+Rule = tuple[float, float, float]  # episode rule: (min_cos, mean_cos, max_gap)
 
 
 def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
@@ -190,9 +191,8 @@ class Temporal:
         capped = False
         for name in names:
             hits = self.memory.rank(q, per_sense, [name], base, transform=True)
-            scores = [h.score for h in hits]
-            flags = match_flags(scores, bars[name], relative)
-            bar = sense_bar(scores, bars[name], relative)
+            bar = sense_bar([h.score for h in hits], bars[name], relative)
+            flags = [h.score >= bar for h in hits]
             capped = capped or (len(hits) >= per_sense and all(flags))
             for h, flag in zip(hits, flags, strict=True):
                 off = offsets.get((h.session, h.sense, h.source), 0.0)
@@ -353,7 +353,7 @@ class Temporal:
             sessions = [validate_id(session, "session id")]
         total = 0
         for sid in sessions:
-            ids, episode = self._segment(sid, min_cos, mean_cos, max_gap)
+            ids, episode = self._segment(sid, (min_cos, mean_cos, max_gap))
             if not ids:
                 if session is not None:
                     raise NotFoundError(f"no session {sid!r}")
@@ -363,15 +363,11 @@ class Temporal:
             total += int(episode.max()) + 1
         return total
 
-    def _segment(
-        self,
-        session: str,
-        min_cos: float = EPISODE_MIN_COS,
-        mean_cos: float = EPISODE_MEAN_COS,
-        max_gap: float = EPISODE_MAX_GAP,
-    ) -> tuple[list[str], np.ndarray]:
-        """Episode numbers of every row of ``session`` (ids, (N,) int64), computed, not
-        stored: numbered 0, 1, ... by (first item's time, sense, source)."""
+    def _segment(self, session: str, rule: Rule | None = None) -> tuple[list[str], np.ndarray]:
+        """(ids, (N,) int64 episode numbers) of every row of ``session`` under ``rule``
+        (min_cos, mean_cos, max_gap), computed, not stored: numbered 0, 1, ... by (first
+        item's time, sense, source)."""
+        min_cos, mean_cos, max_gap = rule or (EPISODE_MIN_COS, EPISODE_MEAN_COS, EPISODE_MAX_GAP)
         cols = ["id", "sense", "source", "t", "t_end", "vector"]
         tbl = self.store.scan(Where().session(session).sql(), cols)
         ids = tbl.column("id").to_pylist()
