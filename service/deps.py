@@ -45,6 +45,11 @@ class ServiceState:
     read_only: bool = False
     #: the space has been warmed up (the lifespan ran): ``/ready`` answers 200
     warm: bool = False
+    #: the step being loaded while ``tactus serve`` starts (socket open, models loading in
+    #: the background): probes say it, other routes answer 503 naming it; None when loaded
+    starting: str | None = None
+    #: what loading the models in the background raised (the server then stops)
+    load_error: BaseException | None = None
 
     def __post_init__(self) -> None:
         if self.writer is None:

@@ -221,6 +221,16 @@ class HitOut(BaseModel):
     text: str | None = Field(None, description="The stored text, for text items.")
     source: str = Field("", description="The stream the item came from, if any.")
     episode: int | None = None
+    match: bool = Field(
+        False,
+        description="The hit clears its sense's match bar for this query (score >= bar), the "
+        "rule of /last, /first and /count.",
+    )
+    bar: float | None = Field(
+        None,
+        description="The score this hit's sense needed to match: max(the sense's threshold, "
+        "3.0 by default; 0.4 x the best score of that sense for the query).",
+    )
     position: Position | None = Field(None, description="Where it happened (x, y, z), if known.")
     frame: str | None = Field(None, description="The frame of `position`.")
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from tactus_memory.connect import DEFAULT_MEMORY
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 
 
@@ -18,7 +19,7 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="TACTUS_", extra="ignore")
 
     data: str = Field(
-        "./tactus-memory",
+        DEFAULT_MEMORY,
         description="Memory location: a local directory, file://, s3://, gs:// or az:// URI.",
     )
     space: str | None = Field(

@@ -25,6 +25,13 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from tactus_memory.errors import InvalidInputError
 
+#: the memory every command opens when given no location (``Memory.open()``, ``tactus serve``,
+#: ``tactus search``/``ingest``/..., ``make run``): ``./memory`` of the current folder, or
+#: ``$TACTUS_DATA`` where the command reads the environment
+DEFAULT_MEMORY = "./memory"
+#: the environment variable naming the memory of the commands (``tactus serve``, ``search``, ...)
+ENV_MEMORY = "TACTUS_DATA"
+
 #: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
 DEFAULT_READ_CONSISTENCY_S = 1.0
 

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.models import Evidence, Moment
+from tactus_memory.models import Evidence, Hit, Moment
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.store import finite_float
@@ -146,12 +146,27 @@ def check_seconds(value: float, what: str) -> float:
     return out
 
 
-def match_flags(scores: Sequence[float], threshold: float, relative: float) -> list[bool]:
-    """Which of one sense's scores match: ``>= threshold`` and ``>= relative * best``."""
-    if not scores:
-        return []
-    bar = max(threshold, relative * max(scores))
-    return [s >= bar for s in scores]
+def sense_bar(scores: Sequence[float], threshold: float, relative: float) -> float:
+    """The score one sense's candidates need for a query: ``threshold`` and ``relative`` x
+    the best of ``scores`` (that sense's candidates, best included)."""
+    return max(threshold, relative * max(scores)) if scores else threshold
+
+
+def mark_matches(hits: Sequence[Hit], match: Match | None = None) -> list[Hit]:
+    """``hits`` (one ranked list, best first) with ``match`` and ``bar`` set by the rule of
+    the temporal operators. A sense's best candidate is in the list whenever any of its hits
+    is (the list is sorted by score), so the relative gate sees the same best here."""
+    match = match or Match()
+    names = sorted({h.sense for h in hits})
+    thresholds = resolve_thresholds(match.threshold, names)
+    relative = check_relative(match.relative)
+    bars = {
+        name: sense_bar([h.score for h in hits if h.sense == name], thresholds[name], relative)
+        for name in names
+    }
+    return [
+        h.model_copy(update={"match": h.score >= bars[h.sense], "bar": bars[h.sense]}) for h in hits
+    ]
 
 
 def group_moments(

@@ -46,11 +46,12 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.clocks import drop_session_clock
+from tactus_memory.connect import DEFAULT_MEMORY
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.grasps import GraspRule, check_group
 from tactus_memory.limits import MAX_BATCH, MAX_K, MAX_META_BYTES
 from tactus_memory.maintenance import Background, MaintenanceConfig
-from tactus_memory.matching import DEFAULT_MOMENT_GAP
+from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
 from tactus_memory.models import Grasp, Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.questions import TemporalQuestions
@@ -121,7 +122,7 @@ class Memory(TemporalQuestions, PlaceQuestions):
     @classmethod
     def open(
         cls,
-        path: str = "./memory",
+        path: str = DEFAULT_MEMORY,
         space: Space | str | None = None,
         *,
         space_path: str | None = None,
@@ -387,9 +388,9 @@ class Memory(TemporalQuestions, PlaceQuestions):
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return self.search_moments(query, k, gap=gap, scope=where)
         k = check_k(k)
-        base = where.where()
         names = self.resolve_senses(where.senses)
-        return self.rank(embed_query(self.space, query), k, names, base, transform=True)
+        hits = self.rank(embed_query(self.space, query), k, names, where.where(), transform=True)
+        return mark_matches(hits)
 
     def search_vector(
         self,
@@ -406,8 +407,8 @@ class Memory(TemporalQuestions, PlaceQuestions):
         if q.shape[0] != 1:
             raise InvalidInputError(f"one query vector expected, got {q.shape[0]}")
         where = Scope.of(**scope)
-        base = where.where()
-        return self.rank(q, k, self.resolve_senses(where.senses), base, transform=transform)
+        names = self.resolve_senses(where.senses)
+        return mark_matches(self.rank(q, k, names, where.where(), transform=transform))
 
     def search_like(
         self,

@@ -33,6 +33,17 @@ class Hit(Span):
     text: str | None = None
     source: str = ""
     episode: int | None = None
+    match: bool = Field(
+        False,
+        description="The hit clears its sense's match bar for this query (score >= bar): the "
+        "rule of last/first/count (tactus_memory.matching).",
+    )
+    bar: float | None = Field(
+        None,
+        description="The score this hit's sense needed to match for this query: max(the "
+        "sense's threshold, MATCH_Z, 3.0 by default; RELATIVE_KEEP 0.4 x the best score of that "
+        "sense for the query).",
+    )
     position: Position | None = None
     frame: str | None = None
 
@@ -130,6 +141,9 @@ class Evidence(TimelineItem):
     score: float
     cosine: float
     match: bool = False
+    bar: float | None = Field(
+        None, description="The score this item's sense needed to match (see Hit.bar)."
+    )
 
 
 class Grasp(Evidence):

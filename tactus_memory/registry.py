@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import SenseConflictError, UnknownSenseError
+from tactus_memory.errors import InvalidInputError, SenseConflictError, UnknownSenseError
 from tactus_memory.models import SenseInfo
 from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
@@ -281,6 +281,10 @@ class SenseRegistry:
             return [name for name in sorted(self._stored) if counts.get(name, 0) > 0]
         if isinstance(senses, str):
             senses = [senses]
+        if not senses:  # as over HTTP (422): an empty list is a mistake, not "search nothing"
+            raise InvalidInputError(
+                "senses=[] names no sense: pass None (every sense with rows) or at least one name"
+            )
         names = []
         for name in senses:
             self.search_sense(name)

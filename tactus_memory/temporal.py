@@ -52,8 +52,8 @@ from tactus_memory.matching import (  # re-exported: `from tactus_memory.tempora
     check_seconds,
     group_moments,
     make_moment,
-    match_flags,
     resolve_thresholds,
+    sense_bar,
 )
 
 # re-exported (`X as X`): `from tactus_memory.temporal import Moment, ...` keeps working
@@ -98,13 +98,13 @@ __all__ = [
     "check_seconds",
     "group_moments",
     "make_moment",
-    "match_flags",
     "resolve_thresholds",
 ]
 
 Offsets = Mapping[tuple[str, str, str], float]
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None
+EpisodeRule = tuple[float, float, float]  # episode rule: (min_cos, mean_cos, max_gap)
 
 
 def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
@@ -199,7 +199,7 @@ class Temporal:
                 off = offsets.get((h.session, h.sense, h.source), 0.0)
                 evs.append(
                     Evidence(
-                        **h.model_dump(exclude={"score", "cosine"}),
+                        **h.model_dump(exclude={"score", "cosine", "match", "bar"}),
                         t_aligned=h.t + off,
                         t_end_aligned=h.t_end + off,
                         score=h.score,
@@ -208,10 +208,11 @@ class Temporal:
                 )
             if grasp is not None:
                 evs = pool_grasps(self.memory, q, name, evs, grasp)
-            flags = match_flags([e.score for e in evs], bars[name], relative)
+            bar = sense_bar([e.score for e in evs], bars[name], relative)
+            flags = [e.score >= bar for e in evs]
             capped = capped or (len(hits) >= per_sense and all(flags))
             for e, flag in zip(evs, flags, strict=True):
-                e.match = flag
+                e.match, e.bar = flag, bar
                 if _overlaps(e, after, before):
                     out.append(e)
         return out, capped
@@ -362,38 +363,51 @@ class Temporal:
             sessions = [validate_id(session, "session id")]
         total = 0
         for sid in sessions:
-            cols = ["id", "sense", "source", "t", "t_end", "vector"]
-            tbl = self.store.scan(Where().session(sid).sql(), cols)
-            if tbl.num_rows == 0:
+            ids, episode = self._segment(sid, (min_cos, mean_cos, max_gap))
+            if not ids:
                 if session is not None:
                     raise NotFoundError(f"no session {sid!r}")
                 continue
-            ids = tbl.column("id").to_pylist()
-            firsts: list[tuple[float, str, str, int, np.ndarray]] = []
-            vecs = vector_column(tbl, self.memory.space.dim)
-            t = tbl.column("t").to_numpy()
-            t_end = tbl.column("t_end").to_numpy()
-            for (sense, source), idx in sorted(_streams(tbl).items()):
-                labels = segment(
-                    t[idx], t_end[idx], vecs[idx], min_cos=min_cos, mean_cos=mean_cos,
-                    max_gap=max_gap,
-                )  # fmt: skip
-                for lab in np.unique(labels):
-                    members = idx[labels == lab]
-                    firsts.append((float(t[members[0]]), sense, source, int(lab), members))
-            firsts.sort(key=lambda f: (f[0], f[1], f[2], f[3]))
-            episode = np.zeros(len(ids), dtype=np.int64)
-            for number, (*_, members) in enumerate(firsts):
-                episode[members] = number
             with self.memory.lock:
                 self.store.set_episodes(ids, episode)
-            total += len(firsts)
+            total += int(episode.max()) + 1
         return total
+
+    def _segment(
+        self, session: str, rule: EpisodeRule | None = None
+    ) -> tuple[list[str], np.ndarray]:
+        """(ids, (N,) int64 episode numbers) of every row of ``session`` under ``rule``
+        (min_cos, mean_cos, max_gap), computed, not stored: numbered 0, 1, ... by (first
+        item's time, sense, source)."""
+        min_cos, mean_cos, max_gap = rule or (EPISODE_MIN_COS, EPISODE_MEAN_COS, EPISODE_MAX_GAP)
+        cols = ["id", "sense", "source", "t", "t_end", "vector"]
+        tbl = self.store.scan(Where().session(session).sql(), cols)
+        ids = tbl.column("id").to_pylist()
+        if not ids:
+            return [], np.zeros(0, dtype=np.int64)
+        firsts: list[tuple[float, str, str, int, np.ndarray]] = []
+        vecs = vector_column(tbl, self.memory.space.dim)
+        t = tbl.column("t").to_numpy()
+        t_end = tbl.column("t_end").to_numpy()
+        for (sense, source), idx in sorted(_streams(tbl).items()):
+            labels = segment(
+                t[idx], t_end[idx], vecs[idx], min_cos=min_cos, mean_cos=mean_cos,
+                max_gap=max_gap,
+            )  # fmt: skip
+            for lab in np.unique(labels):
+                members = idx[labels == lab]
+                firsts.append((float(t[members[0]]), sense, source, int(lab), members))
+        firsts.sort(key=lambda f: (f[0], f[1], f[2], f[3]))
+        episode = np.zeros(len(ids), dtype=np.int64)
+        for number, (*_, members) in enumerate(firsts):
+            episode[members] = number
+        return ids, episode
 
     def episodes(
         self, session: str, *, senses: Sequence[str] | None = None, source: str | None = None
     ) -> list[Episode]:
-        """The session's episodes in aligned time order (segmenting it first if needed)."""
+        """The session's episodes in aligned time order: the stored ones (segment_episodes),
+        or, while some rows have none, computed now and not stored (reads never write)."""
         session = validate_id(session, "session id")
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
@@ -406,8 +420,10 @@ class Temporal:
         where = Where().session(session)
         unsegmented = Where().session(session)
         unsegmented.parts.append("episode IS NULL")
+        computed: dict[str, int] | None = None
         if self.store.count(unsegmented.sql()) > 0:
-            self.segment_episodes(session)
+            ids_all, numbers = self._segment(session)
+            computed = dict(zip(ids_all, numbers.tolist(), strict=True))
         if senses is not None:
             where.senses(self.memory.resolve_senses(senses))
         where.source(source)
@@ -422,7 +438,11 @@ class Temporal:
         sources = [s or "" for s in tbl.column("source").to_pylist()]
         t = tbl.column("t").to_numpy()
         t_end = tbl.column("t_end").to_numpy()
-        ep = tbl.column("episode").to_numpy()
+        if computed is None:
+            ep = tbl.column("episode").to_numpy()
+        else:
+            late = max(computed.values(), default=-1) + 1  # rows written since: one more
+            ep = np.array([computed.get(i, late) for i in ids], dtype=np.int64)
         out = []
         # one sort by (episode, t, id), split where the episode changes: rows of each episode
         # in (t, id) order, episodes ascending

@@ -100,6 +100,8 @@ class Occurrence:
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked
+        if a.scope.session is not None:
+            a.memory.session(a.scope.session)  # an unknown session: 404, as /timeline says
         rule = grasp_rule(self.group, self.pool)
         return a.memory.temporal.occurrences(
             self.q, a.scope, a.match, self.merge_gap, per_stream, rule
@@ -113,7 +115,8 @@ OccurrenceDep = Annotated[Occurrence, Depends()]
     "/last",
     summary="The most recent occurrence of something",
     description="Matching items (per-sense calibrated threshold), merged into occurrences; the "
-    "one that started last. `moment` is null when nothing matches.",
+    "one that started last. `moment` is null when nothing matches; an unknown `session` is "
+    "a 404.",
     response_model=MomentOut,
 )
 def last(question: OccurrenceDep) -> MomentOut:
@@ -233,7 +236,9 @@ def moments(
     "/sessions/{session}/timeline",
     summary="A session in time order: items, or episodes",
     description="Items (or, with `episodes=true`, episodes: stretches of one stream whose "
-    "embeddings stay coherent) in aligned time order. Times filter by overlap.",
+    "embeddings stay coherent) in aligned time order. Times filter by overlap. A read: "
+    "episodes not yet stored are computed for the answer and not written (store them with "
+    "`POST /sessions/{session}/episodes`).",
     response_model=TimelineOut,
 )
 def timeline(

@@ -17,7 +17,14 @@ from pydantic import ValidationError
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.memory import Memory, PreparedWrite
-from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
+from tactus_memory.service.arrays import (
+    FRAME_SHAPE,
+    NPY_TYPES,
+    as_window,
+    as_windows,
+    load_npy,
+    loads_strict,
+)
 from tactus_memory.service.deps import (
     MemoryDep,
     SessionId,
@@ -58,7 +65,7 @@ def _validate(model: type, obj: Any) -> Any:
         return model.model_validate(obj)
     except ValidationError as exc:
         errs = [{**e, "loc": ("body", *e.get("loc", ()))} for e in exc.errors(include_url=False)]
-        raise RequestValidationError(errs) from None
+        raise RequestValidationError(errs, body=obj) from None
 
 
 def _prepare(
@@ -107,9 +114,12 @@ def _upload(
 ) -> _Upload:
     if ctype in NPY_TYPES:
         arr = load_npy(raw, "npy body")
-        if arr.ndim == 3:
-            arr = arr[None]
-        windows = list(as_windows(arr, "npy body"))
+        if arr.ndim not in (3, 4) or arr.shape[-2:] != FRAME_SHAPE or 0 in arr.shape:
+            raise InvalidInputError(
+                f"npy body has shape {arr.shape}, expected (K, 32, 32) (one window) or "
+                "(B, K, 32, 32) (a batch)"
+            )
+        windows = list(as_windows(arr[None] if arr.ndim == 3 else arr, "npy body"))
         if not t:
             raise InvalidInputError("query parameter 't' is required with an npy body")
         return _Upload(windows, t, t_end, None, None, calibrated)

@@ -26,6 +26,42 @@ MemoryData = Annotated[
         "./memory).",
     ),
 ]
+#: ``--url`` of the commands that ask a memory: a running ``tactus serve`` answers instead
+#: (no model loaded in the shell; see :mod:`tactus_memory.cli.remote`)
+ServerUrl = Annotated[
+    str | None,
+    typer.Option(
+        "--url",
+        envvar="TACTUS_URL",
+        help="Ask the server at this URL (e.g. http://127.0.0.1:8000, as `make run` serves) "
+        "instead of opening --data: no model loads here, so it answers at once (env "
+        "TACTUS_URL).",
+    ),
+]
+#: the bearer token sent with ``--url`` (the server's ``--token``)
+ServerToken = Annotated[
+    str | None,
+    typer.Option(
+        "--token",
+        envvar="TACTUS_TOKEN",
+        help="With --url: the server's token (env TACTUS_TOKEN).",
+        show_envvar=False,
+    ),
+]
+#: the scope options every question shares (search, last, first, count, timeline)
+Senses = Annotated[
+    list[str] | None,
+    typer.Option("--sense", help="Only these senses (repeatable); default all with rows."),
+]
+Session = Annotated[str | None, typer.Option("--session", help="Only this session.")]
+After = Annotated[
+    float | None, typer.Option("--after", help="Items overlapping t >= AFTER (seconds).")
+]
+Before = Annotated[
+    float | None, typer.Option("--before", help="Items overlapping t <= BEFORE (seconds).")
+]
+AsJson = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
+
 #: ``--data`` of the long-running processes (serve, maintain), whose settings read TACTUS_DATA
 ServiceData = Annotated[
     str | None,
