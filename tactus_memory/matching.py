@@ -152,6 +152,12 @@ def sense_bar(scores: Sequence[float], threshold: float, relative: float) -> flo
     return max(threshold, relative * max(scores)) if scores else threshold
 
 
+def match_flags(scores: Sequence[float], threshold: float, relative: float) -> list[bool]:
+    """Which of one sense's scores match: ``>= threshold`` and ``>= relative * best``."""
+    bar = sense_bar(scores, threshold, relative)
+    return [s >= bar for s in scores]
+
+
 def mark_matches(hits: Sequence[Hit], match: Match | None = None) -> list[Hit]:
     """``hits`` (one ranked list, best first) with ``match`` and ``bar`` set by the rule of
     the temporal operators. A sense's best candidate is in the list whenever any of its hits

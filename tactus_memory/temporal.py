@@ -52,6 +52,7 @@ from tactus_memory.matching import (  # re-exported: `from tactus_memory.tempora
     check_seconds,
     group_moments,
     make_moment,
+    match_flags,
     resolve_thresholds,
     sense_bar,
 )
@@ -98,6 +99,7 @@ __all__ = [
     "check_seconds",
     "group_moments",
     "make_moment",
+    "match_flags",
     "resolve_thresholds",
 ]
 
