@@ -1,20 +1,37 @@
 # The two commands a new user needs (see README):
-#   make run    set up .venv and start the service on an embedded default store (./memory)
+#   make run    set up .venv and start the service on the default store (./memory); then
+#               `source .venv/bin/activate` puts `tactus` on your PATH (the README assumes it)
 #   make test   set up .venv (with test extras) and run ruff + the test suite
 VENV ?= .venv
 PY := $(VENV)/bin/python
-PIP := $(PY) -m pip
+# setuptools' note on every editable install ("Please be careful with folders ...") is not a
+# problem: silence that one message so a clean install prints nothing
+PIP := PYTHONWARNINGS="ignore:Editable installation" $(PY) -m pip
 HOST ?= 127.0.0.1
 PORT ?= 8000
 DATA ?= ./memory
 
 .PHONY: setup setup-test run test lint format bench
 
+# PyTorch's CPU-only build: on Linux the plain PyPI wheel pulls several GB of CUDA libraries.
+# TORCH_INDEX= (empty) takes the plain wheel; so does an index that cannot be reached in 5 s.
+TORCH_VERSION ?= 2.13.0
+TORCH_INDEX ?= $(if $(filter Linux,$(shell uname -s)),https://download.pytorch.org/whl/cpu,)
+
 $(VENV)/.base: pyproject.toml
 	python3 -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
-	# torch first, pinned to the CPU wheel on disk, so no dependency pulls another build
-	$(PIP) install -q torch==2.13.0
+	# torch first, pinned, so no dependency pulls another build; kept when already installed
+	@if $(PY) -c "import torch, sys; sys.exit(torch.__version__.split('+')[0] != '$(TORCH_VERSION)')" 2>/dev/null; then \
+	  echo "torch $(TORCH_VERSION) already in $(VENV)"; \
+	elif [ -n "$(TORCH_INDEX)" ] && $(PY) scripts/reachable.py "$(TORCH_INDEX)/torch/"; then \
+	  echo "installing torch $(TORCH_VERSION) (CPU build) from $(TORCH_INDEX)"; \
+	  $(PIP) install -q torch==$(TORCH_VERSION) --index-url $(TORCH_INDEX) \
+	    || $(PIP) install -q torch==$(TORCH_VERSION); \
+	else \
+	  echo "installing torch $(TORCH_VERSION) from the default index"; \
+	  $(PIP) install -q torch==$(TORCH_VERSION); \
+	fi
 	$(PIP) install -q -e .
 	touch $@
 

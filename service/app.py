@@ -11,9 +11,10 @@ the touch routes answer 503 naming it.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -29,6 +30,7 @@ from tactus_memory.service.middleware import (
     AllowMiddleware,
     BodyLimitMiddleware,
     ReadOnlyMiddleware,
+    StartingMiddleware,
 )
 from tactus_memory.service.openapi import install_openapi
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
@@ -37,6 +39,7 @@ from tactus_memory.service.routers import (
     health,
     images,
     items,
+    places,
     recordings,
     search,
     senses,
@@ -57,6 +60,8 @@ in natural language.
 * Write: `POST /sessions/{id}/touch` (raw sensor units by default), `/text`, `/image`,
   `/vectors`; live touch over the WebSocket `/sessions/{id}/touch/stream`.
 * Read: `GET /search?q=...`, `POST /search/like`, `GET /sessions`, `GET /senses`.
+* Where: `POST /sessions/{id}/poses` (the trajectory), `GET /where?q=...`,
+  `GET /at?x=&y=&z=&r=`; every search takes `near=x,y,z,r` and `frame=`.
 * Errors are RFC 9457 problem details (`application/problem+json`).
 * Every write is acknowledged (201) only after its LanceDB commit.
 * With a token configured, send `Authorization: Bearer <token>` on every route but the open
@@ -114,6 +119,19 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     return why
 
 
+async def _load_in_background(state: ServiceState, loader: Loader) -> None:
+    try:
+        why = await run_in_threadpool(loader, state)
+    except Exception as exc:  # noqa: BLE001  (the command decides: one line, exit 2)
+        log.error("loading the models failed: %s", exc)
+        state.starting = f"failed: {exc}"
+        state.load_error = exc
+        return
+    state.touch_unavailable = why
+    state.warm = True
+    state.starting = None
+
+
 def serving_torch_threads() -> int:
     """Torch threads per call for a server (``tactus serve`` without TACTUS_TORCH_THREADS):
     half the cores, so the committer's encoder batch and a search's query embedding each get
@@ -131,7 +149,21 @@ def operation_id(route: APIRoute) -> str:
     return route.name
 
 
-def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
+#: what a background loader gets and returns: the state (to name its step in
+#: ``state.starting``) -> why touch is unavailable, or None
+Loader = Callable[[ServiceState], "str | None"]
+
+
+def create_app(
+    settings: Settings | None = None,
+    memory: Any = None,
+    *,
+    loader: Loader | None = None,
+) -> FastAPI:
+    """The app. With ``loader`` (``tactus serve``), the lifespan returns at once, so the
+    socket opens, and ``loader`` loads the models on a worker thread; until it returns,
+    ``state.starting`` names the step (probes 503, data routes 503 + Retry-After). If it
+    raises, ``state.load_error`` keeps the exception (the command stops the server)."""
     settings = settings or Settings()
     if settings.torch_threads is not None:
         # Before any worker thread exists: threads take the count when they first run torch.
@@ -140,6 +172,8 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         torch.set_num_threads(settings.torch_threads)
     if memory is None:
         memory, touch_why = open_memory(settings)
+    elif loader is not None:
+        touch_why = None  # the loader says, once it has tried
     else:
         touch_why = (
             None if "touch" in memory.senses else ("no touch sense is registered in this memory")
@@ -149,6 +183,7 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         memory=memory,
         touch_unavailable=touch_why,
         read_only=store_read_only(memory.store.uri),
+        starting="loading the models" if loader is not None else None,
     )
     damage = memory.store.integrity.damage(0)
     if damage:  # served (reads where they can), but unhealthy and refusing writes
@@ -165,13 +200,20 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
         # so bounding it bounds the reads alone.
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.read_threads
         state.open_committer()
-        # Load the text model before the first request instead of during it.
-        try:
-            await run_in_threadpool(memory.space.embed_texts, ["warm up"], query=True)
-        except Exception:  # noqa: BLE001
-            log.exception("warming up the space failed")
-        state.warm = True
+        loading: asyncio.Task[None] | None = None
+        if loader is not None:
+            # the socket opens now; the models load on a worker thread (see /ready)
+            loading = asyncio.create_task(_load_in_background(state, loader))
+        else:
+            # Load the text model before the first request instead of during it.
+            try:
+                await run_in_threadpool(memory.space.embed_texts, ["warm up"], query=True)
+            except Exception:  # noqa: BLE001
+                log.exception("warming up the space failed")
+            state.warm = True
         yield
+        if loading is not None and not loading.done():
+            loading.cancel()  # the worker thread finishes its step; nothing waits for it
         # Commit what is queued (its clients are waiting for their acks), then stop.
         if state.committer is not None:
             await run_in_threadpool(state.committer.close, 30.0)
@@ -189,11 +231,14 @@ def create_app(settings: Settings | None = None, memory: Any = None) -> FastAPI:
     app.add_middleware(BodyLimitMiddleware, max_body_bytes=settings.max_body_bytes)
     app.add_middleware(ReadOnlyMiddleware, read_only=lambda: state.read_only)
     app.add_middleware(AllowMiddleware)
+    app.add_middleware(StartingMiddleware, starting=lambda: state.starting)
     install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 
     auth = [Depends(require_token)]
     app.include_router(health.router)
-    for module in (sessions, senses, images, search, items, touch, touch_stream, ui, recordings):
+    for module in (
+        sessions, senses, images, search, items, touch, touch_stream, ui, recordings, places,
+    ):  # fmt: skip
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(ui.page_router)  # the browser page: static, no data, no token

@@ -75,6 +75,13 @@ NPY_MAGIC = b"\x93NUMPY"
 def load_npy(raw: bytes, what: str = "npy body", *, frames: bool = False) -> np.ndarray:
     """``.npy`` bytes -> a float32 array (no pickles, numeric dtypes only); ``frames``: stream
     frames, checked finite too (:func:`finite_frames`)."""
+    out = read_npy(raw, what).astype(np.float32, copy=False)
+    return _in_range(finite_frames(out, what) if frames else out, what)
+
+
+def read_npy(raw: bytes, what: str = "npy body") -> np.ndarray:
+    """``.npy`` bytes -> the numeric array as sent (no pickles; any numeric dtype, so float64
+    times keep their precision)."""
     if not raw:
         raise InvalidInputError(f"{what} is empty")
     arr = _npy_fast(raw)
@@ -99,8 +106,7 @@ def load_npy(raw: bytes, what: str = "npy body", *, frames: bool = False) -> np.
             _remember_header(raw, arr)
     if arr.dtype.kind not in "biuf":
         raise InvalidInputError(f"{what} has dtype {arr.dtype}; use a numeric dtype")
-    out = arr.astype(np.float32, copy=False)
-    return _in_range(finite_frames(out, what) if frames else out, what)
+    return arr
 
 
 def _in_range(arr: np.ndarray, what: str) -> np.ndarray:

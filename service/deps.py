@@ -8,20 +8,23 @@ import asyncio
 import hmac
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import Depends, HTTPException, Path, Query
 from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
+from tactus_memory.errors import InvalidInputError
 from tactus_memory.ingest import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
+    FRAME_PATTERN,
     ID_DESCRIPTION,
     ID_PATTERN,
     MAX_ID_CHARS,
     MAX_TEXT_CHARS,
+    NEAR_PATTERN,
     SENSE_NAME_PATTERN,
     SOURCE_PATTERN,
 )
@@ -31,6 +34,7 @@ from tactus_memory.rows import WriteKwargs
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.writes import Writer
 from tactus_memory.settings import Settings
+from tactus_memory.where import Near, check_near, validate_frame
 
 
 @dataclass
@@ -46,6 +50,11 @@ class ServiceState:
     read_only: bool = False
     #: the space has been warmed up (the lifespan ran): ``/ready`` answers 200
     warm: bool = False
+    #: the step being loaded while ``tactus serve`` starts (socket open, models loading in
+    #: the background): probes say it, other routes answer 503 naming it; None when loaded
+    starting: str | None = None
+    #: what loading the models in the background raised (the server then stops)
+    load_error: BaseException | None = None
 
     def __post_init__(self) -> None:
         if self.writer is None:
@@ -212,18 +221,74 @@ BeforeQ = Annotated[
 ]
 
 
+NearQ = Annotated[
+    str | None,
+    Query(
+        max_length=100,
+        pattern=NEAR_PATTERN,
+        description="Only items placed within r metres of (x, y, z): `near=x,y,z,r` (r > 0).",
+        examples=["2.0,0.5,0,1.5"],
+    ),
+]
+FrameQ = Annotated[
+    str | None,
+    Query(
+        max_length=MAX_ID_CHARS + 1,
+        pattern=FRAME_PATTERN,
+        description="Only items placed in this frame (e.g. `map`).",
+    ),
+]
+
+
+def parse_near(near: str | None) -> Near | None:
+    """``"x,y,z,r"`` -> ``((x, y, z), r)`` (checked by the library: finite, r > 0)."""
+    if near is None:
+        return None
+    parts = near.split(",")
+    if len(parts) != 4:
+        raise InvalidInputError(f"near must be 'x,y,z,r' (four numbers), got {near!r}")
+    try:
+        x, y, z, r = (float(p) for p in parts)
+    except ValueError:
+        raise InvalidInputError(f"near must be 'x,y,z,r' (four numbers), got {near!r}") from None
+    return check_near(((x, y, z), r))
+
+
 def stream_scope(
-    sense: SensesQ = None, source: SourceQ = None, after: AfterQ = None, before: BeforeQ = None
+    sense: SensesQ = None,
+    source: SourceQ = None,
+    after: AfterQ = None,
+    before: BeforeQ = None,
+    near: NearQ = None,
+    frame: FrameQ = None,
 ) -> Scope:
     """The scope's query parameters but the session (a route with the session in its path)."""
-    return Scope(senses=sense, source=source, after=after, before=before)
+    return Scope(
+        senses=sense,
+        source=source,
+        after=after,
+        before=before,
+        near=parse_near(near),
+        frame=None if frame is None else validate_frame(frame),
+    )
 
 
 def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = None) -> Scope:
-    """``sense`` (repeated), ``session``, ``source``, ``after``, ``before`` -> one
+    """``sense`` (repeated), ``session``, ``source``, ``after``, ``before``, ``near``,
+    ``frame`` -> one
     :class:`~tactus_memory.query.Scope`, what every search and temporal route passes down."""
     return replace(base, session=session)
 
 
 ScopeDep = Annotated[Scope, Depends(scope)]
 StreamScopeDep = Annotated[Scope, Depends(stream_scope)]
+
+
+#: how group=grasp scores a grasp (tactus_memory.grasps.POOLS)
+GraspPool = Annotated[
+    Literal["mean", "top", "max"],
+    Query(
+        description="With group=grasp: `mean` scores the pooled vector of every window of the "
+        "grasp, `top` of its 3 windows closest to the query, `max` its best window."
+    ),
+]

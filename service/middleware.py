@@ -159,6 +159,37 @@ class ReadOnlyMiddleware:
         await self.app(scope, receive, send)
 
 
+#: what answers while the models load: the probes (they say "starting" themselves), the page
+#: and the API docs; every other route answers 503 + Retry-After naming the step
+OPEN_WHILE_STARTING = ("/live", "/ready", "/health", "/", "/docs", "/redoc", "/openapi.json")
+#: seconds a client is told to wait while the server starts
+STARTING_RETRY_AFTER_S = 1
+
+
+class StartingMiddleware:
+    """While ``starting()`` names a step (the text model or the touch encoder is loading in
+    the background, the socket already open), data routes and WebSocket streams answer 503
+    with ``Retry-After`` and that step instead of waiting in a queue."""
+
+    def __init__(self, app: ASGIApp, starting: Callable[[], str | None]) -> None:
+        self.app = app
+        self.starting = starting
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        step = self.starting() if scope["type"] in ("http", "websocket") else None
+        path = scope.get("path", "")
+        if step is None or path in OPEN_WHILE_STARTING or path.startswith("/static/"):
+            await self.app(scope, receive, send)
+            return
+        detail = f"starting: {step}; retry in a moment (GET /ready answers 200 when ready)"
+        if scope["type"] == "websocket":
+            await send({"type": "websocket.close", "code": 1013, "reason": detail[:120]})
+            return
+        problem = problem_body(503, detail, slug="starting", title="Server is starting")
+        retry = [(b"retry-after", str(STARTING_RETRY_AFTER_S).encode())]
+        await send_problem(send, 503, problem, retry)
+
+
 CANDIDATE_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
 UNAUTHORIZED = "missing or wrong bearer token: send 'Authorization: Bearer <token>'"
 BEARER_REALM = b'Bearer realm="tactus"'

@@ -185,9 +185,48 @@ def _loc(loc: tuple[Any, ...] | list[Any]) -> str:
     return ".".join(parts) or "request"
 
 
+#: body fields holding nested arrays, and the shape each must have: a wrong shape is said in
+#: one line (as the library says it) instead of one error per number
+ARRAY_FIELDS = {
+    "frames": "(K, 32, 32)",
+    "windows": "(B, K, 32, 32)",
+    "vector": "(D,)",
+    "vectors": "(N, D)",
+}
+
+
+def _shape(value: Any) -> tuple[int, ...]:
+    """The shape of nested lists, read along the first elements."""
+    shape: list[int] = []
+    while isinstance(value, list):
+        shape.append(len(value))
+        if not value:
+            break
+        value = value[0]
+    return tuple(shape)
+
+
+def _array_shapes(exc: RequestValidationError) -> dict[str, str]:
+    """Array fields of the body with more than one error, as ``{field: one line}``."""
+    body = getattr(exc, "body", None)
+    out: dict[str, str] = {}
+    if not isinstance(body, dict):
+        return out
+    for name, expected in ARRAY_FIELDS.items():
+        errs = [e for e in exc.errors() if tuple(e.get("loc", ()))[:2] == ("body", name)]
+        if len(errs) > 1 and isinstance(body.get(name), list):
+            got = _shape(body[name])
+            out[name] = f"body field '{name}' must have shape {expected}, got {got}"
+    return out
+
+
 def validation_detail(exc: RequestValidationError) -> str:
-    msgs = []
-    for err in exc.errors()[:10]:
+    shapes = _array_shapes(exc)
+    errors = [
+        e for e in exc.errors() if tuple(e.get("loc", ()))[:2] not in {("body", n) for n in shapes}
+    ]
+    msgs = list(shapes.values())
+    for err in errors[:10]:
         msg = str(err.get("msg", "invalid"))
         if err.get("type") == "json_invalid":
             ctx = err.get("ctx") or {}
@@ -195,7 +234,7 @@ def validation_detail(exc: RequestValidationError) -> str:
             msgs.append(msg)
             continue
         msgs.append(f"{_loc(err.get('loc', ()))}: {msg}")
-    more = len(exc.errors()) - 10
+    more = len(errors) - 10
     if more > 0:
         msgs.append(f"and {more} more")
     return "; ".join(msgs) or "request validation failed"

@@ -11,6 +11,7 @@ from tactus_memory.limits import (
     ID_DESCRIPTION,
     ID_PATTERN,
     MAX_CLOCK_OFFSET,
+    MAX_COORDINATE,
     MAX_ID_CHARS,
     MAX_K,
     MAX_TEXT_CHARS,
@@ -18,10 +19,18 @@ from tactus_memory.limits import (
     SOURCE_PATTERN,
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
-from tactus_memory.models import ClockOffset, Evidence, Moment, TimelineItem
+from tactus_memory.models import (
+    ClockOffset,
+    Evidence,
+    Grasp,
+    Moment,
+    Position,
+    TimelineItem,
+)
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.vectors import MAX_COMPONENT
+from tactus_memory.where import DEFAULT_FRAME
 
 #: vectors (and ids) in one JSON write request, far below the library's limits.MAX_BATCH:
 #: 4,096 vectors of 384 floats are ~15 MB of JSON, about the default body limit
@@ -66,6 +75,12 @@ Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": _ROWS, "maxIte
 Window = Annotated[list[Frame], Field(min_length=1, max_length=MAX_WINDOW_FRAMES)]
 #: an item id (the store's rule)
 ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
+
+#: (3,) a position (x, y, z) in metres and (4,) a unit quaternion (x, y, z, w), JSON arrays
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+Point = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+Quaternion = Annotated[list[Annotated[float, Field(ge=-1.001, le=1.001)]],
+                       Field(min_length=4, max_length=4)]  # fmt: skip
 
 T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
 T_END_DESC = "End time in seconds (>= t); defaults to t."
@@ -142,6 +157,10 @@ class TextIn(Strict):
     t_end: float | None = Field(None, description=T_END_DESC)
     meta: Meta | None = None
     id: str | None = Field(None, pattern=ID_PATTERN, description="Item id. " + ID_DESCRIPTION)
+    position: Point | None = Field(
+        None, description="Where it happened (x, y, z) in `frame` (default: from the poses)."
+    )
+    frame: str = Field(DEFAULT_FRAME, pattern=ID_PATTERN, description="The frame of `position`.")
 
 
 class VectorsIn(Strict):
@@ -213,6 +232,18 @@ class HitOut(BaseModel):
     text: str | None = Field(None, description="The stored text, for text items.")
     source: str = Field("", description="The stream the item came from, if any.")
     episode: int | None = None
+    match: bool = Field(
+        False,
+        description="The hit clears its sense's match bar for this query (score >= bar), the "
+        "rule of /last, /first and /count.",
+    )
+    bar: float | None = Field(
+        None,
+        description="The score this hit's sense needed to match: max(the sense's threshold, "
+        "3.0 by default; 0.4 x the best score of that sense for the query).",
+    )
+    position: Position | None = Field(None, description="Where it happened (x, y, z), if known.")
+    frame: str | None = Field(None, description="The frame of `position`.")
 
 
 class SearchOut(BaseModel):
@@ -242,6 +273,11 @@ class SearchOut(BaseModel):
         None,
         description="With group=moment: hits grouped into moments, each carrying every sense's "
         "evidence (hits then holds each moment's best member, in moment order).",
+    )
+    grasps: list[Grasp] | None = Field(
+        None,
+        description="With group=grasp: one entry per grasp, best first (its member ids, span and "
+        "pooled score; hits then holds the same grasps as hits).",
     )
 
 

@@ -2,7 +2,8 @@
 what to do (the command exits with status 2; ``--debug`` shows the traceback instead).
 
 :func:`check_location` runs before the store is opened (local paths only): a ``--data`` that
-is a regular file, or a new/empty directory this process cannot write. :func:`explain`
+is a regular file, or a new/empty directory this process cannot write; :func:`check_checkpoint`
+refuses a ``--touch-checkpoint`` that is not a file. :func:`explain`
 turns what opening the memory raised (a damaged manifest or table, a space mismatch, a bad
 setting) into that one line.
 """
@@ -55,6 +56,17 @@ def check_location(data: str) -> None:
         raise StartupError(
             f"--data {data} does not exist and cannot be created ({parent} is not writable): "
             "create it, fix the permissions, or choose another directory"
+        )
+
+
+def check_checkpoint(checkpoint: str | None) -> None:
+    """Refuse a named touch checkpoint that is not a file, before the socket opens (the
+    encoder itself loads behind the open socket; a file that then fails to load still stops
+    the command with exit status 2)."""
+    if checkpoint and not Path(checkpoint).is_file():
+        raise StartupError(
+            f"--touch-checkpoint {checkpoint} is not a file: pass a checkpoint written by "
+            "`tactus train` (in this memory's space), or leave it out for the shipped one"
         )
 
 

@@ -41,6 +41,7 @@ from tactus_memory.client_errors import problem_error
 from tactus_memory.client_stream import TouchStream
 from tactus_memory.episodes import Episode
 from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
+from tactus_memory.grasps import grasp_params
 from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
@@ -52,6 +53,7 @@ from tactus_memory.matching import (
 from tactus_memory.models import (
     ClockOffset,
     Context,
+    Grasp,
     Hit,
     Moment,
     Occurrences,
@@ -321,15 +323,18 @@ class Client:
         *,
         group: str | None = None,
         gap: float | None = None,
+        pool: str = "mean",
         **scope: Unpack[ScopeKwargs],
-    ) -> list[Hit] | list[Moment]:
+    ) -> list[Hit] | list[Moment] | list[Grasp]:
         """Natural-language search (see :meth:`Memory.search`)."""
-        params = {"q": query, "k": k, **scope_params(Scope.of(**scope))}
+        params = {"q": query, "k": k, "pool": pool, **scope_params(Scope.of(**scope))}
         if group is not None:
             params["group"] = group
         if gap is not None:
             params["gap"] = gap
         body = self._get("/search", params)
+        if group == "grasp":
+            return [Grasp.model_validate(g) for g in body["grasps"] or []]
         if group is not None:
             return [Moment.model_validate(m) for m in body["moments"] or []]
         return [Hit.model_validate(h) for h in body["hits"]]
@@ -338,8 +343,9 @@ class Client:
         self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
     ) -> list[Moment]:
         """Search grouped into moments (see :meth:`Memory.search_moments`)."""
+        params = {"q": query, "k": k, "gap": gap, **grasp_params(kw := dict(kw))}
         scope, match = split_match(kw)
-        params = {"q": query, "k": k, "gap": gap, **scope_params(scope), **match_params(match)}
+        params.update(scope_params(scope), **match_params(match))
         return [Moment.model_validate(m) for m in self._get("/moments", params)["moments"]]
 
     def search_like(
@@ -379,8 +385,9 @@ class Client:
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
         """Distinct occurrences of ``query`` (see :meth:`Memory.occurrences`)."""
+        extra = grasp_params(kw)
         scope, match = split_match(kw)
-        params = {"q": query, "merge_gap": merge_gap, "per_stream": per_stream}
+        params = {"q": query, "merge_gap": merge_gap, "per_stream": per_stream, **extra}
         params.update(scope_params(scope), **match_params(match))
         return Occurrences.model_validate(self._get("/count", params))
 
@@ -389,8 +396,9 @@ class Client:
         return self.occurrences(query, **kw).count
 
     def _one(self, path: str, query: str, merge_gap: float, kw: MatchKwargs) -> Moment | None:
-        scope, match = split_match(dict(kw))
-        params = {"q": query, "merge_gap": merge_gap, **scope_params(scope)}
+        extra = grasp_params(kw := dict(kw))
+        scope, match = split_match(kw)
+        params = {"q": query, "merge_gap": merge_gap, **scope_params(scope), **extra}
         params.update(match_params(match))
         moment = self._get(path, params)["moment"]
         return None if moment is None else Moment.model_validate(moment)

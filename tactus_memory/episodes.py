@@ -24,8 +24,12 @@ The episode's representative is the member closest (cosine) to the episode's mea
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from pydantic import BaseModel
+
+from tactus_memory.vectors import vector_column
 
 #: a new episode when consecutive items' cosine drops below this (an abrupt change)
 EPISODE_MIN_COS = 0.7
@@ -33,6 +37,8 @@ EPISODE_MIN_COS = 0.7
 EPISODE_MEAN_COS = 0.6
 #: a new episode when the time gap to the episode's latest end exceeds this (seconds)
 EPISODE_MAX_GAP = 5.0
+#: an episode rule: (min_cos, mean_cos, max_gap)
+EpisodeRule = tuple[float, float, float]
 
 
 class Episode(BaseModel):
@@ -106,3 +112,44 @@ def representative(vectors: np.ndarray) -> int:
     mean = v.sum(axis=0)
     mean /= max(float(np.linalg.norm(mean)), 1e-12)
     return int(np.argmax(v @ mean))
+
+
+def streams(tbl: Any) -> dict[tuple[str, str], np.ndarray]:
+    """(sense, source) -> row indices of the Arrow table ``tbl`` sorted by (t, id)."""
+    senses = tbl.column("sense").to_pylist()
+    sources = [s or "" for s in tbl.column("source").to_pylist()]
+    ids = tbl.column("id").to_pylist()
+    t = tbl.column("t").to_pylist()
+    by: dict[tuple[str, str], list[int]] = {}
+    for i, key in enumerate(zip(senses, sources, strict=True)):
+        by.setdefault(key, []).append(i)
+    return {
+        key: np.array(sorted(idx, key=lambda i: (t[i], ids[i])), dtype=np.int64)
+        for key, idx in by.items()
+    }
+
+
+def number_episodes(tbl: Any, dim: int, rule: EpisodeRule) -> tuple[list[str], np.ndarray]:
+    """The rows of one session (Arrow table: id, sense, source, t, t_end, (D,) vector)
+    segmented stream by stream under ``rule`` (min_cos, mean_cos, max_gap): (ids, (N,) int64
+    episode numbers), numbered 0, 1, ... by (first item's time, sense, source)."""
+    min_cos, mean_cos, max_gap = rule
+    ids = tbl.column("id").to_pylist()
+    if not ids:
+        return [], np.zeros(0, dtype=np.int64)
+    firsts: list[tuple[float, str, str, int, np.ndarray]] = []
+    vecs = vector_column(tbl, dim)
+    t = tbl.column("t").to_numpy()
+    t_end = tbl.column("t_end").to_numpy()
+    for (sense, source), idx in sorted(streams(tbl).items()):
+        labels = segment(
+            t[idx], t_end[idx], vecs[idx], min_cos=min_cos, mean_cos=mean_cos, max_gap=max_gap
+        )
+        for lab in np.unique(labels):
+            members = idx[labels == lab]
+            firsts.append((float(t[members[0]]), sense, source, int(lab), members))
+    firsts.sort(key=lambda f: (f[0], f[1], f[2], f[3]))
+    episode = np.zeros(len(ids), dtype=np.int64)
+    for number, (*_, members) in enumerate(firsts):
+        episode[members] = number
+    return ids, episode

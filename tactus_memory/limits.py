@@ -31,5 +31,14 @@ ID_DESCRIPTION = "1-128 characters of [A-Za-z0-9._:-], starting with a letter or
 SENSE_NAME_RE = re.compile(SENSE_NAME_PATTERN)
 ID_RE = re.compile(ID_PATTERN)
 
+#: largest |coordinate| and place radius, in metres (a million km: any robot's world, and
+#: r * r of the place filter stays a finite number)
+MAX_COORDINATE = 1e9
+#: a frame name (``map``, ``odom``, ``base_link``): an id, with ROS 1's leading ``/`` allowed
+FRAME_PATTERN = r"^/?[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$"
+#: ``near=x,y,z,r`` in a query string: plain decimals (below MAX_COORDINATE), r not negative
+_DECIMAL = r"[0-9]{1,9}(\.[0-9]{1,12})?"
+NEAR_PATTERN = rf"^-?{_DECIMAL},-?{_DECIMAL},-?{_DECIMAL},{_DECIMAL}$"
+
 #: largest clock offset in seconds (about 317 years): keeps t_aligned = t + offset finite
 MAX_CLOCK_OFFSET = 1e10

@@ -52,7 +52,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.models import Evidence, Moment
+from tactus_memory.models import Evidence, Hit, Moment
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.where import finite_float
@@ -145,12 +145,33 @@ def check_seconds(value: float, what: str) -> float:
     return out
 
 
+def sense_bar(scores: Sequence[float], threshold: float, relative: float) -> float:
+    """The score one sense's candidates need for a query: ``threshold`` and ``relative`` x
+    the best of ``scores`` (that sense's candidates, best included)."""
+    return max(threshold, relative * max(scores)) if scores else threshold
+
+
 def match_flags(scores: Sequence[float], threshold: float, relative: float) -> list[bool]:
     """Which of one sense's scores match: ``>= threshold`` and ``>= relative * best``."""
-    if not scores:
-        return []
-    bar = max(threshold, relative * max(scores))
+    bar = sense_bar(scores, threshold, relative)
     return [s >= bar for s in scores]
+
+
+def mark_matches(hits: Sequence[Hit], match: Match | None = None) -> list[Hit]:
+    """``hits`` (one ranked list, best first) with ``match`` and ``bar`` set by the rule of
+    the temporal operators. A sense's best candidate is in the list whenever any of its hits
+    is (the list is sorted by score), so the relative gate sees the same best here."""
+    match = match or Match()
+    names = sorted({h.sense for h in hits})
+    thresholds = resolve_thresholds(match.threshold, names)
+    relative = check_relative(match.relative)
+    bars = {
+        name: sense_bar([h.score for h in hits if h.sense == name], thresholds[name], relative)
+        for name in names
+    }
+    return [
+        h.model_copy(update={"match": h.score >= bars[h.sense], "bar": bars[h.sense]}) for h in hits
+    ]
 
 
 def group_moments(
@@ -187,6 +208,8 @@ def make_moment(hits: Sequence[Evidence]) -> Moment:
     """One moment from its members (see :class:`Moment` for the score)."""
     best = min(hits, key=lambda e: (-e.score, e.t_aligned, e.id))  # ties: the earliest
     corroborating = {e.sense for e in hits if e.match and e.sense != best.sense}
+    placed = [e for e in hits if e.position is not None]
+    where = min(placed, key=lambda e: (-e.score, e.t_aligned, e.id)) if placed else None
     return Moment(
         session=best.session,
         t=min(e.t_aligned for e in hits),
@@ -195,4 +218,6 @@ def make_moment(hits: Sequence[Evidence]) -> Moment:
         senses=sorted({e.sense for e in hits}),
         best=best.id,
         hits=list(hits),
+        position=None if where is None else where.position,
+        frame=None if where is None else where.frame,
     )

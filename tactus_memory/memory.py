@@ -28,7 +28,9 @@ Where the parts live: result models in :mod:`tactus_memory.models`, the sense re
 (live/stored senses, counts, calibration) in :mod:`tactus_memory.registry`, the ranked search
 in :mod:`tactus_memory.ranking`, query checks and the :class:`~tactus_memory.query.Scope` in
 :mod:`tactus_memory.query`, the temporal operators in :mod:`tactus_memory.temporal`
-(``memory.count``, ``memory.last``, ... are the methods of ``memory.temporal``).
+(``memory.count``, ``memory.last``, ... are the methods of ``memory.temporal``), the places
+in :mod:`tactus_memory.spatial` (``memory.add_poses``, ``memory.where``, ``memory.at``, ...
+are the methods of ``memory.places``).
 
 Extension points (temporal operators and the service build on these, not on LanceDB):
 ``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
@@ -48,32 +50,29 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.grasps import GraspRule, check_group
 from tactus_memory.maintenance import Background, MaintenanceConfig
-from tactus_memory.matching import DEFAULT_MOMENT_GAP
-from tactus_memory.models import Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
+from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
+from tactus_memory.models import Grasp, Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry
 from tactus_memory.rows import (
-    PreparedWrite,
     WriteKwargs,
-    check_batch,
-    claim_ids,
-    embed_groups,
-    embed_isolated,
     options_for,
-    resolve_shared_ids,
     summarise,
-    writes_table,
 )
 from tactus_memory.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
+from tactus_memory.settings import DEFAULT_MEMORY
 from tactus_memory.spaces.base import Space
+from tactus_memory.spatial import Places
 from tactus_memory.store import HIT_COLUMNS, Store
 from tactus_memory.tables import IndexConfig
 from tactus_memory.temporal import Temporal
 from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import Where, validate_id, validate_source
+from tactus_memory.where import DEFAULT_FRAME, Where
+from tactus_memory.writes import WritePath
 
 log = logging.getLogger(__name__)
 
@@ -87,9 +86,17 @@ TEMPORAL_QUESTIONS = (
 )  # fmt: skip
 
 
-def _temporal(name: str) -> Any:
-    """``memory.<name>`` is ``memory.temporal.<name>``."""
-    return property(lambda self: getattr(self.temporal, name), doc=getattr(Temporal, name).__doc__)
+#: the write calls: ``memory.commit_writes`` IS ``memory.write_path.commit_writes``
+WRITE_CALLS = ("prepare_write", "commit_writes", "validate_item")
+#: the place questions: ``memory.where(q)`` IS ``memory.places.where``
+PLACE_QUESTIONS = ("add_poses", "place_items", "trajectory", "where", "at")
+
+
+def _delegate(part: str, owner: type, name: str) -> Any:
+    """``memory.<name>`` is ``memory.<part>.<name>``."""
+    return property(
+        lambda self: getattr(getattr(self, part), name), doc=getattr(owner, name).__doc__
+    )
 
 
 class Memory:
@@ -110,13 +117,15 @@ class Memory:
         store.on_commit = self._schedule_maintenance  # every table, not only items
         self.ranker = Ranker(store, self.registry)
         self.temporal = Temporal(store, self.registry, self.ranker, space, self.lock)
+        self.places = Places(store, self.lock, self.registry, space, self.temporal)
+        self.write_path = WritePath(store, self.registry, space, self.lock, self.places)
         self.add_sense(TextSense(space))
 
     # ----------------------------------------------------------- construction
     @classmethod
     def open(
         cls,
-        path: str = "./memory",
+        path: str = DEFAULT_MEMORY,
         space: Space | str | None = None,
         *,
         space_path: str | None = None,
@@ -202,11 +211,15 @@ class Memory:
         id: str | None = None,  # noqa: A002  (the public contract names it id)
         source: str = "",
         options: Mapping[str, Any] | None = None,
+        position: Sequence[float] | None = None,
+        frame: str = DEFAULT_FRAME,
     ) -> str:
         """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
         to ``t``. Passing ``id`` makes the call an idempotent upsert of that session's item of
         that sense; an id already used by another session or sense raises
-        :class:`~tactus_memory.errors.IdConflictError` (nothing is written)."""
+        :class:`~tactus_memory.errors.IdConflictError` (nothing is written). ``position``
+        ``(x, y, z)`` in ``frame`` says where it happened (default: from the session's
+        poses, :mod:`tactus_memory.spatial`)."""
         return self.add_many(
             session,
             sense,
@@ -217,6 +230,8 @@ class Memory:
             ids=None if id is None else [id],
             source=source,
             options=options,
+            position=None if position is None else [position],
+            frame=frame,
         )[0]
 
     def add_many(
@@ -232,71 +247,6 @@ class Memory:
         write = self.prepare_write(session, sense, items, **kw)
         return self.commit_writes([write])[0]
 
-    def prepare_write(
-        self,
-        session: str,
-        sense: str,
-        items: Sequence[Any],
-        *,
-        t: Sequence[float | None] | float | None = None,
-        t_end: Sequence[float | None] | float | None = None,
-        meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None = None,
-        ids: Sequence[str] | None = None,
-        source: str = "",
-        options: Mapping[str, Any] | None = None,
-    ) -> PreparedWrite:
-        """Validate one write (``add_many``'s arguments) without embedding or storing it.
-
-        Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
-        alone or with the writes of other sessions (group commit, ``tactus_memory.ingest``).
-        """
-        session = validate_id(session, "session id")
-        source = validate_source(source)
-        s = self.registry.live_sense(sense)
-        items = list(items)
-        batch = check_batch(len(items), t, t_end, meta, ids)
-        opts = options_for(s, options)
-        canon = [s.validate(x, **opts) for x in items]
-        return PreparedWrite(session, s, canon, batch, source)
-
-    def commit_writes(
-        self, writes: Sequence[PreparedWrite], *, isolate: bool = False
-    ) -> list[list[str]]:
-        """Embed prepared writes (ONE ``embed`` call per sense across all of them) and store
-        them all in ONE LanceDB commit; returns each write's ids, in order.
-
-        All-or-nothing: if embedding or the commit fails nothing is written (vectors already
-        computed stay on the writes). Appends are one append; if any write is an upsert, all
-        rows go in one merge-insert. ``isolate`` (the group committer): a write whose
-        embedding fails or whose id clashes (with another write of this commit, or another
-        session's row) gets its ``error`` and is left out, the rest still commit once (an
-        identical repeat of an id is written once, :func:`~tactus_memory.rows.resolve_shared_ids`).
-        Once the rows are stored nothing raises: a failing step after the commit is logged
-        and its caches dropped, so no caller retries (and duplicates) a stored write.
-        """
-        live = [w for w in writes if len(w)]
-        if not live:
-            return [list(w.ids) for w in writes]
-        if isolate:
-            embed_isolated(live, self.space.dim)
-            resolve_shared_ids(live)
-        else:
-            embed_groups(live, self.space.dim)
-            all_ids = [i for w in live if w.batch.upsert for i in w.ids]
-            if len(set(all_ids)) != len(all_ids):
-                raise InvalidInputError("the same id appears in two writes of one commit")
-        with self.lock:
-            replaced = claim_ids(self.store, live, isolate)  # under the lock: no racing writer
-            ok = [w for w in live if w.error is None]
-            if not ok:
-                return [list(w.ids) for w in writes]
-            before = self.store.version()
-            self.store.write(
-                writes_table(self.store.schema, ok), upsert=any(w.batch.upsert for w in ok)
-            )
-            self.registry.note_writes(before, ok, replaced)  # never raises: the rows are stored
-        return [list(w.ids) for w in writes]
-
     def delete(self, ids: Sequence[str] | str) -> int:
         """Delete items by id; returns how many rows were removed."""
         if isinstance(ids, str):
@@ -305,8 +255,10 @@ class Memory:
         return self._delete(where)
 
     def delete_session(self, session: str) -> int:
-        """Delete every item of a session and its clock offsets; returns the rows removed."""
+        """Delete every item of a session, its poses and clock offsets; returns the item rows
+        removed."""
         deleted = self._delete(Where().session(session).sql())
+        self.places.delete_session(session)
         self.temporal.clocks.drop_session(session)  # its one meta row
         return deleted
 
@@ -318,13 +270,6 @@ class Memory:
                 self.store.delete(where)
                 self.registry.forget_counts()
             return n
-
-    def validate_item(self, sense: str, item: Any, options: Mapping[str, Any] | None = None) -> Any:
-        """``item`` checked (and canonicalised) by the live ``sense``, as ``add`` would store
-        it (the touch sense: calibrated, idle refused); ``add``/``add_many`` take the result as
-        it is, without checking or calibrating it again."""
-        s = self.registry.live_sense(sense)
-        return s.validate(item, **options_for(s, options))
 
     # ----------------------------------------------------------- maintenance
     def _schedule_maintenance(self) -> None:
@@ -350,23 +295,26 @@ class Memory:
         *,
         group: str | None = None,
         gap: float | None = None,
+        pool: str = "mean",
         **scope: Unpack[ScopeKwargs],
-    ) -> list[Hit] | list[Moment]:
+    ) -> list[Hit] | list[Moment] | list[Grasp]:
         """Natural-language search over the scope's senses (default: every sense with rows).
 
-        Filters: ``session``, ``senses``, ``source``, ``after``/``before`` (or one ``scope=``
-        :class:`Scope`). ``group="moment"`` returns Moments instead (see
-        :meth:`search_moments`); the query is embedded once either way."""
+        Filters: ``session``, ``senses``, ``source``, ``after``/``before``, ``near``/``frame``
+        (or one ``scope=`` :class:`Scope`). ``group="moment"`` returns Moments instead (see
+        :meth:`search_moments`), ``group="grasp"`` one Grasp per grasp, ranked by its pooled
+        vector (``pool``: see :mod:`tactus_memory.grasps`); the query is embedded once."""
         where = Scope.of(**scope)
-        if group is not None and group != "moment":
-            raise InvalidInputError(f"unknown group {group!r}; use group='moment'")
+        if check_group(group) == "grasp":
+            rule = GraspRule(pool=pool)
+            return self.temporal.grasps(embed_query(self.space, query), k, where, rule)
         if group is not None:
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return self.search_moments(query, k, gap=gap, scope=where)
         k = check_k(k)
-        base = where.where()
         names = self.resolve_senses(where.senses)
-        return self.rank(embed_query(self.space, query), k, names, base, transform=True)
+        hits = self.rank(embed_query(self.space, query), k, names, where.where(), transform=True)
+        return mark_matches(hits)
 
     def search_vector(
         self,
@@ -385,9 +333,10 @@ class Memory:
         return self._rank_in(q, k, Scope.of(**scope), transform)
 
     def _rank_in(self, q: np.ndarray, k: int, where: Scope, transform: bool) -> list[Hit]:
-        """:meth:`rank` the (1, D) unit query ``q`` over the scope's senses and filters."""
+        """:meth:`rank` the (1, D) unit query ``q`` over the scope's senses and filters, hits
+        marked with their match bar."""
         names = self.resolve_senses(where.senses)
-        return self.rank(q, k, names, where.where(), transform=transform)
+        return mark_matches(self.rank(q, k, names, where.where(), transform=transform))
 
     def search_like(
         self,
@@ -427,7 +376,7 @@ class Memory:
     # ----------------------------------------------------------- reads
     def get_item(self, id: str, *, vector: bool = False) -> Item:  # noqa: A002
         """One stored item with ``raw`` decoded (by its sense when live, else as npy/text)."""
-        cols = [*HIT_COLUMNS, "raw", "created"] + (["vector"] if vector else [])
+        cols = [*HIT_COLUMNS, "raw", "created", "orientation"] + (["vector"] if vector else [])
         rows = self.store.scan(Where().ids([id]).sql(), cols, limit=1).to_pylist()
         if not rows:
             raise NotFoundError(f"no item with id {id!r}")
@@ -475,6 +424,14 @@ class Memory:
         """Every session id, sorted."""
         return [s.id for s in self.sessions()]
 
+    def reembed(self, sense: str, encoder: Sense, **kw: Any) -> Any:
+        """Recompute every stored vector of ``sense`` with ``encoder`` from the stored raw
+        inputs, swapped in one commit, resumable: :func:`tactus_memory.reembed.reembed`
+        (returns its ReembedReport; keywords ``batch``, ``on_batch``)."""
+        from tactus_memory.reembed import reembed
+
+        return reembed(self, sense, encoder, **kw)
+
     # ----------------------------------------------------------- recordings
     def ingest_recording(
         self, path: Any, *, session: str, topics: dict[str, str], **kw: Any
@@ -492,4 +449,8 @@ class Memory:
 
 
 for _name in TEMPORAL_QUESTIONS:
-    setattr(Memory, _name, _temporal(_name))
+    setattr(Memory, _name, _delegate("temporal", Temporal, _name))
+for _name in WRITE_CALLS:
+    setattr(Memory, _name, _delegate("write_path", WritePath, _name))
+for _name in PLACE_QUESTIONS:
+    setattr(Memory, _name, _delegate("places", Places, _name))

@@ -9,6 +9,8 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 Side = Literal["before", "after"]
+#: a position (x, y, z) in metres, in the item's ``frame``
+Position = tuple[float, float, float]
 
 
 # --------------------------------------------------------------------------- memory
@@ -31,6 +33,19 @@ class Hit(Span):
     text: str | None = None
     source: str = ""
     episode: int | None = None
+    match: bool = Field(
+        False,
+        description="The hit clears its sense's match bar for this query (score >= bar): the "
+        "rule of last/first/count (tactus_memory.matching).",
+    )
+    bar: float | None = Field(
+        None,
+        description="The score this hit's sense needed to match for this query: max(the "
+        "sense's threshold, MATCH_Z, 3.0 by default; RELATIVE_KEEP 0.4 x the best score of that "
+        "sense for the query).",
+    )
+    position: Position | None = None
+    frame: str | None = None
 
 
 class Item(Span):
@@ -43,6 +58,11 @@ class Item(Span):
     raw: Any = None
     source: str = ""
     episode: int | None = None
+    position: Position | None = None
+    frame: str | None = None
+    orientation: tuple[float, float, float, float] | None = Field(
+        default=None, description="Unit quaternion (x, y, z, w) when known."
+    )
     created: float
     vector: list[float] | None = None
 
@@ -75,6 +95,8 @@ def row_fields(row: dict[str, Any]) -> dict[str, Any]:
     keys = ("id", "session", "sense", "t", "t_end", "text", "episode")
     out = {k: row.get(k) for k in keys}
     out.update(meta=json.loads(row["meta"] or "{}"), source=row.get("source") or "")
+    if row.get("x") is not None:
+        out.update(position=(row["x"], row["y"], row["z"]), frame=row.get("frame"))
     return out
 
 
@@ -84,7 +106,13 @@ def hit_from_row(row: dict[str, Any], score: float, cos: float) -> Hit:
 
 def item_from_row(row: dict[str, Any], raw: Any) -> Item:
     """A stored row (with ``raw`` already decoded) -> :class:`Item`."""
-    return Item(**row_fields(row), raw=raw, created=row["created"], vector=row.get("vector"))
+    return Item(
+        **row_fields(row),
+        raw=raw,
+        created=row["created"],
+        vector=row.get("vector"),
+        orientation=row.get("orientation"),
+    )
 
 
 # --------------------------------------------------------------------------- temporal
@@ -102,6 +130,8 @@ class TimelineItem(BaseModel):
     text: str | None = None
     meta: dict[str, Any] = Field(default_factory=dict)
     episode: int | None = None
+    position: Position | None = None
+    frame: str | None = None
 
 
 class Evidence(TimelineItem):
@@ -111,12 +141,27 @@ class Evidence(TimelineItem):
     score: float
     cosine: float
     match: bool = False
+    bar: float | None = Field(
+        None, description="The score this item's sense needed to match (see Hit.bar)."
+    )
+
+
+class Grasp(Evidence):
+    """One grasp (:mod:`tactus_memory.grasps`): contiguous items of one stream, ranked by their
+    pooled vector. ``id`` is its best-scoring member among the search's candidates; ``t`` /
+    ``t_end`` (and the aligned pair) span every member; ``score``/``cosine`` are the pooled
+    vector's; ``window_score`` the best member's own; ``ids`` every member, in time order."""
+
+    n: int
+    ids: list[str]
+    window_score: float
 
 
 class Moment(BaseModel):
     """Hits of one session that happen together. ``t``/``t_end`` span the members on the
     aligned clock; ``score`` = best member score + CORROBORATION_BONUS per other sense with a
-    matching member; ``hits`` (time order) is every sense's evidence."""
+    matching member; ``hits`` (time order) is every sense's evidence. ``position``/``frame``:
+    where the best placed member happened (None when no member is placed)."""
 
     session: str
     t: float
@@ -125,6 +170,8 @@ class Moment(BaseModel):
     senses: list[str]
     best: str
     hits: list[Evidence]
+    position: Position | None = None
+    frame: str | None = None
 
 
 class Occurrences(BaseModel):
@@ -158,3 +205,30 @@ class ClockOffset(BaseModel):
     sense: str
     source: str = ""
     offset: float
+
+
+# --------------------------------------------------------------------------- places
+class Place(BaseModel):
+    """Where a moment matching a query happened (``memory.where``): the position and frame of
+    its best placed member, the moment's aligned span, score and senses, and its evidence."""
+
+    session: str
+    position: Position
+    frame: str
+    t: float
+    t_end: float
+    score: float
+    senses: list[str]
+    best: str
+    evidence: list[Evidence]
+
+
+class TrajectoryOut(BaseModel):
+    """One frame's poses of a session in time order: ``t: (N,)``, ``position: (N, 3)``,
+    ``orientation: (N, 4)`` quaternions (x, y, z, w) or None when any pose has none."""
+
+    session: str
+    frame: str
+    t: list[float]
+    position: list[list[float]]
+    orientation: list[list[float]] | None = None

@@ -1,7 +1,7 @@
 """What a search is asked with: the query checks, the k limit, one ``embed_query``, and the
-:class:`Scope` (session, senses, source, after, before) every search and temporal operator
-takes. ``Memory.search``, the temporal operators and both HTTP routers build one Scope and
-pass it down; nothing re-spells the five filters.
+:class:`Scope` (session, senses, source, after, before, near, frame) every search and
+temporal operator takes. ``Memory.search``, the temporal operators and both HTTP routers
+build one Scope and pass it down; nothing re-spells the filters.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS
 from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import Where, finite_float
+from tactus_memory.where import Near, Where, finite_float
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space
@@ -52,19 +52,25 @@ class ScopeKwargs(TypedDict, total=False):
     source: str | None
     after: float | None
     before: float | None
+    near: Near | None
+    frame: str | None
 
 
 @dataclass(frozen=True)
 class Scope:
     """Where a search or temporal question looks: a session, senses (None: every sense with
     rows), a source (stream) id, and ``after``/``before`` with overlap semantics (an item
-    spanning ``[t, t_end]`` is in scope when ``t_end >= after`` and ``t <= before``)."""
+    spanning ``[t, t_end]`` is in scope when ``t_end >= after`` and ``t <= before``), and a
+    place: ``near=((x, y, z), radius)`` keeps items placed within ``radius`` metres of the
+    point (unplaced items never match), ``frame`` items placed in that frame."""
 
     session: str | None = None
     senses: Sequence[str] | None = None
     source: str | None = None
     after: float | None = None
     before: float | None = None
+    near: Near | None = None
+    frame: str | None = None
 
     @classmethod
     def of(cls, scope: Scope | None = None, **kw: Any) -> Scope:
@@ -98,6 +104,8 @@ class Scope:
                 None if after is None else after - pad, None if before is None else before + pad
             )
             .source(self.source)
+            .near(self.near)
+            .frame(self.frame)
         )
 
 

@@ -50,10 +50,7 @@ class Ranker:
         active = [name for name in senses if counts.get(name, 0) > 0]
         groups: list[tuple[np.ndarray, list[str]]] = []
         for name in active:
-            qs = q
-            if transform:
-                s = self.registry.search_sense(name)
-                qs = as_unit_rows(s.query_transform(q), self.space.dim, what="query")
+            qs = self.query_for(q, name) if transform else q
             for vec, names in groups:
                 if np.array_equal(vec, qs):
                     names.append(name)
@@ -66,6 +63,11 @@ class Ranker:
             scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
         scored.sort(key=lambda x: -x[0])
         return [hit_from_row(row, score, cos) for score, cos, row in scored[:k]]
+
+    def query_for(self, q: np.ndarray, name: str) -> np.ndarray:
+        """The (1, D) text query ``q`` as sense ``name`` compares it: its query transform."""
+        s = self.registry.search_sense(name)
+        return as_unit_rows(s.query_transform(q), self.space.dim, what="query")
 
     def _search_group(
         self,
@@ -80,15 +82,20 @@ class Ranker:
         """One ANN query for senses sharing a query vector (D,), plus follow-ups if needed."""
         total = sum(counts.values())
         every = {name for name, c in counts.items() if c > 0}
-        where = Where(list(base.parts))
+        where = base.copy()
         if set(names) != every:
             where.senses(names)
         sql = where.sql()
-        allowed = self.store.count(sql) if base.parts else sum(counts[n] for n in names)
+        # a place filter's rows are estimated from its indexed box (a superset): enough to
+        # size the search, and it spares a second pass of the sphere test over the box
+        allowed = (
+            self.store.count(where.count_sql()) if base.parts else sum(counts[n] for n in names)
+        )
         if allowed == 0:
             return []
         want = k * len(names)
-        rows = self.store.vector_search(vec, want, sql, allowed=allowed, total=total)
+        flat = not base.scattered  # scattered rows: the prefiltered ANN search is cheaper
+        rows = self.store.vector_search(vec, want, sql, allowed=allowed, total=total, flat=flat)
         out = [self._scored(row, calib) for row in rows.to_pylist()]
         if len(names) == 1 or len(out) < want:
             return out  # complete: every allowed row was a candidate or one sense only
@@ -101,9 +108,11 @@ class Ranker:
             kth = ranked[k - 1] if len(ranked) >= k else -math.inf
             if calib[name].score(floor) <= kth:
                 continue  # nothing of this sense below the floor can enter the top k
-            one = Where(list(base.parts)).sense(name).sql()
-            n_one = self.store.count(one) if base.parts else counts[name]
-            extra = self.store.vector_search(vec, k, one, allowed=n_one, total=total)
+            one = base.copy().sense(name)
+            n_one = self.store.count(one.count_sql()) if base.parts else counts[name]
+            extra = self.store.vector_search(
+                vec, k, one.sql(), allowed=n_one, total=total, flat=flat
+            )
             out = [x for x in out if x[2]["sense"] != name]
             out.extend(self._scored(row, calib) for row in extra.to_pylist())
         return out

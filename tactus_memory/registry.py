@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import SenseConflictError, UnknownSenseError
+from tactus_memory.errors import InvalidInputError, SenseConflictError, UnknownSenseError
 from tactus_memory.models import SenseInfo
 from tactus_memory.plugins import lookup, registered_name
 from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
@@ -194,6 +194,14 @@ class SenseRegistry:
                 failed[name] = f"{type(exc).__name__}: {exc}"
         return failed
 
+    def replace_sense(self, sense: Sense) -> None:
+        """Register ``sense`` in place of the sense of its name (live or stored): a new encoder
+        for rows already stored (re-embedding). Its provenance and query centroid are
+        persisted and the score calibration is re-estimated (if the encoder changed)."""
+        with self.lock:
+            self._live.pop(validate_sense_name(sense.name), None)
+            self.add_sense(sense)
+
     def live_sense(self, name: str) -> Sense:
         validate_sense_name(name)
         if name in self._live:
@@ -304,6 +312,10 @@ class SenseRegistry:
             return [name for name in sorted(self._stored) if counts.get(name, 0) > 0]
         if isinstance(senses, str):
             senses = [senses]
+        if not senses:  # as over HTTP (422): an empty list is a mistake, not "search nothing"
+            raise InvalidInputError(
+                "senses=[] names no sense: pass None (every sense with rows) or at least one name"
+            )
         names = []
         for name in senses:
             self.search_sense(name)

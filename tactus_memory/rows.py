@@ -16,10 +16,11 @@ import numpy as np
 from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
 from tactus_memory.models import SessionSummary
+from tactus_memory.places import Placement, given_placement
 from tactus_memory.senses import Sense
 from tactus_memory.store import Store
 from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import finite_float, validate_id
+from tactus_memory.where import DEFAULT_FRAME, finite_float, validate_frame, validate_id
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -33,6 +34,8 @@ class BatchKwargs(TypedDict, total=False):
     meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None
     ids: Sequence[str] | None
     source: str
+    position: Any
+    frame: str
 
 
 class WriteKwargs(BatchKwargs, total=False):
@@ -85,6 +88,7 @@ class Batch:
     ids: list[str]
     upsert: bool
     created: float
+    place: Placement
 
 
 def check_batch(
@@ -93,9 +97,12 @@ def check_batch(
     t_end: Sequence[float | None] | float | None,
     meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None,
     ids: Sequence[str] | None,
+    position: Any = None,
+    frame: str = DEFAULT_FRAME,
 ) -> Batch:
     """The per-item values of an ``add_many`` call, checked (``t`` defaults to now, ``t_end``
-    to ``t``; ids, when given, make the write an upsert)."""
+    to ``t``; ids, when given, make the write an upsert; ``position``: one ``(x, y, z)`` for
+    every item or one per item (None: place it from the session's poses), in ``frame``)."""
     if n > MAX_BATCH:
         raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
     now = time.time()
@@ -117,7 +124,8 @@ def check_batch(
             raise InvalidInputError("ids contain duplicates")
     else:
         id_list = [uuid.uuid4().hex for _ in range(n)]
-    return Batch(ts, ends, metas, id_list, upsert, now)
+    place = given_placement(n, position, validate_frame(frame))
+    return Batch(ts, ends, metas, id_list, upsert, now, place)
 
 
 @dataclass(eq=False)
@@ -263,6 +271,7 @@ def items_table(
             "source": [source] * n,
             "episode": pa.nulls(n, pa.int64()),
             "created": [batch.created] * n,
+            **batch.place.columns(),
         },
         schema=schema,
     )

@@ -29,6 +29,10 @@ from pydantic_settings import (
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.maintenance import MaintenanceConfig
 
+#: the memory every command opens when given no location (``Memory.open()``, ``tactus serve``,
+#: ``tactus search``/``ingest``/..., ``make run``): ``./memory`` of the current folder, or
+#: ``$TACTUS_DATA`` (the ``data`` field) where the command reads the settings
+DEFAULT_MEMORY = "./memory"
 #: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
 DEFAULT_READ_CONSISTENCY_S = 1.0
 #: group commit defaults (tactus_memory.ingest): 25 ms is under one 30 Hz frame period
@@ -51,7 +55,7 @@ class Settings(BaseSettings, MaintenanceConfig):
     )
 
     data: str = Field(
-        "./tactus-memory",
+        DEFAULT_MEMORY,
         description="Memory location: a local directory, file://, s3://, gs:// or az:// URI.",
     )
     space: str | None = Field(

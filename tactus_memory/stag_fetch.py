@@ -179,8 +179,8 @@ def download(
     desc: str | None = None,
 ) -> str:
     """Download ``url`` to ``dest`` through ``dest.part`` (resumed with ``Range`` when it
-    exists), check its sha256, then move it in place. Returns the sha256."""
-    dest.parent.mkdir(parents=True, exist_ok=True)
+    exists), check its sha256, then move it in place. Returns the sha256. Folders are made
+    only once the server answers, so a failed attempt leaves no empty folder behind."""
     part = dest.with_name(dest.name + ".part")
     offset = part.stat().st_size if part.exists() else 0
     headers = {"User-Agent": "tactus-memory (data fetch)"}
@@ -198,6 +198,7 @@ def download(
             "(no network? `tactus data fetch stag --from DIR` imports files you have)"
         ) from exc
     with resp:
+        dest.parent.mkdir(parents=True, exist_ok=True)
         if offset and resp.status == 206:
             got = resp.headers.get("Content-Range", "")
             if not got.startswith(f"bytes {offset}-"):

@@ -41,6 +41,7 @@ import numpy as np
 from tactus_memory.connect import normalise_uri, storage_options_for
 from tactus_memory.connect import read_consistency_interval as consistency_from
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
+from tactus_memory.indexes import StoreIndexes
 from tactus_memory.integrity import IntegrityWatch, check_store
 from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
 from tactus_memory.settings import Settings
@@ -48,9 +49,7 @@ from tactus_memory.tables import (
     IndexConfig,
     items_schema,
     meta_schema,
-    scalar_index_config,
     senses_schema,
-    vector_index_config,
 )
 from tactus_memory.where import Where, _sql_str
 
@@ -64,7 +63,10 @@ ITEMS = "items"
 SENSES = "senses"
 META = "meta"
 #: columns returned by searches (everything except the vector and raw bytes)
-HIT_COLUMNS = ["id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"]
+HIT_COLUMNS = [
+    *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
+    *("x", "y", "z", "frame"),
+]
 
 
 def _upsert(table: Table, key: str, data: pa.Table) -> None:
@@ -73,8 +75,9 @@ def _upsert(table: Table, key: str, data: pa.Table) -> None:
 
 
 # --------------------------------------------------------------------------- store
-class Store:
-    """One LanceDB connection; writes are serialised by the Memory's lock."""
+class Store(StoreIndexes):
+    """One LanceDB connection; writes are serialised by the Memory's lock. Its indexes:
+    :class:`~tactus_memory.indexes.StoreIndexes`."""
 
     def __init__(
         self,
@@ -318,20 +321,22 @@ class Store:
         allowed: int | None = None,
         total: int | None = None,
         columns: Sequence[str] = HIT_COLUMNS,
+        flat: bool = True,
     ) -> pa.Table:
         """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
 
         ``allowed``: how many rows pass ``where`` (``total``: rows in the table). A selective
         filter (allowed <= ``flat_max``) is answered by an exact flat scan of the allowed
-        rows; otherwise the ANN index is probed, with more partitions the more selective the
-        filter, so that about ``min_candidates`` allowed rows are scored.
+        rows (unless ``flat`` is False); otherwise the ANN index is probed, with more
+        partitions the more selective the filter, so that about ``min_candidates`` allowed
+        rows are scored.
         """
         cfg = self.index
         q = self.items.search(vector, vector_column_name="vector").distance_type("cosine")
         if where:
             q = q.where(where, prefilter=True)
         indexed = self.has_vector_index()
-        if indexed and where and allowed is not None and allowed <= cfg.flat_max:
+        if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
             q = q.bypass_vector_index()
         elif indexed:
             nprobes = cfg.nprobes
@@ -343,68 +348,20 @@ class Store:
                 q = q.refine_factor(cfg.refine_factor)
             if cfg.ef:  # HNSW needs ef >= the candidates it returns
                 q = q.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
-        return q.select([*columns, "_distance"]).limit(k).to_arrow()
-
-    def partitions(self) -> int:
-        """IVF partitions of the current vector index (from the store's bookkeeping)."""
-        if self._partitions is None:
-            info = json.loads(self.get_meta("index") or "{}")
-            self._partitions = int(info.get("partitions", 1))
-        return self._partitions
+        return q.select([*self.present(columns), "_distance"]).limit(k).to_arrow()
 
     def scan(self, where: str | None, columns: Sequence[str], limit: int | None = None) -> pa.Table:
         q = self.items.search()
         if where:
             q = q.where(where)
-        return q.select(list(columns)).limit(limit).to_arrow()
+        return q.select(self.present(columns)).limit(limit).to_arrow()
+
+    def present(self, columns: Sequence[str]) -> list[str]:
+        """``columns`` the items table has (a store made before places, opened where it
+        cannot be written, has no place columns: its items read as unplaced)."""
+        return [c for c in columns if c in self.schema.names]
 
     # ----------------------------------------------------------- indexes & compaction
-    def has_vector_index(self) -> bool:
-        if not self._indexed:
-            self._indexed = any("vector" in ix.columns for ix in self.items.list_indices())
-        return self._indexed
-
-    def vector_deltas(self) -> int:
-        """How many index segments the ANN index has (each ``optimize`` adds a delta for the
-        rows appended since; every search probes all of them)."""
-        for ix in self.items.list_indices():
-            if "vector" in ix.columns:
-                stats = self.items.index_stats(ix.name)
-                return int(stats.num_indices or 1) if stats is not None else 1
-        return 0
-
-    def has_scalar_indexes(self) -> bool:
-        if not self._scalar_indexed:
-            have = {c for ix in self.items.list_indices() for c in ix.columns}
-            self._scalar_indexed = set(self.index.scalar) <= have
-        return self._scalar_indexed
-
-    def index_due(self, rows: int) -> bool:
-        """Whether ``rows`` rows call for an index that does not exist yet."""
-        cfg = self.index
-        return (rows >= cfg.scalar_threshold and not self.has_scalar_indexes()) or (
-            rows >= cfg.threshold and not self.has_vector_index()
-        )
-
-    def build_scalar_indexes(self) -> None:
-        """BTREE/BITMAP indexes for filters, deletes and upserts (``IndexConfig.scalar``)."""
-        for column, kind in self.index.scalar.items():
-            self.items.create_index(column, config=scalar_index_config(kind), replace=True)
-        self._scalar_indexed = True
-
-    def build_indexes(self) -> None:
-        """Create the ANN index on ``vector`` and the scalar indexes (replacing old ones)."""
-        cfg = self.index
-        n = self.count()
-        parts = max(1, n // cfg.rows_per_partition)
-        t0 = time.perf_counter()
-        self.items.create_index("vector", config=vector_index_config(cfg, parts, self.dim()))
-        self.build_scalar_indexes()
-        self._indexed = True
-        self.set_meta("index", json.dumps({"rows": n, "type": cfg.index_type, "partitions": parts}))
-        self._partitions = parts
-        log.info("built %s index on %d rows in %.1fs", cfg.index_type, n, time.perf_counter() - t0)
-
     def dim(self) -> int:
         return int(self.items.schema.field("vector").type.list_size)
 

@@ -29,6 +29,42 @@ def items_schema(dim: int) -> pa.Schema:
             pa.field("source", pa.string(), nullable=False),
             pa.field("episode", pa.int64()),
             pa.field("created", pa.float64(), nullable=False),
+            *place_fields(),
+        ]
+    )
+
+
+def place_fields() -> list[pa.Field]:
+    """Where an item happened (all null when unplaced): ``x, y, z`` in ``frame``, the
+    orientation quaternion (x, y, z, w) when known, and ``placed``: ``"given"`` (passed with
+    the item) or ``"poses"`` (interpolated from the session trajectory, redone on backfill)."""
+    import pyarrow as pa
+
+    return [
+        pa.field("x", pa.float64()),
+        pa.field("y", pa.float64()),
+        pa.field("z", pa.float64()),
+        pa.field("orientation", pa.list_(pa.float64(), 4)),
+        pa.field("frame", pa.string()),
+        pa.field("placed", pa.string()),
+    ]
+
+
+def poses_schema() -> pa.Schema:
+    """The ``poses`` table: one row per pose of a session trajectory (time on the session
+    clock, position in ``frame``, optional orientation quaternion (x, y, z, w))."""
+    import pyarrow as pa
+
+    return pa.schema(
+        [
+            pa.field("session", pa.string(), nullable=False),
+            pa.field("t", pa.float64(), nullable=False),
+            pa.field("x", pa.float64(), nullable=False),
+            pa.field("y", pa.float64(), nullable=False),
+            pa.field("z", pa.float64(), nullable=False),
+            pa.field("orientation", pa.list_(pa.float64(), 4)),
+            pa.field("frame", pa.string(), nullable=False),
+            pa.field("source", pa.string(), nullable=False),
         ]
     )
 
@@ -83,9 +119,17 @@ class IndexConfig:
     #: run maintenance (size-tiered compaction, incremental index update, version cleanup:
     #: :mod:`tactus_memory.maintenance`) after this many appends by this process
     compact_every: int = 64
-    #: scalar index type per column
+    #: scalar index type per column (x, y: a ``near=`` filter's box is answered from the
+    #: indexes, not a scan; z is not indexed, see Where.near; benchmarks/places.py)
     scalar: dict[str, str] = field(
-        default_factory=lambda: {"id": "BTREE", "session": "BTREE", "sense": "BITMAP", "t": "BTREE"}
+        default_factory=lambda: {
+            "id": "BTREE",
+            "session": "BTREE",
+            "sense": "BITMAP",
+            "t": "BTREE",
+            "x": "BTREE",
+            "y": "BTREE",
+        }
     )
 
 

@@ -10,8 +10,9 @@ Python. What "a match" is and how matches group: :mod:`tactus_memory.matching`; 
 offsets: :mod:`tactus_memory.clocks`.
 
 Every question takes the scope as keywords (``session``, ``senses``, ``source``, ``after``,
-``before``, or one ``scope=``) and, where it matches, the match bar (``threshold``,
-``relative``, or one ``match=``). ``Memory`` answers each with the same method
+``before``, ``near``, ``frame``, or one ``scope=``) and, where it matches, the match bar
+(``threshold``, ``relative``, or one ``match=``); ``group="grasp"`` (with ``pool``) asks it
+of grasps, not windows (:mod:`tactus_memory.grasps`). ``Memory`` answers each with the same method
 (``memory.count(q, session=...)`` is ``memory.temporal.count``), and so does the service.
 """
 
@@ -31,11 +32,13 @@ from tactus_memory.episodes import (
     EPISODE_MEAN_COS,
     EPISODE_MIN_COS,
     Episode,
+    EpisodeRule,
     check_rule,
+    number_episodes,
     representative,
-    segment,
 )
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.grasps import GraspRule, grasp_rule, pool_grasps
 from tactus_memory.limits import MAX_K
 from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
@@ -51,14 +54,15 @@ from tactus_memory.matching import (
     check_relative,
     check_seconds,
     group_moments,
-    match_flags,
     resolve_thresholds,
+    sense_bar,
     split_match,
 )
 from tactus_memory.models import (
     ClockOffset,
     Context,
     Evidence,
+    Grasp,
     Moment,
     Occurrences,
     Side,
@@ -71,14 +75,20 @@ from tactus_memory.registry import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.store import HIT_COLUMNS, Store
 from tactus_memory.vectors import vector_column
-from tactus_memory.where import Where, validate_id
+from tactus_memory.where import Near, Where, validate_id
+
+#: the grasp rule a question groups by (None: items, not grasps)
+Rule = GraspRule | None
 
 
 class OccurrenceKwargs(MatchKwargs, total=False):
-    """``count`` keywords: the scope, the match bar, ``merge_gap`` and ``per_stream``."""
+    """``count``/``last``/``first`` keywords: the scope, the match bar, ``merge_gap``,
+    ``per_stream``, and ``group="grasp"`` with its ``pool`` (grasps.POOLS)."""
 
     merge_gap: float
     per_stream: bool
+    group: str | None
+    pool: str
 
 
 class AroundKwargs(MatchKwargs, total=False):
@@ -123,10 +133,12 @@ class Temporal:
 
     # ----------------------------------------------------------- scoring
     def _evidence(
-        self, q: np.ndarray, scope: Scope, match: Match, per_sense: int
+        self, q: np.ndarray, scope: Scope, match: Match, per_sense: int, grasp: Rule = None
     ) -> tuple[list[Evidence], bool]:
         """Every candidate of the (1, D) query ``q`` (all senses in scope), scored and flagged;
-        and whether a sense was capped (``per_sense`` candidates, all matching)."""
+        and whether a sense was capped (``per_sense`` candidates, all matching). With a
+        ``grasp`` rule, the candidates' grasps (:mod:`tactus_memory.grasps`) instead, each
+        scored and flagged by its pooled vector."""
         relative = check_relative(match.relative)
         offsets = self.clocks.offsets()
         base = scope.where(pad(offsets, scope.session))
@@ -137,18 +149,23 @@ class Temporal:
         capped = False
         for name in names:
             hits = self.ranker.rank(q, per_sense, [name], base, transform=True)
-            flags = match_flags([h.score for h in hits], bars[name], relative)
-            capped = capped or (len(hits) >= per_sense and all(flags))
-            for h, flag in zip(hits, flags, strict=True):
-                off = offsets.get((h.session, h.sense, h.source), 0.0)
-                e = Evidence(
-                    **h.model_dump(exclude={"score", "cosine"}),
-                    t_aligned=h.t + off,
-                    t_end_aligned=h.t_end + off,
+            evs = [
+                Evidence(
+                    **h.model_dump(exclude={"score", "cosine", "match", "bar"}),
+                    t_aligned=h.t + offsets.get((h.session, h.sense, h.source), 0.0),
+                    t_end_aligned=h.t_end + offsets.get((h.session, h.sense, h.source), 0.0),
                     score=h.score,
                     cosine=h.cosine,
-                    match=flag,
                 )
+                for h in hits
+            ]
+            if grasp is not None:
+                evs = pool_grasps(self.ranker, q, name, evs, grasp)
+            bar = sense_bar([e.score for e in evs], bars[name], relative)
+            flags = [e.score >= bar for e in evs]
+            capped = capped or (len(hits) >= per_sense and all(flags))
+            for e, flag in zip(evs, flags, strict=True):
+                e.match, e.bar = flag, bar
                 if _overlaps(e, after, before):
                     out.append(e)
         return out, capped
@@ -170,15 +187,19 @@ class Temporal:
         *,
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
+        group: str | None = None,
+        pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
-        """Distinct occurrences of ``query``: matching items merged per session when their
-        aligned spans overlap or lie within ``merge_gap`` seconds. ``per_stream=True`` merges
-        only within one stream (session + sense + source): a grasp and its note count twice."""
+        """Distinct occurrences of ``query``: matching items (``group="grasp"``: grasps,
+        matched on their ``pool`` score) merged per session when their aligned spans overlap
+        or lie within ``merge_gap`` seconds. ``per_stream=True`` merges only within one
+        stream (session + sense + source): a grasp and its note count twice."""
         scope, match = split_match(kw)
         gap = check_seconds(merge_gap, "merge_gap")
+        rule = grasp_rule(group, pool)
         q = embed_query(self.space, query)
-        ev, capped = self._evidence(q, scope, match, MATCH_CANDIDATES)
+        ev, capped = self._evidence(q, scope, match, MATCH_CANDIDATES, rule)
         moments = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
         return Occurrences(
             query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments
@@ -204,8 +225,9 @@ class Temporal:
     ) -> Context | None:
         """What happened in the ``window`` seconds before the best match of ``anchor``: items
         of its session that start in ``[a.t - window, a.t)`` (aligned). The anchor is searched
-        in ``anchor_senses`` within the scope's session and time bounds; the items are of the
-        scope's senses and source. None when nothing matches the anchor."""
+        in ``anchor_senses`` within the scope's session, time bounds and place (near, frame);
+        the items are of the scope's senses and source. None when nothing matches the
+        anchor."""
         return self._around("before", anchor, window, dict(kw))
 
     def after(
@@ -221,8 +243,9 @@ class Temporal:
         window = check_seconds(window, "window")
         names = None if scope.senses is None else self.registry.resolve(scope.senses)
         anchor_scope = Scope(
-            session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before
-        )
+            session=scope.session, senses=anchor_senses, after=scope.after, before=scope.before,
+            near=scope.near, frame=scope.frame,
+        )  # fmt: skip
         found = self._matches(anchor, anchor_scope, match)
         if not found:
             return None
@@ -279,12 +302,15 @@ class Temporal:
         *,
         source: str | None = None,
         limit: int | None = None,
+        near: Near | None = None,
+        frame: str | None = None,
     ) -> list[TimelineItem] | list[Episode]:
         """The session's items (or, with ``episodes=True``, its episodes) in aligned time
-        order; ``after``/``before`` use overlap semantics on the aligned clock; ``limit`` keeps
-        the first. Raises NotFoundError for an unknown session."""
+        order; ``after``/``before`` use overlap semantics on the aligned clock, ``near`` /
+        ``frame`` keep the items placed there (not episodes); ``limit`` keeps the first.
+        Raises NotFoundError for an unknown session."""
         session = validate_id(session, "session id")
-        scope = Scope(session=session, senses=senses, source=source, after=after, before=before)
+        scope = Scope(session, senses, source, after, before, near, frame)
         if limit is not None and (
             isinstance(limit, bool) or not isinstance(limit, int) or limit < 1
         ):
@@ -294,6 +320,8 @@ class Temporal:
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
         after, before = scope.bounds()
+        if episodes and (scope.near is not None or scope.frame is not None):
+            raise InvalidInputError("near/frame select items, not episodes: drop one of them")
         if episodes:
             eps = self._episodes(session, names, scope.source)
             eps = [e for e in eps if _overlaps(e, after, before)]
@@ -327,38 +355,30 @@ class Temporal:
             sessions = [validate_id(session, "session id")]
         total = 0
         for sid in sessions:
-            cols = ["id", "sense", "source", "t", "t_end", "vector"]
-            tbl = self.store.scan(Where().session(sid).sql(), cols)
-            if tbl.num_rows == 0:
+            ids, episode = self._segment(sid, (min_cos, mean_cos, max_gap))
+            if not ids:
                 if session is not None:
                     raise NotFoundError(f"no session {sid!r}")
                 continue
-            ids = tbl.column("id").to_pylist()
-            firsts: list[tuple[float, str, str, int, np.ndarray]] = []
-            vecs = vector_column(tbl, self.space.dim)
-            t = tbl.column("t").to_numpy()
-            t_end = tbl.column("t_end").to_numpy()
-            for (sense, source), idx in sorted(_streams(tbl).items()):
-                labels = segment(
-                    t[idx], t_end[idx], vecs[idx], min_cos=min_cos, mean_cos=mean_cos,
-                    max_gap=max_gap,
-                )  # fmt: skip
-                for lab in np.unique(labels):
-                    members = idx[labels == lab]
-                    firsts.append((float(t[members[0]]), sense, source, int(lab), members))
-            firsts.sort(key=lambda f: (f[0], f[1], f[2], f[3]))
-            episode = np.zeros(len(ids), dtype=np.int64)
-            for number, (*_, members) in enumerate(firsts):
-                episode[members] = number
             with self.lock:
                 self.store.set_episodes(ids, episode)
-            total += len(firsts)
+            total += int(episode.max()) + 1
         return total
+
+    def _segment(
+        self, session: str, rule: EpisodeRule = (EPISODE_MIN_COS, EPISODE_MEAN_COS, EPISODE_MAX_GAP)
+    ) -> tuple[list[str], np.ndarray]:
+        """(ids, (N,) int64 episode numbers) of every row of ``session`` under ``rule``,
+        computed, not stored (:func:`~tactus_memory.episodes.number_episodes`)."""
+        cols = ["id", "sense", "source", "t", "t_end", "vector"]
+        tbl = self.store.scan(Where().session(session).sql(), cols)
+        return number_episodes(tbl, self.space.dim, rule)
 
     def episodes(
         self, session: str, *, senses: Sequence[str] | None = None, source: str | None = None
     ) -> list[Episode]:
-        """The session's episodes in aligned time order (segmenting it first if needed)."""
+        """The session's episodes in aligned time order: the stored ones (segment_episodes),
+        or, while some rows have none, computed now and not stored (reads never write)."""
         session = validate_id(session, "session id")
         if self.store.count(Where().session(session).sql()) == 0:
             raise NotFoundError(f"no session {session!r}")
@@ -371,8 +391,10 @@ class Temporal:
         where = Where().session(session)
         unsegmented = Where().session(session)
         unsegmented.parts.append("episode IS NULL")
+        computed: dict[str, int] | None = None
         if self.store.count(unsegmented.sql()) > 0:
-            self.segment_episodes(session)
+            ids_all, numbers = self._segment(session)
+            computed = dict(zip(ids_all, numbers.tolist(), strict=True))
         if senses is not None:
             where.senses(self.registry.resolve(senses))
         where.source(source)
@@ -387,7 +409,11 @@ class Temporal:
         sources = [s or "" for s in tbl.column("source").to_pylist()]
         t = tbl.column("t").to_numpy()
         t_end = tbl.column("t_end").to_numpy()
-        ep = tbl.column("episode").to_numpy()
+        if computed is None:
+            ep = tbl.column("episode").to_numpy()
+        else:
+            late = max(computed.values(), default=-1) + 1  # rows written since: one more
+            ep = np.array([computed.get(i, late) for i in ids], dtype=np.int64)
         out = []
         # one sort by (episode, t, id), split where the episode changes: rows of each episode
         # in (t, id) order, episodes ascending
@@ -417,36 +443,41 @@ class Temporal:
 
     # ----------------------------------------------------------- moments
     def search_moments(
-        self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        k: int = 10,
+        *,
+        gap: float = DEFAULT_MOMENT_GAP,
+        group: str | None = None,
+        pool: str = "mean",
+        **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
-        """Search for ``query``, then group hits of one session whose
-        aligned spans overlap or lie within ``gap`` seconds into moments carrying every
-        sense's evidence; best ``k`` moments.
-
-        Candidates: the top max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN) per sense that score
-        at least MOMENT_MIN_Z (above the sense's null mean). Score: see :class:`Moment`.
-        """
+        """Search for ``query``, then group hits of one session whose aligned spans overlap
+        or lie within ``gap`` seconds into moments carrying every sense's evidence; best
+        ``k`` moments (:meth:`moments`); ``group="grasp"``: moments of grasps (pooled, with
+        ``pool``), not of single windows."""
         scope, match = split_match(kw)
         q = embed_query(self.space, query)
+        return self.moments(q, k, scope, match, gap, grasp_rule(group, pool))
+
+    def moments(
+        self, q: np.ndarray, k: int, scope: Scope, match: Match, gap: float, grasp: Rule = None
+    ) -> list[Moment]:
+        """:meth:`search_moments` of the (1, D) query embedding ``q``. Candidates: the top
+        max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN) per sense that score at least
+        MOMENT_MIN_Z (above the sense's null mean); with a ``grasp`` rule, their grasps.
+        Score: see :class:`Moment`."""
         k = check_k(k)
         gap = check_seconds(gap, "gap")
         pool = min(MAX_K, max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN))
-        ev, _ = self._evidence(q, scope, match, pool)
+        ev, _ = self._evidence(q, scope, match, pool, grasp)
         moments = group_moments([e for e in ev if e.match or e.score >= MOMENT_MIN_Z], gap)
         moments.sort(key=lambda m: (-m.score, m.t, m.session))
         return moments[:k]
 
-
-def _streams(tbl: Any) -> dict[tuple[str, str], np.ndarray]:
-    """(sense, source) -> row indices sorted by (t, id)."""
-    senses = tbl.column("sense").to_pylist()
-    sources = [s or "" for s in tbl.column("source").to_pylist()]
-    ids = tbl.column("id").to_pylist()
-    t = tbl.column("t").to_pylist()
-    by: dict[tuple[str, str], list[int]] = {}
-    for i, key in enumerate(zip(senses, sources, strict=True)):
-        by.setdefault(key, []).append(i)
-    return {
-        key: np.array(sorted(idx, key=lambda i: (t[i], ids[i])), dtype=np.int64)
-        for key, idx in by.items()
-    }
+    def grasps(self, q: np.ndarray, k: int, scope: Scope, rule: GraspRule) -> list[Grasp]:
+        """Search ranked by grasp: the top max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN)
+        windows per sense, grouped into their grasps, best ``k`` grasps by pooled score."""
+        pool = min(MAX_K, max(check_k(k) * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN))
+        ev, _ = self._evidence(q, scope, Match(), pool, rule)
+        return sorted(ev, key=lambda g: (-g.score, g.t_aligned, g.id))[:k]  # type: ignore[return-value]

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError
-from tactus_memory.limits import ID_DESCRIPTION, ID_RE
+from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_COORDINATE
 from tactus_memory.senses import validate_sense_name
 
 
@@ -49,6 +49,42 @@ def finite_float(value: Any, what: str) -> float:
     return out
 
 
+#: the frame positions are in unless one is named (REP 105's world-fixed frame)
+DEFAULT_FRAME = "map"
+#: a place filter: ``((x, y, z), radius)``, metres in the items' frame
+Near = tuple[tuple[float, float, float], float]
+
+
+def check_position(value: Any, what: str = "position") -> tuple[float, float, float]:
+    """Three finite numbers ``(x, y, z)``."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 3:
+        raise InvalidInputError(f"{what} must be three numbers (x, y, z), got {value!r}")
+    x, y, z = (finite_float(v, f"{what} coordinate") for v in value)
+    if max(abs(x), abs(y), abs(z)) > MAX_COORDINATE:
+        raise InvalidInputError(f"{what} is beyond +-{MAX_COORDINATE:g} m: {value!r}")
+    return x, y, z
+
+
+def check_near(near: Any) -> Near:
+    """``((x, y, z), radius)`` with finite coordinates and a finite radius > 0."""
+    if isinstance(near, (str, bytes)) or not hasattr(near, "__len__") or len(near) != 2:
+        raise InvalidInputError(f"near must be ((x, y, z), radius), got {near!r}")
+    center = check_position(near[0], "near centre")
+    radius = finite_float(near[1], "near radius")
+    if not 0 < radius <= MAX_COORDINATE:
+        raise InvalidInputError(
+            f"near radius must be > 0 and <= {MAX_COORDINATE:g}, got {radius!r}"
+        )
+    return center, radius
+
+
+def validate_frame(value: Any) -> str:
+    """A frame name (``map``, ``odom``, ...): an id, one leading ``/`` dropped (ROS 1 style)."""
+    if isinstance(value, str) and value.startswith("/"):
+        value = value[1:]
+    return validate_id(value, "frame")
+
+
 def _sql_str(value: str) -> str:
     return "'" + value.replace("'", "''") + "'"
 
@@ -75,6 +111,15 @@ class Where:
     """
 
     parts: list[str] = field(default_factory=list)
+    #: conditions checked only on the rows ``parts`` let through (a place filter's sphere,
+    #: after its indexed box); :meth:`count_sql` leaves them out to estimate cheaply
+    refine: list[str] = field(default_factory=list)
+    #: the rows that pass are scattered over the table (a place filter): reading each one's
+    #: vector for an exact scan costs more than the ANN index's prefiltered search
+    scattered: bool = False
+
+    def copy(self) -> Where:
+        return Where(list(self.parts), list(self.refine), self.scattered)
 
     def _eq(self, column: str, value: str | None, check: Callable[[Any], str]) -> Where:
         if value is not None:
@@ -134,5 +179,30 @@ class Where:
             self.parts.append(f"t < {_sql_float(finite_float(end, 'end'))}")
         return self
 
+    def frame(self, frame: str | None) -> Where:
+        return self._eq("frame", frame, validate_frame)
+
+    def near(self, near: Near | None) -> Where:
+        """Items placed within ``radius`` of ``(x, y, z)`` (unplaced items never match). The
+        x/y bounding box comes first so the x and y scalar indexes answer it; the sphere test
+        (z included: robots mostly share one floor, so a z index would select almost every
+        row) then runs on the rows in the box only (benchmarks/places.py)."""
+        if near is not None:
+            (x, y, z), r = check_near(near)
+            for col, c in (("x", x), ("y", y)):
+                lo, hi = _sql_float(c - r), _sql_float(c + r)
+                self.parts.append(f"{col} >= {lo} AND {col} <= {hi}")
+            terms = [f"({col} - {_sql_float(c)}) * ({col} - {_sql_float(c)})" for col, c in (
+                ("x", x), ("y", y), ("z", z))]  # fmt: skip
+            self.refine.append(f"{' + '.join(terms)} <= {_sql_float(r * r)}")
+            self.scattered = True
+        return self
+
     def sql(self) -> str | None:
+        every = [*self.parts, *self.refine]
+        return " AND ".join(f"({p})" for p in every) if every else None
+
+    def count_sql(self) -> str | None:
+        """The filter without its refine conditions: a superset of :meth:`sql`'s rows that
+        the scalar indexes alone answer (to size a search, not to return rows)."""
         return " AND ".join(f"({p})" for p in self.parts) if self.parts else None

@@ -21,6 +21,9 @@ COMPRESSED = "sensor_msgs/msg/CompressedImage"
 INT16_ARRAY = "std_msgs/msg/Int16MultiArray"
 FLOAT32_ARRAY = "std_msgs/msg/Float32MultiArray"
 VECTOR3 = "geometry_msgs/msg/Vector3"  # a type no sense takes
+ODOMETRY = "nav_msgs/msg/Odometry"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+TF = "tf2_msgs/msg/TFMessage"
 NS = 1_000_000_000
 GLOVE_HZ = 30.0  # glove / taxel-array rate the README assumes ("~30 Hz")
 
@@ -39,9 +42,43 @@ def _typestore() -> Any:
     return get_typestore(getattr(Stores, "LATEST", Stores.ROS2_HUMBLE))
 
 
-def _header(stamp_ns: int | None) -> dict[str, Any]:
+def _header(stamp_ns: int | None, frame_id: str = "glove") -> dict[str, Any]:
     ns = stamp_ns or 0
-    return {"stamp": {"sec": ns // NS, "nanosec": ns % NS}, "frame_id": "glove"}
+    return {"stamp": {"sec": ns // NS, "nanosec": ns % NS}, "frame_id": frame_id}
+
+
+def _pose(position: Sequence[float], quat: Sequence[float]) -> dict[str, Any]:
+    return {
+        "position": dict(zip("xyz", map(float, position), strict=True)),
+        "orientation": dict(zip("xyzw", map(float, quat), strict=True)),
+    }
+
+
+def odometry(topic: str, log_ns: int, position: Sequence[float], quat: Sequence[float],
+             frame_id: str = "odom") -> Msg:  # fmt: skip
+    """A ``nav_msgs/Odometry`` (stamp = log time) with the pose in ``frame_id``."""
+    zero3 = {"x": 0.0, "y": 0.0, "z": 0.0}
+    return Msg(topic, ODOMETRY, log_ns, {
+        "header": _header(log_ns, frame_id), "child_frame_id": "base_link",
+        "pose": {"pose": _pose(position, quat), "covariance": [0.0] * 36},
+        "twist": {"twist": {"linear": zero3, "angular": dict(zero3)}, "covariance": [0.0] * 36},
+    })  # fmt: skip
+
+
+def pose_stamped(topic: str, log_ns: int, position: Sequence[float], quat: Sequence[float],
+                 frame_id: str = "map") -> Msg:  # fmt: skip
+    return Msg(topic, POSE_STAMPED, log_ns,
+               {"header": _header(log_ns, frame_id), "pose": _pose(position, quat)})  # fmt: skip
+
+
+def tf(topic: str, log_ns: int, transforms: Sequence[tuple[str, str, Sequence[float]]]) -> Msg:
+    """A ``tf2_msgs/TFMessage`` of (parent, child, (x, y, z)) transforms, identity rotation."""
+    return Msg(topic, TF, log_ns, {"transforms": [
+        {"header": _header(log_ns, parent), "child_frame_id": child,
+         "transform": {"translation": dict(zip("xyz", map(float, xyz), strict=True)),
+                       "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+        for parent, child, xyz in transforms
+    ]})  # fmt: skip
 
 
 def note(topic: str, log_ns: int, text: str) -> Msg:
@@ -139,6 +176,36 @@ def _ros(ts: Any, msgtype: str, f: dict[str, Any]) -> Any:
         return T[msgtype](layout=layout, data=np.asarray(f["data"], dtype))
     if msgtype == VECTOR3:
         return T[VECTOR3](**f)
+
+    def pose(p: dict[str, Any]) -> Any:
+        return T["geometry_msgs/msg/Pose"](
+            position=T["geometry_msgs/msg/Point"](**p["position"]),
+            orientation=T["geometry_msgs/msg/Quaternion"](**p["orientation"]),
+        )
+
+    if msgtype == ODOMETRY:
+        v3 = T["geometry_msgs/msg/Vector3"]
+        twist = T["geometry_msgs/msg/Twist"](linear=v3(x=0.0, y=0.0, z=0.0),
+                                             angular=v3(x=0.0, y=0.0, z=0.0))  # fmt: skip
+        cov = np.zeros(36, np.float64)
+        return T[ODOMETRY](
+            header=header(f["header"]), child_frame_id=f["child_frame_id"],
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(f["pose"]["pose"]),
+                                                           covariance=cov),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=cov),
+        )  # fmt: skip
+    if msgtype == POSE_STAMPED:
+        return T[POSE_STAMPED](header=header(f["header"]), pose=pose(f["pose"]))
+    if msgtype == TF:
+        return T[TF](transforms=[
+            T["geometry_msgs/msg/TransformStamped"](
+                header=header(x["header"]), child_frame_id=x["child_frame_id"],
+                transform=T["geometry_msgs/msg/Transform"](
+                    translation=T["geometry_msgs/msg/Vector3"](**x["transform"]["translation"]),
+                    rotation=T["geometry_msgs/msg/Quaternion"](**x["transform"]["rotation"]),
+                ),
+            ) for x in f["transforms"]
+        ])  # fmt: skip
     raise ValueError(f"no rosbags conversion for {msgtype}")
 
 

@@ -3,7 +3,9 @@
 The OpenAPI document states every rule JSON Schema can express. The cross-field rules it
 cannot are written in the operations' descriptions and enforced by the server with a 422
 naming the rule: ``t_end >= t``, ``after <= before``, and one ``t`` (``t_end``, ``meta``,
-``ids``) entry per vector or window, one K for all windows of a batch. A generated
+``ids``) entry per vector or window, one K for all windows of a batch; a trajectory's times
+strictly increasing with one position (and orientation) per time, unit quaternions, a
+``near`` radius above 0, and ``/at`` given its place once. A generated
 request that only breaks one of those is schema-valid but rightly refused, so exactly that
 failure (ST202 answered by a 422 whose detail names one of these rules) is set aside; every
 other failure counts.
@@ -24,6 +26,13 @@ CROSS_FIELD = re.compile(
     r"|has \d+ entries for \d+ (items|vectors|windows)"
     r"|ids must be a list of \d+ ids"
     r"|windows is ragged"  # windows of one batch with different K (frame shapes are in the schema)
+    # poses: times strictly increasing, one position (orientation) per time, unit quaternions
+    r"|t must be strictly increasing"
+    r"|has \d+ rows for \d+ times"
+    r"|is not a unit quaternion"
+    r"|near radius must be > 0"  # near=x,y,z,0: the pattern cannot say r > 0
+    r"|/at takes the place as x, y, z and r"
+    r"|near/frame select items, not episodes"  # a timeline's episodes have no place
 )
 
 

@@ -339,6 +339,10 @@ def test_touch_hits_show_heat_maps(page, served, tmp_path):
     assert width == 4 * 33 * 5 - 5  # 4 frames per row at 5 px per taxel, 5 px lines between
     alt = page.get_attribute("#results img.heatmap", "alt")
     assert alt.startswith("Pressure heat map of the touch window")
+    # every hit says its sense's match bar; the status counts the hits that clear it
+    bars = page.eval_on_selector_all(f"{HIT} .bar", "els => els.map(e => e.textContent)")
+    assert len(bars) == len(senses) and all(re.search(r"bar \d+\.\d\d", b) for b in bars), bars
+    assert re.search(r"\d+ clear the match bar", page.text_content("#search-status"))
     assert "object" in page.text_content(f"{HIT} .meta")
     # the same sense boxes again: all checked -> search every sense
     for sense in ("text", "motion"):
@@ -488,6 +492,20 @@ def test_grouped_moments_or_graceful_fallback(page, served, tmp_path):
         moments[0] if served["real"] else " ".join(moments)
     )
     shot(page, tmp_path, "browser-moments")
+    # the page says when the moments shown hold no matching touch window (issue 26)
+    base = served["server"].base
+    grouped = httpx.get(base + "/search", params={"q": "the allen key", "group": "moment"}).json()
+    shown = [x for m in grouped["moments"] for x in m["hits"]]
+    touch_shown = any(x["sense"] == "touch" and x["match"] for x in shown)
+    nearest = httpx.get(base + "/search", params={"q": "the allen key", "sense": "touch", "k": 3})
+    best = nearest.json()["hits"][0]
+    if touch_shown:
+        assert page.is_hidden("#touch-note")
+    else:
+        page.wait_for_selector("#touch-note:not([hidden])")
+        note = page.text_content("#touch-note")
+        assert f"the nearest touch window scores {best['score']:.2f}" in note, note
+        assert "Group into moments" in note or "below the match bar" in note, note
     page.uncheck("#f-group")  # back to plain hits
     page.click("#search-form button[type=submit]")
     page.wait_for_selector("#results > li.hit:not(.moment)")

@@ -91,6 +91,13 @@ def scenario(mem: Any) -> dict[str, Any]:
     ask("search_text", lambda: mem.search("mug", k=2, senses=["text"], after=5.0))
     ask("search_group", lambda: mem.search("the red mug", k=2, group="moment"))
     ask("search_moments", lambda: mem.search_moments("wiped the table", k=2, session="kitchen"))
+    # issue 22: grasps (the three kitchen touch windows are 9 s apart: three grasps)
+    ask("search_grasp", lambda: mem.search("holding a mug", k=2, senses=["touch"], group="grasp"))
+    ask("grasp_max", lambda: mem.search("a mug", k=1, group="grasp", pool="max", senses=["touch"]))
+    ask("last_grasp", lambda: mem.last("holding a mug", senses=["touch"], group="grasp"))
+    ask("count_grasp", lambda: mem.count("holding a mug", senses=["touch"], group="grasp"))
+    ask("moments_grasp", lambda: mem.search_moments("a mug", k=1, group="grasp", pool="top"))
+    ask("e_group", lambda: mem.count("holding a mug", group="moment"))
     ask("search_like", lambda: mem.search_like("touch", window(seed=1), k=2))
     ask("search_like_text", lambda: mem.search_like("text", "a sponge", k=1))
     ask("search_like_vector", lambda: mem.search_like("motion", vector=motion[1], k=1))
@@ -138,6 +145,9 @@ def test_memory_and_client_answer_alike(local, remote) -> None:
     assert want["e_conflict"] == "raised IdConflictError"
     assert want["none"] is None and want["delete"] == 1
     assert want["search_like_vector"][0]["id"] == "motion@4.0"  # m2, named by sense@t
+    assert [g["n"] for g in want["search_grasp"]] == [1, 1]  # windows 9 s apart: one each
+    assert want["grasp_max"][0]["score"] == want["grasp_max"][0]["window_score"]
+    assert want["e_group"] == "raised InvalidInputError"
     for key in want:
         assert got[key] == want[key], key
 

@@ -192,11 +192,13 @@ def test_http_errors_and_bad_requests_are_clear(tmp_path, server, synth_files):
     source = StagSource(base_url=server.url + "/nowhere", pins=pins_of(synth_files))
     with pytest.raises(FetchError, match="HTTP 404"):
         fetch_stag(tmp_path, source=source, progress=False, say=quiet)
+    assert not (tmp_path / "stag").exists()  # a failed fetch leaves no empty folder (issue 26)
     with pytest.raises(FetchError, match="no pinned sha256"):
         fetch_stag(tmp_path, source=source, subsets=["handposes_lite"], say=quiet)
     dead = StagSource(base_url="http://127.0.0.1:9/stag", pins=pins_of(synth_files))
     with pytest.raises(FetchError, match="could not reach"):
         fetch_stag(tmp_path, source=dead, subsets=["weights_lite"], progress=False, say=quiet)
+    assert not (tmp_path / "stag").exists()
     # an HTML page in place of the file, with a pin that matches it, is still refused
     html = b"<html>rate limited</html>"
     server.files["/stag/weights_lite/metadata.mat"] = html

@@ -10,7 +10,7 @@ import pytest
 from tactus_memory.connect import normalise_uri
 from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatchError
 from tactus_memory.store import Store
-from tactus_memory.tables import items_schema
+from tactus_memory.tables import items_schema, place_fields
 from tactus_memory.where import Where, finite_float, validate_id
 
 HOSTILE = [
@@ -117,6 +117,7 @@ def _rows(dim: int, items: list[tuple[str, str, str, float, float]]) -> pa.Table
             "source": [""] * n,
             "episode": [None] * n,
             "created": [0.0] * n,
+            **{f.name: pa.nulls(n, f.type) for f in place_fields()},  # unplaced
         },
         schema=items_schema(dim),
     )

@@ -264,8 +264,12 @@ def test_episodes_segment_touch_by_content_and_gap(kitchen) -> None:
 
 def test_timeline_episodes_segments_on_demand_and_after_new_rows(mem: Memory) -> None:
     fill_kitchen(mem)
+    version = mem.store.version()
     eps = mem.timeline(S, senses=["touch"], episodes=True)  # no explicit segment call
     assert len(eps) == 10
+    # a read: computed for the answer, nothing written (issue 26: GET without side effects)
+    assert mem.store.version() == version
+    assert all(h.episode is None for h in mem.search("mug", k=50, session=S))
     mem.add_many(S, "touch", touch_vectors(mem.space, "mug", 2, seed=99), t=[100.0, 101.0])
     eps = mem.timeline(S, senses=["touch"], episodes=True, after=99.0)
     assert [(e.t, e.n) for e in eps] == [(100.0, 2)]

@@ -5,7 +5,9 @@
   :mod:`tactus_memory.service.readiness`) plus the configuration (space, senses, touch);
   503 problem naming the reason when the store cannot be read.
 * ``GET /ready``: readiness for traffic: the store is readable and the text model is loaded;
-  503 with the reason otherwise (e.g. while the space warms up after start).
+  503 with the reason otherwise: while ``tactus serve`` loads its models (the socket opens
+  first), ``starting: [2/3] loading the text model (...)``, then the touch encoder's step.
+  ``/health`` answers the same 503 until then (its configuration is not final).
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ async def live() -> LiveOut:
     responses=problem_responses(503),
 )
 async def health(state: StateDep) -> HealthOut:
+    if state.starting is not None:  # the configuration (senses) is not final yet
+        raise ServiceUnavailable(f"starting: {state.starting}", retry_after=1)
     memory = state.memory
     why = await run_in_threadpool(store_problem, memory)
     if why is not None:
@@ -57,6 +61,8 @@ async def health(state: StateDep) -> HealthOut:
     responses=problem_responses(503),
 )
 async def ready(state: StateDep) -> ReadyOut:
+    if state.starting is not None:
+        raise ServiceUnavailable(f"starting: {state.starting}", retry_after=1)
     if not state.warm:
         raise ServiceUnavailable("starting: the text model is still loading", retry_after=1)
     why = await run_in_threadpool(store_problem, state.memory)

@@ -42,6 +42,8 @@ async def add_text(session: SessionId, body: TextIn, state: StateDep) -> StoredO
         t_end=[body.t_end],
         meta=[body.meta],
         ids=None if body.id is None else [body.id],
+        position=None if body.position is None else [body.position],
+        frame=body.frame,
     )
     return StoredOut(ids=ids, count=1)
 

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Response
 from tactus_memory.limits import MAX_K
 from tactus_memory.query import Scope
 from tactus_memory.service.arrays import as_window
-from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep
+from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, ScopeDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import HitOut, SearchLikeIn, SearchOut
 
@@ -46,13 +46,18 @@ def search(
     scope: ScopeDep,
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many hits.")] = 10,
     group: Annotated[
-        Literal["moment"] | None,
-        Query(description="`moment`: merge hits close in time into moments across senses."),
+        Literal["moment", "grasp"] | None,
+        Query(
+            description="`moment`: merge hits close in time into moments across senses; "
+            "`grasp`: one hit per grasp (a stream's contiguous windows), ranked by the grasp's "
+            "pooled embedding, with the grasp's t/t_end."
+        ),
     ] = None,
     gap: Annotated[
         float | None,
         Query(ge=0.0, le=3600.0, description="With group=moment: seconds that still join hits."),
     ] = None,
+    pool: GraspPool = "mean",
 ) -> SearchOut:
     t0 = time.perf_counter()
     if group == "moment":
@@ -62,6 +67,10 @@ def search(
         return SearchOut(
             hits=[HitOut.model_validate(h, from_attributes=True) for h in best], moments=moments
         )
+    if group == "grasp":
+        grasps = memory.search(q, k=k, group="grasp", pool=pool, scope=scope)
+        _timing(response, t0)
+        return SearchOut(hits=_out(grasps).hits, grasps=grasps)
     hits = memory.search(q, k=k, scope=scope)
     _timing(response, t0)
     return _out(hits)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Query
 
@@ -24,7 +24,14 @@ from tactus_memory.matching import (
     Match,
 )
 from tactus_memory.models import Occurrences, Side
-from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId, StreamScopeDep
+from tactus_memory.service.deps import (
+    GraspPool,
+    MemoryDep,
+    QueryText,
+    ScopeDep,
+    SessionId,
+    StreamScopeDep,
+)
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import (
     ClockIn,
@@ -50,6 +57,12 @@ Relative = Annotated[
 ]
 MergeGap = Annotated[
     float, Query(ge=0.0, le=1e9, description="Matches this close (s) are one occurrence.")
+]
+GroupGrasp = Annotated[
+    Literal["grasp"] | None,
+    Query(
+        description="`grasp`: ask of grasps (a stream's contiguous windows, pooled), not windows."
+    ),
 ]
 
 
@@ -80,11 +93,21 @@ class Occurrence:
     asked: AskedDep
     q: QueryText
     merge_gap: MergeGap = DEFAULT_MERGE_GAP
+    group: GroupGrasp = None
+    pool: GraspPool = "mean"
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked
+        if a.scope.session is not None:
+            a.memory.session(a.scope.session)  # an unknown session: 404, as /timeline says
         return a.memory.occurrences(
-            self.q, scope=a.scope, match=a.match, merge_gap=self.merge_gap, per_stream=per_stream
+            self.q,
+            scope=a.scope,
+            match=a.match,
+            merge_gap=self.merge_gap,
+            per_stream=per_stream,
+            group=self.group,
+            pool=self.pool,
         )
 
 
@@ -95,7 +118,8 @@ OccurrenceDep = Annotated[Occurrence, Depends()]
     "/last",
     summary="The most recent occurrence of something",
     description="Matching items (per-sense calibrated threshold), merged into occurrences; the "
-    "one that started last. `moment` is null when nothing matches.",
+    "one that started last. `moment` is null when nothing matches; an unknown `session` is "
+    "a 404.",
     response_model=MomentOut,
 )
 def last(question: OccurrenceDep) -> MomentOut:
@@ -204,8 +228,10 @@ def moments(
     match: MatchDep,
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
+    group: GroupGrasp = None,
+    pool: GraspPool = "mean",
 ) -> MomentsOut:
-    moments = memory.search_moments(q, k, gap=gap, scope=scope, match=match)
+    moments = memory.search_moments(q, k, gap=gap, group=group, pool=pool, scope=scope, match=match)
     return MomentsOut(moments=moments)
 
 
@@ -213,7 +239,9 @@ def moments(
     "/sessions/{session}/timeline",
     summary="A session in time order: items, or episodes",
     description="Items (or, with `episodes=true`, episodes: stretches of one stream whose "
-    "embeddings stay coherent) in aligned time order. Times filter by overlap.",
+    "embeddings stay coherent) in aligned time order. Times filter by overlap. A read: "
+    "episodes not yet stored are computed for the answer and not written (store them with "
+    "`POST /sessions/{session}/episodes`).",
     response_model=TimelineOut,
 )
 def timeline(
@@ -224,8 +252,9 @@ def timeline(
     limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
 ) -> TimelineOut:
     out = memory.timeline(
-        session, scope.senses, scope.after, scope.before, episodes, source=scope.source, limit=limit
-    )
+        session, scope.senses, scope.after, scope.before, episodes,
+        source=scope.source, limit=limit, near=scope.near, frame=scope.frame,
+    )  # fmt: skip
     if episodes:
         return TimelineOut(session=session, episodes=out)
     return TimelineOut(session=session, items=out)

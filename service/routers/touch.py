@@ -26,6 +26,7 @@ from tactus_memory.service.deps import (
 )
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
+from tactus_memory.touch.profile import FRAME_SHAPE
 
 router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
 
@@ -57,7 +58,7 @@ def _validate(model: type, obj: Any) -> Any:
         return model.model_validate(obj)
     except ValidationError as exc:
         errs = [{**e, "loc": ("body", *e.get("loc", ()))} for e in exc.errors(include_url=False)]
-        raise RequestValidationError(errs) from None
+        raise RequestValidationError(errs, body=obj) from None
 
 
 @dataclass
@@ -82,9 +83,12 @@ def _upload(
 ) -> _Upload:
     if ctype in NPY_TYPES:
         arr = load_npy(raw, "npy body")
-        if arr.ndim == 3:
-            arr = arr[None]
-        windows = list(as_windows(arr, "npy body"))
+        if arr.ndim not in (3, 4) or arr.shape[-2:] != FRAME_SHAPE or 0 in arr.shape:
+            raise InvalidInputError(
+                f"npy body has shape {arr.shape}, expected (K, 32, 32) (one window) or "
+                "(B, K, 32, 32) (a batch)"
+            )
+        windows = list(as_windows(arr[None] if arr.ndim == 3 else arr, "npy body"))
         if not t:
             raise InvalidInputError("query parameter 't' is required with an npy body")
         return _Upload(windows, t, t_end, None, None, calibrated)

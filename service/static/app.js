@@ -2,6 +2,8 @@
 // Talks to the service's own API (same origin); every data request carries the bearer token
 // the user typed (kept in sessionStorage only).
 
+import { drawMap, pickTrajectory } from "./map.js";
+
 const $ = (sel, root = document) => root.querySelector(sel);
 
 const state = {
@@ -50,7 +52,25 @@ function authHeaders(extra = {}) {
   return state.token ? { ...extra, Authorization: `Bearer ${state.token}` } : extra;
 }
 
-async function api(path, { method = "GET", body, raw = false } = {}) {
+// While the server starts (socket open, models loading) data routes answer 503 + Retry-After
+// with a detail starting "starting:"; the page waits that long and asks again (bounded).
+const STARTING_RETRIES = 120;
+const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+
+async function api(path, options = {}, attempt = 0) {
+  try {
+    return await apiOnce(path, options);
+  } catch (err) {
+    if (err.status === 503 && err.retryAfter && attempt < STARTING_RETRIES && /^starting/.test(err.message)) {
+      setStatus($("#search-status"), `The server is ${err.message.split(";")[0]}…`, "busy");
+      await sleep(err.retryAfter * 1000);
+      return api(path, options, attempt + 1);
+    }
+    throw err;
+  }
+}
+
+async function apiOnce(path, { method = "GET", body, raw = false } = {}) {
   const init = { method, headers: authHeaders() };
   if (body instanceof FormData) {
     init.body = body; // multipart: the browser sets the boundary header
@@ -73,7 +93,9 @@ async function api(path, { method = "GET", body, raw = false } = {}) {
       /* not JSON */
     }
     if (res.status === 401) detail += " (set the access token at the top right)";
-    throw new ApiError(res.status, detail);
+    const error = new ApiError(res.status, detail);
+    error.retryAfter = Number(res.headers.get("Retry-After")) || 0;
+    throw error;
   }
   return raw ? res : res.json();
 }
@@ -437,6 +459,8 @@ async function onSearch(e) {
   try {
     const res = await api(`${path}?${params}`);
     renderResults(res, `“${q}”`);
+    const shown = Array.isArray(res.moments) ? res.moments.flatMap((m) => m.hits || []) : res.hits || [];
+    await noteHiddenTouch(shown, params, grouped);
   } catch (err) {
     $("#results").replaceChildren();
     setStatus(status, `Search failed: ${err.message}`, "error");
@@ -460,7 +484,49 @@ function renderResults(res, what) {
   const hits = res.hits || [];
   hits.forEach((hit, i) => list.append(hitCard(hit, i + 1)));
   const n = hits.length;
-  setStatus(status, n ? `${n} hit${n === 1 ? "" : "s"} for ${what}, best first.` : `Nothing found for ${what}.`);
+  const matching = hits.filter((x) => x.match).length;
+  const bar = n && hits.some((x) => typeof x.bar === "number") ? `; ${matching} clear the match bar` : "";
+  setStatus(status, n ? `${n} hit${n === 1 ? "" : "s"} for ${what}, best first${bar}.` : `Nothing found for ${what}.`);
+}
+
+// Say when grouping or the match bar hides touch: the shown results hold no touch window that
+// matches, yet touch windows exist in scope. `shown`: the hits on the page (moment members
+// included); `params`: the search's own parameters (query, scope).
+async function noteHiddenTouch(shown, params, grouped) {
+  const note = $("#touch-note");
+  note.hidden = true;
+  note.textContent = "";
+  const touch = state.senses.filter((s) => state.touchSenses.has(s.name) && s.rows > 0).map((s) => s.name);
+  const chosen = params.getAll("sense");
+  const inScope = touch.filter((name) => !chosen.length || chosen.includes(name));
+  if (!inScope.length || shown.some((x) => isTouch(x) && x.match)) return;
+  const probe = new URLSearchParams(params);
+  probe.delete("sense");
+  probe.delete("group");
+  probe.delete("gap");
+  probe.set("k", "3");
+  for (const name of inScope) probe.append("sense", name);
+  let nearest;
+  try {
+    nearest = (await api(`/search?${probe}`)).hits || [];
+  } catch {
+    return; // the note is a hint; the search itself already answered
+  }
+  if (!nearest.length) return;
+  const best = nearest[0];
+  const score = `the nearest touch window scores ${best.score.toFixed(2)}`;
+  const bar = typeof best.bar === "number" ? ` (match bar ${best.bar.toFixed(2)})` : "";
+  const why = best.match
+    ? grouped
+      ? "grouping into moments left it out of the moments shown; untick “Group into moments” to list it"
+      : "it ranks below the hits shown; raise Results or choose the touch sense to list it"
+    : grouped
+      ? "below the match bar, so no moment shows it; untick “Group into moments” to see it"
+      : shown.some(isTouch)
+        ? "the touch hits listed are below the match bar"
+        : "below the match bar and below the hits shown; choose the touch sense to list it";
+  note.textContent = `Touch: ${score}${bar}: ${why}.`;
+  note.hidden = false;
 }
 
 function hitCard(hit, rank, inMoment = false) {
@@ -483,6 +549,16 @@ function hitCard(hit, rank, inMoment = false) {
         { class: "score", title: hit.cosine != null ? `cosine ${hit.cosine.toFixed(3)}` : "" },
         `score ${Number(hit.score).toFixed(2)}`,
       ),
+      typeof hit.bar === "number"
+        ? h(
+            "span",
+            {
+              class: hit.match ? "bar bar-match" : "bar",
+              title: "the score this sense needed to match this query (last/first/count use the same bar)",
+            },
+            hit.match ? `match (bar ${hit.bar.toFixed(2)})` : `bar ${hit.bar.toFixed(2)}`,
+          )
+        : null,
       h(
         "button",
         {
@@ -506,9 +582,10 @@ function momentCard(m, rank) {
   const tEnd = m.t_end ?? (members.length ? Math.max(...members.map((x) => x.t_end ?? x.t)) : undefined);
   const score = m.score ?? (members.length ? Math.max(...members.map((x) => x.score)) : NaN);
   const senses = [...new Set(members.map((x) => x.sense))];
+  const matched = members.some((x) => x.match);
   return h(
     "li",
-    { class: "hit moment", dataset: { session: sessions } },
+    { class: matched ? "hit moment" : "hit moment nomatch", dataset: { session: sessions } },
     h(
       "div",
       { class: "hit-head" },
@@ -862,6 +939,62 @@ export async function openSession(id, focusItem = null) {
     $("#timeline").replaceChildren();
     setStatus(status, `Could not load the timeline: ${err.message}`, "error");
   }
+  await loadMap(id);
+}
+
+// ------------------------------------------------------------------------------ the map
+// The session's trajectory seen from above, with the hits of a search in that session.
+async function loadMap(id) {
+  const panel = $("#map-panel");
+  const status = $("#map-status");
+  state.map = { session: id, trajectory: null };
+  $("#map").replaceChildren();
+  $("#map-hits").replaceChildren();
+  panel.hidden = false;
+  let res;
+  try {
+    res = await api(`/sessions/${encodeURIComponent(id)}/poses`);
+  } catch (err) {
+    setStatus(status, err.status === 404 ? "This server has no poses route." : `Could not load the poses: ${err.message}`, "error");
+    $("#map-form").hidden = true;
+    return;
+  }
+  const trajectory = pickTrajectory(res.trajectories || []);
+  $("#map-form").hidden = !trajectory;
+  if (!trajectory) {
+    setStatus(status, "No poses for this session: nothing to draw (POST /sessions/{id}/poses, or ingest an odometry topic).");
+    return;
+  }
+  state.map.trajectory = trajectory;
+  drawMap($("#map"), trajectory, [], null);
+  const others = (res.trajectories || []).length - 1;
+  setStatus(status, `${trajectory.position.length} poses in frame ${trajectory.frame}` + (others ? ` (${others} more frames not drawn)` : "") + ". Ask where something happened.");
+}
+
+async function onMapSearch(e) {
+  e.preventDefault();
+  const { session, trajectory } = state.map || {};
+  const q = $("#map-q").value.trim();
+  if (!session || !trajectory || !q) return;
+  const status = $("#map-status");
+  setStatus(status, "Searching…", "busy");
+  try {
+    const res = await api(`/search?${new URLSearchParams({ q, session, k: "10" })}`);
+    const hits = res.hits || [];
+    const { drawn, elsewhere } = drawMap($("#map"), trajectory, hits, (itemId) => {
+      const btn = $(`#timeline .point[data-id="${CSS.escape(itemId)}"]`);
+      if (btn) selectPoint(btn, { focus: true });
+    });
+    $("#map-hits").replaceChildren(
+      ...hits.map((hit, i) => h("li", { dataset: { id: hit.id } },
+        `#${i + 1} ${hit.sense}${hit.text ? `: ${hit.text}` : ""} — `,
+        hit.position ? `at (${hit.position.map((v) => v.toFixed(2)).join(", ")}) in ${hit.frame}` : "no place",
+      )),
+    );
+    setStatus(status, `${drawn} of ${hits.length} hits for “${q}” on the map` + (elsewhere ? ` (${elsewhere} without a place in frame ${trajectory.frame})` : "") + ".");
+  } catch (err) {
+    setStatus(status, `Search failed: ${err.message}`, "error");
+  }
 }
 
 function renderTimeline(points) {
@@ -974,6 +1107,7 @@ function showEvidence(p) {
       ["item", p.id],
       ["session", p.session],
       p.source ? ["source", p.source] : null,
+      p.position ? ["place", `(${p.position.map((v) => v.toFixed(2)).join(", ")}) in ${p.frame}`] : null,
       p.t_stored !== undefined && p.t_stored !== p.t ? ["stored t", fmtT(p.t_stored)] : null,
       ...metaEntries(p.meta),
       prov.length ? ["encoder", prov.map(([k, v]) => `${k}: ${fmtValue(v)}`).join("; ")] : null,
@@ -1007,6 +1141,7 @@ async function start() {
   setupToken();
   $("#search-form").addEventListener("submit", onSearch);
   $("#like-form").addEventListener("submit", onLike);
+  $("#map-form").addEventListener("submit", onMapSearch);
   await refresh();
   route();
   window.addEventListener("hashchange", route); // links like #sessions/<id> work in place

@@ -8,6 +8,7 @@ the library core (memory, spaces, senses, touch) never imports the service.
 from __future__ import annotations
 
 from tactus_memory.cli import (  # noqa: F401  (imported for their registrations)
+    ask_cmds,
     data_cmds,
     eval_cmds,
     maintain_cmd,

@@ -26,6 +26,42 @@ MemoryData = Annotated[
         "./memory).",
     ),
 ]
+#: ``--url`` of the commands that ask a memory: a running ``tactus serve`` answers instead
+#: (no model loaded in the shell; see :mod:`tactus_memory.cli.remote`)
+ServerUrl = Annotated[
+    str | None,
+    typer.Option(
+        "--url",
+        envvar="TACTUS_URL",
+        help="Ask the server at this URL (e.g. http://127.0.0.1:8000, as `make run` serves) "
+        "instead of opening --data: no model loads here, so it answers at once (env "
+        "TACTUS_URL).",
+    ),
+]
+#: the bearer token sent with ``--url`` (the server's ``--token``)
+ServerToken = Annotated[
+    str | None,
+    typer.Option(
+        "--token",
+        envvar="TACTUS_TOKEN",
+        help="With --url: the server's token (env TACTUS_TOKEN).",
+        show_envvar=False,
+    ),
+]
+#: the scope options every question shares (search, last, first, count, timeline)
+Senses = Annotated[
+    list[str] | None,
+    typer.Option("--sense", help="Only these senses (repeatable); default all with rows."),
+]
+Session = Annotated[str | None, typer.Option("--session", help="Only this session.")]
+After = Annotated[
+    float | None, typer.Option("--after", help="Items overlapping t >= AFTER (seconds).")
+]
+Before = Annotated[
+    float | None, typer.Option("--before", help="Items overlapping t <= BEFORE (seconds).")
+]
+AsJson = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
+
 #: ``--data`` of the long-running processes (serve, maintain), whose settings read TACTUS_DATA
 ServiceData = Annotated[
     str | None,
@@ -50,6 +86,42 @@ TrainHoldout = Annotated[
         "one-per-object@SUBSTR (per object, the lowest-id recording with valid frames in the "
         "--data file whose path contains SUBSTR) | recordings@NAME,NAME",
     ),
+]
+#: the recipe options ``tactus train`` and ``tactus distill`` share (the ladder's options:
+#: checkpoints README); each command keeps its own defaults
+ModelName = Annotated[str, typer.Option("--model", help="architecture in configs/")]
+Pretrained = Annotated[Path | None, typer.Option("--pretrained", help="MAE checkpoint")]
+Steps = Annotated[int, typer.Option("--steps", help="optimizer steps")]
+Batch = Annotated[int, typer.Option("--batch", help="windows per step")]
+Device = Annotated[str, typer.Option("--device", help="auto | cpu | cuda")]
+Half = Annotated[bool, typer.Option("--half", help="store float16 weights")]
+Positives = Annotated[
+    str,
+    typer.Option("--positives", help="valid (labelled frames) | contact (+ every contact frame)"),
+]
+Balance = Annotated[
+    str,
+    typer.Option("--balance", help="none | recording | class: how batches draw training windows"),
+]
+Consecutive = Annotated[
+    float,
+    typer.Option("--consecutive", help="share of training windows cut as K consecutive frames"),
+]
+Augment = Annotated[str, typer.Option("--augment", help="default | strong | pressed-noise")]
+WeightDecay = Annotated[float, typer.Option("--weight-decay", help="AdamW weight decay")]
+InputGamma = Annotated[
+    float | None,
+    typer.Option("--input-gamma", help="model input: pressure ** gamma (default: the config's)"),
+]
+InputBlur = Annotated[
+    float | None,
+    typer.Option(
+        "--input-blur", help="model input: Gaussian blur sigma, px (default: the config's)"
+    ),
+]
+Dropout = Annotated[
+    float | None,
+    typer.Option("--dropout", help="Dropout2d on trunk features (default: the config's)"),
 ]
 #: the recordings ``tactus eval`` and ``tactus baseline eval`` score
 ScoredHoldout = Annotated[

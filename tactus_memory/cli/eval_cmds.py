@@ -90,6 +90,18 @@ def eval_cmd(
         "consecutive windows, natural queries, match bar, last/count (touch/stream_eval.py)",
     ),
     stream_limit: int = typer.Option(0, "--stream-limit", help="stream only the first N (0: all)"),
+    group: str | None = typer.Option(
+        None,
+        "--group",
+        help="with --stream: 'grasp' also scores every mode grasp-grouped (<mode>_grasp: search, "
+        "last and count rank grasps, a stream's contiguous windows pooled)",
+    ),
+    grasp_pool: list[str] = typer.Option(
+        ["mean"],
+        "--grasp-pool",
+        help="with --group grasp: how a grasp is scored, repeat to compare: mean (every "
+        "window pooled) | top (its 3 windows closest to the query) | max (its best window)",
+    ),
 ) -> None:
     """Score checkpoints on STAG: top-1/3, voting, recording level, per class, confusion.
     The analyses embed phrasings in each checkpoint's space: a Qwen3-VL checkpoint needs
@@ -99,6 +111,10 @@ def eval_cmd(
         raise typer.BadParameter("--split must be 'test' or 'all'")
     if stream and not holdout:
         raise typer.BadParameter("--stream needs --holdout (the recordings to stream)")
+    if group not in (None, "grasp") or (group and not stream):
+        raise typer.BadParameter(f"--group takes 'grasp', with --stream; got {group!r}")
+    if bad := [p for p in grasp_pool if p not in ("mean", "top", "max")]:
+        raise typer.BadParameter(f"--grasp-pool takes mean, top or max; got {bad}")
     set_threads(threads)
     from tactus_memory.errors import SpaceConfigError
     from tactus_memory.touch.eval_runs import load_eval_data, run_eval
@@ -122,8 +138,16 @@ def eval_cmd(
         from tactus_memory.touch.stream_eval import run_stream_eval, stream_markdown
 
         sdata = loaded[0]
+        groups = (None, group) if group else (None,)
         runs = [
-            run_stream_eval(None if c == "default" else c, sdata, holdout or "", limit=stream_limit)
+            run_stream_eval(
+                None if c == "default" else c,
+                sdata,
+                holdout or "",
+                limit=stream_limit,
+                groups=groups,
+                pools=grasp_pool,
+            )
             for c in checkpoint
         ]
         payload["stream"] = runs[0] if len(runs) == 1 else runs
@@ -137,6 +161,13 @@ def eval_cmd(
                 f"MRR {s.get('mrr')} idle-pass(all windows) {a.get('match_idle_rate')} "
                 f"leakage {r['leakage']['status']}"
             )
+            for pool in grasp_pool if group else []:
+                g = r.get(f"served_{group}" + ("" if pool == "mean" else f"_{pool}"), {})
+                typer.echo(
+                    f"stream {r['checkpoint']} by {group} ({pool}): R@1 {g.get('r@1')} "
+                    f"R@5 {g.get('r@5')} MRR {g.get('mrr')} last {g.get('last_correct')} "
+                    f"count exact {g.get('count_exact')}"
+                )
     _write_outputs(payload, first, es, json_out, report, compare)
 
 

@@ -1,13 +1,15 @@
-"""``tactus search`` and ``tactus sessions``: query a memory from the shell.
+"""``tactus search``, ``tactus sessions`` and ``tactus reembed``: a memory from the shell.
 
-The data directory is ``--data``, else ``$TACTUS_DATA``, else ``./memory``. The store's own
-recorded space is used (MiniLM by default), so the query is embedded like the stored notes.
+The memory is ``--data``, else ``$TACTUS_DATA``, else ``./memory`` (the store ``make run``
+serves), opened in its recorded space (MiniLM by default), so the query is embedded like the
+stored notes; or, with ``--url``, a running ``tactus serve`` answers (no model loads here).
+The questions (``last``, ``first``, ``count``, ``timeline``) are in
+:mod:`tactus_memory.cli.ask_cmds`.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,7 +17,17 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import MemoryData
+from tactus_memory.cli.common import (
+    After,
+    AsJson,
+    Before,
+    MemoryData,
+    Senses,
+    ServerToken,
+    ServerUrl,
+    Session,
+)
+from tactus_memory.cli.remote import get_json
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 
 if TYPE_CHECKING:
@@ -24,9 +36,15 @@ if TYPE_CHECKING:
 
     from tactus_memory.memory import Memory
 
+#: decimals of the times and scores printed in tables (JSON keeps every digit)
+TIME_DECIMALS = 2
+
 
 def _data_dir(data: str | None) -> str:
-    return data or os.environ.get("TACTUS_DATA") or "./memory"
+    """``--data``, else the settings' ``data`` (``$TACTUS_DATA``, a config file, ``./memory``)."""
+    from tactus_memory.settings import Settings
+
+    return data or Settings().data
 
 
 def _open(
@@ -42,8 +60,28 @@ def _open(
 
     location = _data_dir(data)
     if "://" not in location and not Path(location).is_dir():
-        fail(f"no memory at {location!r} (set --data or TACTUS_DATA)")
+        fail(f"no memory at {location!r} (set --data or TACTUS_DATA, or ask a server with --url)")
     return Memory.open(location, space=space, space_path=space_path, space_dim=space_dim, **open_kw)
+
+
+def one_source(data: str | None, url: str | None) -> None:
+    """``--data`` and ``--url`` name two memories: refuse both at once."""
+    if data and url:
+        fail("give --data (open a store here) or --url (ask a running server), not both")
+
+
+def fmt_t(t: float) -> str:
+    """A time in seconds, rounded for reading (``6.666667`` -> ``6.67``)."""
+    return f"{round(t, TIME_DECIMALS):g}"
+
+
+def fmt_span(t: float, t_end: float) -> str:
+    return fmt_t(t) if fmt_t(t) == fmt_t(t_end) else f"{fmt_t(t)}-{fmt_t(t_end)}"
+
+
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``1 session``, ``2 sessions``."""
+    return f"{n} {word if n == 1 else (many or word + 's')}"
 
 
 def _print_json(value: Any) -> None:
@@ -75,44 +113,60 @@ def _print_results(
     Console().print(table)
 
 
+def match_cell(score: float, match: bool, bar: float | None) -> str:
+    """``yes`` / ``no`` against the sense's bar for this query (``-`` without one)."""
+    if bar is None:
+        return "-"
+    return f"{'yes' if match else 'no'} ({bar:.2f})"
+
+
 @app.command("search")
 def search(
     query: str = typer.Argument(..., help="What to look for, in natural language."),
-    data: MemoryData = None,
     k: int = typer.Option(10, "--k", min=1, max=1000, help="How many hits."),
-    sense: list[str] | None = typer.Option(
-        None, "--sense", help="Only these senses (repeatable); default all with rows."
-    ),
-    session: str | None = typer.Option(None, "--session", help="Only this session."),
-    after: float | None = typer.Option(None, "--after", help="Items overlapping t >= AFTER."),
-    before: float | None = typer.Option(None, "--before", help="Items overlapping t <= BEFORE."),
-    as_json: bool = typer.Option(False, "--json", help="Print a JSON list of hits."),
+    sense: Senses = None,
+    session: Session = None,
+    after: After = None,
+    before: Before = None,
+    as_json: AsJson = False,
+    data: MemoryData = None,
+    url: ServerUrl = None,
+    token: ServerToken = None,
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
 ) -> None:
-    """Search the memory; scores are calibrated z-scores comparable across senses."""
-    from tactus_memory.errors import TactusError
+    """Search in plain language; each hit says whether it clears its sense's match bar.
 
-    try:
-        memory = _open(data, space, space_path, space_dim)
-        hits = memory.search(
-            query, k=k, senses=sense or None, session=session, after=after, before=before
-        )
-    except TactusError as exc:
-        fail(str(exc))
-        return
+    Scores are calibrated z-scores comparable across senses; a hit matches when its score
+    reaches its sense's bar for this query, the rule of last/first/count."""
+    from tactus_memory.errors import TactusError
+    from tactus_memory.models import Hit
+
+    one_source(data, url)
+    if url:
+        params = {"q": query, "k": k, "sense": sense, "session": session}
+        answer = get_json(url, "/search", {**params, "after": after, "before": before}, token)
+        hits = [Hit.model_validate(h) for h in answer["hits"]]
+    else:
+        try:
+            memory = _open(data, space, space_path, space_dim)
+            hits = memory.search(
+                query, k=k, senses=sense or None, session=session, after=after, before=before
+            )
+        except TactusError as exc:
+            fail(str(exc))
     _print_results(
         hits,
         as_json=as_json,
-        title=f"{len(hits)} hits for {query!r}",
-        columns=("score", "cosine", "sense", "session", "t", "id", "text"),
+        title=f"{plural(len(hits), 'hit')} for {query!r}",
+        columns=("score", "match (bar)", "sense", "session", "t", "id", "text"),
         row=lambda h: (
             f"{h.score:.2f}",
-            f"{h.cosine:.3f}",
+            match_cell(h.score, h.match, h.bar),
             h.sense,
             h.session,
-            f"{h.t:g}" if h.t == h.t_end else f"{h.t:g}-{h.t_end:g}",
+            fmt_span(h.t, h.t_end),
             h.id,
             h.text or "",
         ),
@@ -122,30 +176,66 @@ def search(
 
 @app.command("sessions")
 def sessions(
+    as_json: AsJson = False,
     data: MemoryData = None,
-    as_json: bool = typer.Option(False, "--json", help="Print a JSON list of sessions."),
+    url: ServerUrl = None,
+    token: ServerToken = None,
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
 ) -> None:
     """List sessions: item counts per sense and time span."""
     from tactus_memory.errors import TactusError
+    from tactus_memory.models import SessionSummary
 
-    try:
-        summaries = _open(data, space, space_path, space_dim).sessions()
-    except TactusError as exc:
-        fail(str(exc))
-        return
+    one_source(data, url)
+    if url:
+        answer = get_json(url, "/sessions", {}, token)
+        summaries = [SessionSummary.model_validate(s) for s in answer["sessions"]]
+    else:
+        try:
+            summaries = _open(data, space, space_path, space_dim).sessions()
+        except TactusError as exc:
+            fail(str(exc))
     _print_results(
         summaries,
         as_json=as_json,
-        title=f"{len(summaries)} sessions",
+        title=plural(len(summaries), "session"),
         columns=("session", "n", "per sense", "t_min", "t_max"),
         row=lambda s: (
             s.id,
             str(s.n),
             ", ".join(f"{name}: {n}" for name, n in s.counts.items()),
-            f"{s.t_min:g}",
-            f"{s.t_max:g}",
+            fmt_t(s.t_min),
+            fmt_t(s.t_max),
         ),
     )
+
+
+@app.command("reembed")
+def reembed(
+    checkpoint: str = typer.Option(
+        ..., "--checkpoint", help="the new touch checkpoint (.safetensors), or 'default'"
+    ),
+    data: MemoryData = None,
+    sense: str = typer.Option("touch", "--sense", help="the touch sense to re-embed"),
+    batch: int = typer.Option(256, "--batch", min=1, help="rows embedded and staged per commit"),
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
+) -> None:
+    """Recompute every stored vector of a touch sense with a new checkpoint, from the stored
+    raw windows; swapped in one commit (readers see all old or all new vectors), resumable
+    after a kill (rerun the same command). Rows without a raw window are listed."""
+    from tactus_memory.errors import TactusError
+
+    try:
+        from tactus_memory.adapters.touch import TactusEncoder
+
+        memory = _open(data, space, space_path, space_dim)
+        enc = TactusEncoder(None if checkpoint == "default" else checkpoint, name=sense)
+        report = memory.reembed(sense, enc, batch=batch)
+    except (TactusError, FileNotFoundError, ValueError) as exc:
+        fail(str(exc))
+        return
+    _print_json(report.model_dump())

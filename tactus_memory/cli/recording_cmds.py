@@ -56,8 +56,16 @@ def ingest(
     session: Annotated[str | None, typer.Option("--session", help="Session id to fill.")] = None,
     topic: Annotated[
         list[str] | None,
-        typer.Option("--topic", help="TOPIC=SENSE, repeatable (e.g. /glove/pressure=touch)."),
+        typer.Option(
+            "--topic",
+            help="TOPIC=SENSE, repeatable (e.g. /glove/pressure=touch); TOPIC=pose for the "
+            "trajectory (Odometry, PoseStamped, or /tf with --tf).",
+        ),
     ] = None,
+    tf: Annotated[
+        str,
+        typer.Option("--tf", help="PARENT->CHILD transform read from a TFMessage pose topic."),
+    ] = "map->base_link",
     data: MemoryData = None,
     absolute: Annotated[
         bool, typer.Option("--absolute", help="Unix times instead of the session clock.")
@@ -75,7 +83,8 @@ def ingest(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Ingest ROS 2 bags / MCAP files: text (std_msgs/String), touch (mono16/16UC1/mono8/32FC1
-    Images, Int16/Float32MultiArray), images (rgb8/bgr8, CompressedImage). Safe to re-run."""
+    Images, Int16/Float32MultiArray), images (rgb8/bgr8, CompressedImage), the trajectory
+    (=pose: Odometry, PoseStamped, TFMessage). Safe to re-run."""
     from tactus_memory.errors import TactusError
     from tactus_memory.recordings.ingest import ingest_recording, list_topics, parse_topic_map
 
@@ -94,6 +103,9 @@ def ingest(
         if not topic:
             fail("map topics with --topic TOPIC=SENSE (see --list for the topics)")
         topics = parse_topic_map(topic)
+        parent, arrow, child = tf.partition("->")
+        if not arrow or not parent.strip() or not child.strip():
+            fail(f"--tf {tf!r}: write PARENT->CHILD, e.g. map->base_link")
         memory = _memory_for(data, set(topics.values()))
         summary = ingest_recording(
             memory,
@@ -104,6 +116,7 @@ def ingest(
             window=window,
             stride=stride,
             progress=not as_json,
+            tf=(parent.strip(), child.strip()),
         )
     except (TactusError, ImportError) as exc:
         fail(str(exc))  # exits
@@ -116,6 +129,8 @@ def ingest(
         f"already present {summary.existing} ({summary.messages_per_s:.0f} msg/s, "
         f"{summary.rows_per_s:.1f} rows/s)"
     )
+    for name, n in sorted(summary.poses.items()):
+        typer.echo(f"  poses from {name}: {n}" + (" (stored before)" if n == 0 else ""))
     for reason, n in sorted(summary.skipped.items()):
         typer.echo(f"  skipped {n}: {reason}")
 

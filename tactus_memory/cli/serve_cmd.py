@@ -77,7 +77,7 @@ def serve(
     options given here win. On a fresh store the default senses are registered: text, and
     touch with the shipped checkpoint.
     """
-    from tactus_memory.service.startup import check_location, explain
+    from tactus_memory.service.startup import check_checkpoint, check_location, explain
     from tactus_memory.settings import Settings
 
     given = {
@@ -105,6 +105,7 @@ def serve(
         settings = Settings(**overrides)
         where = settings.data
         check_location(settings.data)
+        check_checkpoint(settings.touch_checkpoint if settings.touch else None)
         if settings.torch_threads is None:
             from tactus_memory.service.app import serving_torch_threads
 
@@ -116,6 +117,14 @@ def serve(
         typer.echo(f"tactus serve: {explain(exc, where)}", err=True)
         raise typer.Exit(2) from None
     run_server(application, settings)
+    failed = getattr(
+        getattr(getattr(application, "state", None), "tactus", None), "load_error", None
+    )
+    if failed is not None:  # a model loading after the socket opened failed: same line, status
+        if debug:
+            raise failed
+        typer.echo(f"tactus serve: {explain(failed, where)}", err=True)
+        raise typer.Exit(2)
 
 
 def page_url(settings: Any, port: int | None = None) -> str:
@@ -126,14 +135,19 @@ def page_url(settings: Any, port: int | None = None) -> str:
 
 
 def load_app(settings: Any, say: Callable[[str], None]) -> Any:
-    """Open the store and load the models step by step, saying what is loading and how long
-    each step took (the text model and the touch encoder take seconds on a CPU)."""
+    """Open the store now (step 1: a damaged store or a bad setting stops the command before
+    anything listens), and build the app whose lifespan loads the text model and the touch
+    encoder (steps 2 and 3, seconds each on a CPU) on a worker thread once the socket is
+    open, saying what loads and how long each step took; ``/ready`` answers 503 naming the
+    step until then."""
     from tactus_memory.service.app import create_app, open_store, register_default_senses
 
     steps = 3
 
-    def step(i: int, what: str, fn: Callable[[], Any]) -> Any:
+    def step(i: int, what: str, fn: Callable[[], Any], state: Any = None) -> Any:
         say(f"[{i}/{steps}] {what} ...")
+        if state is not None:
+            state.starting = f"[{i}/{steps}] {what}"
         t0 = time.perf_counter()
         out = fn()
         say(f"[{i}/{steps}] {what}: done in {time.perf_counter() - t0:.1f} s")
@@ -141,13 +155,19 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
 
     memory = step(1, f"opening the memory at {settings.data}", lambda: open_store(settings))
     name = getattr(memory.space, "name", settings.space)
-    step(2, f"loading the text model ({name})", lambda: memory.space.embed_texts(["warm up"]))
-    why = step(3, "loading the touch encoder", lambda: register_default_senses(memory, settings))
-    if why:
-        say(f"touch is off: {why}")
-    application = create_app(settings, memory=memory)
-    application.state.tactus.touch_unavailable = why
-    return application
+
+    def finish(state: Any) -> str | None:
+        text = f"loading the text model ({name})"
+        step(2, text, lambda: memory.space.embed_texts(["warm up"], query=True), state)
+        why = step(
+            3, "loading the touch encoder", lambda: register_default_senses(memory, settings), state
+        )
+        if why:
+            say(f"touch is off: {why}")
+        say("ready: GET /ready answers 200")
+        return why
+
+    return create_app(settings, memory=memory, loader=finish)
 
 
 def run_server(application: Any, settings: Any) -> None:
@@ -171,6 +191,11 @@ def run_server(application: Any, settings: Any) -> None:
     )
 
     class Server(uvicorn.Server):
+        async def on_tick(self, counter: int) -> bool:
+            if getattr(state, "load_error", None) is not None:
+                return True  # a model that loads after the socket opened failed: stop
+            return await super().on_tick(counter)
+
         async def startup(self, sockets: Any = None) -> None:
             await super().startup(sockets=sockets)
             if self.started:
@@ -184,7 +209,8 @@ def run_server(application: Any, settings: Any) -> None:
                     f"  token:          {'required' if settings.token else 'off'}\n"
                     f"  maintenance:    {'on' if settings.maintain else 'off (tactus maintain)'}\n"
                     + ("  READ-ONLY store: writes answer 503\n" if read_only else "")
-                    + "  (Ctrl+C stops it)",
+                    + "  (models load now: GET /ready answers 200 once 'ready' is printed; "
+                    "Ctrl+C stops it)",
                     err=True,
                 )
 

@@ -1,22 +1,38 @@
-"""``tactus pretrain`` and ``tactus train``: the touch encoder's recipe from STAG files."""
+"""``tactus pretrain``, ``tactus train`` and ``tactus distill``: the touch encoder's recipe
+from STAG files."""
 
 from __future__ import annotations
 
 import json
 import logging
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import (
+    Augment,
+    Balance,
+    Batch,
     CheckpointOut,
+    Consecutive,
+    Device,
+    Dropout,
+    Half,
+    InputBlur,
+    InputGamma,
     LearningRate,
+    ModelName,
+    Positives,
+    Pretrained,
     Resume,
     Seed,
     StagFiles,
+    Steps,
     Threads,
     TrainHoldout,
+    WeightDecay,
     set_threads,
 )
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
@@ -63,48 +79,25 @@ def pretrain_cmd(
     typer.echo(json.dumps(summary, indent=2))
 
 
-@app.command("train")
-def train_cmd(
-    data: StagFiles,
-    out: CheckpointOut,
-    model: str = typer.Option("tactus-lite", "--model", help="architecture in configs/"),
-    pretrained: Path | None = typer.Option(None, "--pretrained", help="MAE checkpoint"),
-    steps: int = typer.Option(600, "--steps", help="optimizer steps (shipped recipe: 600)"),
-    batch: int = typer.Option(64, "--batch", help="windows per step"),
-    lr: LearningRate = 1e-3,
-    seed: Seed = 0,
-    device: str = typer.Option("auto", "--device", help="auto | cpu | cuda"),
-    holdout: TrainHoldout = "none",
-    half: bool = typer.Option(False, "--half", help="store float16 weights"),
-    threads: Threads = 2,
-    resume: Resume = False,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
-    positives: str = typer.Option(
-        "valid", "--positives", help="valid (labelled frames) | contact (+ every contact frame)"
-    ),
-    balance: str = typer.Option(
-        "none", "--balance", help="none | recording | class: how batches draw training windows"
-    ),
-    consecutive: float = typer.Option(
-        0.0, "--consecutive", help="share of training windows cut as K consecutive frames"
-    ),
-    augment: str = typer.Option("default", "--augment", help="default | strong | pressed-noise"),
-    weight_decay: float = typer.Option(0.05, "--weight-decay", help="AdamW weight decay"),
-    input_gamma: float | None = typer.Option(
-        None, "--input-gamma", help="model input: pressure ** gamma (default: the config's)"
-    ),
-    input_blur: float | None = typer.Option(
-        None, "--input-blur", help="model input: Gaussian blur sigma, px (default: the config's)"
-    ),
-    dropout: float | None = typer.Option(
-        None, "--dropout", help="Dropout2d on trunk features (default: the config's)"
-    ),
-) -> None:
-    """Train the touch encoder against centred class-phrase targets embedded in the frozen
-    space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
-    space's name, dim and model fingerprint, so it only registers in a memory of that space."""
+def training_run(
+    data: list[Path],
+    holdout: str,
+    *,
+    threads: int,
+    space: str | None,
+    space_path: Path | None,
+    space_dim: int | None,
+    positives: str,
+    balance: str,
+    augment: str,
+    input_gamma: float | None,
+    input_blur: float | None,
+    dropout: float | None,
+    **recipe: Any,
+) -> tuple[Any, Any, Any, int]:
+    """The data, targets and TrainConfig of ``tactus train`` / ``tactus distill`` from their
+    shared options; ``recipe``: TrainConfig fields (model, steps, batch, lr, seed, half,
+    consecutive, weight_decay). Returns (TrainData, Targets, TrainConfig, the space's dim)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     from tactus_memory.touch.augment import AUGMENT_PRESETS, augment_preset
     from tactus_memory.touch.train import BALANCE, POSITIVES
@@ -121,29 +114,128 @@ def train_cmd(
     sp = resolve_or_exit(space, space_path, space_dim)
     from tactus_memory.touch.pretrain import recipe_warmup
     from tactus_memory.touch.targets import build_targets, target_report
-    from tactus_memory.touch.train import (
-        TrainConfig,
-        fit,
-        holdout_recordings,
-        load_data,
-        prepare_data,
-    )
+    from tactus_memory.touch.train import TrainConfig, holdout_recordings, load_data, prepare_data
 
     d = load_data(data)
     td = prepare_data(d, holdout_recordings(d, holdout), positives=positives)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
-    warmup = recipe_warmup(steps)
-    cfg = TrainConfig(
-        model=model, steps=steps, batch=batch, lr=lr, seed=seed, half=half, warmup=warmup
-    )
-    # the ladder's options (checkpoints README): batches, windows, regularisation, input shaping
-    cfg.balance, cfg.consecutive, cfg.weight_decay = balance, consecutive, weight_decay
+    cfg = TrainConfig(balance=balance, **recipe)
+    cfg.warmup = recipe_warmup(cfg.steps)
     cfg.augment = augment_preset(augment)
     model_opts = {"input_gamma": input_gamma, "input_blur": input_blur, "dropout": dropout}
     cfg.model_overrides = {k: v for k, v in model_opts.items() if v is not None}
+    return td, targets, cfg, sp.dim
+
+
+@app.command("train")
+def train_cmd(
+    data: StagFiles,
+    out: CheckpointOut,
+    model: ModelName = "tactus-lite",
+    pretrained: Pretrained = None,
+    steps: Steps = 600,
+    batch: Batch = 64,
+    lr: LearningRate = 1e-3,
+    seed: Seed = 0,
+    device: Device = "auto",
+    holdout: TrainHoldout = "none",
+    half: Half = False,
+    threads: Threads = 2,
+    resume: Resume = False,
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
+    positives: Positives = "valid",
+    balance: Balance = "none",
+    consecutive: Consecutive = 0.0,
+    augment: Augment = "default",
+    weight_decay: WeightDecay = 0.05,
+    input_gamma: InputGamma = None,
+    input_blur: InputBlur = None,
+    dropout: Dropout = None,
+) -> None:
+    """Train the touch encoder against centred class-phrase targets embedded in the frozen
+    space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
+    space's name, dim and model fingerprint, so it only registers in a memory of that space."""
+    td, targets, cfg, dim = training_run(
+        data, holdout, threads=threads, space=space, space_path=space_path,
+        space_dim=space_dim, positives=positives, balance=balance, augment=augment,
+        input_gamma=input_gamma, input_blur=input_blur, dropout=dropout, model=model,
+        steps=steps, batch=batch, lr=lr, seed=seed, half=half, consecutive=consecutive,
+        weight_decay=weight_decay,
+    )  # fmt: skip
+    from tactus_memory.touch.train import fit
+
     summary = fit(
-        td, targets, cfg, out, space_dim=sp.dim, pretrained=pretrained, device=device, resume=resume
+        td, targets, cfg, out, space_dim=dim, pretrained=pretrained, device=device, resume=resume
     )
+    summary.pop("heldout_per_recording", None)
+    typer.echo(json.dumps(summary, indent=2))
+
+
+@app.command("distill")
+def distill_cmd(
+    data: StagFiles,
+    out: CheckpointOut,
+    teacher: list[Path] = typer.Option(
+        ..., "--teacher", help="teacher checkpoint (same space); repeat to average several"
+    ),
+    cosine_weight: float = typer.Option(
+        1.0, "--cosine-weight", help="weight of mean(1 - cos(student, teachers' mean))"
+    ),
+    relational_weight: float = typer.Option(
+        0.0, "--relational-weight", help="weight of the batch similarity-matrix MSE"
+    ),
+    model: ModelName = "tactus-lite",
+    pretrained: Pretrained = None,
+    steps: Steps = 600,
+    batch: Batch = 64,
+    lr: LearningRate = 1e-3,
+    seed: Seed = 0,
+    device: Device = "auto",
+    holdout: TrainHoldout = "none",
+    half: Half = False,
+    threads: Threads = 2,
+    resume: Resume = False,
+    space: SpaceName = None,
+    space_path: SpacePath = None,
+    space_dim: SpaceDim = None,
+    positives: Positives = "valid",
+    balance: Balance = "none",
+    consecutive: Consecutive = 0.0,
+    augment: Augment = "default",
+    weight_decay: WeightDecay = 0.05,
+    input_gamma: InputGamma = None,
+    input_blur: InputBlur = None,
+    dropout: Dropout = None,
+) -> None:
+    """Train a (fast) student as `tactus train` does, plus a loss pulling its embeddings
+    towards the teachers' (mean of their unit embeddings of the same augmented windows).
+    Teachers must be in the student's space and calibration; their sha256 are recorded."""
+    from tactus_memory.touch.distill import DistillConfig, TeacherMismatchError, distill
+
+    try:
+        dcfg = DistillConfig(cosine_weight=cosine_weight, relational_weight=relational_weight)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from exc
+    missing = [str(p) for p in teacher if not p.is_file()]
+    if missing:
+        raise typer.BadParameter(f"--teacher: no such file: {', '.join(missing)}")
+    td, targets, cfg, dim = training_run(
+        data, holdout, threads=threads, space=space, space_path=space_path,
+        space_dim=space_dim, positives=positives, balance=balance, augment=augment,
+        input_gamma=input_gamma, input_blur=input_blur, dropout=dropout, model=model,
+        steps=steps, batch=batch, lr=lr, seed=seed, half=half, consecutive=consecutive,
+        weight_decay=weight_decay,
+    )  # fmt: skip
+    try:
+        summary = distill(
+            td, targets, cfg, out, teacher, space_dim=dim, dcfg=dcfg, pretrained=pretrained,
+            device=device, resume=resume,
+        )  # fmt: skip
+    except TeacherMismatchError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
     summary.pop("heldout_per_recording", None)
     typer.echo(json.dumps(summary, indent=2))

@@ -12,6 +12,11 @@ offsets), one entity per stream:
   a text-log annotation at the moment's start (level WARN, with its score and senses) and
   ``moments/score`` as a scalar that is the moment's score over its span and 0 outside.
 
+* ``places/trajectory/<frame>``: the session's poses as a 3-D line strip (static) and
+  ``places/robot/<frame>`` as a 3-D point moving along it on the timeline;
+* ``places/items``: every placed item as a 3-D point (labelled with its sense and text) at
+  its time, and ``places/hits`` the moments of ``query`` that have a place, at theirs.
+
 ``rerun-sdk`` is imported lazily (``pip install 'tactus-memory[recordings]'``).
 """
 
@@ -123,9 +128,39 @@ def export_rerun(
             log("moments/score", m.t_end + 1e-3, rr.Scalars(0.0))
         if found:
             rec.log("moments/query_text", rr.TextDocument(f"query: {query}"), static=True)
+        _places(rr, rec, memory, session, items, found, log, counts)
     finally:
         rec.flush()
         rec.disconnect()
     return ExportSummary(
         session=session, path=str(out), entities=counts, moments=len(found), skipped=skipped
     )
+
+
+def _places(
+    rr: Any, rec: Any, memory: Memory, session: str, items: list[Any], found: list[Any],
+    log: Any, counts: dict[str, int],
+) -> None:  # fmt: skip
+    """The trajectory (static strip + the robot's point on the timeline), the placed items
+    and the placed moments of the query as 3-D points."""
+    for tr in memory.trajectory(session):
+        pos = np.asarray(tr.position, dtype=np.float32)  # (N, 3)
+        t = np.asarray(tr.t, dtype=np.float64)  # (N,)
+        ok = np.abs(t) <= MAX_RERUN_SECONDS
+        frame = _entity(tr.frame)
+        rec.log(f"places/trajectory/{frame}", rr.LineStrips3D([pos]), static=True)
+        rec.send_columns(
+            f"places/robot/{frame}",
+            indexes=[rr.TimeColumn(TIMELINE, duration=t[ok])],
+            columns=rr.Points3D.columns(positions=pos[ok]),
+        )
+        counts[f"places/robot/{frame}"] = int(ok.sum())
+    for it in items:
+        if it.position is not None:
+            label = f"{it.sense}: {it.text}" if it.text else it.sense
+            log("places/items", it.t_aligned, rr.Points3D([it.position], labels=[label]))
+    for m in found:
+        if m.position is not None:
+            label = f"score {m.score:.2f}"
+            point = rr.Points3D([m.position], labels=[label], radii=[0.2], colors=[(255, 80, 0)])
+            log("places/hits", m.t, point)

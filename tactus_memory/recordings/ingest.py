@@ -36,6 +36,16 @@ from pydantic import BaseModel, Field
 import tactus_memory.recordings.decode as decode
 from tactus_memory.errors import IdleWindowError, TactusError, UnknownSenseError
 from tactus_memory.plugins import lookup
+from tactus_memory.recordings.poses import (
+    DEFAULT_TF,
+    POSE,
+    POSE_TYPES,
+    TF,
+    already_stored,
+    check_pose_topic,
+    read_poses,
+    tf_ns,
+)
 from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
 from tactus_memory.rows import options_for
 from tactus_memory.touch.windows import WindowStream
@@ -70,6 +80,9 @@ class IngestSummary(BaseModel):
     rows: dict[str, int] = Field(description="new rows per sense")
     existing: int = Field(description="items already in the memory (earlier ingest), skipped")
     skipped: dict[str, int] = Field(description="reason -> messages or windows not stored")
+    poses: dict[str, int] = Field(
+        default_factory=dict, description="pose topic -> poses stored (0: stored before)"
+    )
     t0: float | None = Field(description="unix time of the session clock's zero (None: absolute)")
     seconds: float
     messages_per_s: float
@@ -102,6 +115,7 @@ def list_topics(paths: Sequence[str | Path] | str | Path) -> list[TopicListing]:
                     break
         for i in infos:
             sense = decode.default_modality(i.msgtype, encodings.get(i.topic))
+            sense = POSE if i.msgtype in POSE_TYPES else sense
             if i.encoding != "cdr":
                 sense = None
             out.append(TopicListing(file=str(rec.path), topic=i.topic, type=i.msgtype or "?",
@@ -148,8 +162,12 @@ class _Ingest:
         batch: int,
         progress: bool,
         keep_idle: bool = False,
+        tf: tuple[str, str] = DEFAULT_TF,
     ) -> None:
         self.memory = memory
+        self.tf = tf
+        self.pose_topics = sorted(t for t, s in topics.items() if s == POSE)
+        self.poses: dict[str, int] = {}
         self.keep_idle = keep_idle
         self.recs = recordings
         self.session = validate_id(session, "session id")
@@ -161,7 +179,7 @@ class _Ingest:
         self.existing = 0
         self.messages = 0
         self.pending: dict[str, _Batch] = {}
-        self.plan = self._plan(topics)
+        self.plan = self._plan({t: s for t, s in topics.items() if s != POSE})
         windowed = [
             s for p in self.plan.values() if (s := memory.senses.get(p.sense)) and s.windowed
         ]
@@ -170,12 +188,18 @@ class _Ingest:
 
     # ------------------------------------------------------------------ planning
     def _plan(self, topics: Mapping[str, str]) -> dict[str, _Topic]:
-        if not topics:
+        if not topics and not self.pose_topics:
             raise RecordingError("no topics to ingest: map at least one, TOPIC=SENSE")
         infos: dict[str, list[TopicInfo]] = {}
         for rec in self.recs:
             for info in rec.topics():
                 infos.setdefault(info.topic, []).append(info)
+        for topic in self.pose_topics:
+            if topic not in infos:
+                known = ", ".join(sorted(infos)) or "none"
+                raise RecordingError(f"topic {topic!r} is in none of the files (topics: {known})")
+            for info in infos[topic]:
+                check_pose_topic(topic, info.msgtype)
         plan: dict[str, _Topic] = {}
         live = self.memory.senses
         for topic, sense in topics.items():
@@ -211,12 +235,16 @@ class _Ingest:
             return None
         firsts: list[int] = []
         for rec in self.recs:
-            wanted = {i.topic for i in rec.topics() if i.topic in self.plan and i.count}
+            mapped = {*self.plan, *self.pose_topics}
+            wanted = {i.topic for i in rec.topics() if i.topic in mapped and i.count}
             seen: set[str] = set()
             for m in rec.messages(sorted(wanted)):
                 if m.topic not in seen:
                     seen.add(m.topic)
-                    firsts.append(decode.stamp_ns(m.msg) or m.log_time_ns)
+                    if m.msgtype == TF:  # a TFMessage has no header: its transforms do
+                        firsts.append(tf_ns(m.msg, m.log_time_ns))
+                    else:
+                        firsts.append(decode.stamp_ns(m.msg) or m.log_time_ns)
                 if seen >= wanted:
                     break
         return min(firsts) if firsts else 0
@@ -283,6 +311,7 @@ class _Ingest:
         total = sum(i.count for rec in self.recs for i in rec.topics() if i.topic in self.plan)
         bar = tqdm(total=total, unit="msg", unit_scale=True, disable=not self.progress,
                    desc=f"ingest {self.session}", dynamic_ncols=True)  # fmt: skip
+        self._add_poses(t0)  # first: the items are placed as they are written
         try:
             for rec in self.recs:
                 self._one(rec, t0, bar)
@@ -301,11 +330,23 @@ class _Ingest:
             rows=dict(self.rows),
             existing=self.existing,
             skipped=dict(self.skipped),
+            poses=self.poses,
             t0=None if t0 is None else t0 / NS,
             seconds=seconds,
             messages_per_s=self.messages / seconds if seconds > 0 else 0.0,
             rows_per_s=new / seconds if seconds > 0 else 0.0,
         )
+
+    def _add_poses(self, t0: int | None) -> None:
+        """The pose topics (``recordings/poses.py``) as the session's trajectory."""
+        for track in read_poses(self.recs, self.pose_topics, self.tf):
+            t, pos, ori = track.arrays(t0)
+            if already_stored(self.memory, self.session, track.frame, t):
+                self.poses[track.topic] = 0
+                continue
+            self.poses[track.topic] = self.memory.add_poses(
+                self.session, t, pos, ori, frame=track.frame, source=topic_source(track.topic)
+            )
 
     def _one(self, rec: Recording, t0: int | None, bar: Any) -> None:
         digest = rec.digest
@@ -365,10 +406,13 @@ def ingest_recording(
     batch: int = DEFAULT_BATCH,
     progress: bool = False,
     keep_idle: bool = False,
+    tf: tuple[str, str] = DEFAULT_TF,
 ) -> IngestSummary:
     """Ingest MCAP files / ROS 2 bag folders into ``session`` (see the module doc).
 
-    ``topics`` maps topic -> sense name. ``window`` defaults to the touch sense's K (8 for the
+    ``topics`` maps topic -> sense name, or ``"pose"`` for the session's trajectory
+    (Odometry, PoseStamped, or the ``tf`` parent -> child pair of a TFMessage topic:
+    :mod:`tactus_memory.recordings.poses`). ``window`` defaults to the touch sense's K (8 for the
     shipped encoder), ``stride`` to ``window``. ``progress`` shows a tqdm bar (messages/s).
     Idle touch windows (no contact, ``touch/windows.py``) are skipped and counted in
     ``skipped`` unless ``keep_idle``.
@@ -380,7 +424,7 @@ def ingest_recording(
         raise RecordingError("no recordings given")
     job = _Ingest(memory, recs, session, dict(topics), absolute=absolute, window=window,
                   stride=stride, batch=batch, progress=progress,
-                  keep_idle=keep_idle)  # fmt: skip
+                  keep_idle=keep_idle, tf=tf)  # fmt: skip
     return job.run()
 
 

@@ -21,6 +21,12 @@ Two storage modes are scored, both with the same windows: ``served`` stores what
 windowing keeps (idle windows are not embedded: the policy of ``touch/windows.py``) and
 ``all_windows`` embeds every window, idle ones included (the behaviour before the idle rule),
 which is what the idle pass rate is measured on.
+
+``groups=(None, "grasp")`` (``--group grasp``) also scores each mode grasp-grouped
+(``<mode>_grasp``; ``<mode>_grasp_<pool>`` for each other pool of ``pools``): the search,
+``last`` and ``count`` rank grasps (``group="grasp"``, :mod:`tactus_memory.grasps`); a grasp is
+right when every window it pools comes from the queried object's recording, and the match-bar
+rates are over the grasps the search returned.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.grasps import POOLS
 from tactus_memory.touch.targets import class_phrases
 from tactus_memory.touch.windows import cut_windows
 
@@ -54,6 +61,8 @@ RECORDING_GAP_S = 10.0
 SESSION = "stream-eval"
 RECALL_AT = (1, 5)
 MODES = ("served", "all_windows")
+#: how results are grouped: None (windows) or "grasp"; a grouped mode's key is MODE_grasp
+GROUPS = (None, "grasp")
 
 
 @dataclass
@@ -155,14 +164,9 @@ def _rate(num: int, den: int) -> float | None:
     return num / den if den else None
 
 
-def _score_mode(
-    memory: Any, stream: StreamSet, keep: np.ndarray, queries: dict[str, list[str]], bar: float
-) -> dict[str, Any]:
-    """Store the kept windows in ``memory`` (session SESSION), ask every query, score."""
-    from tactus_memory.limits import MAX_K
-
-    idx = np.flatnonzero(keep)
-    memory.add_many(
+def _store(memory: Any, stream: StreamSet, idx: np.ndarray) -> list[str]:
+    """Write the windows ``idx`` to ``memory`` (session SESSION); their ids."""
+    return memory.add_many(
         SESSION,
         "touch",
         list(stream.frames[idx]),
@@ -179,6 +183,31 @@ def _score_mode(
         # the "raw" mode stores idle windows on purpose: what the idle rule prevents is measured
         options={"keep_idle": True},
     )
+
+
+def _score_mode(
+    memory: Any,
+    stream: StreamSet,
+    idx: np.ndarray,
+    ids: list[str],
+    queries: dict[str, list[str]],
+    bar: float,
+    group: str | None = None,
+    pool: str = "mean",
+) -> dict[str, Any]:
+    """Ask every query of the windows ``idx`` stored as ``ids`` (by window, or by grasp with
+    ``group="grasp"``) and score."""
+    from tactus_memory.limits import MAX_K
+
+    where = dict(zip(ids, idx.tolist(), strict=True))  # stored id -> window index
+
+    def label(h: Any) -> tuple[str | None, bool]:
+        """(object of the hit, or None when its windows mix objects; is it idle)."""
+        members = [where[i] for i in getattr(h, "ids", [h.id])]
+        objs = {stream.obj[i] for i in members}
+        return (objs.pop() if len(objs) == 1 else None), bool(stream.idle[members].all())
+
+    ask = {"session": SESSION, "senses": ["touch"], "group": group, "pool": pool}
     k = min(len(idx), MAX_K)
     present = set(stream.rec_object.values())
     per_class: dict[str, dict[str, Any]] = {}
@@ -190,35 +219,41 @@ def _score_mode(
         if cls not in present:
             # a class with no recording here: nothing should match (last None, count 0)
             for q in qs:
-                occ = memory.count(q, session=SESSION, senses=["touch"])
+                occ = memory.count(q, **ask)
                 absent_clean.append(occ == 0)
-                hits = memory.search(q, k=k, senses=["touch"], session=SESSION)
-                other_pass += sum(h.score >= bar and not h.meta["idle"] for h in hits)
-                idle_pass += sum(h.score >= bar and h.meta["idle"] for h in hits)
-                other_n += len(idx) - n_idle_kept
-                idle_n += n_idle_kept
+                hits = memory.search(q, k=k, **ask)
+                idle = [label(h)[1] for h in hits]
+                other_pass += sum(h.score >= bar and not i for h, i in zip(hits, idle, strict=True))
+                idle_pass += sum(h.score >= bar and i for h, i in zip(hits, idle, strict=True))
+                other_n += len(idx) - n_idle_kept if group is None else idle.count(False)
+                idle_n += n_idle_kept if group is None else idle.count(True)
             continue
         rrs, rs = [], {n: [] for n in RECALL_AT}
         for q in qs:
-            hits = memory.search(q, k=k, senses=["touch"], session=SESSION)
-            ranks = [i for i, h in enumerate(hits) if h.meta["object"] == cls]
+            hits = memory.search(q, k=k, **ask)
+            labels = [label(h) for h in hits]
+            ranks = [i for i, (obj, _) in enumerate(labels) if obj == cls]
             rr = 1.0 / (ranks[0] + 1) if ranks else 0.0
             rrs.append(rr)
             for n in RECALL_AT:
                 rs[n].append(float(bool(ranks) and ranks[0] < n))
-            for h in hits:
+            for h, (obj, idle) in zip(hits, labels, strict=True):
                 if h.score < bar:
                     continue
                 all_pass += 1
-                if h.meta["idle"]:
+                if idle:
                     idle_pass += 1  # an idle hand is never "holding a ...", whichever object
-                elif h.meta["object"] == cls:
+                elif obj == cls:
                     rel_pass += 1
                 else:
                     other_pass += 1
-            other_n += int(sum(1 for i in idx if stream.obj[i] != cls and not stream.idle[i]))
-            idle_n += n_idle_kept
-            moment = memory.last(q, session=SESSION, senses=["touch"])
+            if group is None:
+                other_n += int(sum(1 for i in idx if stream.obj[i] != cls and not stream.idle[i]))
+                idle_n += n_idle_kept
+            else:  # over the grasps returned
+                other_n += sum(1 for obj, idle in labels if obj != cls and not idle)
+                idle_n += sum(1 for _, idle in labels if idle)
+            moment = memory.last(q, **ask)
             rec = [r for r, c in stream.rec_object.items() if c == cls]
             ok = False
             if moment is not None:
@@ -226,7 +261,7 @@ def _score_mode(
                     a, b = stream.spans[r]
                     ok = ok or (moment.t <= b and moment.t_end >= a)
             last_ok.append(float(ok))
-            c = memory.count(q, session=SESSION, senses=["touch"])
+            c = memory.count(q, **ask)
             count_err.append(abs(c - len(rec)))
             count_exact.append(float(c == len(rec)))
         per_class[cls] = {
@@ -238,6 +273,8 @@ def _score_mode(
         for n in RECALL_AT:
             r_all[n] += rs[n]
     return {
+        "group": group,
+        "pool": pool if group else None,
         "windows_stored": int(len(idx)),
         "idle_windows_stored": n_idle_kept,
         "queries_scored": len(rr_all),
@@ -286,7 +323,7 @@ def stream_markdown(result: dict[str, Any]) -> str:
     def f(x: Any) -> str:
         return "-" if x is None else f"{x:.3f}"
 
-    for mode in MODES:
+    for mode in [k for k in result if k.split("_grasp")[0] in MODES]:
         m = result.get(mode)
         if not m or "mrr" not in m:
             continue
@@ -312,6 +349,8 @@ def run_stream_eval(
     queries_path: str | Path | None = None,
     span: int | None = None,
     space: Space | None = None,
+    groups: Sequence[str | None] = (None,),
+    pools: Sequence[str] = ("mean",),
 ) -> dict[str, Any]:
     """The whole stream evaluation from loaded data: the recordings ``holdout`` names (the
     training grammar, e.g. ``one-per-object@blindfolded``; the first ``limit`` when > 0)."""
@@ -338,6 +377,8 @@ def run_stream_eval(
         queries,
         space=space,
         data_fingerprint=data.fingerprint(),
+        groups=groups,
+        pools=pools,
     )
     out["holdout"] = holdout
     out["span"] = span or STREAM_WINDOW
@@ -354,6 +395,8 @@ def evaluate_stream(
     modes: Sequence[str] = MODES,
     workdir: str | Path | None = None,
     data_fingerprint: str | None = None,
+    groups: Sequence[str | None] = (None,),
+    pools: Sequence[str] = ("mean",),
 ) -> dict[str, Any]:
     """Score ``checkpoint`` (None: the shipped one) on ``stream`` with ``queries``; one real
     memory per mode in a temporary directory. Returns the metrics JSON (per mode).
@@ -371,6 +414,12 @@ def evaluate_stream(
     for m in modes:
         if m not in MODES:
             raise InvalidInputError(f"unknown stream mode {m!r}; modes are {MODES}")
+    for g in groups:
+        if g not in GROUPS:
+            raise InvalidInputError(f"unknown stream group {g!r}; groups are {GROUPS}")
+    for p in pools:
+        if p not in POOLS:
+            raise InvalidInputError(f"unknown grasp pool {p!r}; pools are {POOLS}")
     enc = TactusEncoder(checkpoint)
     meta = enc.ckpt.meta
     out: dict[str, Any] = {
@@ -397,7 +446,14 @@ def evaluate_stream(
             mem = Memory.open(str(Path(tmp) / mode), space=space, background=False)
             try:
                 mem.add_sense(enc)
-                out[mode] = _score_mode(mem, stream, keep, queries, MATCH_Z["touch"])
+                idx = np.flatnonzero(keep)
+                ids = _store(mem, stream, idx)
+                runs = [(g, p) for g in groups for p in (pools if g else ["mean"])]
+                for g, pool in runs:
+                    key = mode if g is None else f"{mode}_{g}"
+                    key += "" if pool == "mean" else f"_{pool}"
+                    bar = MATCH_Z["touch"]
+                    out[key] = _score_mode(mem, stream, idx, ids, queries, bar, g, pool)
             finally:
                 mem.close()
     return out

@@ -20,7 +20,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -43,6 +43,10 @@ log = logging.getLogger(__name__)
 
 TEMPERATURE = 0.07  # paper, Method: cross-entropy over cosine logits at temperature 0.07
 EVAL_SEED = 1234  # fixed seed of the held-out tuple tiling
+
+#: a loss term added to the label cross-entropy: (x (B, K, 32, 32) augmented batch on the
+#: device, z (B, D) float32 student embeddings) -> scalar tensor (distill.py's teacher loss)
+ExtraLoss = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
 @dataclass
@@ -281,10 +285,14 @@ def fit(
     device: str = "auto",
     resume: bool = False,
     progress: bool = True,
+    extra_loss: ExtraLoss | None = None,
+    extra_args: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Train, evaluate on the held-out frames (if any), save ``out`` (.safetensors).
 
-    Returns the summary written into the checkpoint's ``metrics``.
+    ``extra_loss`` is added to the cross-entropy on every step (same tuples, same augmented
+    batch); ``extra_args`` are recorded in the checkpoint's ``train_args`` (distillation puts
+    its teachers there). Returns the summary written into the checkpoint's ``metrics``.
     """
     if cfg.balance not in BALANCE:
         raise ValueError(f"balance must be one of {BALANCE}, got {cfg.balance!r}")
@@ -363,6 +371,8 @@ def fit(
             z = net(x)
         logits = (z.float() @ tgt.T) / TEMPERATURE
         loss = F.cross_entropy(logits, y)
+        if extra_loss is not None:
+            loss = loss + extra_loss(x, z.float())
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -399,7 +409,7 @@ def fit(
         summary["heldout"] = {k: v for k, v in ev.items() if k != "per_recording"}
         summary["heldout"]["recordings_named"] = data.heldout_recordings
         summary["heldout_per_recording"] = ev["per_recording"]
-    train_args = {**asdict(cfg), "positives": data.positives}
+    train_args = {**asdict(cfg), "positives": data.positives, **(extra_args or {})}
     save_checkpoint(
         out,
         model,

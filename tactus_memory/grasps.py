@@ -1,0 +1,284 @@
+"""Grasps: a stream's contiguous windows grouped into the moments a user asks about.
+
+A touch stream stores overlapping K-frame windows (8 frames, a new one every 4); a
+question ("when was I holding the screwdriver?") is about a grasp, seconds long. A *grasp* is
+a maximal run of one stream's items (one session + sense + source), in time order ``(t, id)``,
+with no boundary between consecutive items, where item *i* starts a new grasp when
+
+1. **contact offset/onset**: ``t[i] - max(t_end of the run so far) > max_gap`` seconds. The
+   stream windowing does not store idle windows (``touch/windows.py``: no taxel pressed), so a
+   release of the hand is a hole in the stored windows; overlapping windows have gaps <= 0;
+2. **change point**: ``cos(v[i], v[i-1]) < min_cos``: the embedding jumps between consecutive
+   windows (another object taken without an idle window in between).
+
+Never from labels, recording ids or meta: only times and stored vectors. Both rules look at
+consecutive items only, so the grasp around a window is found from its neighbourhood alone
+(no pass over the whole session): :func:`find_grasps` reads the candidates' neighbourhoods
+(:data:`GRASP_READ_S` around them, widened up to :data:`GRASP_MAX_S` while a grasp touches the
+edge of what was read) and returns each grasp's members and its pooled vector, the mean of the
+members' unit vectors renormalised (the paper's recording-level pooling).
+
+Computed at query time from the stored windows, not stored: no write-path change, no schema
+change, a new rule or checkpoint applies to old data at once; the cost is one scan per
+neighbourhood (a few ms each; candidates of one grasp share one read).
+
+Defaults: ``max_gap`` 0.5 s: one dropped idle window between two kept ones leaves a hole of
+one frame (0.14 s on the STAG glove's ~7.4 Hz, 0.03 s at 30 Hz), two or more (a release of
+about a second at 7.4 Hz) leave 0.68 s or more; well under the 2 s occurrence merge gap.
+``min_cos`` 0.2: consecutive windows of one recording have a median cosine of 0.87-0.96 with
+the shipped checkpoint (10th percentile 0.20-0.57 while the hand moves), valid grasps of
+different objects a median of -0.41-0.15 (:mod:`tactus_memory.episodes`), so 0.2 cuts most
+object changes and rarely a grasp. Not tuned beyond these figures; ``tactus eval --stream
+--group grasp`` measures the result.
+
+Scores: a grasp's pooled vector is scored with its sense's calibration (estimated on single
+stored windows). Pooling averages noise away, so pooled scores run higher than window scores
+for the right object and for near misses alike: ranking grasps against each other is sound,
+but the match bar (``MATCH_Z``) was set on windows and is not re-measured for grasps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.models import Evidence, Grasp
+from tactus_memory.vectors import vector_column
+from tactus_memory.where import Where, finite_float
+
+if TYPE_CHECKING:
+    from tactus_memory.ranking import Ranker
+    from tactus_memory.store import Store
+
+#: a hole longer than this (seconds) between a stream's items ends a grasp (contact offset)
+GRASP_MAX_GAP = 0.5
+#: consecutive items whose cosine is below this are in different grasps (change point)
+GRASP_MIN_COS = 0.2
+#: seconds read on each side of a candidate to find its grasp (widened while needed)
+GRASP_READ_S = 30.0
+#: the widest neighbourhood read around candidates; a longer grasp is cut at its edges
+GRASP_MAX_S = 600.0
+#: group values the search and temporal operators take
+GROUPS = ("moment", "grasp")
+#: how a grasp is scored: ``mean`` the pooled vector of every member (the paper's
+#: recording-level pooling), ``top`` the pooled vector of its GRASP_TOP members closest to the
+#: query, ``max`` its best member window
+POOLS = ("mean", "top", "max")
+GRASP_TOP = 3
+
+
+@dataclass(frozen=True)
+class GraspRule:
+    """The grasp boundary rule (see the module docstring)."""
+
+    max_gap: float = GRASP_MAX_GAP
+    min_cos: float = GRASP_MIN_COS
+    pool: str = "mean"  # one of POOLS
+
+    def __post_init__(self) -> None:
+        if self.pool not in POOLS:
+            raise InvalidInputError(f"unknown grasp pool {self.pool!r}; use one of {POOLS}")
+        if finite_float(self.max_gap, "max_gap") < 0:
+            raise InvalidInputError(f"max_gap must be >= 0, got {self.max_gap!r}")
+        if not -1.0 <= finite_float(self.min_cos, "min_cos") <= 1.0:
+            raise InvalidInputError(f"min_cos must be in [-1, 1], got {self.min_cos!r}")
+
+
+def check_group(group: str | None, allowed: Sequence[str] = GROUPS) -> str | None:
+    """``group`` if it is None or one of ``allowed``, else InvalidInputError naming them."""
+    if group is not None and group not in allowed:
+        raise InvalidInputError(f"unknown group {group!r}; use one of {', '.join(allowed)}")
+    return group
+
+
+def grasp_rule(group: str | None, pool: str = "mean") -> GraspRule | None:
+    """``group="grasp"``: the grasp rule with ``pool`` (questions asked of grasps, not
+    windows); None: items. Anything else raises InvalidInputError."""
+    return GraspRule(pool=pool) if check_group(group, ("grasp",)) else None
+
+
+def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:
+    """The grasp keywords (``group``, ``pool``) popped from ``kw``, as the service's query
+    parameters (the remote Client's questions)."""
+    return {k: kw.pop(k) for k in ("group", "pool") if kw.get(k) is not None}
+
+
+def grasp_labels(
+    t: np.ndarray, t_end: np.ndarray, vectors: np.ndarray, rule: GraspRule = GraspRule()
+) -> np.ndarray:
+    """Grasp labels 0, 1, ... for N items of one stream sorted by ``(t, id)``.
+
+    t, t_end: (N,) seconds; vectors: (N, D) unit rows. Returns (N,) int64, non-decreasing."""
+    n = len(t)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    t = np.asarray(t, dtype=np.float64)
+    ends = np.asarray(t_end, dtype=np.float64)
+    v = np.asarray(vectors, dtype=np.float32)
+    jump = np.r_[False, np.einsum("ij,ij->i", v[1:], v[:-1]) < rule.min_cos]
+    labels = np.zeros(n, dtype=np.int64)
+    label, latest = 0, ends[0]
+    for i in range(1, n):  # the gap rule needs the run's running max end
+        if jump[i] or t[i] - latest > rule.max_gap:
+            label += 1
+            latest = ends[i]
+        else:
+            latest = max(latest, ends[i])
+        labels[i] = label
+    return labels
+
+
+def pooled(vectors: np.ndarray) -> np.ndarray:
+    """(N, D) unit rows -> (D,) float32: their mean, renormalised."""
+    mean = np.asarray(vectors, dtype=np.float64).mean(axis=0)
+    return (mean / max(float(np.linalg.norm(mean)), 1e-12)).astype(np.float32)
+
+
+@dataclass
+class GraspRows:
+    """One grasp found around candidate evidence: member ids (time order), stored span,
+    pooled vector (D,), member vectors (n, D), and the candidates (search hits) it holds."""
+
+    session: str
+    sense: str
+    source: str
+    ids: list[str]
+    t: float
+    t_end: float
+    vector: np.ndarray
+    members: np.ndarray
+    candidates: list[Evidence]
+
+    def cosine(self, q: np.ndarray, pool: str) -> float:
+        """The grasp's cosine to the (D,) query ``q`` under ``pool`` (see POOLS)."""
+        if pool == "mean":
+            return float(self.vector @ q)
+        cos = self.members @ q
+        if pool == "max":
+            return float(cos.max())
+        return float(pooled(self.members[np.argsort(-cos)[:GRASP_TOP]]) @ q)
+
+
+def _merge(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    out: list[tuple[float, float]] = []
+    for lo, hi in sorted(spans):
+        if out and lo <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], hi))
+        else:
+            out.append((lo, hi))
+    return out
+
+
+def find_grasps(
+    store: Store, dim: int, candidates: Sequence[Evidence], rule: GraspRule = GraspRule()
+) -> list[GraspRows]:
+    """The grasps that contain ``candidates`` (stored items, e.g. a search's hits), one per
+    grasp, each with every member (not only the candidates); order: first candidate's rank."""
+    by_stream: dict[tuple[str, str, str], list[Evidence]] = {}
+    for e in candidates:
+        by_stream.setdefault((e.session, e.sense, e.source or ""), []).append(e)
+    found: dict[str, GraspRows] = {}  # first member id -> grasp
+    for key, cands in by_stream.items():
+        spans = _merge([(c.t - GRASP_READ_S, c.t_end + GRASP_READ_S) for c in cands])
+        for lo, hi in spans:
+            inside = [c for c in cands if c.t_end >= lo and c.t <= hi]
+            for g in _grasps_in(store, dim, key, lo, hi, inside, rule):
+                have = found.get(g.ids[0])
+                if have is None:
+                    found[g.ids[0]] = g
+                else:
+                    known = {c.id for c in have.candidates}
+                    have.candidates += [c for c in g.candidates if c.id not in known]
+    rank = {c.id: i for i, c in enumerate(candidates)}
+    return sorted(found.values(), key=lambda g: min(rank[c.id] for c in g.candidates))
+
+
+def _grasps_in(
+    store: Store,
+    dim: int,
+    key: tuple[str, str, str],
+    lo: float,
+    hi: float,
+    cands: list[Evidence],
+    rule: GraspRule,
+) -> list[GraspRows]:
+    """Read the stream in [lo, hi] (widening while a candidate's grasp reaches an edge of
+    what was read, up to GRASP_MAX_S) and cut it into grasps around ``cands``."""
+    session, sense, source = key
+    while True:
+        where = Where().session(session).sense(sense).source(source).overlaps(lo, hi)
+        tbl = store.scan(where.sql(), ["id", "t", "t_end", "vector"])
+        ids = tbl.column("id").to_pylist()
+        t = tbl.column("t").to_numpy()
+        t_end = tbl.column("t_end").to_numpy()
+        order = np.lexsort((np.array(ids, dtype=object), t))
+        ids = [ids[i] for i in order]
+        t, t_end = t[order], t_end[order]
+        vecs = vector_column(tbl, dim)[order]
+        labels = grasp_labels(t, t_end, vecs, rule)
+        pos = {i: n for n, i in enumerate(ids)}
+        runs = sorted({int(labels[pos[c.id]]) for c in cands if c.id in pos})
+        cut = False
+        for lab in runs:
+            members = np.flatnonzero(labels == lab)
+            starts_in = t[members[0]] - lo > rule.max_gap
+            ends_in = hi - t_end[members].max() > rule.max_gap
+            cut = cut or not (starts_in and ends_in)
+        if not cut or hi - lo >= GRASP_MAX_S:
+            break
+        grow = min(hi - lo, GRASP_MAX_S - (hi - lo)) / 2
+        lo, hi = lo - grow, hi + grow
+    out = []
+    for lab in runs:
+        members = np.flatnonzero(labels == lab)
+        member_ids = [ids[i] for i in members]
+        mine = set(member_ids)
+        out.append(
+            GraspRows(
+                session=session,
+                sense=sense,
+                source=source,
+                ids=member_ids,
+                t=float(t[members].min()),
+                t_end=float(t_end[members].max()),
+                vector=pooled(vecs[members]),
+                members=vecs[members],
+                candidates=[c for c in cands if c.id in mine],
+            )
+        )
+    return out
+
+
+def pool_grasps(
+    ranker: Ranker, q: np.ndarray, sense: str, hits: Sequence[Evidence], rule: GraspRule
+) -> list[Grasp]:
+    """One sense's candidate evidence -> the grasps holding it, scored (``rule.pool``; default
+    the pooled vector) against the sense's transformed query ``q`` (1, D), calibrated like any
+    hit of the sense; best first. Times: the grasp's span, aligned by its stream's clock
+    offset."""
+    qs = ranker.query_for(q, sense)[0]
+    calib = ranker.registry.calibration(sense)
+    out = []
+    for g in find_grasps(ranker.store, ranker.space.dim, hits, rule):
+        best = max(g.candidates, key=lambda e: (e.score, -e.t, e.id))
+        cos = g.cosine(qs, rule.pool)
+        off = best.t_aligned - best.t
+        fields = best.model_dump(exclude={"t", "t_end", "t_aligned", "t_end_aligned", "score"})
+        fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids)
+        out.append(
+            Grasp(
+                **fields,
+                t=g.t,
+                t_end=g.t_end,
+                t_aligned=g.t + off,
+                t_end_aligned=g.t_end + off,
+                score=float(calib.score(cos)),
+                window_score=best.score,
+            )
+        )
+    out.sort(key=lambda g: (-g.score, g.t_aligned, g.id))
+    return out
