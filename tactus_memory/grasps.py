@@ -6,7 +6,7 @@ a maximal run of one stream's items (one session + sense + source), in time orde
 with no boundary between consecutive items, where item *i* starts a new grasp when
 
 1. **contact offset/onset**: ``t[i] - max(t_end of the run so far) > max_gap`` seconds. The
-   stream windowing does not store idle windows (``touch/windows.py``: no taxel pressed), so a
+   touch sense does not store idle windows (``TactusEncoder.validate``: no contact), so a
    release of the hand is a hole in the stored windows; overlapping windows have gaps <= 0;
 2. **change point**: ``cos(v[i], v[i-1]) < min_cos``: the embedding jumps between consecutive
    windows (another object taken without an idle window in between).

@@ -39,6 +39,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from tactus_memory.errors import InvalidInputError, SenseConflictError
+from tactus_memory.rows import options_for
 from tactus_memory.senses import Sense, validate_sense_name
 from tactus_memory.tables import items_schema
 from tactus_memory.vectors import as_unit_rows
@@ -121,7 +122,9 @@ def _embed(store: Store, encoder: Sense, ids: Sequence[str], dim: int) -> np.nda
     """(len(ids), D) new unit vectors from the stored raw inputs of ``ids`` (all present)."""
     rows = store.scan(Where().ids(ids).sql(), ["id", "raw", "text"]).to_pylist()
     by_id = {r["id"]: r for r in rows}
-    items = [encoder.validate(encoder.from_row(by_id[i])) for i in ids]
+    # what is stored is re-embedded as it is: a window kept idle on purpose too (keep_idle)
+    opts = options_for(encoder, {"keep_idle": True})
+    items = [encoder.validate(encoder.from_row(by_id[i]), **opts) for i in ids]
     vecs = as_unit_rows(encoder.embed(items), dim, what=f"{encoder.name} embedding")
     if len(vecs) != len(ids):
         raise InvalidInputError(f"encoder returned {len(vecs)} vectors for {len(ids)} items")

@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
-from tactus_memory.errors import SenseConflictError
+from tactus_memory.errors import IdleWindowError, SenseConflictError
 from tactus_memory.hashing import file_sha256
 from tactus_memory.memory import Memory
 from tactus_memory.reembed import STAGING_PREFIX
@@ -66,6 +66,20 @@ def _vectors(store: Store, ids: list[str]) -> np.ndarray:
 def _b_of_stored(mem: Memory, enc_b: TactusEncoder, ids: list[str]) -> np.ndarray:
     """B's embeddings of the stored (calibrated, float16) raw windows."""
     return enc_b.embed([mem.get_item(i).raw for i in ids])
+
+
+def test_reembed_keeps_a_window_stored_idle(tmp_path, pair, windows, minilm_space) -> None:
+    """A window stored idle on purpose (``keep_idle``) is re-embedded like the others, not
+    refused by the touch sense's idle rule (which refuses it as a new write)."""
+    mem, ids = _store_with_a(tmp_path / "m", pair, windows, minilm_space)
+    idle = np.zeros(windows[0].shape, dtype=np.float32)  # (8, 32, 32) calibrated: no contact
+    with pytest.raises(IdleWindowError):
+        mem.add("s0", "touch", idle, t=100.0)
+    kept = mem.add("s0", "touch", idle, t=100.0, options={"keep_idle": True})
+    enc_b = TactusEncoder(pair.b)
+    report = mem.reembed("touch", enc_b, batch=8)
+    assert report.rows == len(ids) + 1 and report.missing == 0
+    assert np.allclose(_vectors(mem.store, [kept]), _b_of_stored(mem, enc_b, [kept]), atol=1e-4)
 
 
 def test_reembed_swaps_every_vector_to_b(tmp_path, pair, windows, minilm_space) -> None:
