@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from tactus_memory.errors import InvalidIdError, InvalidInputError
 from tactus_memory.memory import Memory
 from tactus_memory.places import POSE_TOLERANCE, Trajectory, check_poses
+from tactus_memory.spatial import Places
 from tactus_memory.tables import items_schema, place_fields
 
 # a 20 s straight walk along x at 1 m/s, poses at 10 Hz, yaw turning 0 -> 90 degrees
@@ -207,6 +208,18 @@ def test_where_and_at(walk) -> None:
     assert [it.session for it in walk.at((2.0, 0.0, 0.5), 1.0, session="s2")] == ["s2"]
     assert walk.at((2.0, 0.0, 0.5), 1.0, after=5.0) == []
     assert [it.t for it in walk.at((0, 0, 0.5), 50.0, session="s1")] == [2.0, 10.0, 17.0]
+
+
+def test_place_questions_have_one_home(walk) -> None:
+    """``memory.where`` / ``at`` / ``add_poses`` are the very methods of ``memory.places``
+    (no second implementation), and a Places built from its parts alone answers the same."""
+    assert walk.where.__func__ is Places.where and walk.at.__self__ is walk.places
+    assert walk.add_poses.__func__ is Places.add_poses
+    alone = Places(walk.store, walk.lock, walk.registry, walk.space, walk.temporal)
+    assert alone.at((2.0, 0.0, 0.5), 1.0) == walk.at((2.0, 0.0, 0.5), 1.0)
+    assert [p.position for p in alone.where("red drill", session="s1")] == [
+        p.position for p in walk.where("red drill", session="s1")
+    ]
 
 
 def test_delete_session_deletes_its_poses(walk) -> None:
