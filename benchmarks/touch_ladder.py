@@ -44,8 +44,10 @@ LADDER: dict[str, str] = {
     "lite_strong": "--pretrained MAE(tactus-lite, 1500x256) --augment strong --steps 2000",
     "mid_strong": "--model tactus-mid --pretrained MAE(tactus-mid, 1500x256) --augment strong "
     "--steps 2000",
-    "lite_distill": "tactus distill --teacher mid_strong_s0 --pretrained MAE(tactus-lite, "
-    "1500x256) --augment strong --steps 2000",
+    "lite_mae": "--pretrained MAE(tactus-lite, 1500x256) --steps 600",
+    "mid_mae": "--model tactus-mid --pretrained MAE(tactus-mid, 1500x256) --steps 600",
+    "lite_distill": "tactus distill --teacher mid_mae_s0 --cosine-weight 1.0 --pretrained "
+    "MAE(tactus-lite, 1500x256) --steps 600",
 }
 KEYS = ("r@1", "r@5", "mrr", "match_other_object_rate", "last_correct", "count_exact")
 
