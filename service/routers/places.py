@@ -138,8 +138,7 @@ def where(
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many places.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
 ) -> PlacesOut:
-    bar = {"threshold": match.threshold, "relative": match.relative}
-    return PlacesOut(query=q, places=memory.where(q, k, gap=gap, scope=scope, **bar))
+    return PlacesOut(query=q, places=memory.where(q, k, gap=gap, scope=scope, match=match))
 
 
 @router.get(
