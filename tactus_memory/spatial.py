@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from typing_extensions import Unpack
 
-from tactus_memory.clocks import session_clock
+from tactus_memory.clocks import pad, session_clock
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
@@ -120,11 +120,11 @@ class Places:
         with self.lock:
             trajectories = self.poses.trajectories(session)
             offsets = _stream_offsets(self.store, session)
-            pad = POSE_TOLERANCE + max((abs(v) for v in offsets.values()), default=0.0)
+            widen = POSE_TOLERANCE + max((abs(v) for v in offsets.values()), default=0.0)
             where = Where().session(session)
             where.parts.append("placed IS NULL OR placed <> 'given'")
             if lo is not None and hi is not None:
-                where.overlaps(lo - pad, hi + pad)
+                where.overlaps(lo - widen, hi + widen)
             cols = ["id", "sense", "source", "t", "t_end", "x", "y", "z", "frame"]
             tbl = self.store.scan(where.sql(), cols)
             if tbl.num_rows == 0:
@@ -223,8 +223,7 @@ class Places:
         scope = Scope(session, senses, source, after, before, near, frame)
         lo, hi = scope.bounds()
         offsets = self.temporal.clocks.offsets()
-        pad = max((abs(v) for v in offsets.values()), default=0.0)
-        where = scope.where(pad)
+        where = scope.where(pad(offsets, scope.session))
         if senses is not None:
             where.senses(self.registry.resolve(senses))
         rows = self.store.scan(where.sql(), HIT_COLUMNS, limit=TIMELINE_MAX + 1).to_pylist()
