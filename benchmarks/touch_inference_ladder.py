@@ -3,8 +3,9 @@
     python benchmarks/touch_inference_ladder.py CKPT [CKPT ...] \
         [--out benchmarks/results/touch_inference_ladder.json]
 
-Over the stream of the 26 held-out blindfolded recordings (``touch/stream_eval.build_stream``,
-the same windows as ``tactus eval --stream``), the natural queries embedded by MiniLM, and the
+Over the stream of the 26 held-out blindfolded recordings
+(``touch/training/stream_eval.build_stream``, the same windows as ``tactus eval --stream``),
+the natural queries embedded by MiniLM, and the
 non-idle windows (what the memory stores), scores text -> touch R@1 / R@5 / MRR in numpy.
 Ranking one sense by cosine is exactly the memory's ranking (its z-score is monotonic in
 cosine within a sense), so ``plain`` reproduces the stream evaluation's served figures.
@@ -36,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.touch.metrics import unit_rows
+from tactus_memory.touch.training.metrics import unit_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 HOLDOUT = "one-per-object@blindfolded"
@@ -80,9 +81,9 @@ def main() -> None:
     args = ap.parse_args()
     from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.spaces.minilm import MiniLMSpace
-    from tactus_memory.touch.stream_eval import build_stream, load_queries
     from tactus_memory.touch.targets import TEMPLATES, build_targets, centre
-    from tactus_memory.touch.train import holdout_recordings, load_data
+    from tactus_memory.touch.training.stream_eval import build_stream, load_queries
+    from tactus_memory.touch.training.train import holdout_recordings, load_data
 
     stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
     data = load_data([stag / "weights_lite", stag / "blindfolded_lite_train"])

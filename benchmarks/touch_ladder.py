@@ -5,7 +5,7 @@
 For every ``RUNS_DIR/<rung>_s<seed>.safetensors`` written by ``tactus train ... --holdout
 one-per-object@blindfolded`` (the commands are in ``LADDER`` below and in the checkpoints
 README), reads the held-out tuple/recording top-1 the training run recorded, then runs the
-real stream evaluation (``touch/stream_eval.py``: real memory, MiniLM, both storage modes)
+real stream evaluation (``touch/training/stream_eval.py``: real memory, MiniLM, both storage modes)
 over the 26 held-out blindfolded recordings, and writes per-run figures plus the mean of the
 seeds per rung. STAG files come from ``$TACTUS_STAG_DIR`` (default ``../shared/data/stag``).
 """
@@ -53,7 +53,7 @@ KEYS = ("r@1", "r@5", "mrr", "match_other_object_rate", "last_correct", "count_e
 
 
 def score_run(ckpt: Path, data: Any) -> dict[str, Any]:
-    from tactus_memory.touch.stream_eval import run_stream_eval
+    from tactus_memory.touch.training.stream_eval import run_stream_eval
 
     meta = json.loads(ckpt.with_suffix(".json").read_text())
     held = meta.get("metrics", {}).get("heldout", {})
@@ -81,7 +81,7 @@ def main() -> None:
     ap.add_argument("runs", type=Path)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/touch_ladder.json")
     args = ap.parse_args()
-    from tactus_memory.touch.train import load_data
+    from tactus_memory.touch.training.train import load_data
 
     stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
     data = load_data([stag / "weights_lite", stag / "blindfolded_lite_train"])

@@ -196,7 +196,7 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         # Reads (sync routes, run_in_threadpool) use the default thread pool; writes never
-        # do (the group committer has its own thread, prepares run on the writer's limiter),
+        # do (the group committer has its own thread, prepares run on the write threads' limiter),
         # so bounding it bounds the reads alone.
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.read_threads
         state.open_committer()

@@ -15,7 +15,7 @@ from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.ingest import GroupCommitter
+from tactus_memory.group_commit import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
@@ -32,7 +32,7 @@ from tactus_memory.memory import Memory
 from tactus_memory.query import Scope
 from tactus_memory.rows import WriteKwargs
 from tactus_memory.service.problems import ServiceUnavailable
-from tactus_memory.service.writes import Writer
+from tactus_memory.service.writes import WriteThreads
 from tactus_memory.settings import Settings
 from tactus_memory.where import Near, check_near, validate_frame
 
@@ -44,7 +44,7 @@ class ServiceState:
     settings: Settings
     memory: Memory
     touch_unavailable: str | None = None
-    writer: Writer | None = None
+    write_threads: WriteThreads | None = None
     committer: GroupCommitter | None = None
     #: the store's directory cannot be written: write routes answer 503 (reads still work)
     read_only: bool = False
@@ -57,8 +57,8 @@ class ServiceState:
     load_error: BaseException | None = None
 
     def __post_init__(self) -> None:
-        if self.writer is None:
-            self.writer = Writer(self.settings.write_threads)
+        if self.write_threads is None:
+            self.write_threads = WriteThreads(self.settings.write_threads)
 
     def open_committer(self) -> GroupCommitter:
         """The running group committer (a new one after a shutdown closed the last)."""
@@ -79,8 +79,10 @@ class ServiceState:
         validates the items, the write is queued), run on the writer threads; returns the ids
         once the group commit stored them (OverloadedError at once when the queue is full:
         503 + Retry-After)."""
-        assert self.writer is not None
-        queued = await self.writer.run(self.open_committer().submit, session, sense, items, **kw)
+        assert self.write_threads is not None
+        queued = await self.write_threads.run(
+            self.open_committer().submit, session, sense, items, **kw
+        )
         return await asyncio.wrap_future(queued)
 
 
@@ -96,12 +98,12 @@ def get_memory(state: Annotated[ServiceState, Depends(get_state)]) -> Memory:
     return state.memory
 
 
-def get_writer(state: Annotated[ServiceState, Depends(get_state)]) -> Writer:
-    return state.writer
+def get_write_threads(state: Annotated[ServiceState, Depends(get_state)]) -> WriteThreads:
+    return state.write_threads
 
 
 StateDep = Annotated[ServiceState, Depends(get_state)]
-WriterDep = Annotated[Writer, Depends(get_writer)]
+WriteThreadsDep = Annotated[WriteThreads, Depends(get_write_threads)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 #: the ``tactus_memory.memory.Memory`` behind the app
 MemoryDep = Annotated[Memory, Depends(get_memory)]

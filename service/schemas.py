@@ -19,7 +19,7 @@ from tactus_memory.limits import (
     SOURCE_PATTERN,
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
-from tactus_memory.models import (
+from tactus_memory.results import (
     ClockOffset,
     Evidence,
     Grasp,

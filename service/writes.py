@@ -2,7 +2,7 @@
 ``.npy`` bodies, images) off the event loop, few at a time.
 
 They are not the read pool: reads keep the default threadpool. The embedding and the LanceDB
-commit itself run on the group committer's own thread (``tactus_memory.ingest``); a write's
+commit itself run on the group committer's own thread (``tactus_memory.group_commit``); a write's
 coroutine resumes, and its 201 or WebSocket ack is sent, only after that commit returned.
 """
 
@@ -18,7 +18,10 @@ import anyio.to_thread
 T = TypeVar("T")
 
 
-class Writer:
+class WriteThreads:
+    """A few worker threads (a capacity limiter) that parse and validate write bodies and
+    queue them for the group committer: they never commit themselves."""
+
     def __init__(self, threads: int = 2) -> None:
         self.threads = threads
         self._limiter: anyio.CapacityLimiter | None = None

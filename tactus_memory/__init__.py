@@ -12,7 +12,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "Memory": "tactus_memory.memory",
     "Client": "tactus_memory.client",
-    "Hit": "tactus_memory.models",
+    "Hit": "tactus_memory.results",
     "Sense": "tactus_memory.senses",
     "TextSense": "tactus_memory.senses",
     "ImageSense": "tactus_memory.senses",

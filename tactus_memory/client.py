@@ -50,7 +50,8 @@ from tactus_memory.matching import (
     MatchKwargs,
     split_match,
 )
-from tactus_memory.models import (
+from tactus_memory.query import Scope, ScopeKwargs
+from tactus_memory.results import (
     ClockOffset,
     Context,
     Grasp,
@@ -61,7 +62,6 @@ from tactus_memory.models import (
     SessionSummary,
     TimelineItem,
 )
-from tactus_memory.query import Scope, ScopeKwargs
 from tactus_memory.rows import WriteKwargs, check_batch, per_item
 from tactus_memory.senses import VectorSense
 from tactus_memory.temporal import AroundKwargs, OccurrenceKwargs

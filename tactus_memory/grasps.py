@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.models import Evidence, Grasp
+from tactus_memory.results import Evidence, Grasp
 from tactus_memory.vectors import vector_column
 from tactus_memory.where import Where, finite_float
 

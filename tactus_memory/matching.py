@@ -52,8 +52,8 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.models import Evidence, Hit, Moment
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
+from tactus_memory.results import Evidence, Hit, Moment
 from tactus_memory.senses import validate_sense_name
 from tactus_memory.where import finite_float
 

@@ -24,7 +24,7 @@ re-added with ``add_sense``; their registration (name, modality, dim, provenance
 without its live object: its query transform is rebuilt from the stored centroid
 (``q - c``, renormalised).
 
-Where the parts live: result models in :mod:`tactus_memory.models`, the sense registry
+Where the parts live: result models in :mod:`tactus_memory.results`, the sense registry
 (live/stored senses, counts, calibration) in :mod:`tactus_memory.registry`, the ranked search
 in :mod:`tactus_memory.ranking`, query checks and the :class:`~tactus_memory.query.Scope` in
 :mod:`tactus_memory.query`, the temporal operators in :mod:`tactus_memory.temporal`
@@ -53,10 +53,10 @@ from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.grasps import GraspRule, check_group
 from tactus_memory.maintenance import Background, MaintenanceConfig
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
-from tactus_memory.models import Grasp, Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.ranking import Ranker
 from tactus_memory.registry import SenseRegistry
+from tactus_memory.results import Grasp, Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
 from tactus_memory.rows import (
     WriteKwargs,
     options_for,

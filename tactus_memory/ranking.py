@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.models import Hit, hit_from_row
 from tactus_memory.registry import SenseRegistry
+from tactus_memory.results import Hit, hit_from_row
 from tactus_memory.scoring import Calibration
 from tactus_memory.store import Store
 from tactus_memory.vectors import as_unit_rows

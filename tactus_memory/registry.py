@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError, SenseConflictError, UnknownSenseError
-from tactus_memory.models import SenseInfo
 from tactus_memory.plugins import lookup, registered_name
+from tactus_memory.results import SenseInfo
 from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space

@@ -15,8 +15,8 @@ import numpy as np
 
 from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
-from tactus_memory.models import SessionSummary
 from tactus_memory.places import Placement, given_placement
+from tactus_memory.results import SessionSummary
 from tactus_memory.senses import Sense
 from tactus_memory.store import Store
 from tactus_memory.vectors import as_unit_rows

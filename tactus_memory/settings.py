@@ -35,7 +35,7 @@ from tactus_memory.maintenance import MaintenanceConfig
 DEFAULT_MEMORY = "./memory"
 #: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
 DEFAULT_READ_CONSISTENCY_S = 1.0
-#: group commit defaults (tactus_memory.ingest): 25 ms is under one 30 Hz frame period
+#: group commit defaults (tactus_memory.group_commit): 25 ms is under one 30 Hz frame period
 #: (33 ms), so a glove's window never waits for more than about one frame; a 64-glove tick
 #: at 30 Hz carries ~6-60 windows; 1024 pending items are ~4 s of 64 gloves at 30 Hz
 DEFAULT_COMMIT_TICK_MS = 25.0

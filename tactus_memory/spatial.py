@@ -30,10 +30,10 @@ from tactus_memory.clocks import pad, session_clock
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
-from tactus_memory.models import Place, TimelineItem, TrajectoryOut, row_fields
 from tactus_memory.places import POSE_TOLERANCE, Placement, check_poses, place_many
 from tactus_memory.posestore import PoseStore
 from tactus_memory.query import Scope, embed_query
+from tactus_memory.results import Place, TimelineItem, TrajectoryOut, row_fields
 from tactus_memory.store import HIT_COLUMNS
 from tactus_memory.where import (
     DEFAULT_FRAME,

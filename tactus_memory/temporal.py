@@ -58,7 +58,10 @@ from tactus_memory.matching import (
     sense_bar,
     split_match,
 )
-from tactus_memory.models import (
+from tactus_memory.query import Scope, check_k, embed_query
+from tactus_memory.ranking import Ranker
+from tactus_memory.registry import SenseRegistry
+from tactus_memory.results import (
     ClockOffset,
     Context,
     Evidence,
@@ -69,9 +72,6 @@ from tactus_memory.models import (
     TimelineItem,
     row_fields,
 )
-from tactus_memory.query import Scope, check_k, embed_query
-from tactus_memory.ranking import Ranker
-from tactus_memory.registry import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.store import HIT_COLUMNS, Store
 from tactus_memory.vectors import vector_column

@@ -2,7 +2,7 @@
 and store prepared writes in one LanceDB commit (:meth:`WritePath.commit_writes`).
 
 ``memory.prepare_write``, ``memory.commit_writes`` and ``memory.validate_item`` ARE these
-methods; ``memory.add`` / ``add_many``, the group committer (:mod:`tactus_memory.ingest`),
+methods; ``memory.add`` / ``add_many``, the group committer (:mod:`tactus_memory.group_commit`),
 the service and recordings all write through them. Row-level helpers (batches, ids, the
 Arrow table written): :mod:`tactus_memory.rows`.
 """
@@ -62,7 +62,7 @@ class WritePath:
         session's poses), in ``frame``.
 
         Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
-        alone or with the writes of other sessions (group commit, ``tactus_memory.ingest``).
+        alone or with the writes of other sessions (group commit, ``tactus_memory.group_commit``).
         """
         session = validate_id(session, "session id")
         source = validate_source(source)

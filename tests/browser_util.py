@@ -141,8 +141,8 @@ def stag_windows(stag_dir: Path, n: int, k: int = 8) -> list[tuple[np.ndarray, s
     """``n`` windows of ``k`` consecutive raw frames from a real STAG file (``weights_lite``
     when present), each from a different object, the firmest grasp of each (the mean of the
     30 strongest taxels): [(window int16, object name)]."""
-    from tactus_memory.touch.data import load_stag
     from tactus_memory.touch.profile import calibrate
+    from tactus_memory.touch.training.data import load_stag
 
     subs = sorted(p for p in stag_dir.iterdir() if (p / "metadata.mat").exists())
     sub = next((p for p in subs if p.name.startswith("weights")), subs[0] if subs else None)

@@ -190,14 +190,8 @@ NOT_SERVED = (
     "matplotlib",
     "tactus_memory.cli",
     "tactus_memory.stag_fetch",
-    *(
-        f"tactus_memory.touch.{m}"
-        for m in (
-            "ablate", "augment", "baseline", "data", "eval_runs", "evaluate", "metrics",
-            "pretrain", "report", "stag_io", "stream_eval", "train", "tuples",
-        )
-    ),
-)  # fmt: skip
+    "tactus_memory.touch.training",
+)
 
 
 def test_serving_loads_nothing_of_training_plotting_or_mat_reading(tmp_path: Path) -> None:

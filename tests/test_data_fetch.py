@@ -31,7 +31,7 @@ from tactus_memory.stag_fetch import (
     import_stag,
     parse_pins,
 )
-from tactus_memory.touch.data import load_stag
+from tactus_memory.touch.training.data import load_stag
 from tests.stag_synth import make_fields, write_subset
 
 SUBSETS = ("weights_lite", "blindfolded_lite")

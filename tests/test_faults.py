@@ -20,7 +20,7 @@ import httpx
 import pytest
 from typer.testing import CliRunner
 
-from tactus_memory.ingest import GroupCommitter
+from tactus_memory.group_commit import GroupCommitter
 from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
 from tactus_memory.service.app import create_app

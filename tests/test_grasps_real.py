@@ -1,7 +1,7 @@
 """Grasps on the real path (issue 22): real MiniLM, real LanceDB, a real tactus-tiny
 checkpoint (tests/touch_pair.py) as the touch sense, windows cut from synthetic STAG
 recordings by the stream windowing and laid end to end as one session
-(``touch/stream_eval.build_stream``); plus ``tactus eval --stream --group grasp``."""
+(``touch/training/stream_eval.build_stream``); plus ``tactus eval --stream --group grasp``."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.memory import Memory
-from tactus_memory.models import Grasp
-from tactus_memory.touch.data import load_stag
-from tactus_memory.touch.stream_eval import (
+from tactus_memory.results import Grasp
+from tactus_memory.touch.training.data import load_stag
+from tactus_memory.touch.training.stream_eval import (
     build_stream,
     evaluate_stream,
     load_queries,

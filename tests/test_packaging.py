@@ -40,7 +40,7 @@ def test_wheel_maps_adapters_and_service_under_tactus_memory(tmp_path: Path) -> 
     # the data folders ship (issue 26: as packages of their own, so setuptools stays quiet)
     assert "tactus_memory/touch/checkpoints/tactus-lite-minilm.safetensors" in names
     assert "tactus_memory/touch/configs/tactus-lite.json" in names
-    assert "tactus_memory/touch/queries/stream_queries.json" in names
+    assert "tactus_memory/touch/training/queries/stream_queries.json" in names
     assert "tactus_memory/service/static/app.js" in names
     log = built.stdout + built.stderr
     assert "building" in log.lower()  # the backend's output was captured

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from tactus_memory.episodes import segment
 from tactus_memory.matching import group_moments
 from tactus_memory.memory import Memory
-from tactus_memory.models import Evidence
+from tactus_memory.results import Evidence
 from tactus_memory.senses import VectorSense
 from tactus_memory.tables import IndexConfig
 from tactus_memory.where import Where

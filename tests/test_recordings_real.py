@@ -32,7 +32,7 @@ TOPICS = {"/notes": "text", "/glove/pressure": "touch"}
 @pytest.fixture(scope="module")
 def glove_frames(stag_dir: Path) -> np.ndarray:
     """(192, 32, 32) int16 raw: 96 frames of the mug recording, then 96 of the tape."""
-    from tactus_memory.touch.data import load_stag
+    from tactus_memory.touch.training.data import load_stag
 
     data = load_stag(stag_dir / "weights_lite" / "metadata.mat")
     parts = []

@@ -22,8 +22,8 @@ from tactus_memory.matching import (
     resolve_thresholds,
 )
 from tactus_memory.memory import Memory
-from tactus_memory.models import Evidence, Moment
 from tactus_memory.query import Scope
+from tactus_memory.results import Evidence, Moment
 from tactus_memory.temporal import Temporal
 from tests.fakes import HashingSpace
 from tests.kitchen import (

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactus_memory.touch.train import holdout_recordings, load_data, prepare_data
+from tactus_memory.touch.training.train import holdout_recordings, load_data, prepare_data
 from tactus_memory.touch.windows import CONTACT_MIN_TAXELS, contact_taxels
 
 

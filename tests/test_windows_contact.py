@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.data import combine, load_stag
+from tactus_memory.touch.training.data import combine, load_stag
 from tactus_memory.touch.windows import (
     CONTACT_MIN_TAXELS,
     WindowStream,

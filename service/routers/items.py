@@ -18,7 +18,7 @@ from fastapi import APIRouter, File, Form, UploadFile
 from tactus_memory.errors import CapabilityError, InvalidInputError
 from tactus_memory.limits import ID_PATTERN
 from tactus_memory.service.arrays import loads_strict
-from tactus_memory.service.deps import MemoryDep, SessionId, StateDep, WriterDep
+from tactus_memory.service.deps import MemoryDep, SessionId, StateDep, WriteThreadsDep
 from tactus_memory.service.images import decode_image
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
@@ -81,7 +81,7 @@ async def add_vectors(session: SessionId, body: VectorsIn, state: StateDep) -> S
 async def add_image(
     session: SessionId,
     memory: MemoryDep,
-    writer: WriterDep,
+    threads: WriteThreadsDep,
     state: StateDep,
     file: Annotated[UploadFile, File(description="PNG/JPEG/... image.")],
     t: Annotated[float, Form(allow_inf_nan=False)],
@@ -99,7 +99,7 @@ async def add_image(
         meta_obj = loads_strict(meta)
         if not isinstance(meta_obj, dict):
             raise InvalidInputError("meta must be a JSON object")
-    image = await writer.run(decode_image, await file.read())
+    image = await threads.run(decode_image, await file.read())
     ids = await state.write(
         session,
         "image",

@@ -23,7 +23,7 @@ from tactus_memory.matching import (
     RELATIVE_KEEP,
     Match,
 )
-from tactus_memory.models import Occurrences, Side
+from tactus_memory.results import Occurrences, Side
 from tactus_memory.service.deps import (
     GraspPool,
     MemoryDep,

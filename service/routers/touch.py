@@ -22,7 +22,7 @@ from tactus_memory.service.deps import (
     SessionId,
     StateDep,
     TouchAvailable,
-    WriterDep,
+    WriteThreadsDep,
 )
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
@@ -128,7 +128,7 @@ async def add_touch(
     session: SessionId,
     request: Request,
     memory: MemoryDep,
-    writer: WriterDep,
+    threads: WriteThreadsDep,
     state: StateDep,
     t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
     t_end: Annotated[list[float] | None, Query(description="npy body only: end time(s).")] = None,

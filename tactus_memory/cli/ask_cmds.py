@@ -37,7 +37,7 @@ from tactus_memory.cli.remote import get_json, session_path
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 
 if TYPE_CHECKING:
-    from tactus_memory.models import Moment, Occurrences
+    from tactus_memory.results import Moment, Occurrences
 
 Query = typer.Argument(..., help="What happened, in natural language.")
 
@@ -53,7 +53,7 @@ def _occurrences(
 ) -> Occurrences:
     """Every occurrence of ``query`` in scope, from the store (``--data``) or a server."""
     from tactus_memory.errors import TactusError
-    from tactus_memory.models import Occurrences
+    from tactus_memory.results import Occurrences
 
     data, url, token = where
     one_source(data, url)
@@ -205,7 +205,7 @@ def timeline(
     A read: episodes not yet stored are computed for the answer, not written."""
     from tactus_memory.episodes import Episode
     from tactus_memory.errors import TactusError
-    from tactus_memory.models import TimelineItem
+    from tactus_memory.results import TimelineItem
 
     one_source(data, url)
     if url:

@@ -77,7 +77,7 @@ LearningRate = Annotated[float, typer.Option("--lr")]
 CheckpointOut = Annotated[Path, typer.Option("--out", help="checkpoint to write (.safetensors)")]
 Resume = Annotated[bool, typer.Option("--resume", help="continue from OUT.resume.pt")]
 #: the recordings ``tactus pretrain`` and ``tactus train`` keep out (the grammar of
-#: :func:`tactus_memory.touch.train.holdout_recordings`)
+#: :func:`tactus_memory.touch.training.train.holdout_recordings`)
 TrainHoldout = Annotated[
     str,
     typer.Option(

@@ -22,8 +22,8 @@ def inspect_summary(path: Path, profile_name: str = "stag-glove") -> dict[str, A
     import numpy as np
 
     from tactus_memory.errors import DynamicRangeError
-    from tactus_memory.touch.data import load_stag
     from tactus_memory.touch.profile import check_dynamic_range, dynamic_range_report, get_profile
+    from tactus_memory.touch.training.data import load_stag
 
     profile = get_profile(profile_name)
     data = load_stag(path)

@@ -141,7 +141,7 @@ def search(
     Scores are calibrated z-scores comparable across senses; a hit matches when its score
     reaches its sense's bar for this query, the rule of last/first/count."""
     from tactus_memory.errors import TactusError
-    from tactus_memory.models import Hit
+    from tactus_memory.results import Hit
 
     one_source(data, url)
     if url:
@@ -186,7 +186,7 @@ def sessions(
 ) -> None:
     """List sessions: item counts per sense and time span."""
     from tactus_memory.errors import TactusError
-    from tactus_memory.models import SessionSummary
+    from tactus_memory.results import SessionSummary
 
     one_source(data, url)
     if url:

@@ -55,9 +55,9 @@ def pretrain_cmd(
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
-    from tactus_memory.touch.pretrain import PretrainConfig, pretrain, recipe_warmup
     from tactus_memory.touch.profile import STAG_GLOVE
-    from tactus_memory.touch.train import _resolve_device, holdout_recordings, load_data
+    from tactus_memory.touch.training.pretrain import PretrainConfig, pretrain, recipe_warmup
+    from tactus_memory.touch.training.train import _resolve_device, holdout_recordings, load_data
 
     d = load_data(data)
     d.check_dynamic_range(STAG_GLOVE)  # per source file; raises DynamicRangeError
@@ -99,8 +99,8 @@ def training_run(
     shared options; ``recipe``: TrainConfig fields (model, steps, batch, lr, seed, half,
     consecutive, weight_decay). Returns (TrainData, Targets, TrainConfig, the space's dim)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    from tactus_memory.touch.augment import AUGMENT_PRESETS, augment_preset
-    from tactus_memory.touch.train import BALANCE, POSITIVES
+    from tactus_memory.touch.training.augment import AUGMENT_PRESETS, augment_preset
+    from tactus_memory.touch.training.train import BALANCE, POSITIVES
 
     # refuse a typo before the data is read and the targets embedded
     for flag, value, choices in (
@@ -112,9 +112,14 @@ def training_run(
             raise typer.BadParameter(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
     set_threads(threads)
     sp = resolve_or_exit(space, space_path, space_dim)
-    from tactus_memory.touch.pretrain import recipe_warmup
     from tactus_memory.touch.targets import build_targets, target_report
-    from tactus_memory.touch.train import TrainConfig, holdout_recordings, load_data, prepare_data
+    from tactus_memory.touch.training.pretrain import recipe_warmup
+    from tactus_memory.touch.training.train import (
+        TrainConfig,
+        holdout_recordings,
+        load_data,
+        prepare_data,
+    )
 
     d = load_data(data)
     td = prepare_data(d, holdout_recordings(d, holdout), positives=positives)
@@ -165,7 +170,7 @@ def train_cmd(
         steps=steps, batch=batch, lr=lr, seed=seed, half=half, consecutive=consecutive,
         weight_decay=weight_decay,
     )  # fmt: skip
-    from tactus_memory.touch.train import fit
+    from tactus_memory.touch.training.train import fit
 
     summary = fit(
         td, targets, cfg, out, space_dim=dim, pretrained=pretrained, device=device, resume=resume
@@ -213,7 +218,7 @@ def distill_cmd(
     """Train a (fast) student as `tactus train` does, plus a loss pulling its embeddings
     towards the teachers' (mean of their unit embeddings of the same augmented windows).
     Teachers must be in the student's space and calibration; their sha256 are recorded."""
-    from tactus_memory.touch.distill import DistillConfig, TeacherMismatchError, distill
+    from tactus_memory.touch.training.distill import DistillConfig, TeacherMismatchError, distill
 
     try:
         dcfg = DistillConfig(cosine_weight=cosine_weight, relational_weight=relational_weight)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, Field
 
-from tactus_memory.models import Moment, SessionSummary
+from tactus_memory.results import Moment, SessionSummary
 from tactus_memory.senses import bytes_to_array
 from tactus_memory.store import Store
 from tactus_memory.touch.windows import contact_taxels

@@ -1,6 +1,6 @@
 """The sensor profile: how raw glove readings become calibrated pressure, and the dynamic-range
-gate that makes a wrongly scaled subset loud. Shared by training (``touch/data.py``), the touch
-sense (``adapters/touch.py``) and the service.
+gate that makes a wrongly scaled subset loud. Shared by training
+(``touch/training/data.py``), the touch sense (``adapters/touch.py``) and the service.
 
 Every subset is calibrated with the sensor's own affine ``clip((raw - 500) / 150, 0, 1)``
 (the STAG reference code; the paper, Sec. Method "Data path"), identically for every subset.

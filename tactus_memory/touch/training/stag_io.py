@@ -2,7 +2,7 @@
 v7.3 (HDF5) through h5py, whose arrays come back with MATLAB's axes reversed (``pressure`` is
 (32, 32, N) there) and are transposed back, and whose cell arrays of strings are object
 references to uint16 ``char`` datasets. :func:`read_mat_fields` returns the raw variables;
-``touch/data.py`` builds the dataset from them.
+``touch/training/data.py`` builds the dataset from them.
 """
 
 from __future__ import annotations

@@ -29,8 +29,8 @@ from threadpoolctl import threadpool_limits
 from tactus_memory.errors import InvalidInputError
 
 if TYPE_CHECKING:
-    from tactus_memory.touch.data import StagData
     from tactus_memory.touch.profile import SensorProfile
+    from tactus_memory.touch.training.data import StagData
 
 PCA_COMPONENTS = 8  # STAG ObjectClusterDataset: PCA to 8 components before k-means
 KMEANS_N_INIT = 50  # STAG ObjectClusterDataset: KMeans(k-means++, n_init=50)
@@ -115,7 +115,7 @@ class TupleSampler:
             )
         if frames.size and (float(frames.min()) < 0.0 or float(frames.max()) > 1.0):
             raise InvalidInputError(
-                "TupleSampler expects calibrated frames in [0, 1] (tactus_memory.touch.data."
+                "TupleSampler expects calibrated frames in [0, 1] (tactus_memory.touch.profile."
                 f"calibrate), got values {frames.min()}..{frames.max()}"
             )
         if mode not in MODES:

@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.touch.evaluate import CONFUSION_LABEL_MIN, EvalResult
-from tactus_memory.touch.metrics import KSWEEP, SCALAR_METRICS
+from tactus_memory.touch.training.evaluate import CONFUSION_LABEL_MIN, EvalResult
+from tactus_memory.touch.training.metrics import KSWEEP, SCALAR_METRICS
 
 COLUMNS = (
     ("top1", "top-1"),

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.touch.metrics import mean_std
+from tactus_memory.touch.training.metrics import mean_std
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space
@@ -86,9 +86,9 @@ def run_ablation(
     receives the result so far after every run (the CLI writes it, so a cut-off run keeps
     what finished)."""
     from tactus_memory.spaces import get_space
-    from tactus_memory.touch.pretrain import PretrainConfig, pretrain, recipe_warmup
     from tactus_memory.touch.targets import build_targets
-    from tactus_memory.touch.train import (
+    from tactus_memory.touch.training.pretrain import PretrainConfig, pretrain, recipe_warmup
+    from tactus_memory.touch.training.train import (
         TrainConfig,
         fit,
         holdout_recordings,

@@ -1,6 +1,6 @@
 """Evaluation metrics, pure functions over arrays: top-k accuracy, confusion, per-class
 accuracy, window tiling, the confusion-vs-text-similarity correlation, run aggregation.
-:mod:`tactus_memory.touch.evaluate` scores checkpoints with them."""
+:mod:`tactus_memory.touch.training.evaluate` scores checkpoints with them."""
 
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ Protocol (paper, Method "Evaluation"; stag-format.md "Reference sampling"):
   for the weights subset) of the chosen split. ``split="test"`` keeps each file's 'test'
   frames; a file without a split field (``weights``) is scored whole. ``split="all"`` keeps
   every valid frame. A ``holdout`` spec (the same grammar as ``tactus train --holdout``,
-  :func:`tactus_memory.touch.train.holdout_recordings`) restricts scoring to exactly the
+  :func:`tactus_memory.touch.training.train.holdout_recordings`) restricts scoring to exactly the
   recordings that training run held out (all their valid frames, whatever the split), so a
   validation run is re-scored on the same frames its own summary used.
 - **Tuples.** Anchors are scope frames that are ``isBalanced``; each anchor gets one cluster
@@ -48,14 +48,14 @@ from tqdm.auto import tqdm
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.hashing import file_sha256
 from tactus_memory.touch.targets import centre, natural_name
-from tactus_memory.touch.tuples import TupleSampler
+from tactus_memory.touch.training.tuples import TupleSampler
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space
     from tactus_memory.touch.checkpoint import Checkpoint
-    from tactus_memory.touch.data import StagData
+    from tactus_memory.touch.training.data import StagData
 
-from tactus_memory.touch.metrics import (
+from tactus_memory.touch.training.metrics import (
     KSWEEP,
     RECORDING_POOL,
     _nan_to_none,
@@ -72,7 +72,7 @@ from tactus_memory.touch.metrics import (
     unit_rows,
 )
 
-EVAL_SEED = 1234  # same fixed tiling seed as tactus_memory.touch.train.EVAL_SEED
+EVAL_SEED = 1234  # same fixed tiling seed as tactus_memory.touch.training.train.EVAL_SEED
 DEFAULT_VOTES = 4  # paper: tuple voting over four draws
 CONFUSION_LABEL_MIN = 0.08  # paper Fig. confusion: off-diagonal cells >= 0.08 are labelled
 
@@ -147,7 +147,7 @@ def select_eval_frames(
     the split. ``calibrated``: precomputed (N, 32, 32) frames (default: the STAG_GLOVE affine).
     """
     from tactus_memory.touch.profile import STAG_GLOVE
-    from tactus_memory.touch.train import holdout_recordings
+    from tactus_memory.touch.training.train import holdout_recordings
 
     held = None
     label = split
@@ -222,7 +222,7 @@ class EmbeddingScorer:
 
 def tactus_scorer(ckpt: Checkpoint, batch: int = 256, device: str = "cpu") -> EmbeddingScorer:
     """A loaded Tactus checkpoint as a scorer (centred targets, as in training)."""
-    from tactus_memory.touch.train import embed_windows
+    from tactus_memory.touch.training.train import embed_windows
 
     model = ckpt.model
 

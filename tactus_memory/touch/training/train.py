@@ -31,13 +31,13 @@ import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from tactus_memory.touch.augment import AugmentConfig, augment
 from tactus_memory.touch.checkpoint import load_resume, resume_path, save_checkpoint, save_resume
-from tactus_memory.touch.metrics import RECORDING_POOL, recording_windows, topk_accuracy
 from tactus_memory.touch.model import TactusModel, batched_forward, create_model, param_report
-from tactus_memory.touch.pretrain import load_pretrained_trunk, lr_at
 from tactus_memory.touch.targets import Targets, target_report
-from tactus_memory.touch.tuples import RESAMPLE_EVERY, TupleSampler, consecutive_windows
+from tactus_memory.touch.training.augment import AugmentConfig, augment
+from tactus_memory.touch.training.metrics import RECORDING_POOL, recording_windows, topk_accuracy
+from tactus_memory.touch.training.pretrain import load_pretrained_trunk, lr_at
+from tactus_memory.touch.training.tuples import RESAMPLE_EVERY, TupleSampler, consecutive_windows
 
 log = logging.getLogger(__name__)
 
@@ -147,7 +147,7 @@ def holdout_recordings(data: Any, spec: str) -> list[int]:
 
 def load_data(paths: Sequence[str | os.PathLike[str]]) -> Any:
     """Load and combine STAG files (the data engineer's reader)."""
-    from tactus_memory.touch.data import combine, load_stag
+    from tactus_memory.touch.training.data import combine, load_stag
 
     parts = [load_stag(p) for p in paths]
     return parts[0] if len(parts) == 1 else combine(parts)

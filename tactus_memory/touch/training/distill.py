@@ -1,6 +1,6 @@
 """Distillation: a fast student learns one or more teachers' embeddings plus the labels.
 
-The student is trained by :func:`tactus_memory.touch.train.fit` (same tuples, same
+The student is trained by :func:`tactus_memory.touch.training.train.fit` (same tuples, same
 augmentation, same schedule, same resume state) with one extra loss term on every step:
 
     t      = normalize(mean over teachers of the teachers' unit embeddings of the SAME
@@ -29,7 +29,7 @@ import torch.nn.functional as F
 
 from tactus_memory.touch.checkpoint import Checkpoint, load_checkpoint
 from tactus_memory.touch.targets import Targets
-from tactus_memory.touch.train import TrainConfig, TrainData, _resolve_device, fit
+from tactus_memory.touch.training.train import TrainConfig, TrainData, _resolve_device, fit
 
 log = logging.getLogger(__name__)
 

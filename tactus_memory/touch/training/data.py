@@ -1,5 +1,6 @@
 """The STAG dataset: :class:`StagData` built from a ``metadata.mat`` (read by
-:mod:`tactus_memory.touch.stag_io`, calibrated and gated by :mod:`tactus_memory.touch.profile`,
+:mod:`tactus_memory.touch.training.stag_io`, calibrated and gated by
+:mod:`tactus_memory.touch.profile`,
 ), masks, and :func:`combine`.
 
 Spec: ``../shared/stag-format.md``. Every subset is calibrated with the sensor's own affine
@@ -41,7 +42,7 @@ from tactus_memory.touch.profile import (
     SensorProfile,
     check_dynamic_range,
 )
-from tactus_memory.touch.stag_io import _resolve, read_mat_fields
+from tactus_memory.touch.training.stag_io import _resolve, read_mat_fields
 
 PER_FRAME_FIELDS = (
     "pressure",

@@ -49,7 +49,7 @@ from tactus_memory.touch.model import BasicBlock, batched_forward
 from tactus_memory.touch.profile import FRAME_SHAPE
 
 if TYPE_CHECKING:
-    from tactus_memory.touch.train import TrainData
+    from tactus_memory.touch.training.train import TrainData
 
 BASELINE_META_KEY = "tactus_baseline"
 FORMAT = "tactus-stag-baseline/1"

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.evaluate import (
+from tactus_memory.touch.training.evaluate import (
     DEFAULT_VOTES,
     EVAL_SEED,
     EvalResult,
@@ -22,7 +22,7 @@ from tactus_memory.touch.evaluate import (
     select_eval_frames,
     tactus_scorer,
 )
-from tactus_memory.touch.metrics import SCALAR_METRICS, aggregate_runs
+from tactus_memory.touch.training.metrics import SCALAR_METRICS, aggregate_runs
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space
@@ -43,7 +43,7 @@ HELDOUT_KEYS = (
 
 def load_eval_data(paths: list[Path]) -> tuple[Any, list[dict[str, Any]]]:
     """Load each file (fingerprinted), combine, run the dynamic-range gate per subset."""
-    from tactus_memory.touch.data import combine, load_stag
+    from tactus_memory.touch.training.data import combine, load_stag
 
     parts = [load_stag(p) for p in paths]
     fps = [file_fingerprint(d, p) for d, p in zip(parts, paths, strict=True)]
@@ -130,13 +130,13 @@ def train_baseline_run(
     """Train the STAG reference CNN (``cfg``: a ``BaselineConfig``) on the non-held-out frames,
     saving the latest epoch as it goes (no model selection); with a holdout, score the held-out
     recordings. Returns (the checkpoint's sha256, its metadata)."""
-    from tactus_memory.touch.baseline import (
+    from tactus_memory.touch.training.baseline import (
         BaselineScorer,
         baseline_meta,
         save_baseline,
         train_baseline,
     )
-    from tactus_memory.touch.train import holdout_recordings, prepare_data
+    from tactus_memory.touch.training.train import holdout_recordings, prepare_data
 
     d, fps = load_eval_data(data)
     td = prepare_data(d, holdout_recordings(d, holdout))
@@ -209,11 +209,11 @@ def load_scorer(path: str | Path, device: str = "cpu") -> tuple[Scorer, dict[str
             ),
         }
         return tactus_scorer(ckpt, device=device), info
-    from tactus_memory.touch.baseline import BASELINE_META_KEY, load_baseline
+    from tactus_memory.touch.training.baseline import BASELINE_META_KEY, load_baseline
 
     if BASELINE_META_KEY in md:
         net, meta = load_baseline(path, device=device)
-        from tactus_memory.touch.baseline import BaselineScorer
+        from tactus_memory.touch.training.baseline import BaselineScorer
 
         info = {
             "path": str(path),

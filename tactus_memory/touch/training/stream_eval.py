@@ -47,7 +47,7 @@ from tactus_memory.touch.windows import cut_windows
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space
-    from tactus_memory.touch.data import StagData
+    from tactus_memory.touch.training.data import StagData
 
 #: the natural queries, one list of phrasings per STAG class (written for this evaluation)
 QUERIES_PATH = Path(__file__).parent / "queries" / "stream_queries.json"
@@ -354,7 +354,7 @@ def run_stream_eval(
 ) -> dict[str, Any]:
     """The whole stream evaluation from loaded data: the recordings ``holdout`` names (the
     training grammar, e.g. ``one-per-object@blindfolded``; the first ``limit`` when > 0)."""
-    from tactus_memory.touch.train import holdout_recordings
+    from tactus_memory.touch.training.train import holdout_recordings
 
     try:
         recs = holdout_recordings(data, holdout)
