@@ -49,10 +49,10 @@ from tactus_memory.plugins import register
 from tactus_memory.recordings.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
+from tactus_memory.storage.vectors import as_unit_rows
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import CONTACT_LEVEL, CONTACT_MIN_TAXELS, window_idle
-from tactus_memory.vectors import as_unit_rows
 
 
 class CalibratedWindow(np.ndarray):

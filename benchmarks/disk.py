@@ -10,7 +10,7 @@ and index files the latest version references), versions kept, fragments, rows.
 Policies (``--policy``):
   legacy  what the store did before issue 11: LanceDB ``optimize(cleanup_older_than=1 h)``
           every 64 appends (compacts every fragment under 1M rows, i.e. the whole table)
-  tiered  ``tactus_memory.maintenance`` (size-tiered compaction, incremental index refresh,
+  tiered  ``tactus_memory.storage.maintenance`` (size-tiered compaction, incremental index refresh,
           versions removed once superseded ``retain_seconds`` ago)
 
 The embedder is a stand-in (random unit vectors): disk use depends on row sizes and commit
@@ -44,9 +44,9 @@ sys.path.insert(0, str(ROOT))
 # the 384-d stand-in space of memory.py: a fresh random unit vector per text (as before)
 from memory import DIM, BenchSpace  # noqa: E402
 
-from tactus_memory.maintenance import MaintenanceConfig, dir_bytes, footprint  # noqa: E402
 from tactus_memory.memory import Memory  # noqa: E402
 from tactus_memory.senses import Sense, array_to_bytes  # noqa: E402
+from tactus_memory.storage.maintenance import MaintenanceConfig, dir_bytes, footprint  # noqa: E402
 
 WINDOW = (8, 32, 32)  # K frames x 32 x 32 taxels, int16 STAG units (a touch row's raw bytes)
 

@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT))
 from tactus_memory.memory import Memory  # noqa: E402
 from tactus_memory.senses import VectorSense  # noqa: E402
 from tactus_memory.spaces.base import Space  # noqa: E402
-from tactus_memory.tables import IndexConfig  # noqa: E402
+from tactus_memory.storage.tables import IndexConfig  # noqa: E402
 
 DIM = 384
 N_SESSIONS = 50

@@ -34,8 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.memory import SENSES, K, exact_topk, make_data, mixture, open_memory, pct  # noqa: E402
-from tactus_memory.tables import IndexConfig  # noqa: E402
-from tactus_memory.where import Where  # noqa: E402
+from tactus_memory.storage.tables import IndexConfig  # noqa: E402
+from tactus_memory.storage.where import Where  # noqa: E402
 
 #: the warehouse the rows are placed in (metres)
 SIDE = 200.0

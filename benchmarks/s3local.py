@@ -1,6 +1,6 @@
 """A local S3-compatible server for benchmarks: moto's standalone server on a free port of
 127.0.0.1 (a real HTTP S3 API, conditional PUT included; no Docker) with one bucket, and the
-standard AWS environment variables that point a store (``tactus_memory.connect``) at it."""
+standard AWS environment variables that point a store (``tactus_memory.storage.connect``) at it."""
 
 from __future__ import annotations
 

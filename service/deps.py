@@ -29,12 +29,12 @@ from tactus_memory.limits import (
     SOURCE_PATTERN,
 )
 from tactus_memory.memory import Memory
-from tactus_memory.query import Scope
-from tactus_memory.rows import WriteKwargs
+from tactus_memory.search.query import Scope
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.writes import WriteThreads
 from tactus_memory.settings import Settings
-from tactus_memory.where import Near, check_near, validate_frame
+from tactus_memory.storage.rows import WriteKwargs
+from tactus_memory.storage.where import Near, check_near, validate_frame
 
 
 @dataclass
@@ -278,7 +278,7 @@ def stream_scope(
 def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = None) -> Scope:
     """``sense`` (repeated), ``session``, ``source``, ``after``, ``before``, ``near``,
     ``frame`` -> one
-    :class:`~tactus_memory.query.Scope`, what every search and temporal route passes down."""
+    :class:`~tactus_memory.search.query.Scope`, what every search and temporal route passes down."""
     return replace(base, session=session)
 
 
@@ -286,7 +286,7 @@ ScopeDep = Annotated[Scope, Depends(scope)]
 StreamScopeDep = Annotated[Scope, Depends(stream_scope)]
 
 
-#: how group=grasp scores a grasp (tactus_memory.grasps.POOLS)
+#: how group=grasp scores a grasp (tactus_memory.temporal.grasps.POOLS)
 GraspPool = Annotated[
     Literal["mean", "top", "max"],
     Query(

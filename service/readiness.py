@@ -1,6 +1,7 @@
 """Store checks for ``/health`` and ``/ready``, and the read-only flag.
 
-``store_problem(memory)`` is cheap: the store's integrity check (:mod:`tactus_memory.integrity`:
+``store_problem(memory)`` is cheap: the store's integrity check
+(:mod:`tactus_memory.storage.integrity`:
 every data file the latest manifests name present and of its recorded size, Lance's own
 validation), then the three tables' manifests (row counts) and one row of the items table,
 so a missing or truncated file shows up as a reason string instead of a 500 on the next
@@ -17,7 +18,7 @@ import os
 import re
 from typing import Any
 
-from tactus_memory.connect import is_remote_uri, normalise_uri
+from tactus_memory.storage.connect import is_remote_uri, normalise_uri
 
 #: what LanceDB's Python binding raises when a file of the store cannot be read
 _LANCE_IO_MARKERS = ("LanceError(IO)", "Not found:", "No such file", "Permission denied")

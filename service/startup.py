@@ -15,9 +15,9 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from tactus_memory.connect import is_remote_uri, normalise_uri
 from tactus_memory.errors import InvalidInputError, TactusError
 from tactus_memory.service.readiness import is_store_failure, short
+from tactus_memory.storage.connect import is_remote_uri, normalise_uri
 
 
 class StartupError(Exception):

@@ -39,18 +39,7 @@ from typing_extensions import Unpack
 
 from tactus_memory.client_errors import problem_error
 from tactus_memory.client_stream import TouchStream
-from tactus_memory.episodes import Episode
 from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
-from tactus_memory.grasps import grasp_params
-from tactus_memory.matching import (
-    DEFAULT_MERGE_GAP,
-    DEFAULT_MOMENT_GAP,
-    DEFAULT_WINDOW,
-    Match,
-    MatchKwargs,
-    split_match,
-)
-from tactus_memory.query import Scope, ScopeKwargs
 from tactus_memory.results import (
     ClockOffset,
     Context,
@@ -62,9 +51,20 @@ from tactus_memory.results import (
     SessionSummary,
     TimelineItem,
 )
-from tactus_memory.rows import WriteKwargs, check_batch, per_item
+from tactus_memory.search.matching import (
+    DEFAULT_MERGE_GAP,
+    DEFAULT_MOMENT_GAP,
+    DEFAULT_WINDOW,
+    Match,
+    MatchKwargs,
+    split_match,
+)
+from tactus_memory.search.query import Scope, ScopeKwargs
 from tactus_memory.senses import VectorSense
-from tactus_memory.temporal import AroundKwargs, OccurrenceKwargs
+from tactus_memory.storage.rows import WriteKwargs, check_batch, per_item
+from tactus_memory.temporal.episodes import Episode
+from tactus_memory.temporal.grasps import grasp_params
+from tactus_memory.temporal.operators import AroundKwargs, OccurrenceKwargs
 
 #: retry answers: overload (503, the write queue) and rate limits (429)
 RETRY_STATUSES = (429, 503)

@@ -42,12 +42,12 @@ from typing_extensions import Unpack
 
 from tactus_memory.errors import OverloadedError
 from tactus_memory.memory import Memory
-from tactus_memory.rows import PreparedWrite, WriteKwargs
 from tactus_memory.settings import (
     DEFAULT_COMMIT_MAX_BATCH,
     DEFAULT_COMMIT_MAX_PENDING,
     DEFAULT_COMMIT_TICK_MS,
 )
+from tactus_memory.storage.rows import PreparedWrite, WriteKwargs
 
 log = logging.getLogger(__name__)
 

@@ -13,7 +13,7 @@ small appends) runs in a background daemon thread; unindexed rows are still sear
 
 Search: the query is embedded once by the space, then for each sense searched it passes the
 sense's query transform, runs a prefiltered ANN search restricted to that sense, and hit
-cosines are calibrated into z-scores (see :mod:`tactus_memory.scoring`) so senses merge
+cosines are calibrated into z-scores (see :mod:`tactus_memory.search.scoring`) so senses merge
 fairly. Time filters use overlap semantics: an item spanning ``[t, t_end]`` matches
 ``after``/``before`` when ``t_end >= after`` and ``t <= before``.
 
@@ -25,9 +25,10 @@ without its live object: its query transform is rebuilt from the stored centroid
 (``q - c``, renormalised).
 
 Where the parts live: result models in :mod:`tactus_memory.results`, the sense registry
-(live/stored senses, counts, calibration) in :mod:`tactus_memory.registry`, the ranked search
-in :mod:`tactus_memory.ranking`, query checks and the :class:`~tactus_memory.query.Scope` in
-:mod:`tactus_memory.query`, the temporal operators in :mod:`tactus_memory.temporal`
+(live/stored senses, counts, calibration) in :mod:`tactus_memory.search.registry`, the ranked search
+in :mod:`tactus_memory.search.ranking`, query checks and the
+:class:`~tactus_memory.search.query.Scope` in
+:mod:`tactus_memory.search.query`, the temporal operators in :mod:`tactus_memory.temporal.operators`
 (``memory.count``, ``memory.last``, ... are the methods of ``memory.temporal``), the places
 in :mod:`tactus_memory.spatial` (``memory.add_poses``, ``memory.where``, ``memory.at``, ...
 are the methods of ``memory.places``).
@@ -50,28 +51,28 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
-from tactus_memory.grasps import GraspRule, check_group
-from tactus_memory.maintenance import Background, MaintenanceConfig
-from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
-from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
-from tactus_memory.ranking import Ranker
-from tactus_memory.registry import SenseRegistry
 from tactus_memory.results import Grasp, Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
-from tactus_memory.rows import (
-    WriteKwargs,
-    options_for,
-    summarise,
-)
-from tactus_memory.scoring import Calibration
+from tactus_memory.search.matching import DEFAULT_MOMENT_GAP, mark_matches
+from tactus_memory.search.query import Scope, ScopeKwargs, check_k, embed_query
+from tactus_memory.search.ranking import Ranker
+from tactus_memory.search.registry import SenseRegistry
+from tactus_memory.search.scoring import Calibration
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.settings import DEFAULT_MEMORY
 from tactus_memory.spaces.base import Space
 from tactus_memory.spatial import Places
-from tactus_memory.store import HIT_COLUMNS, Store
-from tactus_memory.tables import IndexConfig
-from tactus_memory.temporal import Temporal
-from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import DEFAULT_FRAME, Where
+from tactus_memory.storage.maintenance import Background, MaintenanceConfig
+from tactus_memory.storage.rows import (
+    WriteKwargs,
+    options_for,
+    summarise,
+)
+from tactus_memory.storage.store import HIT_COLUMNS, Store
+from tactus_memory.storage.tables import IndexConfig
+from tactus_memory.storage.vectors import as_unit_rows
+from tactus_memory.storage.where import DEFAULT_FRAME, Where
+from tactus_memory.temporal.grasps import GraspRule, check_group
+from tactus_memory.temporal.operators import Temporal
 from tactus_memory.writes import WritePath
 
 log = logging.getLogger(__name__)
@@ -151,7 +152,7 @@ class Memory:
         Several processes may open one store: each sees the others' commits within
         ``read_consistency_interval`` (default ``TACTUS_READ_CONSISTENCY`` or 1 s), and only
         the one whose ``maintenance.maintain`` is true compacts and cleans up
-        (:mod:`tactus_memory.maintenance`, :mod:`tactus_memory.connect`).
+        (:mod:`tactus_memory.storage.maintenance`, :mod:`tactus_memory.storage.connect`).
         """
         cfg = index or IndexConfig()
         if index_threshold is not None:
@@ -303,7 +304,7 @@ class Memory:
         Filters: ``session``, ``senses``, ``source``, ``after``/``before``, ``near``/``frame``
         (or one ``scope=`` :class:`Scope`). ``group="moment"`` returns Moments instead (see
         :meth:`search_moments`), ``group="grasp"`` one Grasp per grasp, ranked by its pooled
-        vector (``pool``: see :mod:`tactus_memory.grasps`); the query is embedded once."""
+        vector (``pool``: see :mod:`tactus_memory.temporal.grasps`); the query is embedded once."""
         where = Scope.of(**scope)
         if check_group(group) == "grasp":
             rule = GraspRule(pool=pool)
@@ -368,7 +369,7 @@ class Memory:
     def rank(
         self, q: np.ndarray, k: int, senses: Sequence[str], base: Where, **kw: Any
     ) -> list[Hit]:
-        """The one ranked search path (:meth:`tactus_memory.ranking.Ranker.rank`): (1, D)
+        """The one ranked search path (:meth:`tactus_memory.search.ranking.Ranker.rank`): (1, D)
         unit query ``q``, the senses searched, ``base`` the non-sense conditions; keywords
         ``transform`` (apply each sense's query transform)."""
         return self.ranker.rank(q, k, senses, base, **kw)

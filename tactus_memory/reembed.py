@@ -39,20 +39,20 @@ import numpy as np
 from pydantic import BaseModel
 
 from tactus_memory.errors import InvalidInputError, SenseConflictError
-from tactus_memory.rows import options_for
 from tactus_memory.senses import Sense, validate_sense_name
-from tactus_memory.tables import items_schema
-from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import Where
+from tactus_memory.storage.rows import options_for
+from tactus_memory.storage.tables import items_schema
+from tactus_memory.storage.vectors import as_unit_rows
+from tactus_memory.storage.where import Where
 
 if TYPE_CHECKING:
     import threading
 
     import pyarrow as pa
 
-    from tactus_memory.registry import SenseRegistry
+    from tactus_memory.search.registry import SenseRegistry
     from tactus_memory.spaces.base import Space
-    from tactus_memory.store import Store
+    from tactus_memory.storage.store import Store
 
 log = logging.getLogger(__name__)
 

@@ -36,7 +36,7 @@ class Hit(Span):
     match: bool = Field(
         False,
         description="The hit clears its sense's match bar for this query (score >= bar): the "
-        "rule of last/first/count (tactus_memory.matching).",
+        "rule of last/first/count (tactus_memory.search.matching).",
     )
     bar: float | None = Field(
         None,
@@ -147,7 +147,8 @@ class Evidence(TimelineItem):
 
 
 class Grasp(Evidence):
-    """One grasp (:mod:`tactus_memory.grasps`): contiguous items of one stream, ranked by their
+    """One grasp (:mod:`tactus_memory.temporal.grasps`): contiguous items of one stream, ranked by
+    their
     pooled vector. ``id`` is its best-scoring member among the search's candidates; ``t`` /
     ``t_end`` (and the aligned pair) span every member; ``score``/``cosine`` are the pooled
     vector's; ``window_score`` the best member's own; ``ids`` every member, in time order."""

@@ -28,7 +28,7 @@ from tactus_memory.limits import MAX_TEXT_CHARS, SENSE_NAME_RE
 from tactus_memory.plugins import register
 from tactus_memory.recordings.decode import COMPRESSED, IMAGE, STRING, camera_image
 from tactus_memory.spaces.base import Space
-from tactus_memory.vectors import as_unit_rows
+from tactus_memory.storage.vectors import as_unit_rows
 
 #: longest side of the thumbnail an image item keeps in ``raw`` (256 px: <= 192 KiB a row)
 THUMBNAIL_SIDE = 256

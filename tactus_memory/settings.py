@@ -8,7 +8,7 @@ can be told, from three places, highest first:
 ``TACTUS_DATA=/srv/memory TACTUS_TOKEN=s3cret tactus serve`` equals
 ``tactus serve --data /srv/memory --token s3cret`` and a ``tactus.toml`` holding
 ``data = "/srv/memory"`` and ``token = "s3cret"`` passed as ``--config tactus.toml``.
-The maintenance policy's fields (:class:`~tactus_memory.maintenance.MaintenanceConfig`) are
+The maintenance policy's fields (:class:`~tactus_memory.storage.maintenance.MaintenanceConfig`) are
 fields here too (``TACTUS_RETAIN_SECONDS``, ...); :meth:`Settings.maintenance` gives them as
 the policy object the store takes.
 """
@@ -27,7 +27,7 @@ from pydantic_settings import (
 )
 
 from tactus_memory.limits import MAX_WINDOW_FRAMES
-from tactus_memory.maintenance import MaintenanceConfig
+from tactus_memory.storage.maintenance import MaintenanceConfig
 
 #: the memory every command opens when given no location (``Memory.open()``, ``tactus serve``,
 #: ``tactus search``/``ingest``/..., ``make run``): ``./memory`` of the current folder, or

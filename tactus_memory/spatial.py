@@ -4,7 +4,8 @@
 temporal operators); its public methods ARE ``memory.add_poses``, ``memory.where``, ...
 
 ``memory.add_poses(session, t, position, orientation=None, frame="map", source=None)`` stores
-a trajectory (checked by :func:`tactus_memory.places.check_poses`, one commit) and then places
+a trajectory (checked by :func:`tactus_memory.storage.places.check_poses`, one commit) and then
+places
 the session's items that it covers (backfill: poses may arrive before or after the items).
 New items are placed as they are written (:meth:`Places.fill`, inside the memory's commit).
 Placing uses the item's *aligned* time (``t + clock offset``); set clock offsets before poses
@@ -13,7 +14,7 @@ arrive, or call ``memory.place_items(session)`` after changing one.
 ``memory.where(q, ...)``: the places where moments matching ``q`` happened, best first.
 ``memory.at((x, y, z), radius, ...)``: what happened near a place, in time order. Every
 search and temporal question also takes ``near=((x, y, z), radius)`` and ``frame=`` through
-its :class:`~tactus_memory.query.Scope`.
+its :class:`~tactus_memory.search.query.Scope`.
 """
 
 from __future__ import annotations
@@ -26,16 +27,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from typing_extensions import Unpack
 
-from tactus_memory.clocks import pad, session_clock
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K
-from tactus_memory.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
-from tactus_memory.places import POSE_TOLERANCE, Placement, check_poses, place_many
-from tactus_memory.posestore import PoseStore
-from tactus_memory.query import Scope, embed_query
 from tactus_memory.results import Place, TimelineItem, TrajectoryOut, row_fields
-from tactus_memory.store import HIT_COLUMNS
-from tactus_memory.where import (
+from tactus_memory.search.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
+from tactus_memory.search.query import Scope, embed_query
+from tactus_memory.storage.places import POSE_TOLERANCE, Placement, check_poses, place_many
+from tactus_memory.storage.posestore import PoseStore
+from tactus_memory.storage.store import HIT_COLUMNS
+from tactus_memory.storage.where import (
     DEFAULT_FRAME,
     Near,
     Where,
@@ -44,13 +44,14 @@ from tactus_memory.where import (
     validate_id,
     validate_source,
 )
+from tactus_memory.temporal.clocks import pad, session_clock
 
 if TYPE_CHECKING:
-    from tactus_memory.registry import SenseRegistry
-    from tactus_memory.rows import PreparedWrite
+    from tactus_memory.search.registry import SenseRegistry
     from tactus_memory.spaces.base import Space
-    from tactus_memory.store import Store
-    from tactus_memory.temporal import Temporal
+    from tactus_memory.storage.rows import PreparedWrite
+    from tactus_memory.storage.store import Store
+    from tactus_memory.temporal.operators import Temporal
 
 #: ``where`` groups this many times k moments before dropping the unplaced ones
 WHERE_POOL_FACTOR = 4

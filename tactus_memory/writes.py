@@ -4,7 +4,7 @@ and store prepared writes in one LanceDB commit (:meth:`WritePath.commit_writes`
 ``memory.prepare_write``, ``memory.commit_writes`` and ``memory.validate_item`` ARE these
 methods; ``memory.add`` / ``add_many``, the group committer (:mod:`tactus_memory.group_commit`),
 the service and recordings all write through them. Row-level helpers (batches, ids, the
-Arrow table written): :mod:`tactus_memory.rows`.
+Arrow table written): :mod:`tactus_memory.storage.rows`.
 """
 
 from __future__ import annotations
@@ -15,8 +15,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.registry import SenseRegistry
-from tactus_memory.rows import (
+from tactus_memory.search.registry import SenseRegistry
+from tactus_memory.spaces.base import Space
+from tactus_memory.spatial import Places
+from tactus_memory.storage.rows import (
     PreparedWrite,
     check_batch,
     claim_ids,
@@ -26,10 +28,8 @@ from tactus_memory.rows import (
     resolve_shared_ids,
     writes_table,
 )
-from tactus_memory.spaces.base import Space
-from tactus_memory.spatial import Places
-from tactus_memory.store import Store
-from tactus_memory.where import DEFAULT_FRAME, validate_id, validate_source
+from tactus_memory.storage.store import Store
+from tactus_memory.storage.where import DEFAULT_FRAME, validate_id, validate_source
 
 
 @dataclass(eq=False)
@@ -84,7 +84,8 @@ class WritePath:
         rows go in one merge-insert. ``isolate`` (the group committer): a write whose
         embedding fails or whose id clashes (with another write of this commit, or another
         session's row) gets its ``error`` and is left out, the rest still commit once (an
-        identical repeat of an id is written once, :func:`~tactus_memory.rows.resolve_shared_ids`).
+        identical repeat of an id is written once,
+        :func:`~tactus_memory.storage.rows.resolve_shared_ids`).
         Once the rows are stored nothing raises: a failing step after the commit is logged
         and its caches dropped, so no caller retries (and duplicates) a stored write.
         """

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from tactus_memory.memory import Memory
 from tactus_memory.senses import VectorSense
-from tactus_memory.tables import IndexConfig
+from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 
 #: the motion sense's vector size (each item: (MOTION_DIM,) float32)

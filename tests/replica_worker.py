@@ -12,9 +12,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
-from tactus_memory.tables import IndexConfig
+from tactus_memory.storage.maintenance import MaintenanceConfig
+from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 
 

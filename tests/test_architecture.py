@@ -113,7 +113,7 @@ def test_the_walker_sees_a_cycle_when_there_is_one() -> None:
 def test_no_import_cycle_in_the_package() -> None:
     g = graph()
     assert len(g) > 60  # the walk found the package (tactus_memory, adapters, service)
-    assert "tactus_memory.temporal" in g["tactus_memory.memory"]
+    assert "tactus_memory.temporal.operators" in g["tactus_memory.memory"]
     assert cycles(g) == []
 
 
@@ -123,6 +123,61 @@ def test_the_library_never_imports_the_service() -> None:
         if name.startswith("tactus_memory.service") or name.startswith("tactus_memory.cli"):
             continue  # the CLI is the application layer (``tactus serve``)
         assert not [d for d in deps if d.startswith("tactus_memory.service")], name
+
+
+#: the library's layer packages, bottom to top: each imports only its own layer, the layers
+#: below it and the base modules, never a layer above it or the memory facade on top
+LAYERS = ("tactus_memory.storage", "tactus_memory.search", "tactus_memory.temporal")
+#: modules every layer may import (errors, rules, result models, plug-in tables, senses, spaces)
+BASE = (
+    "tactus_memory.errors",
+    "tactus_memory.limits",
+    "tactus_memory.results",
+    "tactus_memory.plugins",
+    "tactus_memory.senses",
+    "tactus_memory.settings",
+    "tactus_memory.hashing",
+    "tactus_memory.spaces",
+)
+
+
+def _under(name: str, pkg: str) -> bool:
+    return name == pkg or name.startswith(pkg + ".")
+
+
+def layer_violations(g: dict[str, set[str]]) -> list[str]:
+    """``module -> import`` edges that leave a layer for anything but a lower layer or BASE."""
+    wrong = []
+    for name, deps in sorted(g.items()):
+        mine = [i for i, pkg in enumerate(LAYERS) if _under(name, pkg)]
+        if not mine:
+            continue
+        for d in sorted(deps):
+            ok = any(_under(d, b) for b in BASE) or any(
+                _under(d, pkg) for pkg in LAYERS[: mine[0] + 1]
+            )
+            if not ok:
+                wrong.append(f"{name} -> {d}")
+    return wrong
+
+
+def test_the_layer_check_sees_an_upward_import() -> None:
+    g = {
+        "tactus_memory.storage.store": {"tactus_memory.search.query", "tactus_memory.errors"},
+        "tactus_memory.search.query": {"tactus_memory.storage.where", "tactus_memory.memory"},
+        "tactus_memory.temporal.clocks": {"tactus_memory.search.query"},
+    }
+    assert layer_violations(g) == [
+        "tactus_memory.search.query -> tactus_memory.memory",
+        "tactus_memory.storage.store -> tactus_memory.search.query",
+    ]
+
+
+def test_layers_import_only_downwards() -> None:
+    g = graph()
+    for pkg in LAYERS:
+        assert any(_under(name, pkg) for name in g), pkg  # the walk found the layer
+    assert layer_violations(g) == []
 
 
 def test_every_module_imports_in_a_fresh_interpreter() -> None:

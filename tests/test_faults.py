@@ -21,11 +21,11 @@ import pytest
 from typer.testing import CliRunner
 
 from tactus_memory.group_commit import GroupCommitter
-from tactus_memory.maintenance import MaintenanceConfig
 from tactus_memory.memory import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tactus_memory.tables import IndexConfig
+from tactus_memory.storage.maintenance import MaintenanceConfig
+from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 from tests.servers import serve_app
 from tests.test_group_commit import GatedTouch
@@ -296,7 +296,7 @@ def test_clock_offsets_of_a_store_written_before_are_read_and_moved_to_session_r
     """Stores written before issue 29 keep every offset in one meta value (CLOCK_KEY)."""
     import json
 
-    from tactus_memory.clocks import CLOCK_KEY, CLOCK_PREFIX
+    from tactus_memory.temporal.clocks import CLOCK_KEY, CLOCK_PREFIX
 
     memory = make_memory(tmp_path / "mem")
     old = {"a": {"touch/": 2.0}, "b": {"text/l": -1.0, "touch/": 3.0}}

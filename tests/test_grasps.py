@@ -16,8 +16,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.grasps import GRASP_READ_S, GraspRule, find_grasps, grasp_labels, pooled
 from tactus_memory.results import Evidence, Grasp
+from tactus_memory.temporal.grasps import GRASP_READ_S, GraspRule, find_grasps, grasp_labels, pooled
 from tests.kitchen import kitchen_memory, near_caption
 
 S = "day"

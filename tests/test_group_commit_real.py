@@ -13,7 +13,7 @@ import time
 import httpx
 import pytest
 
-from tactus_memory.store import Store
+from tactus_memory.storage.store import Store
 from tests.test_service_helpers import npy_bytes, window
 from tests.test_service_uvicorn import Server
 from tests.threads import ThreadErrors

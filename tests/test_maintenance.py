@@ -13,7 +13,10 @@ import lance
 import numpy as np
 import pytest
 
-from tactus_memory.maintenance import (
+from tactus_memory.memory import Memory
+from tactus_memory.senses import Sense, array_to_bytes
+from tactus_memory.settings import Settings
+from tactus_memory.storage.maintenance import (
     FragmentInfo,
     MaintenanceConfig,
     footprint,
@@ -21,10 +24,7 @@ from tactus_memory.maintenance import (
     plan_compaction,
     tier_of,
 )
-from tactus_memory.memory import Memory
-from tactus_memory.senses import Sense, array_to_bytes
-from tactus_memory.settings import Settings
-from tactus_memory.tables import IndexConfig
+from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 
 KiB = 1024

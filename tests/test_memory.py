@@ -332,7 +332,7 @@ def test_calibration_persists_and_refreshes_when_rows_double(tmp_path) -> None:
 def test_background_index_and_compaction(tmp_path) -> None:
     """Past the threshold an ANN index and scalar indexes appear; unindexed appends are still
     found; compaction keeps the row count."""
-    from tactus_memory.tables import IndexConfig
+    from tactus_memory.storage.tables import IndexConfig
 
     cfg = IndexConfig(threshold=300, scalar_threshold=150, rows_per_partition=100, compact_every=4)
     mem = motion_memory(tmp_path / "m", cfg, background=False)
@@ -352,7 +352,7 @@ def test_background_index_and_compaction(tmp_path) -> None:
 
 
 def test_object_storage_uri_is_accepted(tmp_path) -> None:
-    from tactus_memory.connect import normalise_uri
+    from tactus_memory.storage.connect import normalise_uri
 
     assert normalise_uri("s3://bucket/prefix") == "s3://bucket/prefix"
     with pytest.raises(InvalidInputError):
@@ -481,7 +481,7 @@ def test_grouped_search_equals_per_sense_reference(tmp_path, k: int) -> None:
 def test_index_deltas_are_bounded(tmp_path) -> None:
     """Each optimize after appends adds an ANN index segment; past max_deltas the index is
     retrained into one, so streaming ingest cannot degrade search without bound."""
-    from tactus_memory.tables import IndexConfig
+    from tactus_memory.storage.tables import IndexConfig
 
     cfg = IndexConfig(threshold=200, rows_per_partition=100, compact_every=1, max_deltas=2)
     mem = motion_memory(tmp_path / "m", cfg, background=False)

@@ -11,9 +11,9 @@ from scipy.spatial.transform import Rotation
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError
 from tactus_memory.memory import Memory
-from tactus_memory.places import POSE_TOLERANCE, Trajectory, check_poses
 from tactus_memory.spatial import Places
-from tactus_memory.tables import items_schema, place_fields
+from tactus_memory.storage.places import POSE_TOLERANCE, Trajectory, check_poses
+from tactus_memory.storage.tables import items_schema, place_fields
 
 # a 20 s straight walk along x at 1 m/s, poses at 10 Hz, yaw turning 0 -> 90 degrees
 T = np.round(np.arange(0.0, 20.0 + 1e-9, 0.1), 6)
@@ -298,7 +298,7 @@ def test_real_where_was_i_holding_the_drill(tmp_path, minilm_space) -> None:
 
 
 def test_many_small_pose_batches_are_compacted(tmp_path, hashing_space) -> None:
-    from tactus_memory.tables import IndexConfig
+    from tactus_memory.storage.tables import IndexConfig
 
     mem = Memory.open(str(tmp_path / "m"), hashing_space, background=False,
                       index=IndexConfig(compact_every=4))  # fmt: skip
@@ -322,7 +322,7 @@ def test_near_on_an_indexed_store_matches_the_exact_answer(tmp_path, hashing_spa
     """With the ANN and x/y scalar indexes built, a place filter takes the prefiltered ANN
     path (its rows are scattered): the hits are the exact top k of the rows in the sphere."""
     from tactus_memory.senses import VectorSense
-    from tactus_memory.tables import IndexConfig
+    from tactus_memory.storage.tables import IndexConfig
 
     cfg = IndexConfig(threshold=400, scalar_threshold=400, rows_per_partition=100)
     mem = Memory.open(str(tmp_path / "ix"), hashing_space, background=False, index=cfg)

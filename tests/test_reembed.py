@@ -19,7 +19,7 @@ from tactus_memory.errors import IdleWindowError, SenseConflictError
 from tactus_memory.hashing import file_sha256
 from tactus_memory.memory import Memory
 from tactus_memory.reembed import STAGING_PREFIX
-from tactus_memory.store import Store
+from tactus_memory.storage.store import Store
 from tactus_memory.touch.training.data import load_stag
 from tactus_memory.touch.training.stream_eval import build_stream
 from tests.touch_pair import Pair, train_pair

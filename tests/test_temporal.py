@@ -12,19 +12,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactus_memory.episodes import representative, segment
 from tactus_memory.errors import InvalidIdError, InvalidInputError, NotFoundError
-from tactus_memory.matching import (
+from tactus_memory.memory import Memory
+from tactus_memory.results import Evidence, Moment
+from tactus_memory.search.matching import (
     MATCH_Z,
     Match,
     group_moments,
     match_flags,
     resolve_thresholds,
 )
-from tactus_memory.memory import Memory
-from tactus_memory.query import Scope
-from tactus_memory.results import Evidence, Moment
-from tactus_memory.temporal import Temporal
+from tactus_memory.search.query import Scope
+from tactus_memory.temporal.episodes import representative, segment
+from tactus_memory.temporal.operators import Temporal
 from tests.fakes import HashingSpace
 from tests.kitchen import (
     IDLE,

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactus_memory.matching import MATCH_Z
 from tactus_memory.memory import Memory
+from tactus_memory.search.matching import MATCH_Z
 from tactus_memory.senses import VectorSense
 from tests.kitchen import IDLE, MUG_GRASPS, SCREW_GRASP, S, kitchen_notes, near_caption
 

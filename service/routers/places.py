@@ -15,7 +15,7 @@ from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import ID_PATTERN, MAX_COORDINATE, MAX_ID_CHARS, MAX_K, SOURCE_PATTERN
-from tactus_memory.matching import DEFAULT_MOMENT_GAP
+from tactus_memory.search.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.service.arrays import NPY_TYPES, loads_strict, read_npy
 from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId
 from tactus_memory.service.place_schemas import (
@@ -27,7 +27,7 @@ from tactus_memory.service.place_schemas import (
 )
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.routers.temporal import MatchDep
-from tactus_memory.where import DEFAULT_FRAME
+from tactus_memory.storage.where import DEFAULT_FRAME
 
 router = APIRouter(tags=["places"])
 

@@ -2,7 +2,7 @@
 
 Several ``tactus serve --no-maintain`` replicas (and scripts) may write to one store; exactly
 one process compacts it, refreshes its indexes and removes old versions
-(:mod:`tactus_memory.maintenance`), so replicas never compact against each other. The
+(:mod:`tactus_memory.storage.maintenance`), so replicas never compact against each other. The
 maintainer needs no embedding model: it opens the store's tables only.
 """
 
@@ -20,7 +20,7 @@ from tactus_memory.cli.common import ServiceData
 from tactus_memory.cli.memory_cmds import _data_dir
 
 if TYPE_CHECKING:
-    from tactus_memory.store import Store
+    from tactus_memory.storage.store import Store
 
 
 @app.command()
@@ -58,7 +58,7 @@ def maintain(
     """
     from tactus_memory.errors import TactusError
     from tactus_memory.settings import Settings
-    from tactus_memory.store import Store
+    from tactus_memory.storage.store import Store
 
     location = _data_dir(data)
     given = {"maintain": True}
@@ -112,7 +112,7 @@ def maintain(
 
 def _check(store: Store) -> int:
     """``--check``: print each table's verdict (one JSON line); 1 when any is damaged."""
-    from tactus_memory.integrity import check_table
+    from tactus_memory.storage.integrity import check_table
 
     damaged = False
     for name, uri in store.table_uris().items():

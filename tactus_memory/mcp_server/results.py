@@ -19,9 +19,9 @@ from pydantic import BaseModel, Field
 
 from tactus_memory.results import Moment, SessionSummary
 from tactus_memory.senses import bytes_to_array
-from tactus_memory.store import Store
+from tactus_memory.storage.store import Store
+from tactus_memory.storage.where import Where
 from tactus_memory.touch.windows import contact_taxels
-from tactus_memory.where import Where
 
 #: taxels on the glove's pad (32 x 32): contact_area = contact_taxels / PAD_TAXELS
 PAD_TAXELS = 32 * 32

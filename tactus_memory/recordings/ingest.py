@@ -47,9 +47,9 @@ from tactus_memory.recordings.poses import (
     tf_ns,
 )
 from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
-from tactus_memory.rows import options_for
+from tactus_memory.storage.rows import options_for
+from tactus_memory.storage.where import Where, validate_id
 from tactus_memory.touch.windows import WindowStream
-from tactus_memory.where import Where, validate_id
 
 #: a :class:`tactus_memory.memory.Memory`. Not imported, not even for type checking:
 #: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.

@@ -24,7 +24,7 @@ import numpy as np
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.plugins import register
 from tactus_memory.spaces.base import Space, check_texts
-from tactus_memory.vectors import as_unit_rows
+from tactus_memory.storage.vectors import as_unit_rows
 
 MINILM_NAME = "minilm-l6"
 MINILM_DIM = 384

@@ -1,6 +1,7 @@
 """The items table's indexes: the ANN index on ``vector`` and the scalar (BTREE/BITMAP)
 indexes of the filters, when they are due and how they are built (``IndexConfig``,
-:mod:`tactus_memory.tables`). A part of :class:`~tactus_memory.store.Store`, which calls
+:mod:`tactus_memory.storage.tables`). A part of :class:`~tactus_memory.storage.store.Store`, which
+calls
 :meth:`StoreIndexes.build_indexes` from its maintenance run."""
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import logging
 import time
 from typing import TYPE_CHECKING, Any
 
-from tactus_memory.tables import IndexConfig, scalar_index_config, vector_index_config
+from tactus_memory.storage.tables import IndexConfig, scalar_index_config, vector_index_config
 
 log = logging.getLogger(__name__)
 

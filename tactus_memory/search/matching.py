@@ -3,7 +3,7 @@ thresholds, the relative gate, the grouping rule (pure functions, no store).
 
 Everything here is deterministic (no LLM) and built on the memory's own search path: the query
 is embedded once, each sense is searched with its query transform and scored by its calibrated
-z-score (:mod:`tactus_memory.scoring`), then time logic runs in Python.
+z-score (:mod:`tactus_memory.search.scoring`), then time logic runs in Python.
 
 **What "a match" is.** A hit of sense *s* matches a query when
 
@@ -52,10 +52,10 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.results import Evidence, Hit, Moment
+from tactus_memory.search.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.senses import validate_sense_name
-from tactus_memory.where import finite_float
+from tactus_memory.storage.where import finite_float
 
 # --------------------------------------------------------------------------- constants
 #: per-sense match threshold on the calibrated score (z vs the probe null); see the module

@@ -27,7 +27,7 @@ one frame (0.14 s on the STAG glove's ~7.4 Hz, 0.03 s at 30 Hz), two or more (a 
 about a second at 7.4 Hz) leave 0.68 s or more; well under the 2 s occurrence merge gap.
 ``min_cos`` 0.2: consecutive windows of one recording have a median cosine of 0.87-0.96 with
 the shipped checkpoint (10th percentile 0.20-0.57 while the hand moves), valid grasps of
-different objects a median of -0.41-0.15 (:mod:`tactus_memory.episodes`), so 0.2 cuts most
+different objects a median of -0.41-0.15 (:mod:`tactus_memory.temporal.episodes`), so 0.2 cuts most
 object changes and rarely a grasp. Not tuned beyond these figures; ``tactus eval --stream
 --group grasp`` measures the result.
 
@@ -47,12 +47,12 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.results import Evidence, Grasp
-from tactus_memory.vectors import vector_column
-from tactus_memory.where import Where, finite_float
+from tactus_memory.storage.vectors import vector_column
+from tactus_memory.storage.where import Where, finite_float
 
 if TYPE_CHECKING:
-    from tactus_memory.ranking import Ranker
-    from tactus_memory.store import Store
+    from tactus_memory.search.ranking import Ranker
+    from tactus_memory.storage.store import Store
 
 #: a hole longer than this (seconds) between a stream's items ends a grasp (contact offset)
 GRASP_MAX_GAP = 0.5

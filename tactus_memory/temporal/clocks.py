@@ -1,7 +1,7 @@
 """Per-stream clock offsets: ``Clocks.set(session, sense, offset, source)`` records that a
 stream's clock runs ``offset`` seconds behind its session's reference clock, so its items are
 placed at ``t + offset`` (``t_aligned``) for grouping, ordering and every ``after``/``before``
-bound of the temporal operators (:mod:`tactus_memory.temporal`).
+bound of the temporal operators (:mod:`tactus_memory.temporal.operators`).
 
 Stored in the store's meta table, one row per session (key ``clock:<session>``, value JSON
 ``{"sense/source": offset}``), so a PUT writes one small row (one JSON of every session's
@@ -20,8 +20,8 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_CLOCK_OFFSET
 from tactus_memory.results import ClockOffset
 from tactus_memory.senses import validate_sense_name
-from tactus_memory.store import Store
-from tactus_memory.where import finite_float, validate_id, validate_source
+from tactus_memory.storage.store import Store
+from tactus_memory.storage.where import finite_float, validate_id, validate_source
 
 #: the meta key of every session's offsets in one JSON value (stores written before)
 CLOCK_KEY = "clock_offsets"

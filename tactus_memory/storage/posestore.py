@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.places import Placement, Trajectory
-from tactus_memory.store import Store
-from tactus_memory.tables import place_fields, poses_schema
-from tactus_memory.where import Where
+from tactus_memory.storage.places import Placement, Trajectory
+from tactus_memory.storage.store import Store
+from tactus_memory.storage.tables import place_fields, poses_schema
+from tactus_memory.storage.where import Where
 
 if TYPE_CHECKING:
     import pyarrow as pa

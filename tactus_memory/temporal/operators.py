@@ -3,16 +3,17 @@ moments (hits of every sense grouped in time), episodes and per-stream clock off
 
 :class:`Temporal` is built from the parts it needs: the store (rows, episodes), the sense
 registry (which senses a scope covers), the ranker (the one ranked search path,
-:class:`~tactus_memory.ranking.Ranker`), the space (query embedding) and the write lock.
-The query is embedded once (:func:`~tactus_memory.query.embed_query`), each sense is searched
+:class:`~tactus_memory.search.ranking.Ranker`), the space (query embedding) and the write lock.
+The query is embedded once (:func:`~tactus_memory.search.query.embed_query`), each sense is searched
 with its query transform and scored by its calibrated z-score, then time logic runs in
-Python. What "a match" is and how matches group: :mod:`tactus_memory.matching`; clock
-offsets: :mod:`tactus_memory.clocks`.
+Python. What "a match" is and how matches group: :mod:`tactus_memory.search.matching`; clock
+offsets: :mod:`tactus_memory.temporal.clocks`.
 
 Every question takes the scope as keywords (``session``, ``senses``, ``source``, ``after``,
 ``before``, ``near``, ``frame``, or one ``scope=``) and, where it matches, the match bar
 (``threshold``, ``relative``, or one ``match=``); ``group="grasp"`` (with ``pool``) asks it
-of grasps, not windows (:mod:`tactus_memory.grasps`). ``Memory`` answers each with the same method
+of grasps, not windows (:mod:`tactus_memory.temporal.grasps`). ``Memory`` answers each with the same
+method
 (``memory.count(q, session=...)`` is ``memory.temporal.count``), and so does the service.
 """
 
@@ -26,21 +27,20 @@ from typing import Any
 import numpy as np
 from typing_extensions import Unpack
 
-from tactus_memory.clocks import Clocks, Offsets, pad
-from tactus_memory.episodes import (
-    EPISODE_MAX_GAP,
-    EPISODE_MEAN_COS,
-    EPISODE_MIN_COS,
-    Episode,
-    EpisodeRule,
-    check_rule,
-    number_episodes,
-    representative,
-)
 from tactus_memory.errors import InvalidInputError, NotFoundError
-from tactus_memory.grasps import GraspRule, grasp_rule, pool_grasps
 from tactus_memory.limits import MAX_K
-from tactus_memory.matching import (
+from tactus_memory.results import (
+    ClockOffset,
+    Context,
+    Evidence,
+    Grasp,
+    Moment,
+    Occurrences,
+    Side,
+    TimelineItem,
+    row_fields,
+)
+from tactus_memory.search.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
@@ -58,24 +58,25 @@ from tactus_memory.matching import (
     sense_bar,
     split_match,
 )
-from tactus_memory.query import Scope, check_k, embed_query
-from tactus_memory.ranking import Ranker
-from tactus_memory.registry import SenseRegistry
-from tactus_memory.results import (
-    ClockOffset,
-    Context,
-    Evidence,
-    Grasp,
-    Moment,
-    Occurrences,
-    Side,
-    TimelineItem,
-    row_fields,
-)
+from tactus_memory.search.query import Scope, check_k, embed_query
+from tactus_memory.search.ranking import Ranker
+from tactus_memory.search.registry import SenseRegistry
 from tactus_memory.spaces.base import Space
-from tactus_memory.store import HIT_COLUMNS, Store
-from tactus_memory.vectors import vector_column
-from tactus_memory.where import Near, Where, validate_id
+from tactus_memory.storage.store import HIT_COLUMNS, Store
+from tactus_memory.storage.vectors import vector_column
+from tactus_memory.storage.where import Near, Where, validate_id
+from tactus_memory.temporal.clocks import Clocks, Offsets, pad
+from tactus_memory.temporal.episodes import (
+    EPISODE_MAX_GAP,
+    EPISODE_MEAN_COS,
+    EPISODE_MIN_COS,
+    Episode,
+    EpisodeRule,
+    check_rule,
+    number_episodes,
+    representative,
+)
+from tactus_memory.temporal.grasps import GraspRule, grasp_rule, pool_grasps
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None
@@ -124,7 +125,7 @@ class Temporal:
     # ----------------------------------------------------------- clock offsets
     def set_clock_offset(self, session: str, sense: str, offset: float, source: str = "") -> None:
         """Place the stream (session, sense, source) at ``t + offset`` on the session clock
-        (persisted; ``offset=0`` removes it; see :mod:`tactus_memory.clocks`)."""
+        (persisted; ``offset=0`` removes it; see :mod:`tactus_memory.temporal.clocks`)."""
         self.clocks.set(session, sense, offset, source)
 
     def clock_offsets(self, session: str | None = None) -> list[ClockOffset]:
@@ -137,7 +138,7 @@ class Temporal:
     ) -> tuple[list[Evidence], bool]:
         """Every candidate of the (1, D) query ``q`` (all senses in scope), scored and flagged;
         and whether a sense was capped (``per_sense`` candidates, all matching). With a
-        ``grasp`` rule, the candidates' grasps (:mod:`tactus_memory.grasps`) instead, each
+        ``grasp`` rule, the candidates' grasps (:mod:`tactus_memory.temporal.grasps`) instead, each
         scored and flagged by its pooled vector."""
         relative = check_relative(match.relative)
         offsets = self.clocks.offsets()
@@ -171,7 +172,7 @@ class Temporal:
         return out, capped
 
     def matches(self, query: str, **kw: Unpack[MatchKwargs]) -> list[Evidence]:
-        """Every item matching ``query`` (see :mod:`tactus_memory.matching`), in aligned time
+        """Every item matching ``query`` (see :mod:`tactus_memory.search.matching`), in aligned time
         order."""
         return self._matches(query, *split_match(kw))
 
@@ -344,7 +345,8 @@ class Temporal:
         """Segment every stream of ``session`` (default: every session) into episodes and store
         the ids in the ``episode`` column; returns how many episodes were written.
 
-        Rule: :func:`tactus_memory.episodes.segment`. Episode ids are unique within a session,
+        Rule: :func:`tactus_memory.temporal.episodes.segment`. Episode ids are unique within a
+        session,
         numbered 0, 1, ... by (first item's time, sense, source); re-running is idempotent.
         """
         check_rule(min_cos, mean_cos, max_gap)
@@ -369,7 +371,7 @@ class Temporal:
         self, session: str, rule: EpisodeRule = (EPISODE_MIN_COS, EPISODE_MEAN_COS, EPISODE_MAX_GAP)
     ) -> tuple[list[str], np.ndarray]:
         """(ids, (N,) int64 episode numbers) of every row of ``session`` under ``rule``,
-        computed, not stored (:func:`~tactus_memory.episodes.number_episodes`)."""
+        computed, not stored (:func:`~tactus_memory.temporal.episodes.number_episodes`)."""
         cols = ["id", "sense", "source", "t", "t_end", "vector"]
         tbl = self.store.scan(Where().session(session).sql(), cols)
         return number_episodes(tbl, self.space.dim, rule)

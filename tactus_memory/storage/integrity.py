@@ -21,8 +21,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from tactus_memory.connect import is_remote_uri
 from tactus_memory.errors import StoreDamagedError
+from tactus_memory.storage.connect import is_remote_uri
 
 #: the write path re-checks the store at most this often (seconds); probes check every time
 CHECK_EVERY_S = 2.0

@@ -21,12 +21,12 @@ import numpy as np
 from tactus_memory.errors import InvalidInputError, SenseConflictError, UnknownSenseError
 from tactus_memory.plugins import lookup, registered_name
 from tactus_memory.results import SenseInfo
-from tactus_memory.scoring import PROBES, SAMPLE, Calibration, estimate
+from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, estimate
 from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
-from tactus_memory.store import Store
-from tactus_memory.vectors import as_unit_rows, vector_column
-from tactus_memory.where import Where
+from tactus_memory.storage.store import Store
+from tactus_memory.storage.vectors import as_unit_rows, vector_column
+from tactus_memory.storage.where import Where
 
 log = logging.getLogger(__name__)
 

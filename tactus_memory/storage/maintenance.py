@@ -15,7 +15,7 @@ Three jobs, run by one process per store (the *maintainer*: ``tactus maintain``,
    rows that is the whole table, rewritten every 64 appends (issue 11: 30x disk).
 2. **Index refresh.** Rows appended since the last run are merged into the existing indices
    incrementally (Lance ``optimize_indices``), never a rebuild. Retraining the ANN index is
-   the store's separate, rare decision (:meth:`tactus_memory.store.Store.maintain`).
+   the store's separate, rare decision (:meth:`tactus_memory.storage.store.Store.maintain`).
 3. **Version retention.** Every commit is a version; a version's files go only when no
    version still kept needs them. A version is removed once it was *superseded* more than
    ``retain_seconds`` ago (not merely created that long ago), so a reader that opened it just

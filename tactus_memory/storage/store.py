@@ -13,16 +13,16 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
 ``meta``   key/value strings: the space (name, dim) the store was created with, cached probe
            embeddings, index bookkeeping.
 
-Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.where.Where` from
+Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.storage.where.Where` from
 validated values (ids and sense names by regex, finite numbers; literals quote-escaped).
 
 Indexes: :class:`IndexConfig` (scalar indexes from 10k rows, an IVF_SQ cosine index from 20k,
 retrained after 4x growth or 8 deltas; selective filters scan flat). Compaction, index
-refresh and version retention follow :mod:`tactus_memory.maintenance`, run by the process
+refresh and version retention follow :mod:`tactus_memory.storage.maintenance`, run by the process
 that owns maintenance, after ``compact_every`` commits of any one table (items, senses, meta:
 each counted on its own). Every write first passes the integrity check
-(:mod:`tactus_memory.integrity`). Connections re-read the latest version every
-``read_consistency`` seconds (:mod:`tactus_memory.connect`), so replicas see each other.
+(:mod:`tactus_memory.storage.integrity`). Connections re-read the latest version every
+``read_consistency`` seconds (:mod:`tactus_memory.storage.connect`), so replicas see each other.
 """
 
 from __future__ import annotations
@@ -38,20 +38,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.connect import normalise_uri, storage_options_for
-from tactus_memory.connect import read_consistency_interval as consistency_from
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
-from tactus_memory.indexes import StoreIndexes
-from tactus_memory.integrity import IntegrityWatch, check_store
-from tactus_memory.maintenance import Maintainer, MaintenanceConfig, TableReport
 from tactus_memory.settings import Settings
-from tactus_memory.tables import (
+from tactus_memory.storage.connect import normalise_uri, storage_options_for
+from tactus_memory.storage.connect import read_consistency_interval as consistency_from
+from tactus_memory.storage.indexes import StoreIndexes
+from tactus_memory.storage.integrity import IntegrityWatch, check_store
+from tactus_memory.storage.maintenance import Maintainer, MaintenanceConfig, TableReport
+from tactus_memory.storage.tables import (
     IndexConfig,
     items_schema,
     meta_schema,
     senses_schema,
 )
-from tactus_memory.where import Where, _sql_str
+from tactus_memory.storage.where import Where, _sql_str
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa
@@ -77,7 +77,7 @@ def _upsert(table: Table, key: str, data: pa.Table) -> None:
 # --------------------------------------------------------------------------- store
 class Store(StoreIndexes):
     """One LanceDB connection; writes are serialised by the Memory's lock. Its indexes:
-    :class:`~tactus_memory.indexes.StoreIndexes`."""
+    :class:`~tactus_memory.storage.indexes.StoreIndexes`."""
 
     def __init__(
         self,
@@ -382,7 +382,7 @@ class Store(StoreIndexes):
 
     def maintain(self, *, force: bool = False, wait: bool | None = None) -> bool:
         """Build/retrain indexes past the threshold, then run the maintenance policy
-        (:mod:`tactus_memory.maintenance`) on every table; True when something ran. Only the
+        (:mod:`tactus_memory.storage.maintenance`) on every table; True when something ran. Only the
         owner of maintenance runs it unless ``force``; never on a damaged store. Writes may go
         on meanwhile. Version cleanup runs in its own thread at most every
         ``cleanup_interval`` seconds; ``wait`` (default: ``force``) runs it now and waits.
