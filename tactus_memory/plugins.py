@@ -82,9 +82,10 @@ def create_sense(name: str, space: Any, /, **config: Any) -> Any:
 
 
 def known(kind: Kind) -> list[str]:
-    """Every registered name (aliases included), in registration order."""
+    """Every registered name (aliases included), sorted: the same list whatever order the
+    modules registering them were imported in."""
     _load(kind)
-    return list(_TABLES[kind])
+    return sorted(_TABLES[kind])
 
 
 def registered_name(obj: object) -> str | None:
