@@ -62,6 +62,7 @@ from tactus_memory.search.matching import (
 from tactus_memory.search.query import Scope, ScopeKwargs
 from tactus_memory.senses import VectorSense
 from tactus_memory.storage.rows import WriteKwargs, check_batch, per_item
+from tactus_memory.storage.where import Near, check_near
 from tactus_memory.temporal.episodes import Episode
 from tactus_memory.temporal.grasps import grasp_params
 from tactus_memory.temporal.operators import AroundKwargs, OccurrenceKwargs
@@ -104,7 +105,11 @@ def scope_params(scope: Scope) -> dict[str, Any]:
         "source": scope.source,
         "after": scope.after,
         "before": scope.before,
+        "frame": scope.frame,
     }
+    if scope.near is not None:  # the service's ``near=x,y,z,r``
+        (x, y, z), r = check_near(scope.near)
+        params["near"] = f"{x!r},{y!r},{z!r},{r!r}"
     return {k: v for k, v in params.items() if v is not None}
 
 
@@ -448,9 +453,13 @@ class Client:
         *,
         source: str | None = None,
         limit: int | None = None,
+        near: Near | None = None,
+        frame: str | None = None,
     ) -> list[TimelineItem] | list[Episode]:
         """The session's items (or episodes) in aligned time order."""
-        scope = Scope(senses=senses, source=source, after=after, before=before)
+        scope = Scope(
+            senses=senses, source=source, after=after, before=before, near=near, frame=frame
+        )
         params: dict[str, Any] = {**scope_params(scope), "episodes": episodes}
         if limit is not None:
             params["limit"] = limit

@@ -224,3 +224,20 @@ def test_problem_types_map_to_the_library_errors() -> None:
             c.sessions()
     with Client("http://m", transport=answers()[0]) as c, pytest.raises(InvalidInputError):
         c.add("s", "text", "x", source="cam")  # checked before any request
+
+
+def test_place_filter_goes_over_http() -> None:
+    """``near``/``frame`` reach the service as ``near=x,y,z,r`` and ``frame`` (search and
+    timeline), and a bad ``near`` is the library's error before any request."""
+    hits = httpx.Response(200, json={"hits": []})
+    timeline = httpx.Response(200, json={"items": []})
+    transport, seen = answers(hits, timeline)
+    with Client("http://memory", transport=transport) as c:
+        assert c.search("mug", near=((1.0, 2.0, 3.0), 0.5), frame="map") == []
+        assert c.timeline("s1", near=((0.0, 0.0, 0.0), 2.0)) == []
+        with pytest.raises(InvalidInputError, match="near radius"):
+            c.search("mug", near=((1.0, 2.0, 3.0), -1.0))
+    assert seen[0].url.params["near"] == "1.0,2.0,3.0,0.5"
+    assert seen[0].url.params["frame"] == "map"
+    assert seen[1].url.params["near"] == "0.0,0.0,0.0,2.0"
+    assert len(seen) == 2

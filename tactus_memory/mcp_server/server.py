@@ -86,6 +86,9 @@ SensesArg = Annotated[
     list[str] | None,
     Field(description="Only these senses, e.g. ['touch'] or ['text'] (default: every sense)."),
 ]
+AnchorSensesArg = Annotated[
+    list[str] | None, Field(description="Search the anchor only in these senses.")
+]
 AfterArg = Annotated[
     float | None, Field(description="Only items still going on at or after this time (s).")
 ]
@@ -220,9 +223,7 @@ class MemoryTools:
         ),
         session: SessionArg = None,
         senses: SensesArg = None,
-        anchor_senses: Annotated[
-            list[str] | None, Field(description="Search the anchor only in these senses.")
-        ] = None,
+        anchor_senses: AnchorSensesArg = None,
     ) -> ContextResult:
         """What happened just before something? The anchor's best match, then the items of its
         session that start in the `window` seconds before it."""
@@ -238,9 +239,7 @@ class MemoryTools:
         ),
         session: SessionArg = None,
         senses: SensesArg = None,
-        anchor_senses: Annotated[
-            list[str] | None, Field(description="Search the anchor only in these senses.")
-        ] = None,
+        anchor_senses: AnchorSensesArg = None,
     ) -> ContextResult:
         """What happened just after something? The anchor's best match, then the items of its
         session that start in the `window` seconds after it ends."""
