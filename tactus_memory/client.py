@@ -38,6 +38,7 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.client_errors import problem_error
+from tactus_memory.client_params import match_params, npy, scope_params
 from tactus_memory.client_stream import TouchStream
 from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
 from tactus_memory.results import (
@@ -55,14 +56,13 @@ from tactus_memory.search.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
-    Match,
     MatchKwargs,
     split_match,
 )
 from tactus_memory.search.query import Scope, ScopeKwargs
 from tactus_memory.senses import VectorSense
 from tactus_memory.storage.rows import WriteKwargs, check_batch, per_item
-from tactus_memory.storage.where import Near, check_near
+from tactus_memory.storage.where import Near
 from tactus_memory.temporal.episodes import Episode
 from tactus_memory.temporal.grasps import grasp_params
 from tactus_memory.temporal.operators import AroundKwargs, OccurrenceKwargs
@@ -94,38 +94,6 @@ def error_from(response: httpx.Response) -> TactusError:
     if not isinstance(problem, dict):
         problem = {"detail": str(problem)[:500]}
     return problem_error(response.status_code, problem, retry_after(response))
-
-
-def scope_params(scope: Scope) -> dict[str, Any]:
-    """A :class:`Scope` as the service's query parameters (``sense`` repeated)."""
-    scope.bounds()  # after <= before, finite: the library's message, before any request
-    params = {
-        "session": scope.session,
-        "sense": None if scope.senses is None else list(scope.senses),
-        "source": scope.source,
-        "after": scope.after,
-        "before": scope.before,
-        "frame": scope.frame,
-    }
-    if scope.near is not None:  # the service's ``near=x,y,z,r``
-        (x, y, z), r = check_near(scope.near)
-        params["near"] = f"{x!r},{y!r},{z!r},{r!r}"
-    return {k: v for k, v in params.items() if v is not None}
-
-
-def match_params(match: Match) -> dict[str, Any]:
-    if match.threshold is not None and not isinstance(match.threshold, (int, float)):
-        raise InvalidInputError("over HTTP, threshold is one number for every sense")
-    out: dict[str, Any] = {"relative": match.relative}
-    if match.threshold is not None:
-        out["threshold"] = match.threshold
-    return out
-
-
-def npy(array: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, np.asarray(array), allow_pickle=False)
-    return buf.getvalue()
 
 
 def image_bytes(image: Any) -> bytes:
