@@ -26,7 +26,7 @@ import hashlib
 import re
 import time
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -148,7 +148,109 @@ class _Batch:
     meta: list[dict[str, Any]] = field(default_factory=list)
 
 
-class _Ingest:
+@dataclass
+class Tally:
+    """What decoding counted: messages read on the mapped topics, and why items were not
+    stored (reason -> messages or windows)."""
+
+    messages: int = 0
+    skipped: Counter[str] = field(default_factory=Counter)
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """One item of a recording, validated by its sense, with the id every ingest gives it."""
+
+    topic: str
+    id: str
+    item: Any
+    t: float
+    t_end: float
+    meta: dict[str, Any]
+
+
+def accept(sense: Any, item: Any, keep_idle: bool, tally: Tally) -> Any | None:
+    """The sense's own checks; a refused item is counted in ``tally`` with the reason (an
+    idle touch window, refused by the touch sense's idle rule, unless ``keep_idle``)."""
+    try:
+        return sense.validate(item, **options_for(sense, {"keep_idle": keep_idle}))
+    except IdleWindowError:  # no contact: never embedded as a grasp (touch/windows.py)
+        tally.skipped[f"{sense.name}: idle window (no contact)"] += 1
+        return None
+    except TactusError as exc:
+        # numbers blanked so that one kind of refusal is one reason in the summary
+        why = re.sub(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", str(exc))
+        tally.skipped[f"{sense.name}: refused, {type(exc).__name__}: {why}"[:200]] += 1
+        return None
+
+
+@dataclass(frozen=True)
+class DecodeSpec:
+    """How the messages of a recording become items (picklable: the Ray path,
+    :mod:`tactus_memory.ray_jobs`, decodes on workers with the same spec, so the ids match)."""
+
+    session: str
+    plan: dict[str, _Topic]
+    t0: int | None
+    window: int
+    stride: int
+    keep_idle: bool
+
+    def items(
+        self,
+        rec: Recording,
+        senses: Mapping[str, Any],
+        tally: Tally,
+        topics: Sequence[str] | None = None,
+    ) -> Iterator[Decoded]:
+        """The items of ``rec`` on ``topics`` (default: every planned topic), in message
+        order. A topic's items and ids do not depend on the other topics read with it."""
+        digest = rec.digest
+        name = rec.path.name
+        index: Counter[str] = Counter()
+        streams: dict[str, WindowStream] = {}
+        for m in rec.messages(sorted(self.plan if topics is None else topics)):
+            topic = self.plan[m.topic]
+            tally.messages += 1
+            i = index[m.topic]
+            index[m.topic] += 1
+            if topic.skip_reason is not None:
+                tally.skipped[topic.skip_reason] += 1
+                continue
+            ns = decode.stamp_ns(m.msg) or m.log_time_ns
+            t = ns / NS if self.t0 is None else (ns - self.t0) / NS
+            where = f"{name} topic {m.topic!r} message {i}"
+            meta = {"topic": m.topic, "type": m.msgtype, "recording": name}
+            sense = senses[topic.sense]
+            raw = sense.from_message(m.msg, m.msgtype, where)  # the sense decodes its own
+            if not sense.windowed:
+                item = accept(sense, raw, self.keep_idle, tally)
+                if item is not None:
+                    item_id = _item_id(self.session, digest, m.topic, ns, i)
+                    yield Decoded(m.topic, item_id, item, t, t, meta)
+                continue
+            if m.topic not in streams:  # no profile: the sense calibrates, and judges idle
+                streams[m.topic] = WindowStream(self.window, self.stride, profile=None)
+            done = streams[m.topic].push(raw, [t])  # raw: one (H, W) frame
+            for w in range(len(done)):
+                window = done.frames[w]  # (K, H, W)
+                item = accept(sense, window, self.keep_idle, tally)
+                if item is None:
+                    continue
+                wid = _item_id(self.session, digest, m.topic, self.window, self.stride,
+                               int(done.start[w]), repr(float(done.t[w])))  # fmt: skip
+                wmeta = {**meta, "frames": int(window.shape[0]), "first_frame": int(done.start[w])}
+                yield Decoded(m.topic, wid, item, float(done.t[w]), float(done.t_end[w]), wmeta)
+        for topic_name, ws in streams.items():
+            if ws.pending:
+                sense_name = self.plan[topic_name].sense
+                tally.skipped[f"{sense_name}: frames after the last full window"] += ws.pending
+
+
+class IngestJob:
+    """One ingest: the plan (checked before anything is written), the session clock, the
+    poses; then the items, written here (:meth:`run`) or by Ray (:mod:`tactus_memory.ray_jobs`)."""
+
     def __init__(
         self,
         memory: Memory,
@@ -175,9 +277,8 @@ class _Ingest:
         self.batch_size = max(1, int(batch))
         self.progress = progress
         self.rows: Counter[str] = Counter()
-        self.skipped: Counter[str] = Counter()
+        self.tally = Tally()
         self.existing = 0
-        self.messages = 0
         self.pending: dict[str, _Batch] = {}
         self.plan = self._plan({t: s for t, s in topics.items() if s != POSE})
         windowed = [
@@ -287,53 +388,47 @@ class _Ingest:
         for name in list(self.pending):
             self._flush(self.plan[name])
 
-    def _accept(self, topic: _Topic, item: Any) -> Any | None:
-        """The sense's own checks; a refused item is skipped with the reason (an idle touch
-        window, refused by the touch sense's idle rule, unless ``keep_idle``)."""
-        sense = self.memory.senses[topic.sense]
-        try:
-            return sense.validate(item, **options_for(sense, {"keep_idle": self.keep_idle}))
-        except IdleWindowError:  # no contact: never embedded as a grasp (touch/windows.py)
-            self.skipped[f"{topic.sense}: idle window (no contact)"] += 1
-            return None
-        except TactusError as exc:
-            # numbers blanked so that one kind of refusal is one reason in the summary
-            why = re.sub(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", str(exc))
-            self.skipped[f"{topic.sense}: refused, {type(exc).__name__}: {why}"[:200]] += 1
-            return None
-
     # ------------------------------------------------------------------ reading
+    def start(self) -> DecodeSpec:
+        """The session clock, and the poses stored (first: items are placed as they are
+        written); returns how messages become items."""
+        t0 = self._t0_ns()
+        self._add_poses(t0)
+        return DecodeSpec(self.session, self.plan, t0, self.window, self.stride, self.keep_idle)
+
     def run(self) -> IngestSummary:
         from tqdm.auto import tqdm
 
         start = time.perf_counter()
-        t0 = self._t0_ns()
+        spec = self.start()
         total = sum(i.count for rec in self.recs for i in rec.topics() if i.topic in self.plan)
         bar = tqdm(total=total, unit="msg", unit_scale=True, disable=not self.progress,
                    desc=f"ingest {self.session}", dynamic_ncols=True)  # fmt: skip
-        self._add_poses(t0)  # first: the items are placed as they are written
         try:
             for rec in self.recs:
-                self._one(rec, t0, bar)
+                self._one(rec, spec, bar)
         finally:
             try:
                 self._flush_all()  # what was read before a failure is kept (resume)
             finally:
                 bar.close()
-        seconds = time.perf_counter() - start
+        return self.summary(spec, time.perf_counter() - start)
+
+    def summary(self, spec: DecodeSpec, seconds: float) -> IngestSummary:
         new = sum(self.rows.values())
+        messages = self.tally.messages
         return IngestSummary(
             session=self.session,
             files=[str(r.path) for r in self.recs],
             topics={p.topic: p.sense for p in self.plan.values()},
-            messages=self.messages,
+            messages=messages,
             rows=dict(self.rows),
             existing=self.existing,
-            skipped=dict(self.skipped),
+            skipped=dict(self.tally.skipped),
             poses=self.poses,
-            t0=None if t0 is None else t0 / NS,
+            t0=None if spec.t0 is None else spec.t0 / NS,
             seconds=seconds,
-            messages_per_s=self.messages / seconds if seconds > 0 else 0.0,
+            messages_per_s=messages / seconds if seconds > 0 else 0.0,
             rows_per_s=new / seconds if seconds > 0 else 0.0,
         )
 
@@ -348,50 +443,11 @@ class _Ingest:
                 self.session, t, pos, ori, frame=track.frame, source=topic_source(track.topic)
             )
 
-    def _one(self, rec: Recording, t0: int | None, bar: Any) -> None:
-        digest = rec.digest
-        name = rec.path.name
-        index: Counter[str] = Counter()
-        streams: dict[str, WindowStream] = {}
-        for m in rec.messages([t for t in self.plan]):
-            topic = self.plan[m.topic]
-            self.messages += 1
-            bar.update(1)
-            i = index[m.topic]
-            index[m.topic] += 1
-            if topic.skip_reason is not None:
-                self.skipped[topic.skip_reason] += 1
-                continue
-            ns = decode.stamp_ns(m.msg) or m.log_time_ns
-            t = ns / NS if t0 is None else (ns - t0) / NS
-            where = f"{name} topic {m.topic!r} message {i}"
-            meta = {"topic": m.topic, "type": m.msgtype, "recording": name}
-            sense = self.memory.senses[topic.sense]
-            raw = sense.from_message(m.msg, m.msgtype, where)  # the sense decodes its own
-            if not sense.windowed:
-                item = self._accept(topic, raw)
-                if item is not None:
-                    self._queue(topic, _item_id(self.session, digest, m.topic, ns, i), item,
-                                t, t, meta)  # fmt: skip
-            else:
-                frame = raw  # (H, W)
-                if m.topic not in streams:  # no profile: the sense calibrates, and judges idle
-                    streams[m.topic] = WindowStream(self.window, self.stride, profile=None)
-                done = streams[m.topic].push(frame, [t])
-                for w in range(len(done)):
-                    window = done.frames[w]  # (K, H, W)
-                    item = self._accept(topic, window)
-                    if item is None:
-                        continue
-                    wid = _item_id(self.session, digest, m.topic, self.window, self.stride,
-                                   int(done.start[w]), repr(float(done.t[w])))  # fmt: skip
-                    wmeta = {**meta, "frames": int(window.shape[0]),
-                             "first_frame": int(done.start[w])}  # fmt: skip
-                    self._queue(topic, wid, item, float(done.t[w]), float(done.t_end[w]), wmeta)
-        for topic_name, ws in streams.items():
-            if ws.pending:
-                sense = self.plan[topic_name].sense
-                self.skipped[f"{sense}: frames after the last full window"] += ws.pending
+    def _one(self, rec: Recording, spec: DecodeSpec, bar: Any) -> None:
+        for d in spec.items(rec, self.memory.senses, self.tally):
+            self._queue(self.plan[d.topic], d.id, d.item, d.t, d.t_end, d.meta)
+            bar.update(self.tally.messages - bar.n)
+        bar.update(self.tally.messages - bar.n)
 
 
 def ingest_recording(
@@ -422,7 +478,7 @@ def ingest_recording(
     recs = [open_recording(p) for p in _paths(paths)]
     if not recs:
         raise RecordingError("no recordings given")
-    job = _Ingest(memory, recs, session, dict(topics), absolute=absolute, window=window,
+    job = IngestJob(memory, recs, session, dict(topics), absolute=absolute, window=window,
                   stride=stride, batch=batch, progress=progress,
                   keep_idle=keep_idle, tf=tf)  # fmt: skip
     return job.run()
