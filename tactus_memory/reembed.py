@@ -33,6 +33,7 @@ import json
 import logging
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -93,7 +94,7 @@ def _tag(encoder: Sense) -> str:
     return hashlib.sha256(prov.encode()).hexdigest()[:32]
 
 
-def _staging_schema(dim: int) -> pa.Schema:
+def staging_schema(dim: int) -> pa.Schema:
     import pyarrow as pa
 
     vector = items_schema(dim).field("vector")
@@ -105,12 +106,12 @@ def _staging_schema(dim: int) -> pa.Schema:
 def _staging(store: Store, name: str, dim: int, tag: str) -> Any:
     """The staging table, emptied first when it holds another encoder's vectors."""
     db = store.db
-    table = db.create_table(name, schema=_staging_schema(dim), exist_ok=True)
+    table = db.create_table(name, schema=staging_schema(dim), exist_ok=True)
     stale = table.count_rows(f"tag != '{tag}'")
     if stale:
         log.info("reembed: dropping %d staged vectors of another encoder", stale)
         db.drop_table(name)
-        table = db.create_table(name, schema=_staging_schema(dim), exist_ok=True)
+        table = db.create_table(name, schema=staging_schema(dim), exist_ok=True)
     return table
 
 
@@ -122,16 +123,21 @@ def _embed(store: Store, encoder: Sense, ids: Sequence[str], dim: int) -> np.nda
     """(len(ids), D) new unit vectors from the stored raw inputs of ``ids`` (all present)."""
     rows = store.scan(Where().ids(ids).sql(), ["id", "raw", "text"]).to_pylist()
     by_id = {r["id"]: r for r in rows}
+    return embed_rows(encoder, [by_id[i] for i in ids], dim)
+
+
+def embed_rows(encoder: Sense, rows: Sequence[dict[str, Any]], dim: int) -> np.ndarray:
+    """(len(rows), D) new unit vectors from stored rows (``raw``/``text`` columns)."""
     # what is stored is re-embedded as it is: a window kept idle on purpose too (keep_idle)
     opts = options_for(encoder, {"keep_idle": True})
-    items = [encoder.validate(encoder.from_row(by_id[i]), **opts) for i in ids]
+    items = [encoder.validate(encoder.from_row(r), **opts) for r in rows]
     vecs = as_unit_rows(encoder.embed(items), dim, what=f"{encoder.name} embedding")
-    if len(vecs) != len(ids):
-        raise InvalidInputError(f"encoder returned {len(vecs)} vectors for {len(ids)} items")
+    if len(vecs) != len(rows):
+        raise InvalidInputError(f"encoder returned {len(vecs)} vectors for {len(rows)} items")
     return vecs
 
 
-def _vector_table(ids: Sequence[str], vecs: np.ndarray, tag: str | None = None) -> pa.Table:
+def vector_table(ids: Sequence[str], vecs: np.ndarray, tag: str | None = None) -> pa.Table:
     import pyarrow as pa
 
     cols: dict[str, Any] = {
@@ -143,6 +149,46 @@ def _vector_table(ids: Sequence[str], vecs: np.ndarray, tag: str | None = None) 
     if tag is not None:
         cols["tag"] = pa.array([tag] * len(ids), pa.string())
     return pa.table(cols)
+
+
+@dataclass
+class Staged:
+    """A re-embedding under way: the staging table and what is in it (:func:`begin`)."""
+
+    sense: str
+    encoder: Sense
+    tag: str
+    dim: int
+    table: Any  # the LanceDB staging table
+    staged: set[str]
+    staged_before: int
+    redo: Where  # the rows of the sense that have a raw input
+    started: float
+
+
+def begin(memory: Reembeddable, sense: str, encoder: Sense, batch: int) -> Staged:
+    """Check ``encoder`` against the stored sense and open the staging table (emptied when it
+    holds another encoder's vectors). Raises SenseConflictError when ``encoder`` is another
+    sense, modality, dim or space."""
+    t0 = time.perf_counter()
+    sense = validate_sense_name(sense)
+    if encoder.name != sense:
+        raise SenseConflictError(f"encoder is sense {encoder.name!r}, not {sense!r}")
+    if batch < 1:
+        raise InvalidInputError(f"batch must be >= 1, got {batch}")
+    stored = memory.registry.search_sense(sense)  # UnknownSenseError for an unknown sense
+    if stored.modality != encoder.modality or stored.dim != encoder.dim:
+        raise SenseConflictError(
+            f"sense {sense!r} is stored as {stored.modality} (dim {stored.dim}); the encoder "
+            f"is {encoder.modality} (dim {encoder.dim})"
+        )
+    encoder.bind(memory.space)  # SenseConflictError for another space
+    dim, tag = memory.space.dim, _tag(encoder)
+    table = _staging(memory.store, STAGING_PREFIX + sense, dim, tag)
+    redo = Where().sense(sense)
+    redo.parts.append("(raw IS NOT NULL OR text IS NOT NULL)")
+    staged = set(table.search().select(["id"]).limit(None).to_arrow().column("id").to_pylist())
+    return Staged(sense, encoder, tag, dim, table, staged, len(staged), redo, t0)
 
 
 def reembed(
@@ -157,59 +203,47 @@ def reembed(
 
     ``on_batch(n)`` is called after the n-th staged batch is committed (progress; tests kill
     the run there). Raises SenseConflictError when ``encoder`` is another sense or space."""
-    t0 = time.perf_counter()
-    sense = validate_sense_name(sense)
-    if encoder.name != sense:
-        raise SenseConflictError(f"encoder is sense {encoder.name!r}, not {sense!r}")
-    if batch < 1:
-        raise InvalidInputError(f"batch must be >= 1, got {batch}")
-    stored = memory.registry.search_sense(sense)  # UnknownSenseError for an unknown sense
-    if stored.modality != encoder.modality or stored.dim != encoder.dim:
-        raise SenseConflictError(
-            f"sense {sense!r} is stored as {stored.modality} (dim {stored.dim}); the encoder "
-            f"is {encoder.modality} (dim {encoder.dim})"
-        )
-    encoder.bind(memory.space)  # SenseConflictError for another space
-    store, dim, tag = memory.store, memory.space.dim, _tag(encoder)
-    name = STAGING_PREFIX + sense
-    staging = _staging(store, name, dim, tag)
-    missing_where = Where().sense(sense)
-    missing_where.parts.append("raw IS NULL AND text IS NULL")
-    redo_where = Where().sense(sense)
-    redo_where.parts.append("(raw IS NOT NULL OR text IS NOT NULL)")
-
-    staged = set(staging.search().select(["id"]).limit(None).to_arrow().column("id").to_pylist())
-    staged_before = len(staged)
-    todo = [i for i in _ids(store, redo_where) if i not in staged]
+    job = begin(memory, sense, encoder, batch)
+    store, dim = memory.store, job.dim
+    todo = [i for i in _ids(store, job.redo) if i not in job.staged]
     batches = 0
     for s in range(0, len(todo), batch):
         chunk = todo[s : s + batch]
-        staging.add(_vector_table(chunk, _embed(store, encoder, chunk, dim), tag))
-        staged.update(chunk)
+        job.table.add(vector_table(chunk, _embed(store, encoder, chunk, dim), job.tag))
+        job.staged.update(chunk)
         batches += 1
         if on_batch is not None:
             on_batch(batches)
+    return swap(memory, job, batches)
 
+
+def swap(memory: Reembeddable, job: Staged, batches: int) -> ReembedReport:
+    """Every staged vector into the items table in ONE merge-insert commit (rows written
+    since staging are embedded first), the encoder's registration, the staging table
+    dropped."""
+    store, encoder = memory.store, job.encoder
+    missing_where = Where().sense(job.sense)
+    missing_where.parts.append("raw IS NULL AND text IS NULL")
     with memory.lock:  # no write of this process between the last staging and the swap
-        current = _ids(store, redo_where)
-        late = [i for i in current if i not in staged]
+        current = _ids(store, job.redo)
+        late = [i for i in current if i not in job.staged]
         if late:
-            staging.add(_vector_table(late, _embed(store, encoder, late, dim), tag))
+            job.table.add(vector_table(late, _embed(store, encoder, late, job.dim), job.tag))
         if current:
             # streamed from the staging table (memory stays bounded), one commit
-            new = staging.search().select(["id", "vector"]).limit(None).to_batches()
+            new = job.table.search().select(["id", "vector"]).limit(None).to_batches()
             with store.commit_lock:  # THE swap
                 store.items.merge_insert("id").when_matched_update_all().execute(new)
         memory.registry.replace_sense(encoder)
         missing = _ids(store, missing_where)
-    store.db.drop_table(name)
+    store.db.drop_table(STAGING_PREFIX + job.sense)
     return ReembedReport(
-        sense=sense,
+        sense=job.sense,
         provenance=encoder.provenance(),
         rows=len(current),
-        staged_before=staged_before,
+        staged_before=job.staged_before,
         batches=batches,
         missing=len(missing),
         missing_ids=missing[:MISSING_IDS_MAX],
-        seconds=round(time.perf_counter() - t0, 3),
+        seconds=round(time.perf_counter() - job.started, 3),
     )

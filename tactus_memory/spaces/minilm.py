@@ -72,6 +72,16 @@ class MiniLMSpace(Space):
         self.cache_hits = 0
         self.cache_misses = 0
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled as its settings (Ray workers, :mod:`tactus_memory.ray_jobs`): the model
+        loads lazily where it is unpickled, from the same local folder."""
+        keys = ("path", "device", "batch_size", "cache_size")
+        return {k: getattr(self, k) for k in keys}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        state = dict(state)
+        self.__init__(state.pop("path"), **state)  # type: ignore[misc]
+
     # -- loading ---------------------------------------------------------------------------
 
     def _resolve_path(self) -> Path:
