@@ -150,8 +150,7 @@ class _Batch:
 
 @dataclass
 class Tally:
-    """What decoding counted: messages read on the mapped topics, and why items were not
-    stored (reason -> messages or windows)."""
+    """Messages read on the mapped topics; why items were not stored (reason -> count)."""
 
     messages: int = 0
     skipped: Counter[str] = field(default_factory=Counter)
@@ -203,8 +202,8 @@ class DecodeSpec:
         tally: Tally,
         topics: Sequence[str] | None = None,
     ) -> Iterator[Decoded]:
-        """The items of ``rec`` on ``topics`` (default: every planned topic), in message
-        order. A topic's items and ids do not depend on the other topics read with it."""
+        """The items of ``rec`` on ``topics`` (default: all planned), in message order; a
+        topic's items and ids do not depend on the other topics read with it."""
         digest = rec.digest
         name = rec.path.name
         index: Counter[str] = Counter()
@@ -390,8 +389,7 @@ class IngestJob:
 
     # ------------------------------------------------------------------ reading
     def start(self) -> DecodeSpec:
-        """The session clock, and the poses stored (first: items are placed as they are
-        written); returns how messages become items."""
+        """The session clock and the poses (first: items are placed as they are written)."""
         t0 = self._t0_ns()
         self._add_poses(t0)
         return DecodeSpec(self.session, self.plan, t0, self.window, self.stride, self.keep_idle)
@@ -415,8 +413,7 @@ class IngestJob:
         return self.summary(spec, time.perf_counter() - start)
 
     def summary(self, spec: DecodeSpec, seconds: float) -> IngestSummary:
-        new = sum(self.rows.values())
-        messages = self.tally.messages
+        new, messages = sum(self.rows.values()), self.tally.messages
         return IngestSummary(
             session=self.session,
             files=[str(r.path) for r in self.recs],
@@ -463,8 +460,12 @@ def ingest_recording(
     progress: bool = False,
     keep_idle: bool = False,
     tf: tuple[str, str] = DEFAULT_TF,
+    ray: str | None = None,
+    workers: int | None = None,
 ) -> IngestSummary:
-    """Ingest MCAP files / ROS 2 bag folders into ``session`` (see the module doc).
+    """Ingest MCAP files / ROS 2 bag folders into ``session`` (see the module doc); ``ray``:
+    as Ray Data jobs on the cluster at that address (``"local"``: here) with ``workers``,
+    :func:`tactus_memory.ray_jobs.ingest_on_ray`.
 
     ``topics`` maps topic -> sense name, or ``"pose"`` for the session's trajectory
     (Odometry, PoseStamped, or the ``tf`` parent -> child pair of a TFMessage topic:
@@ -481,7 +482,11 @@ def ingest_recording(
     job = IngestJob(memory, recs, session, dict(topics), absolute=absolute, window=window,
                   stride=stride, batch=batch, progress=progress,
                   keep_idle=keep_idle, tf=tf)  # fmt: skip
-    return job.run()
+    if ray is None:
+        return job.run()
+    from tactus_memory.ray_jobs import ingest_on_ray
+
+    return ingest_on_ray(job, address=ray, workers=workers)
 
 
 def parse_topic_map(pairs: Iterable[str]) -> dict[str, str]:
