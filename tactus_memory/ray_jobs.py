@@ -23,6 +23,7 @@ storage). ``ray`` is imported here only: the server and the other commands never
 
 from __future__ import annotations
 
+import os
 import pickle
 import time
 from collections import Counter
@@ -60,9 +61,14 @@ FILES_PER_COMMIT = 64
 INSTALL = "pip install 'tactus-memory[ray]'"
 
 
+def default_address(given: str | None = None) -> str:
+    """``given``, else $RAY_ADDRESS (Ray's own variable), else :data:`LOCAL`."""
+    return given or os.environ.get("RAY_ADDRESS") or LOCAL
+
+
 def connect(address: str | None = None, workers: int | None = None) -> int:
-    """Join the Ray cluster at ``address`` (None or ``"local"``: start one here with
-    ``workers`` CPUs, or use the one this process already started); returns how many
+    """Join the Ray cluster at ``address`` (:func:`default_address`; ``"local"``: start one
+    here with ``workers`` CPUs), unless this process already joined one; returns how many
     one-CPU workers the jobs use (``workers``, capped at the cluster's CPUs)."""
     if workers is not None and workers < 1:
         raise InvalidInputError(f"workers must be >= 1, got {workers}")
@@ -72,8 +78,9 @@ def connect(address: str | None = None, workers: int | None = None) -> int:
         raise ImportError(f"--ray needs the ray extra: {INSTALL}") from None
     if not ray.is_initialized():
         kw: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
-        if address in (None, LOCAL):
-            ray.init(num_cpus=workers, **kw)
+        address = default_address(address)
+        if address == LOCAL:
+            ray.init(address=LOCAL, num_cpus=workers, **kw)
         else:
             ray.init(address=address, **kw)
     cpus = int(ray.cluster_resources().get("CPU", 1))

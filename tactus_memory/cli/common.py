@@ -26,6 +26,42 @@ MemoryData = Annotated[
         "./memory).",
     ),
 ]
+#: ``--ray`` / ``--ray-address`` of the bulk commands (ingest, reembed): Ray Data jobs
+#: (:mod:`tactus_memory.ray_jobs`); ``--ray`` alone joins $RAY_ADDRESS, else starts Ray here
+UseRay = Annotated[
+    bool,
+    typer.Option(
+        "--ray",
+        help="Run as Ray Data jobs (needs the ray extra): on the cluster at --ray-address or "
+        "$RAY_ADDRESS, else on a Ray instance started here.",
+    ),
+]
+RayAddress = Annotated[
+    str | None,
+    typer.Option(
+        "--ray-address",
+        metavar="ADDRESS",
+        help="The Ray cluster (e.g. auto, ray://head:10001, local); implies --ray.",
+    ),
+]
+#: ``--ray-workers``: one-CPU Ray workers of a ``--ray`` job
+RayWorkers = Annotated[
+    int | None,
+    typer.Option(
+        "--ray-workers", min=1, help="With --ray: workers (one CPU each); default every CPU."
+    ),
+]
+
+
+def ray_cluster(ray: bool, address: str | None) -> str | None:
+    """The Ray cluster of ``--ray``/``--ray-address`` (None: no Ray)."""
+    if not ray and address is None:
+        return None
+    from tactus_memory.ray_jobs import default_address
+
+    return default_address(address)
+
+
 #: ``--url`` of the commands that ask a memory: a running ``tactus serve`` answers instead
 #: (no model loaded in the shell; see :mod:`tactus_memory.cli.remote`)
 ServerUrl = Annotated[

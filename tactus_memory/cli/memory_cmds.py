@@ -22,10 +22,14 @@ from tactus_memory.cli.common import (
     AsJson,
     Before,
     MemoryData,
+    RayAddress,
+    RayWorkers,
     Senses,
     ServerToken,
     ServerUrl,
     Session,
+    UseRay,
+    ray_cluster,
 )
 from tactus_memory.cli.remote import get_json
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
@@ -223,10 +227,14 @@ def reembed(
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
+    ray: UseRay = False,
+    ray_address: RayAddress = None,
+    ray_workers: RayWorkers = None,
 ) -> None:
     """Recompute every stored vector of a touch sense with a new checkpoint, from the stored
     raw windows; swapped in one commit (readers see all old or all new vectors), resumable
-    after a kill (rerun the same command). Rows without a raw window are listed."""
+    after a kill (rerun the same command). Rows without a raw window are listed. --ray: the
+    embedding as a Ray Data job."""
     from tactus_memory.errors import TactusError
 
     try:
@@ -234,8 +242,15 @@ def reembed(
 
         memory = _open(data, space, space_path, space_dim)
         enc = TactusEncoder(None if checkpoint == "default" else checkpoint, name=sense)
-        report = memory.reembed(sense, enc, batch=batch)
-    except (TactusError, FileNotFoundError, ValueError) as exc:
+        address = ray_cluster(ray, ray_address)
+        if address is None:
+            report = memory.reembed(sense, enc, batch=batch)
+        else:
+            from tactus_memory.ray_jobs import reembed_on_ray
+
+            report = reembed_on_ray(memory, sense, enc, address=address, workers=ray_workers,
+                                    batch=batch)  # fmt: skip
+    except (TactusError, FileNotFoundError, ValueError, ImportError) as exc:
         fail(str(exc))
         return
     _print_json(report.model_dump())

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import MemoryData
+from tactus_memory.cli.common import MemoryData, RayAddress, RayWorkers, UseRay, ray_cluster
 from tactus_memory.cli.memory_cmds import _data_dir, _open, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
 from tactus_memory.limits import MAX_WINDOW_FRAMES
@@ -81,10 +81,13 @@ def ingest(
         int | None, typer.Option(min=1, max=MAX_WINDOW_FRAMES, help="Frames between window starts.")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    ray: UseRay = False,
+    ray_address: RayAddress = None,
+    ray_workers: RayWorkers = None,
 ) -> None:
     """Ingest ROS 2 bags / MCAP files: text (std_msgs/String), touch (mono16/16UC1/mono8/32FC1
     Images, Int16/Float32MultiArray), images (rgb8/bgr8, CompressedImage), the trajectory
-    (=pose: Odometry, PoseStamped, TFMessage). Safe to re-run."""
+    (=pose: Odometry, PoseStamped, TFMessage). Safe to re-run. --ray: as Ray Data jobs."""
     from tactus_memory.errors import TactusError
     from tactus_memory.recordings.ingest import ingest_recording, list_topics, parse_topic_map
 
@@ -106,6 +109,7 @@ def ingest(
         parent, arrow, child = tf.partition("->")
         if not arrow or not parent.strip() or not child.strip():
             fail(f"--tf {tf!r}: write PARENT->CHILD, e.g. map->base_link")
+        address = ray_cluster(ray, ray_address)
         memory = _memory_for(data, set(topics.values()))
         summary = ingest_recording(
             memory,
@@ -115,8 +119,10 @@ def ingest(
             absolute=absolute,
             window=window,
             stride=stride,
-            progress=not as_json,
+            progress=not as_json and address is None,
             tf=(parent.strip(), child.strip()),
+            ray=address,
+            workers=ray_workers,
         )
     except (TactusError, ImportError) as exc:
         fail(str(exc))  # exits
