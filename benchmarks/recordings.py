@@ -42,9 +42,9 @@ TOPICS = {"/notes": "text", "/glove/pressure": "touch"}
 START_NS = 1_750_000_000 * rf.NS
 
 
-def make_messages(minutes: float, hz: float) -> list[rf.Msg]:
+def make_messages(minutes: float, hz: float, seed: int = 7) -> list[rf.Msg]:
     n = int(round(minutes * 60 * hz))
-    frames = rf.synthetic_grasp(n, seed=7)  # (n, 32, 32) int16 raw
+    frames = rf.synthetic_grasp(n, seed=seed)  # (n, 32, 32) int16 raw
     msgs = rf.glove("/glove/pressure", frames, start_ns=START_NS, hz=hz)
     n_notes = int(minutes * 60 / NOTE_EVERY_S)
     msgs += [

@@ -76,14 +76,16 @@ class Reembeddable(Protocol):
 
 class ReembedReport(BaseModel):
     """What a re-embedding did. ``rows``: vectors swapped in; ``staged_before``: rows a killed
-    earlier run had already staged (resumed); ``missing``: rows without a raw input, kept
-    with their old vector (``missing_ids``: the first MISSING_IDS_MAX of them)."""
+    earlier run had already staged (resumed); ``late``: rows written while staging, embedded
+    at the swap; ``missing``: rows without a raw input, kept with their old vector
+    (``missing_ids``: the first MISSING_IDS_MAX of them)."""
 
     sense: str
     provenance: dict[str, Any]
     rows: int
     staged_before: int
     batches: int
+    late: int = 0
     missing: int
     missing_ids: list[str]
     seconds: float
@@ -243,6 +245,7 @@ def swap(memory: Reembeddable, job: Staged, batches: int) -> ReembedReport:
         rows=len(current),
         staged_before=job.staged_before,
         batches=batches,
+        late=len(late),
         missing=len(missing),
         missing_ids=missing[:MISSING_IDS_MAX],
         seconds=round(time.perf_counter() - job.started, 3),

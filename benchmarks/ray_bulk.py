@@ -1,0 +1,149 @@
+"""Bulk work on Ray: rows/s of ``ingest`` and ``reembed`` on the local path and as Ray Data
+jobs with 1 and 2 workers (issue 28).
+
+    nice python benchmarks/ray_bulk.py [--files 4] [--minutes 0.5]
+                                       [--out benchmarks/results/ray_bulk.json]
+
+Writes ``--files`` real MCAP recordings (benchmarks/recordings.py's glove + notes, a seed per
+file), then, each into a fresh real store (MiniLM space, the shipped TactusEncoder):
+
+* ``local``: ``ingest_recording`` in this process (models loaded before timing);
+* ``ray_1`` / ``ray_2``: the same call with ``ray="local"`` on a local Ray instance of 2
+  CPUs, with 1 and 2 one-CPU workers. The wall time includes starting the workers (each
+  loads torch, MiniLM and the touch encoder) and Lance's commit: what a user waits for.
+
+then re-embeds the touch rows of the local store (a copy each) with the shipped checkpoint
+the same three ways. Every Ray run's rows are checked against the local run's (same ids).
+The machine has 2 cores shared with other engineers' work: the load average is recorded
+around each run, and the figures are only comparable within one run of this script.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.recordings import TOPICS, make_messages  # noqa: E402
+from tests import recording_files as rf  # noqa: E402
+
+#: Ray worker counts measured (the machine has 2 cores)
+WORKERS = (1, 2)
+
+
+def _load() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def _open(path: Path) -> Any:
+    from tactus_memory.adapters.touch import TactusEncoder
+    from tactus_memory.memory import Memory
+
+    mem = Memory.open(str(path), background=False)
+    mem.add_sense(TactusEncoder())
+    return mem
+
+
+def _ids(mem: Any) -> list[str]:
+    return sorted(mem.store.scan(None, ["id"]).column("id").to_pylist())
+
+
+def _new_rows(summary: Any) -> int:
+    return sum(summary.rows.values())
+
+
+def _timed(run: Any, rows_of: Any) -> dict[str, Any]:
+    before = _load()
+    t = time.perf_counter()
+    out = run()
+    wall = time.perf_counter() - t
+    rows = rows_of(out)
+    return {"wall_s": round(wall, 2), "rows": rows, "rows_per_s": round(rows / wall, 2),
+            "loadavg_before": before, "loadavg_after": _load()}  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--files", type=int, default=4)
+    ap.add_argument("--minutes", type=float, default=0.5, help="per file")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/ray_bulk.json"))
+    args = ap.parse_args()
+
+    import ray
+
+    from tactus_memory.adapters.touch import TactusEncoder
+    from tactus_memory.ray_jobs import LOCAL, connect, reembed_on_ray
+    from tactus_memory.recordings.ingest import ingest_recording
+
+    work = Path(tempfile.mkdtemp(prefix="tactus-bench-ray-"))
+    try:
+        paths = [rf.write_mcap(work / f"glove{i}.mcap", make_messages(args.minutes, 30.0, seed=i))
+                 for i in range(args.files)]  # fmt: skip
+        mem = _open(work / "local")
+        mem.space.embed_texts(["warm up"])  # models loaded before timing
+        ingest: dict[str, Any] = {}
+        ingest["local"] = _timed(
+            partial(ingest_recording, mem, paths, session="bench", topics=TOPICS), _new_rows
+        )
+        want = _ids(mem)
+        connect(LOCAL, workers=max(WORKERS))
+        for n in WORKERS:
+            m = _open(work / f"ray{n}")
+            run = partial(ingest_recording, m, paths, session="bench", topics=TOPICS, ray=LOCAL,
+                          workers=n)  # fmt: skip
+            ingest[f"ray_{n}"] = _timed(run, _new_rows)
+            assert _ids(m) == want, f"ray_{n}: other ids than the local path"
+        reembed: dict[str, Any] = {}
+        for name in ("local", *(f"ray_{n}" for n in WORKERS)):
+            shutil.copytree(work / "local", work / f"re_{name}")
+            m = _open(work / f"re_{name}")
+            enc = TactusEncoder()
+            if name == "local":
+                run = partial(m.reembed, "touch", enc)
+            else:
+                n = int(name.split("_")[1])
+                run = partial(reembed_on_ray, m, "touch", enc, address=LOCAL, workers=n)
+            reembed[name] = _timed(run, lambda r: r.rows)
+        ray.shutdown()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    result = {
+        "command": "python benchmarks/ray_bulk.py " + " ".join(sys.argv[1:]),
+        "recordings": {
+            "files": args.files,
+            "minutes_each": args.minutes,
+            "hz": 30.0,
+            "format": "mcap",
+            "topics": TOPICS,
+        },  # fmt: skip
+        "ingest": ingest,
+        "reembed": reembed,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "ray": ray.__version__,
+            "note": "2 cores shared with other engineers' builds and tests (see each run's "
+            "load average); Ray wall times include starting the workers and loading the "
+            "models in each; a local Ray instance on the same 2 cores cannot beat the "
+            "local path, the figures show the overhead and the scaling from 1 to 2 workers",
+        },
+    }
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,176 @@
+"""Bulk work on Ray (issue 28): ``tactus ingest --ray`` and ``tactus reembed --ray`` on a
+local Ray instance (2 CPUs, 2 workers, started once for this module) give what the local
+path gives: the same ids, rows and places, vectors equal within float tolerance, and a
+re-run adds nothing. Real parts: MCAP files and a ROS 2 bag written by their own libraries,
+MiniLM, the shipped touch encoder, a real tactus-tiny checkpoint pair for the re-embedding."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from tactus_memory.adapters.touch import TactusEncoder
+from tactus_memory.memory import Memory
+from tactus_memory.recordings.ingest import ingest_recording
+from tests import recording_files as rf
+from tests.test_recordings import N_FRAMES, TOPICS, _messages
+from tests.touch_pair import Pair, train_pair
+
+#: a bound on every test here (Ray starting on a busy 2-core machine included)
+TEST_SECONDS = 480
+COLUMNS = ["id", "session", "sense", "source", "t", "t_end", "meta", "text", "raw", "x", "y", "z",
+           "frame", "placed"]  # fmt: skip
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def _bounded() -> Iterator[None]:
+    def stop(*_: object) -> None:
+        raise TimeoutError(f"a Ray test ran past {TEST_SECONDS} s")
+
+    old = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(TEST_SECONDS)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.fixture(scope="module")
+def local_ray() -> Iterator[int]:
+    """One local Ray instance for the module: 2 CPUs, so 2 one-CPU workers."""
+    why = "the ray extra is not installed (pip install -e '.[ray]')"
+    ray = pytest.importorskip("ray", reason=why)
+    pytest.importorskip("lance_ray", reason=why)
+    from tactus_memory.ray_jobs import LOCAL, connect
+
+    workers = connect(LOCAL, workers=2)
+    try:
+        yield workers
+    finally:
+        ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory) -> list[Path]:
+    """Two MCAP files (one with odometry, so items are placed) and a ROS 2 bag."""
+    root = tmp_path_factory.mktemp("recs")
+    odom = [rf.odometry("/odom", _messages()[0].log_ns + k * rf.NS // 2, (k * 0.5, 1.0, 0.0),
+                        (0.0, 0.0, 0.0, 1.0)) for k in range(8)]  # fmt: skip
+    return [
+        rf.write_mcap(root / "a.mcap", _messages(rf.synthetic_grasp(N_FRAMES, seed=1)) + odom),
+        rf.write_mcap(root / "b.mcap", _messages(rf.synthetic_grasp(N_FRAMES, seed=2))),
+        rf.write_bag(root / "c_bag", _messages(rf.synthetic_grasp(N_FRAMES, seed=3))),
+    ]
+
+
+def _open(path: Path) -> Memory:
+    """The memory as ``tactus ingest`` opens it: the default space, the shipped touch."""
+    mem = Memory.open(str(path), background=False)
+    if "touch" not in mem.senses:
+        mem.add_sense(TactusEncoder())
+    return mem
+
+
+def _rows(mem: Memory) -> dict[str, dict]:
+    tbl = mem.store.scan(None, [*COLUMNS, "vector"])
+    return {r["id"]: r for r in tbl.to_pylist()}
+
+
+def _same_rows(a: dict[str, dict], b: dict[str, dict]) -> None:
+    assert sorted(a) == sorted(b)  # the same ids
+    for i, row in a.items():
+        assert {c: row[c] for c in COLUMNS} == {c: b[i][c] for c in COLUMNS}, i
+    va = np.array([a[i]["vector"] for i in sorted(a)], np.float32)
+    vb = np.array([b[i]["vector"] for i in sorted(a)], np.float32)
+    np.testing.assert_allclose(va, vb, atol=1e-5)
+
+
+def _cli(*args: str) -> dict:
+    from tactus_memory.cli import app
+
+    r = CliRunner().invoke(app, list(args))
+    assert r.exit_code == 0, (r.output, r.exception)
+    return json.loads(r.stdout)
+
+
+@pytest.fixture(scope="module")
+def ingested(local_ray, recordings, tmp_path_factory) -> tuple[Path, Path, dict, dict]:
+    """The same recordings ingested by the local path and by ``tactus ingest --ray``."""
+    root = tmp_path_factory.mktemp("stores")
+    topics = {**TOPICS, "/odom": "pose"}
+    local = ingest_recording(_open(root / "local"), recordings, session="run", topics=topics)
+    args = ["ingest", *map(str, recordings), "--data", str(root / "ray"), "--session", "run"]
+    args += [a for t, s in topics.items() for a in ("--topic", f"{t}={s}")]
+    on_ray = _cli(*args, "--json", "--ray", "--ray-workers", str(local_ray))
+    return root / "local", root / "ray", local.model_dump(), on_ray
+
+
+def test_ingest_on_ray_gives_the_local_rows_and_a_rerun_adds_nothing(ingested, recordings):
+    local_path, ray_path, local, on_ray = ingested
+    n = len(recordings) * (3 + N_FRAMES // 8)
+    assert sum(local["rows"].values()) == n and local["poses"] == {"/odom": 8}
+    for key in ("rows", "messages", "skipped", "existing", "poses", "t0", "topics"):
+        assert on_ray[key] == local[key], key
+    a, b = _rows(_open(local_path)), _rows(_open(ray_path))
+    _same_rows(a, b)
+    assert sum(r["placed"] == "poses" for r in b.values()) > 0  # placed from /odom
+    # again, on Ray: nothing new, every item found
+    mem = _open(ray_path)
+    again = ingest_recording(mem, recordings, session="run", topics={**TOPICS, "/odom": "pose"},
+                             ray="local")  # fmt: skip
+    assert again.rows == {} and again.existing == n
+    assert len(mem) == n
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory) -> Pair:
+    return train_pair(tmp_path_factory.mktemp("pair"))
+
+
+def test_reembed_on_ray_gives_the_local_vectors(ingested, pair, tmp_path) -> None:
+    local_path = ingested[0]
+    before = _rows(_open(local_path))
+    shutil.copytree(local_path, tmp_path / "local")
+    shutil.copytree(local_path, tmp_path / "ray")
+    mem = _open(tmp_path / "local")
+    report = mem.reembed("touch", TactusEncoder(pair.b))
+    on_ray = _cli("reembed", "--checkpoint", str(pair.b), "--data", str(tmp_path / "ray"),
+                  "--ray")  # fmt: skip
+    assert on_ray["rows"] == report.rows == sum(r["sense"] == "touch" for r in before.values())
+    assert on_ray["provenance"] == report.provenance
+    assert on_ray["late"] == 0  # every vector was staged by the Ray workers, none at the swap
+    a, b = _rows(_open(tmp_path / "local")), _rows(_open(tmp_path / "ray"))
+    _same_rows(a, b)
+    touch = sorted(i for i, r in before.items() if r["sense"] == "touch")
+    old = np.array([before[i]["vector"] for i in touch])
+    new = np.array([b[i]["vector"] for i in touch])
+    assert not np.allclose(old, new, atol=1e-3)  # B's vectors, not A's
+
+
+def test_the_server_and_the_other_commands_never_import_ray(tmp_path) -> None:
+    """Ray loads only for ``--ray``: not with the CLI's commands, not with the server."""
+    code = (
+        "import sys\n"
+        "import tactus_memory.cli.app, tactus_memory.cli.recording_cmds\n"
+        "import tactus_memory.cli.memory_cmds, tactus_memory.recordings.ingest\n"
+        "from tactus_memory.service.app import create_app\n"
+        "from tactus_memory.settings import Settings\n"
+        f"create_app(Settings(data={str(tmp_path / 'm')!r}))\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('ray', 'lance_ray')))\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout.strip().splitlines()[-1] == "[]"
