@@ -238,7 +238,7 @@ def test_every_name_is_imported_from_the_module_that_owns_it() -> None:
     assert wrong == []
 
 
-#: what serving must never load: training, evaluation, the STAG .mat reader, plotting
+#: what serving must never load: training, evaluation, the STAG .mat reader, plotting, Ray
 NOT_SERVED = (
     "h5py",
     "scipy.io",
@@ -246,6 +246,9 @@ NOT_SERVED = (
     "tactus_memory.cli",
     "tactus_memory.stag_fetch",
     "tactus_memory.touch.training",
+    # bulk work on Ray (tactus_memory/ray_jobs.py) loads only for --ray
+    "ray",
+    "lance_ray",
 )
 
 

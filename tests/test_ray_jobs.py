@@ -158,19 +158,15 @@ def test_reembed_on_ray_gives_the_local_vectors(ingested, pair, tmp_path) -> Non
     assert not np.allclose(old, new, atol=1e-3)  # B's vectors, not A's
 
 
-def test_the_server_and_the_other_commands_never_import_ray(tmp_path) -> None:
-    """Ray loads only for ``--ray``: not with the CLI's commands, not with the server."""
-    code = (
-        "import sys\n"
-        "import tactus_memory.cli.app, tactus_memory.cli.recording_cmds\n"
-        "import tactus_memory.cli.memory_cmds, tactus_memory.recordings.ingest\n"
-        "from tactus_memory.service.app import create_app\n"
-        "from tactus_memory.settings import Settings\n"
-        f"create_app(Settings(data={str(tmp_path / 'm')!r}))\n"
-        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('ray', 'lance_ray')))\n"
+def test_the_commands_never_import_ray_without_the_flag() -> None:
+    """Ray loads only for ``--ray``: every command module of ``tactus`` imports without it
+    (the server: tests/test_architecture.py's NOT_SERVED)."""
+    argv = (
+        "import sys; from tactus_memory.cli import main; sys.argv = ['tactus', 'ingest', '--help']"
     )
-    r = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT
-    )
-    assert r.returncode == 0, r.stderr[-3000:]
-    assert r.stdout.strip().splitlines()[-1] == "[]"
+    r = subprocess.run([sys.executable, "-X", "importtime", "-c", f"{argv}; main()"],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)  # fmt: skip
+    assert r.returncode == 0 and "--ray-workers" in r.stdout, r.stderr[-3000:]
+    imported = [line.rsplit("|", 1)[-1].strip() for line in r.stderr.splitlines()]
+    assert "tactus_memory.cli.recording_cmds" in imported  # the import log is read
+    assert [m for m in imported if m.split(".")[0] in ("ray", "lance_ray")] == []
