@@ -24,7 +24,6 @@ storage). ``ray`` is imported here only: the server and the other commands never
 from __future__ import annotations
 
 import os
-import pickle
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -103,9 +102,11 @@ def _pool(n: int) -> Any:
 
 
 def _shippable(what: str, obj: Any) -> None:
-    """Fail before any work when ``obj`` cannot travel to a Ray worker."""
+    """Fail before any work when ``obj`` cannot travel to a Ray worker (Ray's pickler)."""
+    from ray import cloudpickle
+
     try:
-        pickle.dumps(obj)
+        cloudpickle.dumps(obj)
     except Exception as exc:  # noqa: BLE001  (any pickling failure, named)
         raise InvalidInputError(f"{what} cannot be sent to Ray workers: {exc}") from None
 
@@ -118,7 +119,9 @@ def _torch_threads(n: int) -> None:
 
 # --------------------------------------------------------------------------- ingest
 class _Tally:
-    """A Ray actor: what the workers counted (messages, skip reasons, ids already stored)."""
+    """A Ray actor: what the workers counted (messages, skip reasons, ids already stored); a
+    unit that Ray retries after a worker died is counted again (the rows are not: they are
+    committed once, and ``rows`` are counted in the store)."""
 
     def __init__(self) -> None:
         self.counts: Counter[str] = Counter()

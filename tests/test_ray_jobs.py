@@ -11,6 +11,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,10 +20,12 @@ import pytest
 from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
+from tactus_memory.errors import InvalidInputError
 from tactus_memory.memory import Memory
 from tactus_memory.recordings.ingest import ingest_recording
 from tests import recording_files as rf
 from tests.test_recordings import N_FRAMES, TOPICS, _messages
+from tests.test_service_helpers import make_memory
 from tests.touch_pair import Pair, train_pair
 
 #: a bound on every test here (Ray starting on a busy 2-core machine included)
@@ -156,6 +159,16 @@ def test_reembed_on_ray_gives_the_local_vectors(ingested, pair, tmp_path) -> Non
     old = np.array([before[i]["vector"] for i in touch])
     new = np.array([b[i]["vector"] for i in touch])
     assert not np.allclose(old, new, atol=1e-3)  # B's vectors, not A's
+
+
+def test_a_sense_that_cannot_travel_is_named_before_anything_is_written(
+    local_ray, recordings, tmp_path
+) -> None:
+    mem = make_memory(tmp_path / "m")
+    mem.senses["touch"].lock = threading.Lock()  # cannot be pickled to a worker
+    with pytest.raises(InvalidInputError, match="sense 'touch' cannot be sent to Ray workers"):
+        ingest_recording(mem, recordings[:1], session="run", topics=TOPICS, ray="local")
+    assert len(mem) == 0
 
 
 def test_the_commands_never_import_ray_without_the_flag() -> None:
