@@ -10,7 +10,7 @@ file), then, each into a fresh real store (MiniLM space, the shipped TactusEncod
 * ``local``: ``ingest_recording`` in this process (models loaded before timing);
   each ingest is then run again (``rerun``: every id found, nothing embedded or added, its
   ``rows`` are the ids found): the fixed cost of starting workers, decoding, looking up;
-* ``ray_1`` / ``ray_2``: the same call with ``ray="local"`` on a local Ray instance of 2
+* ``ray_1`` / ``ray_2``: ``ingest_on_ray`` on a local Ray instance of 2
   CPUs, with 1 and 2 one-CPU workers. The wall time includes starting the workers (each
   loads torch, MiniLM and the touch encoder) and Lance's commit: what a user waits for.
 
@@ -85,7 +85,7 @@ def main() -> None:
     import ray
 
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.ray_jobs import LOCAL, connect, reembed_on_ray
+    from tactus_memory.ray_jobs import LOCAL, connect, ingest_on_ray, reembed_on_ray
     from tactus_memory.recordings.ingest import ingest_recording
 
     work = Path(tempfile.mkdtemp(prefix="tactus-bench-ray-"))
@@ -98,8 +98,12 @@ def main() -> None:
         connect(LOCAL, workers=max(WORKERS))
         for name in ("local", *(f"ray_{n}" for n in WORKERS)):
             m = mem if name == "local" else _open(work / name)
-            ray_kw = {} if name == "local" else {"ray": LOCAL, "workers": int(name[4:])}
-            run = partial(ingest_recording, m, paths, session="bench", topics=TOPICS, **ray_kw)
+            run = (
+                partial(ingest_recording, m, paths)
+                if name == "local"
+                else partial(ingest_on_ray, m, paths, address=LOCAL, workers=int(name[4:]))
+            )
+            run = partial(run, session="bench", topics=TOPICS)
             ingest[name] = _timed(run, _new_rows)
             # again: every id found, nothing embedded (the fixed cost: start, decode, look up)
             ingest[name]["rerun"] = again = _timed(run, lambda s: s.existing)

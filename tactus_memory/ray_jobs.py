@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.recordings.ingest import IngestJob, IngestSummary, Tally
+from tactus_memory.recordings.ingest import IngestSummary, Tally, plan_ingest
 from tactus_memory.recordings.reader import open_recording
 from tactus_memory.reembed import (
     REEMBED_BATCH,
@@ -189,19 +189,22 @@ def _session_counts(memory: Any, session: str) -> Counter[str]:
 
 
 def ingest_on_ray(
-    job: IngestJob,
+    memory: Any,
+    paths: Any,
     *,
     address: str | None = None,
     workers: int | None = None,
     files_per_commit: int = FILES_PER_COMMIT,
+    **kw: Any,
 ) -> IngestSummary:
-    """Run a planned ingest (:func:`tactus_memory.recordings.ingest.ingest_recording` with
-    ``ray=``) as Ray Data jobs; the summary is the local path's (rows: new rows per sense)."""
+    """:func:`tactus_memory.recordings.ingest.ingest_recording` (its keywords) as Ray Data
+    jobs; the summary is the local path's (rows: new rows per sense)."""
     import ray
 
     n = connect(address, workers)
     lr = _lance_ray()
-    memory, started = job.memory, time.perf_counter()
+    started = time.perf_counter()
+    job = plan_ingest(memory, paths, **kw)
     senses = {p.sense: memory.senses[p.sense] for p in job.plan.values() if not p.skip_reason}
     for name, sense in senses.items():
         _shippable(f"sense {name!r}", sense)

@@ -22,6 +22,7 @@ from typer.testing import CliRunner
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.memory import Memory
+from tactus_memory.ray_jobs import LOCAL, connect, ingest_on_ray
 from tactus_memory.recordings.ingest import ingest_recording
 from tests import recording_files as rf
 from tests.test_recordings import N_FRAMES, TOPICS, _messages
@@ -55,8 +56,6 @@ def local_ray() -> Iterator[int]:
     why = "the ray extra is not installed (pip install -e '.[ray]')"
     ray = pytest.importorskip("ray", reason=why)
     pytest.importorskip("lance_ray", reason=why)
-    from tactus_memory.ray_jobs import LOCAL, connect
-
     workers = connect(LOCAL, workers=2)
     try:
         yield workers
@@ -130,8 +129,8 @@ def test_ingest_on_ray_gives_the_local_rows_and_a_rerun_adds_nothing(ingested, r
     assert sum(r["placed"] == "poses" for r in b.values()) > 0  # placed from /odom
     # again, on Ray: nothing new, every item found
     mem = _open(ray_path)
-    again = ingest_recording(mem, recordings, session="run", topics={**TOPICS, "/odom": "pose"},
-                             ray="local")  # fmt: skip
+    again = ingest_on_ray(mem, recordings, session="run", topics={**TOPICS, "/odom": "pose"},
+                          address=LOCAL)  # fmt: skip
     assert again.rows == {} and again.existing == n
     assert len(mem) == n
 
@@ -167,7 +166,7 @@ def test_a_sense_that_cannot_travel_is_named_before_anything_is_written(
     mem = make_memory(tmp_path / "m")
     mem.senses["touch"].lock = threading.Lock()  # cannot be pickled to a worker
     with pytest.raises(InvalidInputError, match="sense 'touch' cannot be sent to Ray workers"):
-        ingest_recording(mem, recordings[:1], session="run", topics=TOPICS, ray="local")
+        ingest_on_ray(mem, recordings[:1], session="run", topics=TOPICS, address=LOCAL)
     assert len(mem) == 0
 
 

@@ -111,19 +111,14 @@ def ingest(
             fail(f"--tf {tf!r}: write PARENT->CHILD, e.g. map->base_link")
         address = ray_cluster(ray, ray_address)
         memory = _memory_for(data, set(topics.values()))
-        summary = ingest_recording(
-            memory,
-            files,
-            session=session,
-            topics=topics,
-            absolute=absolute,
-            window=window,
-            stride=stride,
-            progress=not as_json and address is None,
-            tf=(parent.strip(), child.strip()),
-            ray=address,
-            workers=ray_workers,
-        )
+        kw = {"session": session, "topics": topics, "absolute": absolute, "window": window,
+              "stride": stride, "tf": (parent.strip(), child.strip())}  # fmt: skip
+        if address is None:
+            summary = ingest_recording(memory, files, progress=not as_json, **kw)
+        else:
+            from tactus_memory.ray_jobs import ingest_on_ray
+
+            summary = ingest_on_ray(memory, files, address=address, workers=ray_workers, **kw)
     except (TactusError, ImportError) as exc:
         fail(str(exc))  # exits
     if as_json:

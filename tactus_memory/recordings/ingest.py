@@ -447,7 +447,7 @@ class IngestJob:
         bar.update(self.tally.messages - bar.n)
 
 
-def ingest_recording(
+def plan_ingest(
     memory: Memory,
     paths: Sequence[str | Path] | str | Path,
     *,
@@ -460,12 +460,8 @@ def ingest_recording(
     progress: bool = False,
     keep_idle: bool = False,
     tf: tuple[str, str] = DEFAULT_TF,
-    ray: str | None = None,
-    workers: int | None = None,
-) -> IngestSummary:
-    """Ingest MCAP files / ROS 2 bag folders into ``session`` (see the module doc); ``ray``:
-    as Ray Data jobs on the cluster at that address (``"local"``: here) with ``workers``,
-    :func:`tactus_memory.ray_jobs.ingest_on_ray`.
+) -> IngestJob:
+    """An ingest of MCAP files / ROS 2 bag folders into ``session``, checked, not yet run.
 
     ``topics`` maps topic -> sense name, or ``"pose"`` for the session's trajectory
     (Odometry, PoseStamped, or the ``tf`` parent -> child pair of a TFMessage topic:
@@ -479,14 +475,16 @@ def ingest_recording(
     recs = [open_recording(p) for p in _paths(paths)]
     if not recs:
         raise RecordingError("no recordings given")
-    job = IngestJob(memory, recs, session, dict(topics), absolute=absolute, window=window,
-                  stride=stride, batch=batch, progress=progress,
-                  keep_idle=keep_idle, tf=tf)  # fmt: skip
-    if ray is None:
-        return job.run()
-    from tactus_memory.ray_jobs import ingest_on_ray
+    return IngestJob(memory, recs, session, dict(topics), absolute=absolute, window=window,
+                     stride=stride, batch=batch, progress=progress,
+                     keep_idle=keep_idle, tf=tf)  # fmt: skip
 
-    return ingest_on_ray(job, address=ray, workers=workers)
+
+def ingest_recording(memory: Memory, paths: Any, **kw: Any) -> IngestSummary:
+    """Ingest MCAP files / ROS 2 bag folders into ``kw["session"]`` in this process (see the
+    module doc; the keywords are :func:`plan_ingest`'s; on Ray:
+    :func:`tactus_memory.ray_jobs.ingest_on_ray`)."""
+    return plan_ingest(memory, paths, **kw).run()
 
 
 def parse_topic_map(pairs: Iterable[str]) -> dict[str, str]:
