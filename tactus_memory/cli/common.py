@@ -155,20 +155,18 @@ Consecutive = Annotated[
 ]
 Augment = Annotated[str, typer.Option("--augment", help="default | strong | pressed-noise")]
 WeightDecay = Annotated[float, typer.Option("--weight-decay", help="AdamW weight decay")]
-InputGamma = Annotated[
-    float | None,
-    typer.Option("--input-gamma", help="model input: pressure ** gamma (default: the config's)"),
-]
+
+
+def _override(flag: str, what: str) -> Any:
+    """An option that overrides one field of the model's config (default: the config's)."""
+    return typer.Option(flag, help=f"{what} (default: the config's)")
+
+
+InputGamma = Annotated[float | None, _override("--input-gamma", "model input: pressure ** gamma")]
 InputBlur = Annotated[
-    float | None,
-    typer.Option(
-        "--input-blur", help="model input: Gaussian blur sigma, px (default: the config's)"
-    ),
+    float | None, _override("--input-blur", "model input: Gaussian blur sigma, px")
 ]
-Dropout = Annotated[
-    float | None,
-    typer.Option("--dropout", help="Dropout2d on trunk features (default: the config's)"),
-]
+Dropout = Annotated[float | None, _override("--dropout", "Dropout2d on trunk features")]
 #: the recordings ``tactus eval`` and ``tactus baseline eval`` score
 ScoredHoldout = Annotated[
     str | None,
