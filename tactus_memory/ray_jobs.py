@@ -274,9 +274,9 @@ def reembed_on_ray(
     sense: str,
     encoder: Sense,
     *,
+    batch: int = REEMBED_BATCH,
     address: str | None = None,
     workers: int | None = None,
-    batch: int = REEMBED_BATCH,
 ) -> ReembedReport:
     """:func:`tactus_memory.reembed.reembed` with the embedding on Ray workers: staged in one
     commit (a killed job stages nothing; the re-run redoes it), swapped in one."""
