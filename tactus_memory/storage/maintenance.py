@@ -43,9 +43,13 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from tactus_memory.storage.retention import THIN_COSINE, RetentionRule
+
 log = logging.getLogger(__name__)
 
 MiB = 1024 * 1024
+#: Lance rewrites a fragment whose deleted share is above this (erase_deleted: any deletion)
+ERASE_BAR = 1e-9
 
 
 class MaintenanceConfig(BaseModel):
@@ -95,6 +99,37 @@ class MaintenanceConfig(BaseModel):
         0.1, gt=0.0, le=1.0, description="Rewrite a fragment alone once this share is deleted."
     )
     num_threads: int = Field(1, ge=1, description="Threads per compaction (2 cores: leave 1).")
+    erase_deleted: bool = Field(
+        True,
+        description="Rewrite every fragment holding deleted rows (not only past "
+        "deletion_threshold), so deleted, expired and thinned data leave the store's files "
+        "once cleanup removes the versions that still name them (after retain_seconds).",
+    )
+    # retention (tactus_memory.storage.retention; README "Retention and deletion")
+    retain_days: float | None = Field(
+        None, gt=0.0, description="Delete items written more than this many days ago (none: keep)."
+    )
+    thin_after_days: float | None = Field(
+        None,
+        ge=0.0,
+        description="Thin stale duplicates among items written more than this many days ago "
+        "(none: never thin).",
+    )
+    thin_cosine: float = Field(
+        THIN_COSINE,
+        gt=0.0,
+        le=1.0,
+        description="Thinning drops an item within this cosine of a kept neighbour of the same "
+        "session, sense and source (keeping each run's first and last).",
+    )
+    retention: list[RetentionRule] = Field(
+        default_factory=list,
+        description="Rules per tenant, session (id or prefix*) and/or sense overriding "
+        "retain_days, thin_after_days, thin_cosine (the most specific rule wins).",
+    )
+    retention_interval: float = Field(
+        600.0, ge=0.0, description="Least seconds between retention passes (expiry, thinning)."
+    )
 
 
 # --------------------------------------------------------------------------- planning
@@ -129,7 +164,8 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
     bytes (or ``free_merge_bytes``): a larger merge waits until the table has grown, which
     bounds the disk spike of keeping its inputs for ``retain_seconds``. The first tier with
     a group wins. Without any, each fragment whose deleted share passes
-    ``deletion_threshold`` is a group alone. Settled fragments (tier None) are boundaries.
+    ``deletion_threshold`` (with ``erase_deleted``: any deleted row) is a group alone.
+    Settled fragments (tier None) are boundaries.
     """
     tiers = [tier_of(f.bytes, cfg) for f in frags]
     top = max((t for t in tiers if t is not None), default=-1)
@@ -150,11 +186,8 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
             run, at_level = [], 0
         if groups:
             return groups
-    return [
-        [f.id]
-        for f in frags
-        if f.rows and f.deleted / f.rows >= cfg.deletion_threshold and f.deleted < f.rows
-    ]
+    bar = 0.0 if cfg.erase_deleted else cfg.deletion_threshold
+    return [[f.id] for f in frags if f.deleted and f.deleted / f.rows >= bar and f.deleted < f.rows]
 
 
 # --------------------------------------------------------------------------- running
@@ -264,7 +297,9 @@ class TableMaintainer:
             "max_bytes_per_file": max(4 * nbytes, 64 * MiB),
             "excluded_fragment_ids": [f.id for f in frags if f.id not in keep],
             "materialize_deletions": True,
-            "materialize_deletions_threshold": self.cfg.deletion_threshold,
+            "materialize_deletions_threshold": ERASE_BAR
+            if self.cfg.erase_deleted
+            else self.cfg.deletion_threshold,
             "num_threads": self.cfg.num_threads,
         }
         plan = Compaction.plan(ds, options)
