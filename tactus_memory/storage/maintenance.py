@@ -275,6 +275,8 @@ class TableMaintainer:
                 self._compact_group(ds, frags, groups[0], report)
                 ds = self._dataset()  # re-plan on the new layout (new fragment ids)
             self._refresh_indices(ds, report)
+            if self.cfg.erase_deleted:
+                self._seal(self._dataset())
             ds = self._dataset()
             report.version = ds.version
             report.fragments = len(ds.get_fragments())
@@ -310,6 +312,18 @@ class TableMaintainer:
             metrics = Compaction.commit(ds, rewrites, options)
         report.compacted_groups += 1
         report.fragments_removed += int(metrics.fragments_removed)
+
+    def _seal(self, ds: Any) -> None:
+        """A delete's filter (ids, session names) is written into its version's manifest and
+        transaction file; while that version is the latest, cleanup keeps it. An empty
+        delete supersedes it, so cleanup removes it after ``retain_seconds`` like any other."""
+        try:
+            op = getattr(ds.read_transaction(ds.version), "operation", None)
+        except Exception:  # noqa: BLE001  (pylance cannot read some index ops back: not a delete)
+            return
+        if type(op).__name__ == "Delete" and getattr(op, "predicate", "false") != "false":
+            with self.commit_lock or contextlib.nullcontext():
+                ds.delete("false")
 
     def _refresh_indices(self, ds: Any, report: TableReport) -> None:
         stale = any(

@@ -186,6 +186,7 @@ class Retention:
         self.report = RetentionReport()
         self._last = -math.inf
         self._lock = threading.Lock()
+        self._owner: int | None = None  # the thread running a pass
 
     @property
     def cfg(self) -> MaintenanceConfig:
@@ -200,10 +201,18 @@ class Retention:
     def run(self, now: float | None = None, *, force: bool = False) -> RetentionReport:
         """Expire, then thin (when due, or ``force``); returns the report (counts of this
         pass and this process's totals)."""
-        with self._lock:  # one pass at a time (maintenance's thread, or a forced call)
+        if self._owner == threading.get_ident():
+            return self.report  # called back by the maintenance its own deletes scheduled
+        if not self._lock.acquire(blocking=force):  # one pass at a time
+            return self.report
+        try:
+            self._owner = threading.get_ident()
             if not (force or self.due()) or not self.store.exists:
                 return self.report
             return self._run(time.time() if now is None else float(now))
+        finally:
+            self._owner = None
+            self._lock.release()
 
     def _run(self, now: float) -> RetentionReport:
         rep = self.report

@@ -435,7 +435,7 @@ class Store(StoreIndexes):
             deletes = self.erasure.deletes
             maintainer = self.maintainer()
             reports = maintainer.run(cleanup=False)
-            if self._items is not None:
+            if self._items is not None and self.maintenance.erase_deleted:  # else never erased
                 left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
                 self.erasure.note_compacted(deletes, left)
             for tbl in (self._items, self._senses, self._meta):
