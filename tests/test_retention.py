@@ -66,9 +66,13 @@ def test_rules_are_checked_where_they_are_read(tmp_path, monkeypatch) -> None:
     monkeypatch.delenv("TACTUS_RETENTION")
     monkeypatch.delenv("TACTUS_THIN_AFTER_DAYS")
     toml = tmp_path / "tactus.toml"
-    toml.write_text('retain_days = 90\n[[retention]]\nsession = "lab-*"\nretain_days = 7\n')
+    toml.write_text(
+        'retain_days = 90\n[[retention]]\nsession = "lab-*"\nretain_days = 7\n'
+        '[[retention]]\nsession = "demo-*"\nretain_days = "none"\n'  # TOML has no null
+    )
     cfg = Settings(config=str(toml)).maintenance()
     assert resolve(cfg, None, "lab-3", "text").retain_days == 7
+    assert resolve(cfg, None, "demo-3", "text").retain_days is None
     assert resolve(cfg, None, "home", "text").retain_days == 90
 
 

@@ -41,9 +41,9 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
-from tactus_memory.storage.retention import THIN_COSINE, RetentionRule
+from tactus_memory.storage.retention import THIN_COSINE, RetentionRule, never_is_none
 
 log = logging.getLogger(__name__)
 
@@ -130,6 +130,11 @@ class MaintenanceConfig(BaseModel):
     retention_interval: float = Field(
         600.0, ge=0.0, description="Least seconds between retention passes (expiry, thinning)."
     )
+
+    @field_validator("retain_days", "thin_after_days", mode="before")
+    @classmethod
+    def _no_limit(cls, value: Any) -> Any:
+        return never_is_none(value)
 
 
 # --------------------------------------------------------------------------- planning

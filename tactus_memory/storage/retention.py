@@ -32,7 +32,7 @@ import threading
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -42,8 +42,36 @@ from tactus_memory.senses import validate_sense_name
 from tactus_memory.storage.where import Where, _sql_float, validate_id
 
 if TYPE_CHECKING:
-    from tactus_memory.storage.maintenance import MaintenanceConfig
-    from tactus_memory.storage.store import Store
+    import pyarrow as pa
+
+
+class RetentionSettings(Protocol):
+    """The retention fields of :class:`tactus_memory.storage.maintenance.MaintenanceConfig`
+    (which imports this module, so it is named by its shape here)."""
+
+    retain_days: float | None
+    thin_after_days: float | None
+    thin_cosine: float
+    retention: list[RetentionRule]
+    retention_interval: float
+
+
+class RetentionStore(Protocol):
+    """What retention uses of :class:`tactus_memory.storage.store.Store` (which owns a
+    :class:`Retention`)."""
+
+    maintenance: Any  # a MaintenanceConfig
+
+    @property
+    def exists(self) -> bool: ...
+    def scan(
+        self, where: str | None, columns: Sequence[str], limit: int | None = None
+    ) -> pa.Table: ...
+    def count(self, where: str | None = None) -> int: ...
+    def delete(self, where: str) -> None: ...
+    def get_meta(self, key: str) -> str | None: ...
+    def set_meta(self, key: str, value: str) -> None: ...
+
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +91,15 @@ _CHUNK = 256
 POLICY_FIELDS = ("retain_days", "thin_after_days", "thin_cosine")
 
 
+#: what a setting may say for "no limit" (TOML has no null)
+NEVER = frozenset({"none", "never", "forever", "off", ""})
+
+
+def never_is_none(value: Any) -> Any:
+    """``none``/``never``/``forever``/``off`` (any case) or an empty string -> None."""
+    return None if isinstance(value, str) and value.strip().lower() in NEVER else value
+
+
 class RetentionRule(BaseModel):
     """Retention for part of the store: every key given must match (tenant name, session id
     or ``prefix*``, sense name); the policy fields it sets override the store-wide ones
@@ -78,6 +115,10 @@ class RetentionRule(BaseModel):
         None, ge=0.0, description="Thin stale duplicates older than this many days."
     )
     thin_cosine: float | None = Field(None, gt=0.0, le=1.0, description="Thinning's bar.")
+
+    _no_limit = field_validator("retain_days", "thin_after_days", mode="before")(
+        classmethod(lambda cls, v: never_is_none(v))
+    )
 
     @field_validator("tenant")
     @classmethod
@@ -125,7 +166,7 @@ class Policy:
     thin_cosine: float
 
 
-def resolve(cfg: MaintenanceConfig, tenant: str | None, session: str, sense: str) -> Policy:
+def resolve(cfg: RetentionSettings, tenant: str | None, session: str, sense: str) -> Policy:
     """The policy of ``session``/``sense`` in ``tenant``'s store under ``cfg``."""
     values: dict[str, Any] = {f: getattr(cfg, f) for f in POLICY_FIELDS}
     rules = sorted(
@@ -141,7 +182,7 @@ def resolve(cfg: MaintenanceConfig, tenant: str | None, session: str, sense: str
     return Policy(**values)
 
 
-def _all_values(cfg: MaintenanceConfig, name: str) -> list[float]:
+def _all_values(cfg: RetentionSettings, name: str) -> list[float]:
     given = [getattr(r, name) for r in cfg.retention if name in r.model_fields_set]
     return [v for v in [getattr(cfg, name), *given] if v is not None]
 
@@ -180,7 +221,7 @@ class Retention:
     """Applies the retention policy of one tenant's store (``Store.maintain`` calls
     :meth:`run` before compacting, at most every ``retention_interval`` seconds)."""
 
-    def __init__(self, store: Store, tenant: str | None = None) -> None:
+    def __init__(self, store: RetentionStore, tenant: str | None = None) -> None:
         self.store = store
         self.tenant = tenant
         self.report = RetentionReport()
@@ -189,7 +230,7 @@ class Retention:
         self._owner: int | None = None  # the thread running a pass
 
     @property
-    def cfg(self) -> MaintenanceConfig:
+    def cfg(self) -> RetentionSettings:
         return self.store.maintenance
 
     def enabled(self) -> bool:
