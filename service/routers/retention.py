@@ -7,12 +7,17 @@ maintain`` prints its own).
 
 from __future__ import annotations
 
+from dataclasses import asdict
+
 from fastapi import APIRouter
 
 from tactus_memory.service.deps import MemoryDep
 from tactus_memory.service.schemas import RetentionOut
 
 router = APIRouter(tags=["health"])
+
+#: the policy fields reported as they are
+POLICY = {"retain_days", "thin_after_days", "thin_cosine", "erase_deleted", "retain_seconds"}
 
 
 @router.get(
@@ -22,17 +27,9 @@ router = APIRouter(tags=["health"])
 )
 def retention(memory: MemoryDep) -> RetentionOut:
     store = memory.store
-    cfg, report = store.maintenance, store.retention.report
+    cfg = store.maintenance
+    policy = cfg.model_dump(include=POLICY)
     return RetentionOut(
-        retain_days=cfg.retain_days,
-        thin_after_days=cfg.thin_after_days,
-        thin_cosine=cfg.thin_cosine,
-        rules=len(cfg.retention),
-        erase_deleted=cfg.erase_deleted,
-        retain_seconds=cfg.retain_seconds,
-        maintained_here=cfg.maintain,
-        expired=report.expired_total,
-        thinned=report.thinned_total,
-        last_run=report.last_run,
-        erasure_pending=store.erasure.pending(),
-    )
+        **policy, **asdict(store.retention.report), rules=len(cfg.retention),
+        maintained_here=cfg.maintain, erasure_pending=store.erasure.pending(),
+    )  # fmt: skip

@@ -110,17 +110,10 @@ class MaintenanceConfig(BaseModel):
         None, gt=0.0, description="Delete items written more than this many days ago (none: keep)."
     )
     thin_after_days: float | None = Field(
-        None,
-        ge=0.0,
-        description="Thin stale duplicates among items written more than this many days ago "
-        "(none: never thin).",
+        None, ge=0.0, description="Thin stale duplicates among items older than this (none: off)."
     )
     thin_cosine: float = Field(
-        THIN_COSINE,
-        gt=0.0,
-        le=1.0,
-        description="Thinning drops an item within this cosine of a kept neighbour of the same "
-        "session, sense and source (keeping each run's first and last).",
+        THIN_COSINE, gt=0.0, le=1.0, description="Thinning's bar: cosine to a kept neighbour."
     )
     retention: list[RetentionRule] = Field(
         default_factory=list,
