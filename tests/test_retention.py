@@ -156,3 +156,35 @@ def test_tactus_maintain_applies_retention(tmp_path, minilm_space, monkeypatch) 
 def _items(mem: Memory, session: str, source: str) -> list[tuple[float, str]]:
     rows = mem.store.scan(f"session = '{session}' AND source = '{source}'", ["t", "text"])
     return [(r["t"], r["text"]) for r in rows.to_pylist()]
+
+
+def test_thinning_a_real_glove_recording(tmp_path, minilm_space, stag_dir) -> None:
+    """A STAG recording streamed as the service windows it, thinned at the measured bar:
+    each dropped window lies inside a run (its nearest kept window before it is within the
+    bar of it and of the nearest kept one after), and the ends of the session are kept."""
+    from tactus_memory.adapters.touch import TactusEncoder
+    from tactus_memory.touch.training.stag_io import read_mat_fields
+    from tactus_memory.touch.windows import cut_windows
+
+    fields = read_mat_fields(stag_dir / "weights_lite" / "metadata.mat")
+    rec = np.asarray(fields["recordingId"]).reshape(-1)
+    idx = np.flatnonzero(rec == rec[0])  # the first recording (~16 s of grasps at 7.4 Hz)
+    pressure, ts = np.asarray(fields["pressure"])[idx], np.asarray(fields["ts"]).reshape(-1)[idx]
+    settings = Settings(thin_after_days=1)
+    w = cut_windows(pressure, ts, window=settings.window, stride=settings.stride)
+    w = w.take(~w.idle)  # (Wn, K, 32, 32) raw int16, as the touch sense stores them
+    mem = Memory.open(str(tmp_path / "mem"), space=minilm_space, maintenance=settings.maintenance())
+    mem.add_sense(TactusEncoder())
+    ids = mem.add_many("glove", "touch", list(w.frames), t=list(w.t), t_end=list(w.t_end))
+    vectors = {i: np.asarray(mem.get_item(i, vector=True).vector) for i in ids}
+    rep = mem.store.retention.run(time.time() + 2 * DAY_S, force=True)
+    kept = set(mem.store.scan(None, ["id"]).column("id").to_pylist())
+    assert rep.thinned == len(ids) - len(kept) > 0  # a hand held still repeats itself
+    assert ids[0] in kept and ids[-1] in kept
+    for j, i in enumerate(ids):
+        if i in kept:
+            continue
+        anchor = next(ids[a] for a in range(j - 1, -1, -1) if ids[a] in kept)
+        last = next(ids[b] for b in range(j + 1, len(ids)) if ids[b] in kept)
+        assert vectors[anchor] @ vectors[i] >= THIN_COSINE - 1e-6
+        assert vectors[anchor] @ vectors[last] >= THIN_COSINE - 1e-6
