@@ -22,6 +22,13 @@ Three jobs, run by one process per store (the *maintainer*: ``tactus maintain``,
    before a compaction or delete has ``retain_seconds`` to finish. The maintainer notes which
    version was the latest at each run; the first run reads the version history once.
 
+Before these, retention (expiry, stale-duplicate thinning:
+:mod:`tactus_memory.storage.retention`) deletes what the policy says. With ``erase_deleted``
+compaction rewrites every fragment that holds a deleted row, and a delete that is a table's
+latest version is superseded by an empty commit (its manifest names the delete's filter),
+so once cleanup has run ``retain_seconds`` later no file of the store holds deleted data
+(README "Retention and deletion").
+
 Disk then stays near the live data: the extra is what compaction rewrote within the last
 ``retain_seconds`` plus the small tier-0 tail (measured by ``benchmarks/disk.py``).
 

@@ -68,6 +68,8 @@ log = logging.getLogger(__name__)
 ITEMS = "items"
 SENSES = "senses"
 META = "meta"
+#: the session trajectories (:mod:`tactus_memory.storage.posestore`)
+POSES = "poses"
 #: columns returned by searches (everything except the vector and raw bytes)
 HIT_COLUMNS = [
     *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
@@ -276,15 +278,13 @@ class Store(StoreIndexes):
             self.on_commit()  # (not from maintenance's own commits: it would wait for itself)
 
     def table_uris(self) -> dict[str, str]:
-        """name -> URI of each table of the store's database (items, senses, meta, poses,
-        ...: each is checked, compacted and cleaned up)."""
+        """name -> URI of each table of the memory the store has (items, senses, meta, and
+        poses once a trajectory was written): each is checked, compacted and cleaned up."""
         tables = ((ITEMS, self._items), (SENSES, self._senses), (META, self._meta))
         uris = {name: tbl.uri for name, tbl in tables if tbl is not None}
-        for name in sorted(self._table_names() - set(uris)):
-            if name not in self._other_uris:
-                self._other_uris[name] = self.db.open_table(name).uri
-            uris[name] = self._other_uris[name]
-        return uris
+        if POSES not in self._other_uris and POSES in self._table_names():
+            self._other_uris[POSES] = self.db.open_table(POSES).uri
+        return uris | self._other_uris
 
     # ----------------------------------------------------------- writes
     def write(self, data: pa.Table, *, upsert: bool) -> None:
