@@ -97,7 +97,10 @@ LEFT = "robot left the charging dock and drove to the kitchen"
 def real(tmp_path, minilm_space):
     def open_(**settings) -> Memory:
         cfg = Settings(**settings).maintenance()
-        return Memory.open(str(tmp_path / "mem"), space=minilm_space, maintenance=cfg)
+        # maintenance inline: no background pass outlives the test
+        return Memory.open(
+            str(tmp_path / "mem"), space=minilm_space, maintenance=cfg, background=False
+        )
 
     return open_
 
@@ -141,7 +144,7 @@ def test_thinning_drops_stale_duplicates_of_real_minilm_text(real) -> None:
 
 def test_tactus_maintain_applies_retention(tmp_path, minilm_space, monkeypatch) -> None:
     path = tmp_path / "mem"
-    mem = Memory.open(str(path), space=minilm_space)
+    mem = Memory.open(str(path), space=minilm_space, background=False)
     mem.add_many("old-1", "text", ["first note", "second note"])
     mem.add_many("fresh", "text", ["third note"])
     time.sleep(1.0)  # the notes are now more than 1e-5 days (0.86 s) old
@@ -150,7 +153,8 @@ def test_tactus_maintain_applies_retention(tmp_path, minilm_space, monkeypatch) 
     assert res.exit_code == 0, res.output
     line = next(json.loads(x) for x in res.stdout.splitlines() if '"retention"' in x)
     assert line["retention"]["expired"] == 2
-    assert [s.id for s in Memory.open(str(path), space=minilm_space).sessions()] == ["fresh"]
+    after = Memory.open(str(path), space=minilm_space, background=False)
+    assert [s.id for s in after.sessions()] == ["fresh"]
 
 
 def _items(mem: Memory, session: str, source: str) -> list[tuple[float, str]]:
@@ -173,7 +177,8 @@ def test_thinning_a_real_glove_recording(tmp_path, minilm_space, stag_dir) -> No
     settings = Settings(thin_after_days=1)
     w = cut_windows(pressure, ts, window=settings.window, stride=settings.stride)
     w = w.take(~w.idle)  # (Wn, K, 32, 32) raw int16, as the touch sense stores them
-    mem = Memory.open(str(tmp_path / "mem"), space=minilm_space, maintenance=settings.maintenance())
+    cfg = settings.maintenance()
+    mem = Memory.open(str(tmp_path / "mem"), space=minilm_space, maintenance=cfg, background=False)
     mem.add_sense(TactusEncoder())
     ids = mem.add_many("glove", "touch", list(w.frames), t=list(w.t), t_end=list(w.t_end))
     vectors = {i: np.asarray(mem.get_item(i, vector=True).vector) for i in ids}
