@@ -208,13 +208,16 @@ def thin_run_drops(vectors: np.ndarray, cosine: float) -> np.ndarray:
 class RetentionReport:
     """What retention did to one store (this pass, and in this process so far)."""
 
+    #: items the last pass expired and thinned, and the groups it thinned
     expired: int = 0
     thinned: int = 0
+    groups_thinned: int = 0
+    #: items expired and thinned by this process so far
     expired_total: int = 0
     thinned_total: int = 0
+    #: when the last pass ran (unix seconds) and how long it took
     last_run: float | None = None
     seconds: float = 0.0
-    groups_thinned: int = 0
 
 
 class Retention:
