@@ -94,6 +94,31 @@ def test_deleted_and_expired_data_leave_no_byte_in_the_store(tmp_path, minilm_sp
     assert mem.search("kept note", k=1)[0].session == "keep"  # the store still answers
 
 
+def test_an_idle_server_erases_a_deleted_session_by_itself(tmp_path, minilm_space) -> None:
+    """No explicit maintenance: the serving process's own passes (after the DELETE's commit,
+    then its idle ticks every ``maintain_interval``) compact and clean the store."""
+    secret = f"zq{uuid.uuid4().hex}"
+    settings = Settings(retain_seconds=0.5, cleanup_interval=0, maintain_interval=0.2)
+    root = tmp_path / "mem"
+    mem = Memory.open(str(root), space=minilm_space, maintenance=settings.maintenance())
+    for batch in range(10):  # fan_in (8) fragments and more: the deleted row shares one
+        mem.add_many("keep", "text", [f"kept note {batch}.{i}" for i in range(5)])
+        if batch == 4:
+            mem.add_many(f"gone-{secret}", "text", [f"the {secret} note"])
+    mem.optimize()
+    needles = {"session": f"gone-{secret}".encode(), "text": f"the {secret} note".encode()}
+    assert set(found(root, needles)) == set(needles)
+    with serve_app(create_app(settings, memory=mem)) as base:
+        assert httpx.delete(f"{base}/sessions/gone-{secret}", timeout=60).status_code == 200
+        deadline = time.monotonic() + 120  # a liveness bound, not a speed target
+        while httpx.get(f"{base}/retention", timeout=30).json()["erasure_pending"]:
+            assert time.monotonic() < deadline, "the deleted rows were never erased"
+            time.sleep(0.2)
+        mem.wait_for_maintenance(60)
+        mem.store.wait_for_cleanup(60)
+    assert found(root, needles) == {}
+
+
 def test_without_erasure_the_deleted_rows_stay_in_the_files(tmp_path, minilm_space) -> None:
     """The same delete with ``erase_deleted`` off: the data file still holds the row (so
     the test above can fail, and the setting is what erases)."""

@@ -376,8 +376,9 @@ class Erasure:
     def note_compacted(self, deletes: int, deleted_rows_left: int) -> None:
         """After compaction, which started once ``deletes`` deletes were committed."""
         if deleted_rows_left == 0:
-            with self.lock:
-                self._compacted = (deletes, time.time())
+            with self.lock:  # (a pass with no new delete leaves the earlier time)
+                if self._compacted is None or deletes > self._compacted[0]:
+                    self._compacted = (deletes, time.time())
 
     def note_cleanup(self, started: float, retain_seconds: float) -> None:
         with self.lock:
