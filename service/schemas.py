@@ -410,7 +410,10 @@ class RetentionOut(BaseModel):
     )
     last_run: float | None = Field(description="Unix time of the last retention pass.")
     seconds: float = Field(description="How long the last pass took.")
-    erasure_pending: bool = Field(description="Deleted rows may still be in the files.")
+    erasure_pending: bool | None = Field(
+        description="Rows this process deleted may still be in the files (null: another "
+        "process maintains the store, ask it: `tactus maintain`)."
+    )
 
 
 class LiveOut(BaseModel):

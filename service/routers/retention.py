@@ -31,5 +31,6 @@ def retention(memory: MemoryDep) -> RetentionOut:
     policy = cfg.model_dump(include=POLICY)
     return RetentionOut(
         **policy, **asdict(store.retention.report), rules=len(cfg.retention),
-        maintained_here=cfg.maintain, erasure_pending=store.erasure.pending(),
+        maintained_here=cfg.maintain,
+        erasure_pending=store.erasure.pending() if cfg.maintain else None,
     )  # fmt: skip
