@@ -41,6 +41,7 @@ from tactus_memory.service.routers import (
     items,
     places,
     recordings,
+    retention,
     search,
     senses,
     sessions,
@@ -154,6 +155,17 @@ def operation_id(route: APIRoute) -> str:
 Loader = Callable[[ServiceState], "str | None"]
 
 
+async def _maintenance_ticks(memory: Any, interval: float) -> None:
+    """Every ``interval`` seconds, a maintenance pass when one is due without a commit
+    (retention, erasure of deleted rows): commits alone schedule it otherwise."""
+    while True:
+        await asyncio.sleep(interval)
+        try:
+            await run_in_threadpool(memory.maintain_if_due)
+        except Exception:  # noqa: BLE001  (retried on the next tick)
+            log.exception("scheduling maintenance failed; retried on the next tick")
+
+
 def create_app(
     settings: Settings | None = None,
     memory: Any = None,
@@ -211,7 +223,9 @@ def create_app(
             except Exception:  # noqa: BLE001
                 log.exception("warming up the space failed")
             state.warm = True
+        ticking = asyncio.create_task(_maintenance_ticks(memory, settings.maintain_interval))
         yield
+        ticking.cancel()
         if loading is not None and not loading.done():
             loading.cancel()  # the worker thread finishes its step; nothing waits for it
         # Commit what is queued (its clients are waiting for their acks), then stop.
@@ -238,6 +252,7 @@ def create_app(
     app.include_router(health.router)
     for module in (
         sessions, senses, images, search, items, touch, touch_stream, ui, recordings, places,
+        retention,
     ):  # fmt: skip
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))

@@ -389,6 +389,33 @@ class HealthOut(BaseModel):
     read_only: bool = Field(False, description="The store cannot be written: writes get 503.")
 
 
+class RetentionOut(BaseModel):
+    """The store's retention policy and what maintenance did with it (README "Retention and
+    deletion"): counts of the last pass and since this process started; none where another
+    process maintains."""
+
+    retain_days: float | None = Field(description="Store-wide expiry (null: keep forever).")
+    thin_after_days: float | None = Field(description="Store-wide thinning age (null: off).")
+    thin_cosine: float = Field(description="Thinning's cosine bar.")
+    erase_deleted: bool = Field(description="Compaction rewrites every fragment with deletes.")
+    retain_seconds: float = Field(description="Old versions (deleted data) kept this long.")
+    rules: int = Field(description="Rules per tenant, session or sense.")
+    maintained_here: bool = Field(description="This process runs maintenance.")
+    expired: int = Field(description="Items the last pass expired.")
+    thinned: int = Field(description="Items the last pass thinned.")
+    expired_total: int = Field(description="Items expired by this process.")
+    thinned_total: int = Field(description="Items thinned by this process.")
+    groups_thinned: int = Field(
+        description="(session, sense, source) groups the last pass thinned."
+    )
+    last_run: float | None = Field(description="Unix time of the last retention pass.")
+    seconds: float = Field(description="How long the last pass took.")
+    erasure_pending: bool | None = Field(
+        description="Rows this process deleted may still be in the files (null: another "
+        "process maintains the store, ask it: `tactus maintain`)."
+    )
+
+
 class LiveOut(BaseModel):
     status: str = "ok"
 

@@ -281,6 +281,12 @@ class Memory:
         except Exception:  # noqa: BLE001
             log.exception("scheduling maintenance after a commit failed")
 
+    def maintain_if_due(self) -> None:
+        """Start a background maintenance pass when one is due without a new commit
+        (retention, or deleted rows to erase from the files); ``tactus serve`` calls it every
+        ``maintain_interval`` seconds, so an idle server still expires and erases."""
+        self._schedule_maintenance()
+
     def optimize(self) -> None:
         """Build/retrain indexes if due and compact now (blocking)."""
         self.store.maintain(force=True)

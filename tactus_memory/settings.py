@@ -169,7 +169,8 @@ class Settings(BaseSettings, MaintenanceConfig):
 
     def maintenance(self) -> MaintenanceConfig:
         """The maintenance policy these settings describe."""
-        return MaintenanceConfig(**self.model_dump(include=set(MaintenanceConfig.model_fields)))
+        # the fields as they are (a dump would mark every field of a retention rule as set)
+        return MaintenanceConfig(**{f: getattr(self, f) for f in MaintenanceConfig.model_fields})
 
     @field_validator("token")
     @classmethod

@@ -99,9 +99,12 @@ def test_plan_merges_only_full_runs_of_one_tier() -> None:
 
 
 def test_plan_rewrites_a_settled_fragment_only_for_its_deletions() -> None:
-    cfg = MaintenanceConfig(tier_base_bytes=1000, fan_in=3, settled_bytes=100_000)
+    sizes = {"tier_base_bytes": 1000, "fan_in": 3, "settled_bytes": 100_000}
+    cfg = MaintenanceConfig(**sizes, erase_deleted=False)
     big = FragmentInfo(0, 1000, 50, 200_000)  # 5 % deleted: kept
     assert plan_compaction([big], cfg) == []
+    # erase_deleted (the default): any deleted row is rewritten away (issue 25)
+    assert plan_compaction([big], MaintenanceConfig(**sizes)) == [[0]]
     big = FragmentInfo(0, 1000, 300, 200_000)  # 30 % deleted: rewritten alone
     assert plan_compaction([big], cfg) == [[0]]
     gone = FragmentInfo(0, 1000, 1000, 200_000)  # all deleted: Lance drops it itself

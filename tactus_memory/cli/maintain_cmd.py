@@ -50,10 +50,12 @@ def maintain(
         ),
     ] = False,
 ) -> None:
-    """Maintain a store: size-tiered compaction, incremental index refresh, version cleanup.
+    """Maintain a store: retention (expiry, thinning), size-tiered compaction, incremental
+    index refresh, version cleanup.
 
     Prints one JSON line per pass and table (version, fragments, what was compacted and
-    removed). Run exactly one per store; start the servers with ``--no-maintain``. A damaged
+    removed), and one for retention when it is configured (items expired and thinned). Run
+    exactly one per store; start the servers with ``--no-maintain``. A damaged
     store is never maintained (``--check`` says what is wrong).
     """
     from tactus_memory.errors import TactusError
@@ -98,6 +100,9 @@ def maintain(
                         "bytes_removed_total": t.bytes_removed_total,
                     }
                     typer.echo(json.dumps({"pass": done, **asdict(report), **totals}))
+                if store.retention.enabled():
+                    retention = asdict(store.retention.report)
+                    typer.echo(json.dumps({"pass": done, "retention": retention}))
             except Exception as exc:  # noqa: BLE001  (a conflict or a transient store error:
                 # logged, retried next pass; the maintainer must keep running)
                 typer.echo(f"maintenance pass failed (retried): {exc}", err=True)

@@ -22,6 +22,13 @@ Three jobs, run by one process per store (the *maintainer*: ``tactus maintain``,
    before a compaction or delete has ``retain_seconds`` to finish. The maintainer notes which
    version was the latest at each run; the first run reads the version history once.
 
+Before these, retention (expiry, stale-duplicate thinning:
+:mod:`tactus_memory.storage.retention`) deletes what the policy says. With ``erase_deleted``
+compaction rewrites every fragment that holds a deleted row, and a delete that is a table's
+latest version is superseded by an empty commit (its manifest names the delete's filter),
+so once cleanup has run ``retain_seconds`` later no file of the store holds deleted data
+(README "Retention and deletion").
+
 Disk then stays near the live data: the extra is what compaction rewrote within the last
 ``retain_seconds`` plus the small tier-0 tail (measured by ``benchmarks/disk.py``).
 
@@ -41,11 +48,15 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
+
+from tactus_memory.storage.retention import THIN_COSINE, RetentionRule, never_is_none
 
 log = logging.getLogger(__name__)
 
 MiB = 1024 * 1024
+#: Lance rewrites a fragment whose deleted share is above this (erase_deleted: any deletion)
+ERASE_BAR = 1e-9
 
 
 class MaintenanceConfig(BaseModel):
@@ -95,6 +106,35 @@ class MaintenanceConfig(BaseModel):
         0.1, gt=0.0, le=1.0, description="Rewrite a fragment alone once this share is deleted."
     )
     num_threads: int = Field(1, ge=1, description="Threads per compaction (2 cores: leave 1).")
+    erase_deleted: bool = Field(
+        True,
+        description="Rewrite every fragment holding deleted rows (not only past "
+        "deletion_threshold), so deleted, expired and thinned data leave the store's files "
+        "once cleanup removes the versions that still name them (after retain_seconds).",
+    )
+    # retention (tactus_memory.storage.retention; README "Retention and deletion")
+    retain_days: float | None = Field(
+        None, gt=0.0, description="Delete items written more than this many days ago (none: keep)."
+    )
+    thin_after_days: float | None = Field(
+        None, ge=0.0, description="Thin stale duplicates among items older than this (none: off)."
+    )
+    thin_cosine: float = Field(
+        THIN_COSINE, gt=0.0, le=1.0, description="Thinning's bar: cosine to a kept neighbour."
+    )
+    retention: list[RetentionRule] = Field(
+        default_factory=list,
+        description="Rules per tenant, session (id or prefix*) and/or sense overriding "
+        "retain_days, thin_after_days, thin_cosine (the most specific rule wins).",
+    )
+    retention_interval: float = Field(
+        600.0, ge=0.0, description="Least seconds between retention passes (expiry, thinning)."
+    )
+
+    @field_validator("retain_days", "thin_after_days", mode="before")
+    @classmethod
+    def _no_limit(cls, value: Any) -> Any:
+        return never_is_none(value)
 
 
 # --------------------------------------------------------------------------- planning
@@ -129,7 +169,8 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
     bytes (or ``free_merge_bytes``): a larger merge waits until the table has grown, which
     bounds the disk spike of keeping its inputs for ``retain_seconds``. The first tier with
     a group wins. Without any, each fragment whose deleted share passes
-    ``deletion_threshold`` is a group alone. Settled fragments (tier None) are boundaries.
+    ``deletion_threshold`` (with ``erase_deleted``: any deleted row) is a group alone.
+    Settled fragments (tier None) are boundaries.
     """
     tiers = [tier_of(f.bytes, cfg) for f in frags]
     top = max((t for t in tiers if t is not None), default=-1)
@@ -150,11 +191,8 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
             run, at_level = [], 0
         if groups:
             return groups
-    return [
-        [f.id]
-        for f in frags
-        if f.rows and f.deleted / f.rows >= cfg.deletion_threshold and f.deleted < f.rows
-    ]
+    bar = 0.0 if cfg.erase_deleted else cfg.deletion_threshold
+    return [[f.id] for f in frags if f.deleted and f.deleted / f.rows >= bar and f.deleted < f.rows]
 
 
 # --------------------------------------------------------------------------- running
@@ -242,6 +280,8 @@ class TableMaintainer:
                 self._compact_group(ds, frags, groups[0], report)
                 ds = self._dataset()  # re-plan on the new layout (new fragment ids)
             self._refresh_indices(ds, report)
+            if self.cfg.erase_deleted:
+                self._seal(self._dataset())
             ds = self._dataset()
             report.version = ds.version
             report.fragments = len(ds.get_fragments())
@@ -264,7 +304,9 @@ class TableMaintainer:
             "max_bytes_per_file": max(4 * nbytes, 64 * MiB),
             "excluded_fragment_ids": [f.id for f in frags if f.id not in keep],
             "materialize_deletions": True,
-            "materialize_deletions_threshold": self.cfg.deletion_threshold,
+            "materialize_deletions_threshold": ERASE_BAR
+            if self.cfg.erase_deleted
+            else self.cfg.deletion_threshold,
             "num_threads": self.cfg.num_threads,
         }
         plan = Compaction.plan(ds, options)
@@ -275,6 +317,18 @@ class TableMaintainer:
             metrics = Compaction.commit(ds, rewrites, options)
         report.compacted_groups += 1
         report.fragments_removed += int(metrics.fragments_removed)
+
+    def _seal(self, ds: Any) -> None:
+        """A delete's filter (ids, session names) is written into its version's manifest and
+        transaction file; while that version is the latest, cleanup keeps it. An empty
+        delete supersedes it, so cleanup removes it after ``retain_seconds`` like any other."""
+        try:
+            op = getattr(ds.read_transaction(ds.version), "operation", None)
+        except Exception:  # noqa: BLE001  (pylance cannot read some index ops back: not a delete)
+            return
+        if type(op).__name__ == "Delete" and getattr(op, "predicate", "false") != "false":
+            with self.commit_lock or contextlib.nullcontext():
+                ds.delete("false")
 
     def _refresh_indices(self, ds: Any, report: TableReport) -> None:
         stale = any(

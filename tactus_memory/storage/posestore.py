@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.storage.places import Placement, Trajectory
-from tactus_memory.storage.store import Store
+from tactus_memory.storage.store import POSES, Store
 from tactus_memory.storage.tables import place_fields, poses_schema
 from tactus_memory.storage.where import Where
 
@@ -25,8 +25,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-#: the table of session trajectories
-POSES = "poses"
 #: the place columns written by a backfill (with ``id`` as the merge key)
 PLACE_COLUMNS = ["x", "y", "z", "orientation", "frame", "placed"]
 

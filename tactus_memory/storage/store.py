@@ -44,7 +44,13 @@ from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
 from tactus_memory.storage.integrity import IntegrityWatch, check_store
-from tactus_memory.storage.maintenance import Maintainer, MaintenanceConfig, TableReport
+from tactus_memory.storage.maintenance import (
+    Maintainer,
+    MaintenanceConfig,
+    TableReport,
+    fragment_infos,
+)
+from tactus_memory.storage.retention import Erasure, Retention
 from tactus_memory.storage.tables import (
     IndexConfig,
     items_schema,
@@ -62,6 +68,8 @@ log = logging.getLogger(__name__)
 ITEMS = "items"
 SENSES = "senses"
 META = "meta"
+#: the session trajectories (:mod:`tactus_memory.storage.posestore`)
+POSES = "poses"
 #: columns returned by searches (everything except the vector and raw bytes)
 HIT_COLUMNS = [
     *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
@@ -87,11 +95,13 @@ class Store(StoreIndexes):
         read_consistency_interval: timedelta | float | str | None = "env",
         index: IndexConfig | None = None,
         maintenance: MaintenanceConfig | None = None,
+        tenant: str | None = None,
     ) -> None:
         """``read_consistency_interval``: how stale reads may be against other processes'
         commits (``"env"``: ``TACTUS_READ_CONSISTENCY``, 1 s; None: never re-read);
         ``storage_options``: object-store options (``connect.storage_options_for``);
-        ``maintenance``: the policy, and whether this process runs it (default from env)."""
+        ``maintenance``: the policy, and whether this process runs it (default from env);
+        ``tenant``: whose store this is, for the retention rules naming a tenant."""
         import lancedb
 
         self.uri = normalise_uri(uri)
@@ -127,6 +137,11 @@ class Store(StoreIndexes):
         self._indexed = False
         self._scalar_indexed = False
         self._partitions: int | None = None
+        #: expiry and thinning, and the erasure of deleted rows, run by maintenance
+        #: (:mod:`tactus_memory.storage.retention`)
+        self.retention = Retention(self, tenant)
+        self.erasure = Erasure()
+        self._other_uris: dict[str, str] = {}
         self._open_existing()
 
     # ----------------------------------------------------------- tables
@@ -263,9 +278,13 @@ class Store(StoreIndexes):
             self.on_commit()  # (not from maintenance's own commits: it would wait for itself)
 
     def table_uris(self) -> dict[str, str]:
-        """name -> URI of each table the store has."""
+        """name -> URI of each table of the memory the store has (items, senses, meta, and
+        poses once a trajectory was written): each is checked, compacted and cleaned up."""
         tables = ((ITEMS, self._items), (SENSES, self._senses), (META, self._meta))
-        return {name: tbl.uri for name, tbl in tables if tbl is not None}
+        uris = {name: tbl.uri for name, tbl in tables if tbl is not None}
+        if POSES not in self._other_uris and POSES in self._table_names():
+            self._other_uris[POSES] = self.db.open_table(POSES).uri
+        return uris | self._other_uris
 
     # ----------------------------------------------------------- writes
     def write(self, data: pa.Table, *, upsert: bool) -> None:
@@ -306,6 +325,7 @@ class Store(StoreIndexes):
         self.integrity.require()
         with self.commit_lock:
             self.items.delete(where)
+            self.erasure.note_delete()
         self._committed(ITEMS)
 
     def count(self, where: str | None = None) -> int:
@@ -374,7 +394,7 @@ class Store(StoreIndexes):
 
     def maintainer(self) -> Maintainer:
         """The maintenance runner for this store's tables (built on first use)."""
-        if self._maintainer is None:
+        if self._maintainer is None or set(self._maintainer.tables) != set(self.table_uris()):
             self._maintainer = Maintainer(
                 self.table_uris(), self.storage_options, self.maintenance, self.commit_lock
             )
@@ -408,14 +428,22 @@ class Store(StoreIndexes):
                 if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
                     self.build_indexes()
             self._commits = {}
+            try:
+                self.retention.run()  # its deletes are compacted away just below
+            except Exception:  # noqa: BLE001  (retried next pass; compaction goes on)
+                log.exception("retention failed; it will be retried")
+            deletes = self.erasure.deletes
             maintainer = self.maintainer()
             reports = maintainer.run(cleanup=False)
+            if self._items is not None and self.maintenance.erase_deleted:  # else never erased
+                left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
+                self.erasure.note_compacted(deletes, left)
             for tbl in (self._items, self._senses, self._meta):
                 if tbl is not None:  # our handles must not stay on versions cleanup removes
                     tbl.checkout_latest()
             if wait:
                 self.wait_for_cleanup()
-                maintainer.cleanup(reports)
+                self._cleanup(reports)
                 self._last_cleanup = time.monotonic()
             else:
                 self._start_cleanup()
@@ -438,15 +466,23 @@ class Store(StoreIndexes):
 
     def _cleanup_quietly(self) -> None:
         try:
-            self.maintainer().cleanup()
+            self._cleanup(None)
         except Exception:  # noqa: BLE001  (retried on the next run)
             log.exception("version cleanup failed; it will be retried")
+
+    def _cleanup(self, reports: list[TableReport] | None) -> None:
+        started = time.time()
+        self.maintainer().cleanup(reports)
+        self.erasure.note_cleanup(started, self.maintenance.retain_seconds)
 
     def wait_for_cleanup(self, timeout: float | None = None) -> None:
         if self._cleanup_thread is not None:
             self._cleanup_thread.join(timeout)
 
     def needs_maintenance(self) -> bool:
-        """Whether some table (each counted on its own) had ``compact_every`` commits."""
+        """Whether some table (each counted on its own) had ``compact_every`` commits, deleted
+        rows wait to be erased, or retention is due."""
         due = max(self._commits.values(), default=0) >= self.index.compact_every
+        erase = self.erasure.due(self.maintenance.retain_seconds)
+        due = due or erase or self.retention.due()  # work without new commits
         return self.maintenance.maintain and due

@@ -1,0 +1,36 @@
+"""``GET /retention``: the retention policy and what maintenance did (behind the token).
+
+The policy is the maintenance policy's (:mod:`tactus_memory.storage.retention`); the counts
+are this process's (a replica started with ``--no-maintain`` reports none: ``tactus
+maintain`` prints its own).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+from fastapi import APIRouter
+
+from tactus_memory.service.deps import MemoryDep
+from tactus_memory.service.schemas import RetentionOut
+
+router = APIRouter(tags=["health"])
+
+#: the policy fields reported as they are
+POLICY = {"retain_days", "thin_after_days", "thin_cosine", "erase_deleted", "retain_seconds"}
+
+
+@router.get(
+    "/retention",
+    summary="Retention: expiry and thinning policy, items removed, erasure pending",
+    response_model=RetentionOut,
+)
+def retention(memory: MemoryDep) -> RetentionOut:
+    store = memory.store
+    cfg = store.maintenance
+    policy = cfg.model_dump(include=POLICY)
+    return RetentionOut(
+        **policy, **asdict(store.retention.report), rules=len(cfg.retention),
+        maintained_here=cfg.maintain,
+        erasure_pending=store.erasure.pending() if cfg.maintain else None,
+    )  # fmt: skip
