@@ -104,8 +104,11 @@ def open_memory(path: str, cfg: IndexConfig, background: bool) -> Memory:
     return mem
 
 
-def ingest(mem: Memory, data: dict[str, np.ndarray], batch: int) -> tuple[np.ndarray, float]:
-    """Bulk add grouped by (session, sense) in chunks; returns ids (row order) and rows/s."""
+def ingest(
+    mem: Memory, data: dict[str, np.ndarray], batch: int, senses: tuple[str, ...] = SENSES
+) -> tuple[np.ndarray, float]:
+    """Bulk add grouped by (session, sense) in chunks; returns ids (row order) and rows/s.
+    ``data["sense"]`` indexes ``senses``."""
     n = len(data["vectors"])
     ids = np.empty(n, dtype=object)
     t0 = time.perf_counter()
@@ -118,7 +121,7 @@ def ingest(mem: Memory, data: dict[str, np.ndarray], batch: int) -> tuple[np.nda
         for a in range(0, len(g), batch):
             idx = g[a : a + batch]
             ids[idx] = mem.add_many(
-                f"s{s}", SENSES[k], list(data["vectors"][idx]), t=data["t"][idx].tolist()
+                f"s{s}", senses[k], list(data["vectors"][idx]), t=data["t"][idx].tolist()
             )
     return ids, n / (time.perf_counter() - t0)
 
@@ -129,11 +132,12 @@ def exact_topk(
     ids: np.ndarray,
     q: np.ndarray,
     mask: np.ndarray | None,
+    senses: tuple[str, ...] = SENSES,
 ) -> list[set[str]]:
     """Exact merged top-K under the memory's per-sense calibration; q: (Q, D)."""
-    mu = np.zeros(len(SENSES))
-    sd = np.ones(len(SENSES))
-    for j, s in enumerate(SENSES):
+    mu = np.zeros(len(senses))
+    sd = np.ones(len(senses))
+    for j, s in enumerate(senses):
         c = mem.calibration(s)
         mu[j], sd[j] = c.mu, c.sigma
     vec = data["vectors"]

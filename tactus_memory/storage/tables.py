@@ -145,6 +145,8 @@ def vector_index_config(cfg: IndexConfig, partitions: int, dim: int) -> Any:
         return ix.IvfSq(**common)
     if kind == "IVF_HNSW_SQ":
         return ix.IvfHnswSq(**common)
+    if kind == "IVF_RQ":  # RaBitQ, 1 bit per dimension (needs a refine factor)
+        return ix.IvfRq(**common)
     if kind == "IVF_FLAT":
         return ix.IvfFlat(**common)
     raise InvalidInputError(f"unsupported vector index type {cfg.index_type!r}")
