@@ -14,6 +14,7 @@ both runtimes are compared in ``benchmarks/light_server.py``.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
@@ -22,6 +23,8 @@ from pathlib import Path
 MINILM_ONNX = "minilm.onnx"
 TOKENIZER_JSON = "tokenizer.json"
 TOUCH_ONNX = "touch.onnx"
+#: beside touch.onnx: the sha256 of the checkpoint it was exported from
+TOUCH_SOURCE = "touch.json"
 #: ONNX opset of the exported graphs (ONNX Runtime 1.17+ runs it)
 OPSET = 17
 
@@ -96,4 +99,6 @@ def export_touch(
     names = {"inputs": ["frames"], "axes": {"frames": {0: "batch"}, "embedding": {0: "batch"}}}
     with torch.inference_mode():
         _export(model, (frames,), folder / TOUCH_ONNX, names)
+    source = {"checkpoint": ckpt.path.name, "checkpoint_sha256": ckpt.sha256}
+    (folder / TOUCH_SOURCE).write_text(json.dumps(source, indent=2) + "\n")
     return folder

@@ -11,6 +11,7 @@ few cores, and the server runs searches beside it).
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.onnx_export import MINILM_ONNX, TOKENIZER_JSON, TOUCH_ONNX
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.onnx_export import MINILM_ONNX, TOKENIZER_JSON, TOUCH_ONNX, TOUCH_SOURCE
 from tactus_memory.storage.vectors import as_unit_rows
 
 #: sentence-transformers' max_seq_length for all-MiniLM-L6-v2 (its sentence_bert_config.json)
@@ -63,10 +65,27 @@ class OnnxMiniLM:
 
 
 class OnnxTouch:
-    """The touch encoder from ``folder/touch.onnx``."""
+    """The touch encoder from ``folder/touch.onnx``; ``checkpoint_sha256``: refuse an export
+    of another checkpoint (its ``touch.json`` records the source)."""
 
-    def __init__(self, folder: str | os.PathLike[str], *, threads: int = 1) -> None:
-        self.session = _session(Path(folder) / TOUCH_ONNX, threads)
+    def __init__(
+        self,
+        folder: str | os.PathLike[str],
+        *,
+        threads: int = 1,
+        checkpoint_sha256: str | None = None,
+    ) -> None:
+        folder = Path(folder)
+        if checkpoint_sha256 is not None:
+            source = json.loads((folder / TOUCH_SOURCE).read_text())
+            if source.get("checkpoint_sha256") != checkpoint_sha256:
+                raise InvalidInputError(
+                    f"{folder / TOUCH_ONNX} was exported from checkpoint "
+                    f"{source.get('checkpoint')!r} (sha256 {source.get('checkpoint_sha256')}), "
+                    f"not the one in use (sha256 {checkpoint_sha256}): export it again "
+                    "(tactus_memory.onnx_export.export_touch)"
+                )
+        self.session = _session(folder / TOUCH_ONNX, threads)
         shape = self.session.get_inputs()[0].shape  # ["batch", K, 32, 32]
         self.frames = int(shape[1])
         self.dim = int(self.session.get_outputs()[0].shape[1])

@@ -1,17 +1,21 @@
 """The ONNX exports of both serving encoders (tactus_memory.onnx_export, run by
 tactus_memory.onnx_models on ONNX Runtime) give the torch models' vectors: the bundled MiniLM
-through the model's own tokenizer, and the shipped touch encoder."""
+through the model's own tokenizer, and the shipped touch encoder; `tactus serve --onnx` serves
+both without loading torch."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 
 pytest.importorskip("onnxruntime", reason="the [onnx] extra is not installed")
 
+from benchmarks.serving import free_port, start_serve, stop_process, wait_ok  # noqa: E402
 from tactus_memory.adapters.touch import TactusEncoder  # noqa: E402
+from tactus_memory.errors import InvalidInputError  # noqa: E402
 from tactus_memory.onnx_export import export_minilm, export_touch  # noqa: E402
 from tactus_memory.onnx_models import MINILM_MAX_TOKENS, OnnxMiniLM, OnnxTouch  # noqa: E402
 from tactus_memory.spaces.minilm import MiniLMSpace  # noqa: E402
@@ -57,3 +61,36 @@ def test_touch_onnx_matches_torch(folder: Path) -> None:
     assert got.shape == want.shape
     assert np.abs(got - want).max() < 1e-4
     assert np.abs(got[0] - got[1]).max() > 1e-3  # different windows, different vectors
+
+
+def test_touch_export_of_another_checkpoint_is_refused(folder: Path, tmp_path: Path) -> None:
+    for f in folder.iterdir():
+        (tmp_path / f.name).symlink_to(f)
+    with pytest.raises(InvalidInputError, match="exported from checkpoint"):
+        OnnxTouch(tmp_path, checkpoint_sha256="0" * 64)
+
+
+def test_serve_on_onnx_without_torch(folder: Path, tmp_path: Path) -> None:
+    """`tactus serve --onnx DIR`: both encoders on ONNX Runtime, torch never loaded; a touch
+    window and a note are stored and found by text."""
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    log = tmp_path / "serve.log"
+    proc = start_serve(port, tmp_path / "mem", log, "--onnx", str(folder))
+    try:
+        assert wait_ok(proc, base + "/ready", 120, interval=0.1) is not None, log.read_text()
+        maps = Path(f"/proc/{proc.pid}/maps").read_text()
+        assert "onnxruntime" in maps
+        assert "libtorch" not in maps
+        raw = np.full((8, 32, 32), 512, np.int16)
+        raw[:, 10:22, 8:20] = 700
+        with httpx.Client(base_url=base, timeout=30) as c:
+            c.post("/sessions/a/touch", json={"frames": raw.tolist(), "t": 1.0}).raise_for_status()
+            c.post(
+                "/sessions/a/text", json={"text": "holding a red mug", "t": 2.0}
+            ).raise_for_status()
+            hits = c.get("/search", params={"q": "red mug", "k": 5}).json()["hits"]
+        assert {h["sense"] for h in hits} == {"text", "touch"}
+        assert hits[0]["sense"] == "text"
+    finally:
+        stop_process(proc)
