@@ -38,7 +38,8 @@ def load1() -> float:
 
 
 def child(runtime: str, onnx_dir: str) -> None:
-    """Load and run both encoders on ``runtime``; print one JSON line of steps."""
+    """Load and run both encoders on ``runtime`` ("parts": what a server on ONNX loads, step
+    by step); print one JSON line of steps."""
     import numpy as np
 
     t0 = time.perf_counter()
@@ -50,7 +51,27 @@ def child(runtime: str, onnx_dir: str) -> None:
         )
 
     window = np.full((1, 8, 32, 32), 0.2, np.float32)  # (B, K, 32, 32) calibrated
-    if runtime == "torch":
+    if runtime == "parts":
+        mark("python")
+        import lancedb  # noqa: F401
+
+        mark("import lancedb (pyarrow, pandas)")
+        from tactus_memory.service.app import create_app, open_store
+        from tactus_memory.settings import Settings
+
+        mark("import the service")
+        settings = Settings(data=tempfile.mkdtemp() + "/mem", onnx=onnx_dir)
+        memory = open_store(settings)
+        mark("open a new store")
+        create_app(settings, memory=memory)
+        mark("build the app")
+        memory.space.embed_texts(["warm up"])
+        mark("MiniLM on ONNX loaded and run")
+        from tactus_memory.adapters.touch import TactusEncoder
+
+        TactusEncoder(onnx=onnx_dir).embed(window, calibrated=True)
+        mark("touch encoder on ONNX loaded and run")
+    elif runtime == "torch":
         import torch  # noqa: F401
 
         mark("import torch")
@@ -65,7 +86,7 @@ def child(runtime: str, onnx_dir: str) -> None:
     else:
         from tactus_memory.onnx_models import OnnxMiniLM, OnnxTouch
 
-        mark("import onnxruntime")
+        mark("imports")
         OnnxMiniLM(onnx_dir).embed_texts(["warm up"])
         mark("MiniLM loaded and run")
         OnnxTouch(onnx_dir).embed(window)
@@ -83,8 +104,8 @@ def models(runtime: str, onnx_dir: Path) -> dict[str, Any]:
 
 
 def server(tmp: Path, *extra: str) -> dict[str, Any]:
-    """Cold start of ``tactus serve`` on an empty store: seconds to /ready, RSS then, and
-    after 10 s idle."""
+    """Cold start of ``tactus serve *extra`` on a new store: seconds from the process start
+    to /ready answering 200, RSS then, and after 10 s idle."""
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     log = tmp / "serve.log"
@@ -112,7 +133,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--onnx-dir", type=Path, default=Path("/work/runs/onnx"))
-    ap.add_argument("--child", choices=("torch", "onnx"), help=argparse.SUPPRESS)
+    ap.add_argument("--child", choices=("torch", "onnx", "parts"), help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     if args.child:
@@ -125,6 +146,7 @@ def main() -> None:
         export_touch(args.onnx_dir)
     variants = {
         "server_torch": lambda tmp: server(tmp),
+        "server_onnx": lambda tmp: server(tmp, "--onnx", str(args.onnx_dir)),
         "models_torch": lambda tmp: models("torch", args.onnx_dir),
         "models_onnx": lambda tmp: models("onnx", args.onnx_dir),
     }
@@ -135,6 +157,7 @@ def main() -> None:
             for name, fn in variants.items():
                 runs[name].append(fn(Path(tmp)))
                 print(f"round {r} {name}: {json.dumps(runs[name][-1])}", flush=True)
+    parts = models("parts", args.onnx_dir)  # where the ONNX server's memory goes
     result: dict[str, Any] = {
         "what": "cold start to /ready and idle RSS (MB, 10^6 bytes) of `tactus serve` with "
         "MiniLM + the shipped touch encoder; both encoders alone on torch vs ONNX Runtime",
@@ -147,11 +170,19 @@ def main() -> None:
         "rounds": args.rounds,
         "order": "variants back to back in each round (A/B/C, A/B/C, ...)",
         "runs": runs,
+        "onnx_server_parts": parts,
         "summary": {
-            "server_torch_ready_s": summary(runs["server_torch"], "ready_s"),
-            "server_torch_idle_rss_mb": summary(
-                [{"v": r["idle_10s"]["VmRSS"]} for r in runs["server_torch"]], "v"
-            ),
+            **{
+                f"{name}_{what}": summary(
+                    [
+                        {"v": r["ready_s"] if what == "ready_s" else r["idle_10s"]["VmRSS"]}
+                        for r in runs[name]
+                    ],
+                    "v",
+                )
+                for name in ("server_torch", "server_onnx")
+                for what in ("ready_s", "idle_rss_mb")
+            },
             **{
                 f"{name}_{what}": summary([{"v": r["steps"][-1][key]} for r in runs[name]], "v")
                 for name in ("models_torch", "models_onnx")
