@@ -163,11 +163,11 @@ def filtered(mem: Memory, data: dict[str, Any], ids: np.ndarray, q: np.ndarray) 
     return out
 
 
-def http_search(store: Path, n_queries: int, log: Path) -> dict[str, Any]:
-    """p50/p95 of GET /search?q=... on ``tactus serve --data store`` (distinct texts)."""
+def http_search(store: Path, n_queries: int, log: Path, *extra: str) -> dict[str, Any]:
+    """p50/p95 of GET /search?q=... on ``tactus serve --data store *extra`` (distinct texts)."""
     port = free_port()
     base = f"http://127.0.0.1:{port}"
-    proc = start_serve(port, store, log)
+    proc = start_serve(port, store, log, *extra)
     try:
         if wait_ok(proc, base + "/ready", 300, interval=0.2) is None:
             sys.exit(f"the server did not get ready:\n{log.read_text()[-2000:]}")
@@ -204,6 +204,8 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=20_000)
     ap.add_argument("--build-only", action="store_true")
     ap.add_argument("--http", action="store_true", help="time /search on the first spec")
+    ap.add_argument("--onnx", type=Path, help="also time /search on `tactus serve --onnx DIR`")
+    ap.add_argument("--only-http", action="store_true", help="skip the library measurements")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
 
@@ -215,7 +217,6 @@ def main() -> None:
     built = {f"{k}:{r}": spec_store(args.cache, base, args.rows, k, r) for k, r in specs}
     if args.build_only:
         return
-    q, tq = real["queries"], real["tune_queries"]
     result: dict[str, Any] = {
         "rows": args.rows,
         "data": {
@@ -224,10 +225,48 @@ def main() -> None:
             "spread": data["spread"],
             "queries": "MiniLM embeddings of question texts",
         },
-        "machine": {"cpus": os.cpu_count(), "load_avg_start": os.getloadavg()},
         "target_recall_at_10": args.target,
-        "specs": {},
     }
+    run: dict[str, Any] = {
+        "args": vars(args),
+        "cpus": os.cpu_count(),
+        "load_avg_start": os.getloadavg(),
+    }
+    first = next(iter(built))
+    if not args.only_http:
+        result.update(library(args, real, data, ids, built))
+    if args.http:
+        log = args.cache / "serve.log"
+        runs: dict[str, Any] = {"spec": first, "torch": [], "onnx": []}
+        for r in range(args.repeats):  # torch and ONNX Runtime servers, back to back
+            runs["torch"].append(http_search(built[first]["path"], 100, log))
+            if args.onnx:
+                onnx = ("--onnx", str(args.onnx))
+                runs["onnx"].append(http_search(built[first]["path"], 100, log, *onnx))
+            print(f"  http round {r}: {runs['torch'][-1]} {(runs['onnx'] or [None])[-1]}")
+        result["http_search"] = runs
+    run["load_avg_end"] = os.getloadavg()
+    run["total_s"] = time.perf_counter() - t_all
+    # merge into the file: specs by name, the latest filtered/http figures, every run's args
+    merged = json.loads(args.out.read_text()) if args.out.exists() else {}
+    merged.setdefault("specs", {}).update(result.pop("specs", {}))
+    merged.update(result)
+    merged.setdefault("runs", []).append(json.loads(json.dumps(run, default=str)))
+    args.out.write_text(json.dumps(merged, indent=2, default=str) + "\n")
+    print(f"wrote {args.out}")
+
+
+def library(
+    args: argparse.Namespace,
+    real: dict[str, np.ndarray],
+    data: dict[str, Any],
+    ids: np.ndarray,
+    built: dict[str, dict[str, Any]],
+) -> dict[str, Any]:
+    """Sweep each spec on the tuning queries, time the chosen settings back to back on the
+    held-out ones, and the filtered searches on the first spec."""
+    q, tq = real["queries"], real["tune_queries"]
+    specs: dict[str, Any] = {}
     mems: dict[str, Memory] = {}
     truth = tune_truth = None
     for name, info in built.items():
@@ -240,7 +279,7 @@ def main() -> None:
         print(f"== {name}", flush=True)
         chosen, sweep = tune(mem, tq, tune_truth, GRIDS[kind], args.target)
         print(f"  chosen {chosen}", flush=True)
-        result["specs"][name] = {
+        specs[name] = {
             **{k: v for k, v in info.items() if k != "path"},
             "chosen": chosen,
             "sweep": sweep,
@@ -249,7 +288,7 @@ def main() -> None:
     for r in range(args.repeats):  # the chosen settings, back to back
         for name, mem in mems.items():
             m = {**measure(mem, q, truth), "load_1min": load1()}
-            result["specs"][name].setdefault("held_out", []).append(m)
+            specs[name].setdefault("held_out", []).append(m)
             print(
                 f"  round {r} {name}: p50 {m['p50_ms']:.2f} p95 {m['p95_ms']:.2f} ms "
                 f"recall {m['recall_at_10']:.3f} load {m['load_1min']}",
@@ -257,17 +296,10 @@ def main() -> None:
             )
     first = next(iter(mems))
     print(f"== filtered ({first})", flush=True)
-    result["filtered"] = {"spec": first, **filtered(mems[first], data, ids, q[:100])}
+    out = {"specs": specs, "filtered": {"spec": first, **filtered(mems[first], data, ids, q[:100])}}
     for mem in mems.values():
         mem.close()
-    if args.http:
-        log = args.cache / "serve.log"
-        result["http_search"] = {"spec": first, **http_search(built[first]["path"], 100, log)}
-        print(f"  http {result['http_search']}", flush=True)
-    result["machine"]["load_avg_end"] = os.getloadavg()
-    result["total_s"] = time.perf_counter() - t_all
-    args.out.write_text(json.dumps(result, indent=2, default=str) + "\n")
-    print(f"wrote {args.out}")
+    return out
 
 
 if __name__ == "__main__":
