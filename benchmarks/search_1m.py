@@ -163,6 +163,51 @@ def filtered(mem: Memory, data: dict[str, Any], ids: np.ndarray, q: np.ndarray) 
     return out
 
 
+def where_time_goes(mem: Memory, q: np.ndarray) -> dict[str, Any]:
+    """p50 ms of one library search and of its parts, at the store's search settings: the
+    ANN queries it issues (counted), one such query with the hit columns, and LanceDB alone
+    (ids only), with and without the refine step."""
+    store, cfg = mem.store, mem.store.index
+    calls = [0]
+    inner = store.vector_search
+
+    def counted(*a: Any, **kw: Any) -> Any:
+        calls[0] += 1
+        return inner(*a, **kw)
+
+    def p50(fn: Any) -> float:
+        fn(q[0])
+        lat = []
+        for v in q:
+            t0 = time.perf_counter()
+            fn(v)
+            lat.append((time.perf_counter() - t0) * 1000)
+        return round(pct(lat, 50), 2)
+
+    def lance(v: np.ndarray, refine: int | None) -> Any:
+        s = store.items.search(v, vector_column_name="vector").distance_type("cosine")
+        s = s.nprobes(min(cfg.nprobes, store.partitions()))
+        return (s.refine_factor(refine) if refine else s).select(["id"]).limit(2 * K).to_arrow()
+
+    store.vector_search = counted  # type: ignore[method-assign]
+    try:
+        search = p50(lambda v: mem.search_vector(v, k=K))
+    finally:
+        del store.vector_search
+    n = store.count()
+    return {
+        "settings": {"nprobes": cfg.nprobes, "refine_factor": cfg.refine_factor},
+        "search_vector_p50_ms": search,
+        "ann_queries_per_search": calls[0] / (len(q) + 1),
+        "one_ann_query_with_hit_columns_p50_ms": p50(
+            lambda v: store.vector_search(v, 2 * K, None, allowed=n, total=n)
+        ),
+        "lancedb_ids_only_p50_ms": p50(lambda v: lance(v, cfg.refine_factor)),
+        "lancedb_ids_only_no_refine_p50_ms": p50(lambda v: lance(v, None)),
+        "load_1min": load1(),
+    }
+
+
 def http_search(store: Path, n_queries: int, log: Path, *extra: str) -> dict[str, Any]:
     """p50/p95 of GET /search?q=... on ``tactus serve --data store *extra`` (distinct texts)."""
     port = free_port()
@@ -188,12 +233,8 @@ def http_search(store: Path, n_queries: int, log: Path, *extra: str) -> dict[str
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rows", type=int, default=1_000_000)
-    ap.add_argument(
-        "--specs",
-        nargs="+",
-        default=["IVF_SQ:4096", "IVF_SQ:1024"],
-        help="index type:rows per partition, built and swept in turn",
-    )
+    specs_help = "TYPE:ROWS_PER_PARTITION index specs, built and swept in turn"
+    ap.add_argument("--specs", nargs="+", default=["IVF_SQ:4096"], help=specs_help)
     ap.add_argument("--cache", type=Path, default=Path("/work/runs/bench1m"))
     ap.add_argument(
         "--stag", type=Path, default=Path("/work/shared/data/stag/blindfolded_lite_train")
@@ -296,7 +337,12 @@ def library(
             )
     first = next(iter(mems))
     print(f"== filtered ({first})", flush=True)
-    out = {"specs": specs, "filtered": {"spec": first, **filtered(mems[first], data, ids, q[:100])}}
+    out = {
+        "specs": specs,
+        "filtered": {"spec": first, **filtered(mems[first], data, ids, q[:100])},
+        "where_time_goes": {"spec": first, **where_time_goes(mems[first], q[:100])},
+    }
+    print(f"  where the time goes: {out['where_time_goes']}", flush=True)
     for mem in mems.values():
         mem.close()
     return out
