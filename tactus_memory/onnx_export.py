@@ -19,16 +19,14 @@ import os
 import shutil
 from pathlib import Path
 
-#: the files :func:`export_minilm` and :func:`export_touch` write in their folder
-MINILM_ONNX = "minilm.onnx"
-#: MiniLM's weights, beside the graph: ONNX Runtime maps this file instead of copying the
-#: weights out of the graph, so a server's RSS holds only the pages it reads (about 90 MB
-#: less at /ready, benchmarks/results/light_server.json)
-MINILM_WEIGHTS = "minilm.onnx.data"
-TOKENIZER_JSON = "tokenizer.json"
-TOUCH_ONNX = "touch.onnx"
-#: beside touch.onnx: the sha256 of the checkpoint it was exported from
-TOUCH_SOURCE = "touch.json"
+from tactus_memory.onnx_models import (
+    MINILM_ONNX,
+    MINILM_WEIGHTS,
+    TOKENIZER_JSON,
+    TOUCH_ONNX,
+    TOUCH_SOURCE,
+)
+
 #: ONNX opset of the exported graphs (ONNX Runtime 1.17+ runs it)
 OPSET = 17
 

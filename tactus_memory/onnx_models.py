@@ -20,9 +20,18 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.onnx_export import MINILM_ONNX, TOKENIZER_JSON, TOUCH_ONNX, TOUCH_SOURCE
 from tactus_memory.storage.vectors import as_unit_rows
 
+#: the files of an export folder (written by tactus_memory.onnx_export)
+MINILM_ONNX = "minilm.onnx"
+#: MiniLM's weights, beside the graph: ONNX Runtime maps this file instead of copying the
+#: weights out of the graph, so a server's RSS holds only the pages it reads (about 90 MB
+#: less at /ready, benchmarks/results/light_server.json)
+MINILM_WEIGHTS = "minilm.onnx.data"
+TOKENIZER_JSON = "tokenizer.json"
+TOUCH_ONNX = "touch.onnx"
+#: beside touch.onnx: the sha256 of the checkpoint it was exported from
+TOUCH_SOURCE = "touch.json"
 #: sentence-transformers' max_seq_length for all-MiniLM-L6-v2 (its sentence_bert_config.json)
 MINILM_MAX_TOKENS = 256
 
