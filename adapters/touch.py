@@ -83,19 +83,27 @@ class TactusEncoder(Sense):
         name: str = "touch",
         device: str = "cpu",
         batch_size: int = 64,
+        onnx: str | os.PathLike[str] | None = None,
     ) -> None:
         from tactus_memory.touch.checkpoint import load_checkpoint
         from tactus_memory.touch.profile import SensorProfile
 
         self.name = validate_sense_name(name)
         path = Path(checkpoint) if checkpoint is not None else default_checkpoint_path()
-        self.ckpt = load_checkpoint(path, device=device)
-        self.model = self.ckpt.model
+        self.ckpt = load_checkpoint(path, device=device, weights=onnx is None)
+        #: the torch model, or (``onnx``: a folder of tactus_memory.onnx_export) the ONNX
+        #: Runtime session of this checkpoint's export; torch is then never imported
+        self.model: Any = self.ckpt.model
+        self.onnx = onnx is not None
+        if onnx is not None:
+            from tactus_memory.onnx_models import OnnxTouch
+
+            self.model = OnnxTouch(onnx, checkpoint_sha256=self.ckpt.sha256)
         self.device = device
         self.batch_size = int(batch_size)
         self.dim = self.ckpt.dim
         self.space_name = self.ckpt.space_name
-        self.frames = int(self.model.cfg.frames)
+        self.frames = int(self.ckpt.meta["model"]["frames"])
         self.profile = SensorProfile.from_dict(self.ckpt.meta["calibration"])
         self.classes = self.ckpt.classes
         self.phrases = list(self.ckpt.targets.phrases)
@@ -232,11 +240,13 @@ class TactusEncoder(Sense):
         self, batch: Sequence[Any] | np.ndarray, *, calibrated: bool | None = None
     ) -> np.ndarray:
         """N windows ((B, K, 32, 32) array or a list of (K, 32, 32)) -> (N, D) float32 unit rows."""
+        wins = self._windows(batch, calibrated)
+        if self.onnx:
+            return self.model.embed(wins)
         import torch
 
         from tactus_memory.touch.model import batched_forward
 
-        wins = self._windows(batch, calibrated)
         with torch.inference_mode():
             z = batched_forward(self.model, wins, self.batch_size, self.device, self.dim)
         return as_unit_rows(z, self.dim, what="touch embedding")

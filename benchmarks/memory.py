@@ -105,10 +105,15 @@ def open_memory(path: str, cfg: IndexConfig, background: bool) -> Memory:
 
 
 def ingest(
-    mem: Memory, data: dict[str, np.ndarray], batch: int, pos: np.ndarray | None = None
+    mem: Memory,
+    data: dict[str, np.ndarray],
+    batch: int,
+    pos: np.ndarray | None = None,
+    senses: tuple[str, ...] = SENSES,
 ) -> tuple[np.ndarray, float]:
     """Bulk add grouped by (session, sense) in chunks; returns ids (row order) and rows/s.
-    With ``pos`` ((N, 3), row order) each row is placed at its position in frame ``map``."""
+    With ``pos`` ((N, 3), row order) each row is placed at its position in frame ``map``;
+    ``data["sense"]`` indexes ``senses``."""
     n = len(data["vectors"])
     ids = np.empty(n, dtype=object)
     t0 = time.perf_counter()
@@ -122,7 +127,7 @@ def ingest(
             idx = g[a : a + batch]
             placed = {} if pos is None else {"position": pos[idx], "frame": "map"}
             ids[idx] = mem.add_many(
-                f"s{s}", SENSES[k], list(data["vectors"][idx]), t=data["t"][idx].tolist(), **placed
+                f"s{s}", senses[k], list(data["vectors"][idx]), t=data["t"][idx].tolist(), **placed
             )
     return ids, n / (time.perf_counter() - t0)
 
@@ -133,11 +138,12 @@ def exact_topk(
     ids: np.ndarray,
     q: np.ndarray,
     mask: np.ndarray | None,
+    senses: tuple[str, ...] = SENSES,
 ) -> list[set[str]]:
     """Exact merged top-K under the memory's per-sense calibration; q: (Q, D)."""
-    mu = np.zeros(len(SENSES))
-    sd = np.ones(len(SENSES))
-    for j, s in enumerate(SENSES):
+    mu = np.zeros(len(senses))
+    sd = np.ones(len(senses))
+    for j, s in enumerate(senses):
         c = mem.calibration(s)
         mu[j], sd[j] = c.mu, c.sigma
     vec = data["vectors"]

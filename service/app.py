@@ -50,6 +50,7 @@ from tactus_memory.service.routers import (
     touch_stream,
     ui,
 )
+from tactus_memory.service.startup import StartupError
 from tactus_memory.settings import Settings
 
 log = logging.getLogger("tactus_memory.service")
@@ -77,7 +78,7 @@ def open_store(settings: Settings) -> Any:
     """The memory at ``settings.data`` in the configured space, no senses added yet."""
     from tactus_memory.memory import Memory
 
-    return Memory.open(
+    memory = Memory.open(
         settings.data,
         space=settings.space,
         space_path=settings.space_path,
@@ -85,6 +86,16 @@ def open_store(settings: Settings) -> Any:
         read_consistency_interval=settings.read_consistency,
         maintenance=settings.maintenance(),
     )
+    if settings.onnx:
+        from tactus_memory.spaces.minilm import MiniLMSpace
+
+        if not isinstance(memory.space, MiniLMSpace):
+            raise StartupError(
+                f"--onnx serves the MiniLM space; this memory is in {memory.space.name!r}: "
+                "leave --onnx out"
+            )
+        memory.space.use_onnx(settings.onnx)
+    return memory
 
 
 def open_memory(settings: Settings) -> tuple[Any, str | None]:
@@ -101,9 +112,12 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     then the defaults still missing, by registered name (:mod:`tactus_memory.plugins`): touch
     (``settings.touch_checkpoint`` or the shipped checkpoint) and image (vision spaces); text
     comes with the memory. Returns why touch is unavailable, or None."""
-    if settings.touch and settings.touch_checkpoint and "touch" not in memory.senses:
+    onnx = {"onnx": settings.onnx} if settings.onnx else {}
+    if settings.touch and (settings.touch_checkpoint or onnx) and "touch" not in memory.senses:
         # asked for by name: it wins over the store's record, and a failure stops the start
-        memory.add_sense(create_sense("touch", memory.space, checkpoint=settings.touch_checkpoint))
+        memory.add_sense(
+            create_sense("touch", memory.space, checkpoint=settings.touch_checkpoint, **onnx)
+        )
     for name, reason in memory.restore_senses(skip=() if settings.touch else ("touch",)).items():
         log.warning("sense %r is searchable but not rebuilt: %s", name, reason)
     why: str | None = None
@@ -177,7 +191,7 @@ def create_app(
     ``state.starting`` names the step (probes 503, data routes 503 + Retry-After). If it
     raises, ``state.load_error`` keeps the exception (the command stops the server)."""
     settings = settings or Settings()
-    if settings.torch_threads is not None:
+    if settings.torch_threads is not None and not settings.onnx:
         # Before any worker thread exists: threads take the count when they first run torch.
         import torch
 

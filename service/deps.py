@@ -68,7 +68,8 @@ class ServiceState:
                 tick=self.settings.commit_tick_ms / 1000.0,
                 max_batch=self.settings.commit_max_batch,
                 max_pending=self.settings.commit_max_pending,
-                encode_threads=self.settings.torch_threads,
+                # torch threads; an ONNX server never imports torch
+                encode_threads=None if self.settings.onnx else self.settings.torch_threads,
             )
         return self.committer
 

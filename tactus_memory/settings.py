@@ -140,6 +140,11 @@ class Settings(BaseSettings, MaintenanceConfig):
     touch: bool = Field(
         True, description="Register the shipped touch encoder on startup when it is available."
     )
+    onnx: str | None = Field(
+        None,
+        description="Folder of ONNX exports (`tactus export-onnx`): serve MiniLM and the touch "
+        "encoder on ONNX Runtime instead of torch (the [onnx] extra; a lighter, faster start).",
+    )
     log_level: str = "info"
 
     @classmethod

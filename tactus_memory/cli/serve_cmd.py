@@ -50,6 +50,13 @@ def serve(
     no_touch: Annotated[
         bool, typer.Option("--no-touch", help="Do not load the touch encoder.")
     ] = False,
+    onnx: Annotated[
+        str | None,
+        typer.Option(
+            help="Folder written by `tactus export-onnx`: run MiniLM and the touch encoder on "
+            "ONNX Runtime, without torch (the onnx extra; env TACTUS_ONNX)."
+        ),
+    ] = None,
     no_maintain: Annotated[
         bool,
         typer.Option(
@@ -89,6 +96,7 @@ def serve(
         "space_path": space_path,
         "space_dim": space_dim,
         "touch_checkpoint": touch_checkpoint,
+        "onnx": onnx,
         "max_body_bytes": max_body_bytes,
         "window": window,
         "stride": stride,
@@ -106,7 +114,7 @@ def serve(
         where = settings.data
         check_location(settings.data)
         check_checkpoint(settings.touch_checkpoint if settings.touch else None)
-        if settings.torch_threads is None:
+        if settings.torch_threads is None and not settings.onnx:
             from tactus_memory.service.app import serving_torch_threads
 
             settings = settings.model_copy(update={"torch_threads": serving_torch_threads()})
@@ -125,6 +133,22 @@ def serve(
             raise failed
         typer.echo(f"tactus serve: {explain(failed, where)}", err=True)
         raise typer.Exit(2)
+
+
+@app.command("export-onnx")
+def export_onnx(
+    out: Annotated[str, typer.Argument(help="Folder to write minilm.onnx, touch.onnx into.")],
+    touch_checkpoint: Annotated[
+        str | None, typer.Option(help="Touch checkpoint to export (default: the shipped one).")
+    ] = None,
+) -> None:
+    """Export MiniLM and the touch encoder to ONNX for `tactus serve --onnx OUT` (needs torch
+    and the onnx extra here; the server then needs ONNX Runtime only)."""
+    from tactus_memory.onnx_export import export_minilm, export_touch
+
+    export_minilm(out)
+    export_touch(out, touch_checkpoint)
+    typer.echo(f"wrote {out}: serve with `tactus serve --onnx {out}`")
 
 
 def page_url(settings: Any, port: int | None = None) -> str:

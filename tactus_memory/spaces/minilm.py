@@ -45,6 +45,8 @@ class MiniLMSpace(Space):
 
     path: a local sentence-transformers folder of the same model (default: the bundled one).
     cache_size: how many query embeddings the LRU cache keeps (0 disables it).
+    onnx: a folder written by :func:`tactus_memory.onnx_export.export_minilm`: the same model
+    on ONNX Runtime (:class:`tactus_memory.onnx_models.OnnxMiniLM`), torch never imported.
     """
 
     name = MINILM_NAME
@@ -58,8 +60,10 @@ class MiniLMSpace(Space):
         device: str = "cpu",
         batch_size: int = DEFAULT_BATCH_SIZE,
         cache_size: int = DEFAULT_CACHE_SIZE,
+        onnx: str | os.PathLike[str] | None = None,
     ) -> None:
         self.path = Path(path) if path is not None else None
+        self.onnx = Path(onnx) if onnx is not None else None
         self.device = device
         self.batch_size = int(batch_size)
         self.cache_size = int(cache_size)
@@ -98,6 +102,10 @@ class MiniLMSpace(Space):
         if model is not None:
             return model
         with self._load_lock:
+            if self._model is None and self.onnx is not None:
+                from tactus_memory.onnx_models import OnnxMiniLM
+
+                self._model = OnnxMiniLM(self.onnx)
             if self._model is None:
                 path = self._resolve_path()
                 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -119,6 +127,12 @@ class MiniLMSpace(Space):
                 self._model = st
             return self._model
 
+    def use_onnx(self, folder: str | os.PathLike[str]) -> None:
+        """Run this space on the ONNX export in ``folder`` (before the model is loaded)."""
+        if self._model is not None:
+            raise RuntimeError("MiniLM is already loaded on torch; choose ONNX before using it")
+        self.onnx = Path(folder)
+
     @property
     def loaded(self) -> bool:
         return self._model is not None
@@ -129,6 +143,8 @@ class MiniLMSpace(Space):
         """texts: N strings -> (N, 384) float32, unit rows."""
         model = self._get_model()
         with self._encode_lock:
+            if self.onnx is not None:
+                return model.embed_texts(texts)
             out = model.encode(
                 texts,
                 batch_size=self.batch_size,

@@ -12,6 +12,10 @@ One ``.safetensors`` file holds everything needed to use the encoder without the
 
 ``<stem>.json`` beside the weights repeats the metadata for humans and tools; the embedded
 copy is authoritative. The file's sha256 is the provenance handle (``file_sha256``).
+
+torch is imported only by what needs it (saving, rebuilding the model, resume state):
+``load_checkpoint(path, weights=False)`` reads the metadata and targets without it, for a
+server that runs the encoder on ONNX Runtime (:mod:`tactus_memory.onnx_models`).
 """
 
 from __future__ import annotations
@@ -21,17 +25,19 @@ import os
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 from safetensors import safe_open
-from safetensors.torch import load_file, save_file
 
 from tactus_memory import __version__
 from tactus_memory.hashing import file_sha256
-from tactus_memory.touch.model import TactusConfig, TactusModel
 from tactus_memory.touch.targets import Targets
+
+if TYPE_CHECKING:
+    import torch
+
+    from tactus_memory.touch.model import TactusModel
 
 FORMAT = "tactus-touch/1"
 DEFAULT_CHECKPOINT = "tactus-lite-minilm.safetensors"  # in tactus_memory/touch/checkpoints/
@@ -51,9 +57,10 @@ def default_checkpoint_path() -> Path:
 
 @dataclass
 class Checkpoint:
-    """A loaded checkpoint. ``model`` is in eval mode, float32, on ``device``."""
+    """A loaded checkpoint. ``model`` is in eval mode, float32, on ``device`` (None when
+    loaded with ``weights=False``)."""
 
-    model: TactusModel
+    model: TactusModel | None
     meta: dict[str, Any]
     targets: Targets
     sha256: str
@@ -89,6 +96,9 @@ def save_checkpoint(
     half: bool = False,
 ) -> str:
     """Write weights + metadata atomically; returns the file's sha256."""
+    import torch
+    from safetensors.torch import save_file
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     dtype = torch.float16 if half else torch.float32
@@ -131,7 +141,7 @@ def save_checkpoint(
 
 def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The embedded metadata only (no weights loaded)."""
-    with safe_open(str(path), framework="pt") as f:
+    with safe_open(str(path), framework="numpy") as f:
         md = f.metadata() or {}
     if "tactus" not in md:
         raise ValueError(f"{path} is not a Tactus checkpoint (no 'tactus' metadata)")
@@ -141,26 +151,39 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     return meta
 
 
-def load_checkpoint(path: str | os.PathLike[str], device: str = "cpu") -> Checkpoint:
-    """Rebuild the model (float32, eval mode) and its targets from a ``.safetensors`` file."""
+def load_checkpoint(
+    path: str | os.PathLike[str], device: str = "cpu", *, weights: bool = True
+) -> Checkpoint:
+    """Rebuild the model (float32, eval mode) and its targets from a ``.safetensors`` file;
+    ``weights=False``: the metadata and targets only (no torch, ``model`` None)."""
     path = Path(path)
     meta = read_metadata(path)
+    with safe_open(str(path), framework="numpy") as f:
+        arrays = {k: f.get_tensor(k) for k in f.keys() if k.startswith("targets.")}  # noqa: SIM118
+    model = _rebuild(path, meta, device) if weights else None
+    targets = Targets(
+        classes=list(meta["classes"]),
+        phrases=list(meta["phrases"]),
+        raw=arrays["targets.raw"].astype(np.float32),
+        centroid=arrays["targets.centroid"].astype(np.float32),
+        centred=arrays["targets.centred"].astype(np.float32),
+        space_name=str(meta["space"]["name"]),
+        space_fingerprint=meta["space"].get("fingerprint"),
+    )
+    return Checkpoint(model=model, meta=meta, targets=targets, sha256=file_sha256(path), path=path)
+
+
+def _rebuild(path: Path, meta: dict[str, Any], device: str) -> TactusModel:
+    from safetensors.torch import load_file
+
+    from tactus_memory.touch.model import TactusConfig, TactusModel
+
     tensors = load_file(str(path), device="cpu")
     model = TactusModel(TactusConfig.from_dict(meta["model"]))
     state = {k[len("model.") :]: v for k, v in tensors.items() if k.startswith("model.")}
     state = {k: (v.float() if v.is_floating_point() else v) for k, v in state.items()}
     model.load_state_dict(state, strict=True)
-    model.to(device).eval()
-    targets = Targets(
-        classes=list(meta["classes"]),
-        phrases=list(meta["phrases"]),
-        raw=tensors["targets.raw"].numpy().astype(np.float32),
-        centroid=tensors["targets.centroid"].numpy().astype(np.float32),
-        centred=tensors["targets.centred"].numpy().astype(np.float32),
-        space_name=str(meta["space"]["name"]),
-        space_fingerprint=meta["space"].get("fingerprint"),
-    )
-    return Checkpoint(model=model, meta=meta, targets=targets, sha256=file_sha256(path), path=path)
+    return model.to(device).eval()
 
 
 # -- resume state (training loops) -----------------------------------------------------------
@@ -183,6 +206,8 @@ def save_resume(
     key: str = "model",
 ) -> None:
     """Module, optimizer and sampling-generator state, so ``--resume`` continues exactly."""
+    import torch
+
     state = {"opt": opt.state_dict(), "gen": gen.get_state(), "step": step, "history": history}
     state[key] = module.state_dict()
     torch.save(state, path)
@@ -198,6 +223,8 @@ def load_resume(
     key: str = "model",
 ) -> tuple[int, list[dict[str, Any]]]:
     """Restore what :func:`save_resume` wrote; returns (step, history)."""
+    import torch
+
     st = torch.load(path, map_location=device, weights_only=True)
     module.load_state_dict(st[key])
     opt.load_state_dict(st["opt"])
