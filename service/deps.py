@@ -69,6 +69,7 @@ class ServiceState:
                 max_batch=self.settings.commit_max_batch,
                 max_pending=self.settings.commit_max_pending,
                 encode_threads=self.settings.torch_threads,
+                nice=self.settings.commit_nice,
             )
         return self.committer
 
