@@ -41,6 +41,7 @@ from typing import Any
 
 from typing_extensions import Unpack
 
+from tactus_memory.encode_process import EncoderProcess
 from tactus_memory.errors import OverloadedError
 from tactus_memory.memory import Memory
 from tactus_memory.settings import (
@@ -93,7 +94,8 @@ class GroupCommitter:
     (``torch.set_num_threads`` is per thread), e.g. 1 on a 2-core machine so searches keep
     a core; None leaves torch's default. ``nice``: added to the committer thread's niceness
     (Linux: per thread) so the requests served meanwhile, searches first, get the cores before
-    the encoder does; 0 leaves it as it is.
+    the encoder does; 0 leaves it as it is. ``encoder``: an :class:`EncoderProcess` that
+    embeds the senses it serves in its own process (closed with the committer).
     """
 
     def __init__(
@@ -106,6 +108,7 @@ class GroupCommitter:
         retry_after: float = 1.0,
         encode_threads: int | None = None,
         nice: int = 0,
+        encoder: EncoderProcess | None = None,
     ) -> None:
         if tick < 0 or max_batch < 1 or max_pending < 1:
             raise ValueError("tick must be >= 0, max_batch and max_pending >= 1")
@@ -116,6 +119,7 @@ class GroupCommitter:
         self.retry_after = float(retry_after)
         self.encode_threads = encode_threads
         self.nice = int(nice)
+        self.encoder = encoder
         self.stats = CommitStats()
         self._cond = threading.Condition()
         self._queue: deque[_Queued] = deque()
@@ -179,6 +183,8 @@ class GroupCommitter:
             self._closing = True
             self._cond.notify_all()
         self._thread.join(timeout)
+        if self.encoder is not None:
+            self.encoder.close()
 
     def __enter__(self) -> GroupCommitter:
         return self
@@ -252,6 +258,8 @@ class GroupCommitter:
         fails after it (the bookkeeping is logged and repaired by the memory)."""
         t0 = time.perf_counter()
         writes = [q.write for q in batch]
+        if self.encoder is not None:  # what it cannot embed, commit_writes embeds here
+            self.encoder.embed_writes(writes, self.memory.space.dim)
         try:
             self.memory.commit_writes(writes, isolate=True)
         except Exception as exc:  # noqa: BLE001  (the commit itself failed: nothing stored)

@@ -139,6 +139,11 @@ class Settings(BaseSettings, MaintenanceConfig):
         description="Group commit: niceness added to the committer's thread (embedding and "
         "commits) so reads get the cores first under a write load; 0: the same priority.",
     )
+    encode_process: bool = Field(
+        False,
+        description="Group commit: embed touch windows in a worker process of their own "
+        "(its own interpreter lock; nice'd by commit_nice) instead of the committer's thread.",
+    )
     torch_threads: int | None = Field(
         None,
         ge=1,

@@ -1,24 +1,31 @@
 """The glove ingest path's cheap checks and its priority (issue 28): a stream frame of 16-bit
 sensor readings skips the checks it cannot fail, others keep them; the group committer's thread
-runs at a lower priority than the requests served beside it (the server's default)."""
+runs at a lower priority than the requests served beside it (the server's default); the
+encoder process embeds touch batches outside the server's interpreter lock."""
 
 from __future__ import annotations
 
 import io
 import os
+import signal
 import sys
 import threading
+import time
+from typing import Any
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from tactus_memory.encode_process import EncoderProcess
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.group_commit import GroupCommitter
 from tactus_memory.service.app import create_app
 from tactus_memory.service.arrays import MAX_FRAME_VALUE, load_npy
 from tactus_memory.settings import DEFAULT_COMMIT_NICE, Settings
-from tests.test_service_helpers import make_memory
+from tactus_memory.storage.rows import PreparedWrite, check_batch
+from tactus_memory.storage.where import DEFAULT_FRAME
+from tests.test_service_helpers import StandInTouch, make_memory, window
 
 linux_only = pytest.mark.skipif(sys.platform != "linux", reason="per-thread niceness is Linux's")
 
@@ -77,3 +84,56 @@ def test_server_committer_takes_the_commit_nice_setting(tmp_path, monkeypatch) -
         assert c.get("/search", params={"q": "a note", "k": 1}).status_code == 200
     with pytest.raises(ValueError, match="commit_nice"):
         Settings(commit_nice=20)
+
+
+# ----------------------------------------------------------------------------- encoder process
+def started(ep: EncoderProcess) -> EncoderProcess:
+    deadline = time.monotonic() + 180  # a spawned interpreter imports torch: slow when loaded
+    while not ep.ready and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert ep.ready, "the encoder process did not start"
+    return ep
+
+
+def touch_write(sense: Any, windows: list[np.ndarray], t0: float) -> PreparedWrite:
+    times = [t0 + i for i in range(len(windows))]
+    batch = check_batch(len(windows), times, None, None, None, None, DEFAULT_FRAME)
+    return PreparedWrite("s", sense, windows, batch, "")
+
+
+def test_encoder_process_embeds_served_senses_as_the_thread_would() -> None:
+    """The real touch encoder in a worker process gives the rows it gives in-thread; a sense
+    it does not serve (not registered: it cannot be rebuilt there) is left to the memory;
+    when the worker dies, writes are left to the memory too (embedded in-thread)."""
+    from tactus_memory.adapters.touch import TactusEncoder
+
+    enc = TactusEncoder()
+    wins = [enc.validate(window(seed=s)) for s in range(3)]
+    stand_in = StandInTouch(enc.dim)
+    ep = started(EncoderProcess(("touch",), nice=1, threads=1))
+    try:
+        writes = [
+            touch_write(enc, wins[:2], 0.0),
+            touch_write(enc, wins[2:], 2.0),
+            touch_write(stand_in, wins[:1], 3.0),
+        ]
+        ep.embed_writes(writes, enc.dim)
+        got = np.concatenate([writes[0].vectors, writes[1].vectors])
+        assert np.allclose(got, enc.embed(wins), atol=1e-5)
+        assert writes[2].vectors is None
+        os.kill(ep.pid, signal.SIGKILL)
+        again = [touch_write(enc, wins, 5.0)]
+        ep.embed_writes(again, enc.dim)
+        assert again[0].vectors is None and ep.broken and not ep.ready
+    finally:
+        ep.close()
+
+
+def test_server_with_encode_process_commits_writes(tmp_path) -> None:
+    memory = make_memory(tmp_path / "mem")  # a stand-in touch: embedded in the thread
+    app = create_app(Settings(encode_process=True, commit_nice=0), memory=memory)
+    with TestClient(app) as c:
+        assert isinstance(app.state.tactus.committer.encoder, EncoderProcess)
+        body = {"frames": window().tolist(), "t": 1.0}
+        assert c.post("/sessions/g/touch", json=body).status_code == 201
+    assert len(memory) == 1
