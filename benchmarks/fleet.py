@@ -524,6 +524,21 @@ async def _kill_after(server: TactusServer, delay: float, killed: list[float]) -
 
 
 # ----------------------------------------------------------------------------- main
+def add_search_args(ap: argparse.ArgumentParser, idle_seconds: float) -> None:
+    """The warm-up and the searchers' options (this script's and ``fleet_ii.py``'s)."""
+    ap.add_argument("--warmup-seconds", type=float, default=10.0)
+    ap.add_argument("--idle-seconds", type=float, default=idle_seconds)
+    ap.add_argument("--searchers", type=int, default=4)
+    ap.add_argument("--search-pause", type=float, default=0.05)
+
+
+def add_store_args(ap: argparse.ArgumentParser, out_name: str) -> None:
+    """Where the stores and the result go."""
+    ap.add_argument("--workdir", default=None, help="default: a fresh temp folder")
+    ap.add_argument("--keep-stores", action="store_true")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / out_name))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--parts", nargs="+", default=["soak", "scales", "replicas"])
@@ -532,10 +547,7 @@ def main() -> None:
     ap.add_argument("--soak-seconds", type=float, default=600.0)
     ap.add_argument("--scales", type=int, nargs="*", default=[8, 256])
     ap.add_argument("--scale-seconds", type=float, default=120.0)
-    ap.add_argument("--warmup-seconds", type=float, default=10.0)
-    ap.add_argument("--idle-seconds", type=float, default=20.0)
-    ap.add_argument("--searchers", type=int, default=4)
-    ap.add_argument("--search-pause", type=float, default=0.05)
+    add_search_args(ap, idle_seconds=20.0)
     ap.add_argument("--note-writers", type=int, default=2)
     ap.add_argument("--note-interval", type=float, default=1.0)
     ap.add_argument("--sample-seconds", type=float, default=10.0)
@@ -552,9 +564,7 @@ def main() -> None:
     )
     ap.add_argument("--lag-samples", type=int, default=10)
     ap.add_argument("--lag-timeout", type=float, default=10.0)
-    ap.add_argument("--workdir", default=None, help="default: a fresh temp folder")
-    ap.add_argument("--keep-stores", action="store_true")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "fleet.json"))
+    add_store_args(ap, "fleet.json")
     args = ap.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="tactus-fleet-"))
     work.mkdir(parents=True, exist_ok=True)

@@ -46,22 +46,18 @@ from fleet import (
     Searchers,
     TactusServer,
     acked_during,
+    add_search_args,
+    add_store_args,
     stored_ids,
     stream_until_killed,
     summary,
 )
 from load import Barrier, GloveStats, run_header, stream_gloves
 
-ROOT = Path(__file__).resolve().parents[1]
 WINDOW = 8  # frames per window = stride (the shipped encoder's window)
 TOP_FRAMES = 25
-TARGETS = {
-    "ack_p99_ms_64_gloves": 100.0,
-    "ack_p99_ms_128_gloves": 250.0,
-    "refused_128_gloves": 0,
-    "acked_rows_lost": 0,
-    "search_p95_load_over_idle": 3.0,
-}
+TARGETS = dict(ack_p99_ms_64_gloves=100.0, ack_p99_ms_128_gloves=250.0, refused_128_gloves=0)
+TARGETS.update(acked_rows_lost=0, search_p95_load_over_idle=3.0)
 
 
 def load1() -> float:
@@ -69,9 +65,19 @@ def load1() -> float:
 
 
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` (all its threads) so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """User + system CPU seconds of process ``pid`` (all its threads) and of its live child
+    processes (the server's encoder process) so far."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except FileNotFoundError:  # a child that just ended
+        return 0.0
+    own = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    kids = [
+        int(c)
+        for t in Path(f"/proc/{pid}/task").iterdir()
+        for c in (t / "children").read_text().split()
+    ]
+    return own + sum(cpu_seconds(c) for c in kids)
 
 
 # ----------------------------------------------------------------------------- profile
@@ -241,17 +247,12 @@ def main() -> None:
     ap.add_argument("--gloves", type=int, nargs="+", default=[64])
     ap.add_argument("--hz", type=float, default=30.0)
     ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--warmup-seconds", type=float, default=10.0)
-    ap.add_argument("--idle-seconds", type=float, default=15.0)
-    ap.add_argument("--searchers", type=int, default=4)
-    ap.add_argument("--search-pause", type=float, default=0.05)
+    add_search_args(ap, idle_seconds=15.0)
     ap.add_argument("--variants", nargs="+", default=["default"])
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--profile", action="store_true", help="py-spy the server under load")
     ap.add_argument("--rate", type=int, default=50, help="py-spy samples per second")
-    ap.add_argument("--workdir", default=None)
-    ap.add_argument("--keep-stores", action="store_true")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "fleet_ii.json"))
+    add_store_args(ap, "fleet_ii.json")
     args = ap.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="tactus-fleet-ii-"))
     work.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,8 @@ import json
 import logging
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
@@ -37,6 +39,8 @@ log = logging.getLogger(__name__)
 
 #: seconds one batch may take in the worker before the committer embeds it itself
 EMBED_TIMEOUT_S = 60.0
+#: how often the worker checks that the server that started it is still there (seconds)
+PARENT_POLL_S = 0.5
 
 
 class EncoderProcess:
@@ -51,7 +55,7 @@ class EncoderProcess:
         self.senses = frozenset(senses)
         ctx = multiprocessing.get_context("spawn")  # no fork of a threaded server
         self._pool = ProcessPoolExecutor(
-            1, mp_context=ctx, initializer=_start, initargs=(nice, threads)
+            1, mp_context=ctx, initializer=_start, initargs=(os.getpid(), nice, threads)
         )
         self._started: Future[int] = self._pool.submit(os.getpid)  # starts the worker now
         self.broken = False
@@ -93,13 +97,22 @@ class EncoderProcess:
 _SENSES: dict[tuple[str, str], Sense] = {}
 
 
-def _start(nice: int, threads: int | None) -> None:
+def _start(parent: int, nice: int, threads: int | None) -> None:
+    """In the worker, once: follow the server (a SIGKILLed server leaves no worker behind),
+    lower its priority, set its torch threads."""
+    threading.Thread(target=_exit_with, args=(parent,), daemon=True).start()
     if nice:
         os.nice(nice)
     if threads is not None:
         import torch
 
         torch.set_num_threads(threads)
+
+
+def _exit_with(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_S)
+    os._exit(0)
 
 
 def _embed(record: tuple[str, str], items: list[Any]) -> np.ndarray:

@@ -8,9 +8,11 @@ from __future__ import annotations
 import io
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -137,3 +139,41 @@ def test_server_with_encode_process_commits_writes(tmp_path) -> None:
         body = {"frames": window().tolist(), "t": 1.0}
         assert c.post("/sessions/g/touch", json=body).status_code == 201
     assert len(memory) == 1
+
+
+PARENT = """
+import sys, time
+from tactus_memory.encode_process import EncoderProcess
+if __name__ == "__main__":
+    ep = EncoderProcess(("touch",))
+    while not ep.ready:
+        time.sleep(0.1)
+    print(ep.pid, flush=True)
+    time.sleep(600)
+"""
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
+
+
+@linux_only
+def test_encoder_process_ends_with_a_killed_server(tmp_path) -> None:
+    """A server SIGKILLed (no shutdown hook runs) leaves no encoder process behind."""
+    script = tmp_path / "server.py"
+    script.write_text(PARENT)
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        worker = int(proc.stdout.readline())
+        assert alive(worker)
+    finally:
+        proc.kill()
+        proc.wait(30)
+    deadline = time.monotonic() + 30
+    while alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive(worker)
