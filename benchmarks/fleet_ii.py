@@ -64,14 +64,16 @@ def load1() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` (all its threads) and of its live child
-    processes (the server's encoder process) so far."""
+def cpu_seconds(pid: int, children: bool = True) -> float:
+    """User + system CPU seconds of process ``pid`` (all its threads) and, with ``children``,
+    of its live child processes (the server's encoder process) so far."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except FileNotFoundError:  # a child that just ended
         return 0.0
     own = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    if not children:
+        return own
     kids = [
         int(c)
         for t in Path(f"/proc/{pid}/task").iterdir()
@@ -185,13 +187,13 @@ async def one_run(
 
         async def others(clock: Barrier) -> None:
             await clock.go.wait()
-            cpu.update(server=cpu_seconds(pid), client=cpu_seconds(os.getpid()))
+            cpu.update(server=cpu_seconds(pid), client=cpu_seconds(os.getpid(), children=False))
             if args.profile:
                 prof.append(Profiler(pid, args.seconds, work / f"{tag}.pyspy", args.rate))
             await searchers.run(clock.stop, during)
             cpu.update(
                 server=cpu_seconds(pid) - cpu["server"],
-                client=cpu_seconds(os.getpid()) - cpu["client"],
+                client=cpu_seconds(os.getpid(), children=False) - cpu["client"],
             )
             out["load1_after_load"] = load1()
             if prof:
