@@ -3,7 +3,7 @@
 A sense's ``embed`` is many short torch calls, and each one gives up the interpreter lock and
 takes it back. In a server whose event loop reads ~2,000 WebSocket frames a second, the
 committer's thread waits for that lock at every call (measured: the touch encoder beside a
-busy Python thread embedded 68-124 windows/s instead of 400-600; ``benchmarks/fleet_ii.py``).
+busy Python thread embeds about half the windows it embeds alone; ``benchmarks/encoder_gil.py``).
 :class:`EncoderProcess` runs the batch ``embed`` of chosen senses in one spawned worker
 process instead, which has its own interpreter lock: the committer's thread only sends the
 validated items and waits (without the lock) for the ``(n, D)`` rows.
