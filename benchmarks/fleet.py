@@ -86,10 +86,12 @@ def summary(xs: list[float]) -> dict[str, float | int | None]:
 class TactusServer:
     """``tactus serve`` in a subprocess on a free port of 127.0.0.1."""
 
-    def __init__(self, data: Path | str, log: Path, env: dict[str, str]) -> None:
+    def __init__(
+        self, data: Path | str, log: Path, env: dict[str, str], python: str | None = None
+    ) -> None:
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        self.proc = start_serve(self.port, data, log, env=env)
+        self.proc = start_serve(self.port, data, log, env=env, python=python)
         r = wait_ok(self.proc, self.base + "/health", STARTUP_S)
         if r is None and self.proc.poll() is not None:
             raise SystemExit(f"server died:\n{log.read_text()[-3000:]}")
@@ -261,6 +263,31 @@ async def stream_fleet(
     )
 
 
+def stream_until_killed(
+    port: int, sessions: list[str], stats: GloveStats, hz: float, clock: Barrier, killed: list
+) -> Any:
+    """The gloves stream from ``clock``'s start until the server is killed (``killed`` gets
+    an entry), then the connections drop; acknowledged ids are kept."""
+    return stream_gloves(
+        [port],
+        sessions,
+        stats,
+        hz=hz,
+        window=WINDOW,
+        clock=clock,
+        stop_at=lambda: clock.stop + 3600 if not killed else 0.0,
+        drain_s=0,
+        keep_ids=True,
+    )
+
+
+def acked_during(stats: GloveStats, clock: Barrier) -> tuple[list[float], set[str]]:
+    """The ack latencies of the windows acknowledged before ``clock``'s stop, and every
+    acknowledged id."""
+    lags = [lag for at, lag in stats.lag_at if at <= clock.stop]
+    return lags, {i for ids in stats.acked.values() for i in ids}
+
+
 # ----------------------------------------------------------------------------- (a), (b)
 async def soak_run(
     args: argparse.Namespace, gloves: int, seconds: float, work: Path, tag: str
@@ -327,21 +354,10 @@ async def soak_run(
 
         clock = Barrier(gloves, seconds)
         sessions = [f"glove-{tag}-{g}" for g in range(gloves)]
-        streams = stream_gloves(
-            [port],
-            sessions,
-            stats,
-            hz=args.hz,
-            window=WINDOW,
-            clock=clock,
-            # keep streaming until the kill, then the connection drops
-            stop_at=lambda: clock.stop + 3600 if not killed_at else 0.0,
-            drain_s=0,
-            keep_ids=True,
-        )
+        streams = stream_until_killed(port, sessions, stats, args.hz, clock, killed_at)
         await asyncio.gather(streams, others(clock))
-        ack_during = [lag for at, lag in stats.lag_at if at <= clock.stop]
-        acked = {i for ids in stats.acked.values() for i in ids} | set(notes.acked)
+        ack_during, acked = acked_during(stats, clock)
+        acked |= set(notes.acked)
         stored = await asyncio.to_thread(stored_ids, data)
         final = await asyncio.to_thread(store_sample, data)
         result.update(
@@ -508,6 +524,21 @@ async def _kill_after(server: TactusServer, delay: float, killed: list[float]) -
 
 
 # ----------------------------------------------------------------------------- main
+def add_search_args(ap: argparse.ArgumentParser, idle_seconds: float) -> None:
+    """The warm-up and the searchers' options (this script's and ``fleet_ii.py``'s)."""
+    ap.add_argument("--warmup-seconds", type=float, default=10.0)
+    ap.add_argument("--idle-seconds", type=float, default=idle_seconds)
+    ap.add_argument("--searchers", type=int, default=4)
+    ap.add_argument("--search-pause", type=float, default=0.05)
+
+
+def add_store_args(ap: argparse.ArgumentParser, out_name: str) -> None:
+    """Where the stores and the result go."""
+    ap.add_argument("--workdir", default=None, help="default: a fresh temp folder")
+    ap.add_argument("--keep-stores", action="store_true")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / out_name))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--parts", nargs="+", default=["soak", "scales", "replicas"])
@@ -516,10 +547,7 @@ def main() -> None:
     ap.add_argument("--soak-seconds", type=float, default=600.0)
     ap.add_argument("--scales", type=int, nargs="*", default=[8, 256])
     ap.add_argument("--scale-seconds", type=float, default=120.0)
-    ap.add_argument("--warmup-seconds", type=float, default=10.0)
-    ap.add_argument("--idle-seconds", type=float, default=20.0)
-    ap.add_argument("--searchers", type=int, default=4)
-    ap.add_argument("--search-pause", type=float, default=0.05)
+    add_search_args(ap, idle_seconds=20.0)
     ap.add_argument("--note-writers", type=int, default=2)
     ap.add_argument("--note-interval", type=float, default=1.0)
     ap.add_argument("--sample-seconds", type=float, default=10.0)
@@ -536,9 +564,7 @@ def main() -> None:
     )
     ap.add_argument("--lag-samples", type=int, default=10)
     ap.add_argument("--lag-timeout", type=float, default=10.0)
-    ap.add_argument("--workdir", default=None, help="default: a fresh temp folder")
-    ap.add_argument("--keep-stores", action="store_true")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "fleet.json"))
+    add_store_args(ap, "fleet.json")
     args = ap.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="tactus-fleet-"))
     work.mkdir(parents=True, exist_ok=True)

@@ -23,13 +23,19 @@ def free_port() -> int:
 
 
 def start_serve(
-    port: int, data: Path | str, log: Path, *extra: str, env: Mapping[str, str] | None = None
+    port: int,
+    data: Path | str,
+    log: Path,
+    *extra: str,
+    env: Mapping[str, str] | None = None,
+    python: str | None = None,
 ) -> subprocess.Popen:
     """Start ``tactus serve --host 127.0.0.1 --port PORT --data DATA *extra`` (the installed
-    package, this interpreter), its output appended to ``log``; ``env`` is added to this
-    process's environment, after ``TACTUS_LOG_LEVEL=warning``."""
+    package, this interpreter or ``python``: another checkout's, for an A/B run), its output
+    appended to ``log``; ``env`` is added to this process's environment, after
+    ``TACTUS_LOG_LEVEL=warning``."""
     cmd = [
-        sys.executable,
+        python or sys.executable,
         "-c",
         "from tactus_memory.cli import main; main()",
         "serve",

@@ -75,7 +75,10 @@ NPY_MAGIC = b"\x93NUMPY"
 def load_npy(raw: bytes, what: str = "npy body", *, frames: bool = False) -> np.ndarray:
     """``.npy`` bytes -> a float32 array (no pickles, numeric dtypes only); ``frames``: stream
     frames, checked finite too (:func:`finite_frames`)."""
-    out = read_npy(raw, what).astype(np.float32, copy=False)
+    arr = read_npy(raw, what)
+    if arr.dtype.kind in "biu" and arr.dtype.itemsize <= 2:
+        return arr.astype(np.float32)  # 16-bit integers (a glove's ADC): finite and in range
+    out = arr.astype(np.float32, copy=False)
     return _in_range(finite_frames(out, what) if frames else out, what)
 
 

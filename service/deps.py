@@ -14,6 +14,7 @@ from fastapi import Depends, HTTPException, Path, Query
 from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
+from tactus_memory.encode_process import EncoderProcess
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.group_commit import GroupCommitter
 
@@ -63,6 +64,11 @@ class ServiceState:
     def open_committer(self) -> GroupCommitter:
         """The running group committer (a new one after a shutdown closed the last)."""
         if self.committer is None or self.committer.closed:
+            encoder = None
+            if self.settings.encode_process:
+                encoder = EncoderProcess(
+                    ("touch",), nice=self.settings.commit_nice, threads=self.settings.torch_threads
+                )
             self.committer = GroupCommitter(
                 self.memory,
                 tick=self.settings.commit_tick_ms / 1000.0,
@@ -70,6 +76,8 @@ class ServiceState:
                 max_pending=self.settings.commit_max_pending,
                 # torch threads; an ONNX server never imports torch
                 encode_threads=None if self.settings.onnx else self.settings.torch_threads,
+                nice=self.settings.commit_nice,
+                encoder=encoder,
             )
         return self.committer
 

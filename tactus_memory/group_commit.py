@@ -30,6 +30,7 @@ they pay about ``1 / tick`` of each.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -40,6 +41,7 @@ from typing import Any
 
 from typing_extensions import Unpack
 
+from tactus_memory.encode_process import EncoderProcess
 from tactus_memory.errors import OverloadedError
 from tactus_memory.memory import Memory
 from tactus_memory.settings import (
@@ -72,6 +74,17 @@ class _Queued:
     write: PreparedWrite
     future: Future[list[str]]
     arrived: float = field(default_factory=time.monotonic)
+    released: bool = False  # no longer counted as pending
+
+
+def lower_thread_priority(nice: int) -> None:
+    """Add ``nice`` to the calling thread's niceness (Linux schedules threads one by one; on
+    a system that does not, the priority stays and it is logged)."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
+    except (OSError, AttributeError) as exc:
+        log.warning("could not lower the group committer's priority: %s", exc)
 
 
 class GroupCommitter:
@@ -79,7 +92,10 @@ class GroupCommitter:
 
     ``encode_threads``: torch intra-op threads of the committer thread while it embeds
     (``torch.set_num_threads`` is per thread), e.g. 1 on a 2-core machine so searches keep
-    a core; None leaves torch's default.
+    a core; None leaves torch's default. ``nice``: added to the committer thread's niceness
+    (Linux: per thread) so the requests served meanwhile, searches first, get the cores before
+    the encoder does; 0 leaves it as it is. ``encoder``: an :class:`EncoderProcess` that
+    embeds the senses it serves in its own process (closed with the committer).
     """
 
     def __init__(
@@ -91,6 +107,8 @@ class GroupCommitter:
         max_pending: int = DEFAULT_COMMIT_MAX_PENDING,
         retry_after: float = 1.0,
         encode_threads: int | None = None,
+        nice: int = 0,
+        encoder: EncoderProcess | None = None,
     ) -> None:
         if tick < 0 or max_batch < 1 or max_pending < 1:
             raise ValueError("tick must be >= 0, max_batch and max_pending >= 1")
@@ -100,6 +118,8 @@ class GroupCommitter:
         self.max_pending = int(max_pending)
         self.retry_after = float(retry_after)
         self.encode_threads = encode_threads
+        self.nice = int(nice)
+        self.encoder = encoder
         self.stats = CommitStats()
         self._cond = threading.Condition()
         self._queue: deque[_Queued] = deque()
@@ -163,6 +183,8 @@ class GroupCommitter:
             self._closing = True
             self._cond.notify_all()
         self._thread.join(timeout)
+        if self.encoder is not None:
+            self.encoder.close()
 
     def __enter__(self) -> GroupCommitter:
         return self
@@ -201,6 +223,8 @@ class GroupCommitter:
             import torch
 
             torch.set_num_threads(self.encode_threads)
+        if self.nice:
+            lower_thread_priority(self.nice)
         while True:
             batch = self._take()
             if batch is None:
@@ -211,12 +235,21 @@ class GroupCommitter:
                 self._commit(batch)
             except BaseException:  # noqa: BLE001  (never leave a future hanging)
                 log.exception("group commit failed unexpectedly")
+                self._release(batch)
                 for q in batch:
                     if not q.future.done():
                         q.future.set_exception(RuntimeError("group commit failed; see the log"))
             finally:
-                with self._cond:
-                    self._pending_items -= sum(len(q.write) for q in batch)
+                self._release(batch)
+
+    def _release(self, batch: list[_Queued]) -> None:
+        """The batch's items stop counting as pending (once; before its acks go out, so an
+        acknowledged caller's next write finds the room its last one left)."""
+        with self._cond:
+            for q in batch:
+                if not q.released:
+                    q.released = True
+                    self._pending_items -= len(q.write)
 
     def _commit(self, batch: list[_Queued]) -> None:
         """ONE commit for the batch, never a second: a write that fails on its own (its
@@ -225,23 +258,27 @@ class GroupCommitter:
         fails after it (the bookkeeping is logged and repaired by the memory)."""
         t0 = time.perf_counter()
         writes = [q.write for q in batch]
+        if self.encoder is not None:  # what it cannot embed, commit_writes embeds here
+            self.encoder.embed_writes(writes, self.memory.space.dim)
         try:
             self.memory.commit_writes(writes, isolate=True)
         except Exception as exc:  # noqa: BLE001  (the commit itself failed: nothing stored)
+            self._release(batch)
             self.stats.failed_writes += len(batch)
             log.warning("a commit of %d writes failed: %s", len(batch), exc)
             for q in batch:
                 q.future.set_exception(exc)
             return
-        for q in batch:  # resolved first: nothing below may leave a stored write unacknowledged
+        self._release(batch)
+        try:  # counted before the acks, so a caller acknowledged sees its commit counted
+            self._record(batch, time.perf_counter() - t0)
+        except Exception:  # noqa: BLE001  (counters only: never keeps a write unacknowledged)
+            log.exception("group commit statistics failed")
+        for q in batch:
             if q.write.error is not None:
                 q.future.set_exception(q.write.error)
             else:
                 q.future.set_result(list(q.write.ids))
-        try:
-            self._record(batch, time.perf_counter() - t0)
-        except Exception:  # noqa: BLE001  (counters only)
-            log.exception("group commit statistics failed")
 
     def _record(self, batch: list[_Queued], seconds: float) -> None:
         s = self.stats

@@ -41,6 +41,9 @@ DEFAULT_READ_CONSISTENCY_S = 1.0
 DEFAULT_COMMIT_TICK_MS = 25.0
 DEFAULT_COMMIT_MAX_BATCH = 256
 DEFAULT_COMMIT_MAX_PENDING = 1024
+#: niceness added to the group committer's thread (its encoder and commits) in a server: a
+#: search beside a 64-glove fleet then gets the cores first (benchmarks/fleet_ii.py)
+DEFAULT_COMMIT_NICE = 10
 
 
 class Settings(BaseSettings, MaintenanceConfig):
@@ -128,6 +131,18 @@ class Settings(BaseSettings, MaintenanceConfig):
         ge=1,
         le=1_000_000,
         description="Group commit: items queued before writes are refused (503 + Retry-After).",
+    )
+    commit_nice: int = Field(
+        DEFAULT_COMMIT_NICE,
+        ge=0,
+        le=19,
+        description="Group commit: niceness added to the committer's thread (embedding and "
+        "commits) so reads get the cores first under a write load; 0: the same priority.",
+    )
+    encode_process: bool = Field(
+        False,
+        description="Group commit: embed touch windows in a worker process of their own "
+        "(its own interpreter lock; nice'd by commit_nice) instead of the committer's thread.",
     )
     torch_threads: int | None = Field(
         None,

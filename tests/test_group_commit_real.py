@@ -27,12 +27,16 @@ ACKED_WINDOWS_BEFORE_KILL = 80
 ACKED_NOTES_BEFORE_KILL = 10
 
 
-def test_real_server_group_commit_survives_sigkill(tmp_path):
+@pytest.mark.parametrize(
+    "env", [{}, {"TACTUS_ENCODE_PROCESS": "1"}], ids=["encoder-thread", "encoder-process"]
+)
+def test_real_server_group_commit_survives_sigkill(tmp_path, env):
+    """Also with the touch encoder in its own process (``TACTUS_ENCODE_PROCESS``)."""
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
     data = tmp_path / "memory"
-    server = Server(data, tmp_path / "server.log")
+    server = Server(data, tmp_path / "server.log", env=env)
     health = httpx.get(server.base + "/health", timeout=30).json()
     assert health["touch"], f"the shipped encoder did not load: {health.get('touch_unavailable')}"
     windows: dict[str, list[str]] = {f"glove-{g}": [] for g in range(GLOVES)}
@@ -111,7 +115,7 @@ def test_real_server_group_commit_survives_sigkill(tmp_path):
         acked = {s: list(ids) for s, ids in windows.items()}
         acked_notes = list(notes)
 
-    server = Server(data, tmp_path / "server.log")
+    server = Server(data, tmp_path / "server.log", env=env)
     try:
         with httpx.Client(base_url=server.base, timeout=60) as c:
             sessions = {s["id"]: s["counts"] for s in c.get("/sessions").json()["sessions"]}

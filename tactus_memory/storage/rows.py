@@ -7,7 +7,7 @@ import json
 import math
 import time
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypedDict
 
@@ -155,16 +155,23 @@ class PreparedWrite:
         return len(self.canon)
 
 
-def embed_groups(writes: Sequence[PreparedWrite], dim: int) -> None:
+def embed_groups(
+    writes: Sequence[PreparedWrite],
+    dim: int,
+    embed: Callable[[Sense, list[Any]], np.ndarray] | None = None,
+) -> None:
     """Embed the writes that have no vectors yet: ONE ``embed`` call per sense across all of
-    them; each write gets its slice of (n, ``dim``) unit rows."""
+    them (``embed(sense, items)``, default ``sense.embed(items)``; the group committer's
+    encoder process passes its own); each write gets its slice of (n, ``dim``) unit rows."""
     by_sense: dict[str, list[PreparedWrite]] = {}
     for w in writes:
         if w.vectors is None:
             by_sense.setdefault(w.sense.name, []).append(w)
     for name, group in by_sense.items():
         canon = [x for w in group for x in w.canon]
-        vectors = as_unit_rows(group[0].sense.embed(canon), dim, what=f"{name} embedding")
+        sense = group[0].sense
+        raw = sense.embed(canon) if embed is None else embed(sense, canon)
+        vectors = as_unit_rows(raw, dim, what=f"{name} embedding")
         if vectors.shape[0] != len(canon):
             raise InvalidInputError(
                 f"sense {name!r} returned {vectors.shape[0]} vectors for {len(canon)}"
