@@ -1,0 +1,47 @@
+"""Tenants in Python (issue 25): ``Memory.open(path, tenant=...)`` is a wall, on a real store."""
+
+from __future__ import annotations
+
+import pytest
+
+from tactus_memory.errors import InvalidIdError, NotFoundError
+from tactus_memory.memory import Memory
+from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_uri
+from tests.fakes import HashingSpace
+
+
+def _open(path, tenant: str = DEFAULT_TENANT) -> Memory:
+    return Memory.open(str(path), HashingSpace(), tenant=tenant, background=False)
+
+
+def test_two_tenants_share_a_store_but_not_a_session(tmp_path) -> None:
+    a, b = _open(tmp_path, "A"), _open(tmp_path, "B")
+    a.add("s1", "text", "a red mug on the shelf", t=1.0, id="x1")
+    b.add("s1", "text", "a blue bowl in the sink", t=2.0, id="x1")  # same id: no conflict
+    assert [s.id for s in a.sessions()] == ["s1"]
+    assert a.session("s1").n == 1 and b.session("s1").n == 1
+    assert a.get_item("x1").text == "a red mug on the shelf"
+    assert b.get_item("x1").text == "a blue bowl in the sink"
+    assert [h.text for h in a.search("bowl sink", k=5)] == ["a red mug on the shelf"]
+    assert a.count("bowl", session="s1") <= 1
+    b.delete_session("s1")
+    assert a.get_item("x1").text == "a red mug on the shelf"  # A's s1 untouched
+    with pytest.raises(NotFoundError):
+        b.session("s1")
+
+
+def test_the_default_tenant_is_the_root_and_older_stores_open_as_it(tmp_path) -> None:
+    old = Memory.open(str(tmp_path), HashingSpace(), background=False)  # no tenant: as before
+    old.add("s1", "text", "written before tenants", t=1.0)
+    again = _open(tmp_path, DEFAULT_TENANT)
+    assert again.tenant == DEFAULT_TENANT and again.store.uri == str(tmp_path)
+    assert [s.id for s in again.sessions()] == ["s1"]
+    other = _open(tmp_path, "A")
+    assert other.sessions() == []
+    assert other.store.uri == tenant_uri(str(tmp_path), "A") == f"{tmp_path}/tenants/A"
+
+
+@pytest.mark.parametrize("bad", ["", "../x", "a/b", "x" * 129, " A"])
+def test_a_tenant_name_is_an_id(tmp_path, bad: str) -> None:
+    with pytest.raises(InvalidIdError, match="tenant"):
+        _open(tmp_path, bad)
