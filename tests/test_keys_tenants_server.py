@@ -1,0 +1,226 @@
+"""Keys, scopes and tenants on a real uvicorn server (issue 25): every route of the app against
+tenants x scopes, another tenant's data reading exactly like missing data on every route,
+revoked and expired keys, the WebSocket stream and the audit log."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+
+import httpx
+import pytest
+from starlette.routing import Route
+
+from tactus_memory.service.app import create_app
+from tactus_memory.settings import Settings
+from tactus_memory.storage.audit import AuditLog
+from tactus_memory.storage.keys import KeyStore
+from tests.servers import serve_app
+from tests.test_auth_every_route import _concrete, _is_open, flat_routes
+from tests.test_service import touch_json
+from tests.test_service_helpers import make_memory, npy_bytes, window
+from tests.test_service_places import POSES
+
+OPERATOR = "operator-s3cret"
+#: what each route needs, written out here (not read from the service): reads by default,
+#: these POST/PUT routes write, these routes need admin
+WRITES = {
+    "add_text", "add_vectors", "add_image", "add_touch", "add_poses", "segment_episodes",
+    "set_clock", "touch_stream",
+}  # fmt: skip
+ADMIN = {"delete_session", "add_sense"}
+SCOPES = ("read", "write", "admin")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """One real server on a store with keys for tenants A and B at each scope."""
+    data = tmp_path_factory.mktemp("store") / "mem"
+    memory = make_memory(data)
+    keys = KeyStore(str(data), refresh=0.2)
+    made = {(t, s): keys.create(t, s) for t in ("A", "B") for s in SCOPES}
+    app = create_app(Settings(token=OPERATOR), memory=memory)
+    with serve_app(app) as base:
+        yield {"base": base, "keys": keys, "made": made, "app": app, "data": data}
+
+
+def _h(server, tenant: str, scope: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {server['made'][(tenant, scope)][1]}"}
+
+
+def _need(name: str) -> str:
+    return "admin" if name in ADMIN else "write" if name in WRITES else "read"
+
+
+def test_every_route_x_scope(server) -> None:
+    """No key, a wrong key, a key of an unknown id: 401 everywhere; a key whose scope falls
+    short: 403; enough scope: neither."""
+    app, base = server["app"], server["base"]
+    seen = 0
+    with httpx.Client(base_url=base, timeout=30) as c:
+        for route in flat_routes(app):
+            if not isinstance(route, Route) or _is_open(route.path):
+                continue
+            for method in sorted((route.methods or set()) - {"HEAD", "OPTIONS"}):
+                url = _concrete(route.path)
+                for bad in ({}, {"Authorization": "Bearer tk_000000000000_nope"}):
+                    assert c.request(method, url, headers=bad).status_code == 401, url
+                for scope in SCOPES:
+                    status = c.request(method, url, headers=_h(server, "A", scope)).status_code
+                    short = SCOPES.index(scope) < SCOPES.index(_need(route.name))
+                    assert (status == 403) == short, f"{method} {url} {scope}: {status}"
+                    assert status != 401, f"{method} {url} {scope}"
+                seen += 1
+    assert seen >= 25
+
+
+def _fill(c: httpx.Client, headers: dict[str, str], session: str, word: str) -> list[str]:
+    """A session with a note, a touch window, poses and a clock offset; returns item ids."""
+    ids = []
+    r = c.post(
+        f"/sessions/{session}/text", json={"text": f"the {word} mug", "t": 1.0}, headers=headers
+    )
+    assert r.status_code == 201, r.text
+    ids += r.json()["ids"]
+    r = c.post(f"/sessions/{session}/touch", json=touch_json(t=1.5), headers=headers)
+    assert r.status_code == 201, r.text
+    ids += r.json()["ids"]
+    poses = {"content-type": "application/x-npy", **headers}
+    r = c.post(f"/sessions/{session}/poses", content=npy_bytes(POSES), headers=poses)
+    assert r.status_code == 201, r.text
+    r = c.put(f"/sessions/{session}/clock", json={"sense": "text", "offset": 0.5}, headers=headers)
+    assert r.status_code == 200, r.text
+    return ids
+
+
+#: read routes with a session in their path, or a session query parameter
+SESSION_READS = [
+    "/sessions/{s}", "/sessions/{s}/timeline", "/sessions/{s}/poses", "/sessions/{s}/clock",
+    "/sessions/{s}/export.rrd", "/search?q=mug&session={s}", "/moments?q=mug&session={s}",
+    "/last?q=mug&session={s}", "/first?q=mug&session={s}", "/count?q=mug&session={s}",
+    "/where?q=mug&session={s}", "/before?q=mug&anchor=mug&session={s}",
+    "/after?q=mug&anchor=mug&session={s}",
+]  # fmt: skip
+ITEM_READS = ["/items/{i}/touch.png", "/items/{i}/touch.json", "/items/{i}/image.png"]
+GLOBAL_READS = [
+    "/sessions", "/search?q=mug", "/moments?q=mug", "/count?q=mug", "/last?q=mug",
+    "/where?q=mug", "/at?x=0&y=0&z=0&r=100", "/senses",
+]  # fmt: skip
+
+
+def _same(a: httpx.Response, b: httpx.Response, a_id: str, b_id: str) -> None:
+    assert a.status_code == b.status_code, (a.url, a.status_code, b.status_code)
+    assert a.content.replace(a_id.encode(), b"X") == b.content.replace(b_id.encode(), b"X"), a.url
+
+
+def test_another_tenants_data_reads_exactly_like_missing_data(server) -> None:
+    ha, hb = _h(server, "A", "admin"), _h(server, "B", "admin")
+    with httpx.Client(base_url=server["base"], timeout=60) as c:
+        a_ids = _fill(c, ha, "wall-a", "zanzibar")
+        b_ids = _fill(c, hb, "wall-b", "quokka")
+        for path in SESSION_READS:  # A's session, asked by B == a session nobody has
+            theirs = c.get(path.format(s="wall-a"), headers=hb)
+            nobody = c.get(path.format(s="wall-zz"), headers=hb)
+            _same(theirs, nobody, "wall-a", "wall-zz")
+            mine = c.get(path.format(s="wall-a"), headers=ha)
+            assert mine.status_code == 200, (path, mine.text)
+        for path in ITEM_READS:
+            for a_id in a_ids:
+                _same(c.get(path.format(i=a_id), headers=hb), c.get(path.format(i="zz-none"),
+                      headers=hb), a_id, "zz-none")  # fmt: skip
+        for path in GLOBAL_READS:  # nothing of A in anything B can list or search
+            body = c.get(path, headers=hb)
+            assert body.status_code == 200, (path, body.text)
+            for secret in ("zanzibar", "wall-a", *a_ids):
+                assert secret not in body.text, (path, secret)
+        assert "wall-b" in c.get("/sessions", headers=hb).text
+        assert "zanzibar" in c.get("/search?q=zanzibar", headers=ha).text
+        # B writes A's session name and A's item ids: no conflict, A's items untouched
+        r = c.post("/sessions/wall-a/text", json={"text": "b note", "t": 2.0, "id": a_ids[0]},
+                   headers=hb)  # fmt: skip
+        assert r.status_code == 201, r.text
+        assert c.delete("/sessions/wall-a", headers=hb).json()["deleted"] == 1  # B's own
+        assert c.delete("/sessions/wall-a", headers=hb).status_code == 404
+        assert c.get("/sessions/wall-a", headers=ha).json()["n"] == 2  # A's: untouched
+        assert c.get(f"/items/{a_ids[1]}/touch.json", headers=ha).status_code == 200
+        assert c.get(f"/items/{b_ids[1]}/touch.json", headers=ha).status_code == 404
+        # the operator's token reaches a tenant through its header
+        op = {"Authorization": f"Bearer {OPERATOR}", "X-Tactus-Tenant": "A"}
+        assert c.get("/sessions/wall-a", headers=op).json()["n"] == 2
+        assert c.get("/sessions/wall-a", headers={**op, "X-Tactus-Tenant": "B"}).status_code == 404
+        # a key's own tenant wins over the header
+        assert c.get("/sessions/wall-a", headers={**hb, "X-Tactus-Tenant": "A"}).status_code == 404
+
+
+def test_the_stream_writes_into_the_keys_tenant_only(server) -> None:
+    from websockets.sync.client import connect
+
+    port = server["base"].rsplit(":", 1)[1]
+    url = f"ws://127.0.0.1:{port}/sessions/wall-ws/touch/stream?window=8&stride=8&t0=0&hz=100"
+    key = server["made"][("B", "write")][1]
+    with connect(f"{url}&token={key}", open_timeout=30) as ws:
+        assert json.loads(ws.recv(timeout=30))["type"] == "ready"
+        ws.send(npy_bytes(window(k=8, seed=3)))
+        assert json.loads(ws.recv(timeout=60))["type"] == "stored"
+    # a read key may not stream: the socket is refused with the problem (as for a 401)
+    with connect(f"{url}&token={server['made'][('B', 'read')][1]}", open_timeout=30) as ws:
+        msg = json.loads(ws.recv(timeout=30))
+        assert msg["type"] == "error" and msg["error"]["status"] == 403, msg
+    with httpx.Client(base_url=server["base"], timeout=30) as c:
+        assert c.get("/sessions/wall-ws", headers=_h(server, "B", "read")).json()["n"] == 1
+        assert c.get("/sessions/wall-ws", headers=_h(server, "A", "read")).status_code == 404
+
+
+def test_revoked_and_expired_keys_are_refused(server) -> None:
+    keys: KeyStore = server["keys"]
+    _, revoked = keys.create("A", "read")
+    _, expiring = keys.create("A", "read", expires_days=2.0 / 86400)  # two seconds
+    with httpx.Client(base_url=server["base"], timeout=30) as c:
+
+        def status(key: str) -> int:
+            return c.get("/sessions", headers={"Authorization": f"Bearer {key}"}).status_code
+
+        assert status(revoked) == 200 and status(expiring) == 200
+        other = KeyStore(str(server["data"]))  # another process's connection revokes it
+        other.revoke(revoked.split("_")[1])
+        deadline = time.monotonic() + 30
+        while status(revoked) != 401 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert status(revoked) == 401
+        while status(expiring) != 401 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert status(expiring) == 401
+        listed = {k.key_id: k for k in other.list()}
+        assert listed[revoked.split("_")[1]].revoked is not None
+        assert listed[revoked.split("_")[1]].last_used is not None
+
+
+def test_the_audit_log_names_key_tenant_route_and_count_never_key_or_payload(server) -> None:
+    key_id, key = server["made"][("A", "write")]
+    with httpx.Client(base_url=server["base"], timeout=30) as c:
+        h = {"Authorization": f"Bearer {key}"}
+        body = {"windows": [window(seed=s).tolist() for s in (7, 8, 9)], "t": [1.0, 2.0, 3.0]}
+        assert c.post("/sessions/audited/touch", json=body, headers=h).status_code == 201
+        r = c.post("/sessions/audited/text", json={"text": "secret-payload-xyz", "t": 1}, headers=h)
+        assert r.status_code == 201
+        assert c.delete("/sessions/audited", headers=h).status_code == 403  # refused: logged
+        admin = _h(server, "A", "admin")
+        assert c.delete("/sessions/audited", headers=admin).json()["deleted"] == 4
+        assert c.get("/search?q=secret", headers=h).status_code == 200  # a read: not logged
+    log = AuditLog(str(server["data"]))
+    deadline = time.monotonic() + 30
+    while len(log.entries(tenant="A", since=0)) < 4 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    mine = [e for e in log.entries(tenant="A") if "audited" not in e.route]  # templates only
+    got = [(e.key_id, e.route, e.status, e.count) for e in log.entries(tenant="A")]
+    assert (key_id, "POST /sessions/{session}/touch", 201, 3) in got
+    assert (key_id, "POST /sessions/{session}/text", 201, 1) in got
+    assert (key_id, "DELETE /sessions/{session}", 403, 0) in got
+    admin_id = server["made"][("A", "admin")][0]
+    assert (admin_id, "DELETE /sessions/{session}", 200, 4) in got
+    assert not any(e.route.startswith("GET") for e in log.entries())
+    assert len(mine) == len(log.entries(tenant="A"))
+    dump = json.dumps([e.__dict__ for e in log.entries()])
+    assert key not in dump and "secret-payload-xyz" not in dump
+    assert not re.search(r"tk_[0-9a-f]{12}_", dump)
