@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from tactus_memory.errors import InvalidIdError, NotFoundError
@@ -45,3 +47,37 @@ def test_the_default_tenant_is_the_root_and_older_stores_open_as_it(tmp_path) ->
 def test_a_tenant_name_is_an_id(tmp_path, bad: str) -> None:
     with pytest.raises(InvalidIdError, match="tenant"):
         _open(tmp_path, bad)
+
+
+def test_the_keys_and_audit_commands(tmp_path) -> None:
+    from typer.testing import CliRunner
+
+    from tactus_memory.cli import app
+    from tactus_memory.storage.keys import KeyStore
+
+    data = str(tmp_path / "mem")
+
+    def run(*args: str, code: int = 0) -> str:
+        res = CliRunner().invoke(app, [*args, "--data", data])
+        assert res.exit_code == code, res.output
+        return res.output
+
+    out = run("keys", "create", "--tenant", "A", "--scope", "write", "--expires", "30")
+    key = out.strip().splitlines()[-1]  # the key, alone on the last line
+    key_id = key.split("_")[1]
+    info = KeyStore(data).verify(key)
+    assert info is not None and (info.tenant, info.scope) == ("A", "write")
+    listed = run("keys", "list")
+    assert key_id in listed and "A  write" in listed and key not in listed
+    assert key.split("_", 2)[2] not in run("keys", "list", "--json")
+    assert f"revoked key {key_id}" in run("keys", "revoke", key_id)
+    assert KeyStore(data).verify(key) is None
+    assert "revoked" in run("keys", "list")
+    assert "no key" in run("keys", "revoke", "nope", code=2)
+    assert "scope" in run("keys", "create", "--tenant", "A", "--scope", "root", code=2)
+    assert "tenant" in run("keys", "create", "--tenant", "a/b", code=2)
+    audit = run("audit", "--json").splitlines()
+    routes = [json.loads(line)["route"] for line in audit]
+    assert routes == [f"cli: tactus keys create {key_id}", f"cli: tactus keys revoke {key_id}"]
+    assert key not in "".join(audit)
+    assert run("audit", "--tenant", "B") == ""
