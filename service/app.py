@@ -98,6 +98,15 @@ def key_store(memory: Any) -> KeyStore:
     return KeyStore(store.uri, storage_options=store.storage_options, refresh=every)
 
 
+def audit_log(memory: Any) -> AuditLog:
+    """The audit log of the store ``memory`` lives in (tidied here when this process
+    maintains the store)."""
+    store = memory.store
+    policy = store.maintenance
+    retain = policy.retain_seconds if policy.maintain else None
+    return AuditLog(store.uri, storage_options=store.storage_options, retain_seconds=retain)
+
+
 def open_memory(settings: Settings) -> tuple[Any, str | None]:
     """Open the memory at ``settings.data`` and register the default senses.
 
@@ -198,9 +207,7 @@ def create_app(
         read_only=read_only,
         starting="loading the models" if loader is not None else None,
         gate=Gate(settings, key_store(memory)),
-        audit=None
-        if read_only
-        else AuditLog(memory.store.uri, storage_options=memory.store.storage_options),
+        audit=None if read_only else audit_log(memory),
     )
     damage = memory.store.integrity.damage(0)
     if damage:  # served (reads where they can), but unhealthy and refusing writes

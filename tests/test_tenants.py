@@ -81,3 +81,33 @@ def test_the_keys_and_audit_commands(tmp_path) -> None:
     assert routes == [f"cli: tactus keys create {key_id}", f"cli: tactus keys revoke {key_id}"]
     assert key not in "".join(audit)
     assert run("audit", "--tenant", "B") == ""
+
+
+def test_maintain_covers_every_tenant_and_the_key_and_audit_tables(tmp_path) -> None:
+    import lancedb
+    from typer.testing import CliRunner
+
+    from tactus_memory.cli import app
+    from tactus_memory.storage.audit import AUDIT, AuditLog
+    from tactus_memory.storage.keys import KEYS, KeyStore
+
+    root = str(tmp_path / "mem")
+    for tenant in (DEFAULT_TENANT, "A"):
+        mem = _open(root, tenant)
+        for i in range(3):
+            mem.add("s1", "text", f"note {i}", t=float(i))
+    KeyStore(root).create("B", "read")  # B: a key, no data yet (nothing to maintain)
+    log = AuditLog(root)
+    for _ in range(3):
+        log.record("k1", "A", "POST /sessions/{session}/text", 201, 1)
+        log.flush()
+    db = lancedb.connect(root)
+    assert len(db.open_table(AUDIT).list_versions()) >= 3
+    res = CliRunner().invoke(app, ["maintain", "--once", "--retain", "0", "--data", root])
+    assert res.exit_code == 0, res.output
+    lines = [json.loads(line) for line in res.stdout.splitlines() if line.startswith("{")]
+    assert {line.get("tenant") for line in lines} == {None, "A"}
+    assert {line["table"] for line in lines if line.get("tenant") == "A"} >= {"items.lance"}
+    for name in (AUDIT, KEYS):
+        assert len(db.open_table(name).list_versions()) == 1, name
+    assert len(log.entries()) == 3  # compacted, nothing lost

@@ -58,7 +58,9 @@ def maintain(
     """
     from tactus_memory.errors import TactusError
     from tactus_memory.settings import Settings
+    from tactus_memory.storage.audit import tidy
     from tactus_memory.storage.store import Store
+    from tactus_memory.storage.tenants import tenant_names, tenant_uri
 
     location = _data_dir(data)
     given = {"maintain": True}
@@ -69,6 +71,9 @@ def maintain(
     try:
         cfg = Settings(**given).maintenance()
         store = Store(location, maintenance=cfg)
+        # every tenant's database too (storage/tenants.py), each maintained as the root is
+        others = [Store(tenant_uri(location, t), maintenance=cfg) for t in tenant_names(location)]
+        stores = [store, *(s for s in others[1:] if s.exists)]
     except (TactusError, ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -76,7 +81,7 @@ def maintain(
         typer.echo(f"error: no memory at {location!r} (no items table)", err=True)
         raise typer.Exit(2)
     if check:
-        raise typer.Exit(_check(store))
+        raise typer.Exit(max(_check(s) for s in stores))
     typer.echo(
         f"maintaining {store.uri} every {cfg.maintain_interval:g}s "
         f"(retain {cfg.retain_seconds:g}s, fan-in {cfg.fan_in})",
@@ -89,15 +94,18 @@ def maintain(
             try:
                 # a pass compacts inline; cleanup runs in its own thread (every
                 # cleanup_interval) unless this is the only pass
-                store.maintain(force=True, wait=once)
-                tables = store.maintainer().tables
-                for report in store.last_maintenance:
-                    t = tables[report.table.removesuffix(".lance")]
-                    totals = {
-                        "versions_removed_total": t.versions_removed_total,
-                        "bytes_removed_total": t.bytes_removed_total,
-                    }
-                    typer.echo(json.dumps({"pass": done, **asdict(report), **totals}))
+                for one in stores:
+                    one.maintain(force=True, wait=once)
+                    tables = one.maintainer().tables
+                    for report in one.last_maintenance:
+                        t = tables[report.table.removesuffix(".lance")]
+                        totals = {
+                            "versions_removed_total": t.versions_removed_total,
+                            "bytes_removed_total": t.bytes_removed_total,
+                        }
+                        where = {} if one is store else {"tenant": one.uri.rsplit("/", 1)[1]}
+                        typer.echo(json.dumps({"pass": done, **where, **asdict(report), **totals}))
+                tidy(store.db, cfg.retain_seconds)  # the key and audit tables
             except Exception as exc:  # noqa: BLE001  (a conflict or a transient store error:
                 # logged, retried next pass; the maintainer must keep running)
                 typer.echo(f"maintenance pass failed (retried): {exc}", err=True)
@@ -107,7 +115,8 @@ def maintain(
             time.sleep(max(0.0, cfg.maintain_interval - (time.monotonic() - t0)))
     except KeyboardInterrupt:
         pass
-    store.wait_for_cleanup(60)
+    for one in stores:
+        one.wait_for_cleanup(60)
 
 
 def _check(store: Store) -> int:

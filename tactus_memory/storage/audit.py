@@ -30,6 +30,9 @@ log = logging.getLogger(__name__)
 AUDIT = "audit"
 #: seconds between the commits of buffered audit rows
 FLUSH_EVERY = 1.0
+#: a maintaining server compacts the audit table (and drops versions older than the
+#: store's retention) after this many flushes, as the items table after ``compact_every``
+COMPACT_EVERY = 64
 
 
 def audit_schema() -> pa.Schema:
@@ -66,7 +69,10 @@ class AuditLog:
         *,
         storage_options: dict[str, str] | None = None,
         clock: Callable[[], float] = time.time,
+        retain_seconds: float | None = None,
     ) -> None:
+        """``retain_seconds``: this process maintains the store; the audit table is compacted
+        every :data:`COMPACT_EVERY` flushes, keeping versions this recent (None: never)."""
         import lancedb
 
         self.uri = normalise_uri(str(root))
@@ -77,6 +83,8 @@ class AuditLog:
         self._lock = threading.Lock()
         self._flusher: threading.Timer | None = None
         self._table: Any = None
+        self.retain_seconds = retain_seconds
+        self._flushes = 0
 
     def record(self, key_id: str, tenant: str, route: str, status: int, count: int) -> None:
         """Buffer one entry (committed within :data:`FLUSH_EVERY` seconds)."""
@@ -112,6 +120,9 @@ class AuditLog:
             with self._lock:
                 self._pending[:0] = entries
             raise
+        self._flushes += 1
+        if self.retain_seconds is not None and self._flushes % COMPACT_EVERY == 0:
+            tidy(self.db, self.retain_seconds)
         return len(entries)
 
     def close(self) -> None:
@@ -139,3 +150,21 @@ class AuditLog:
         rows = sorted(q.limit(None).to_arrow().to_pylist(), key=lambda r: r["t"])
         rows = rows if limit is None else rows[-limit:]
         return [AuditEntry(**r) for r in rows]
+
+
+def tidy(db: Any, retain_seconds: float) -> list[str]:
+    """Compact the root database's own tables (keys, audit) and remove their versions older
+    than ``retain_seconds`` (``tactus maintain`` and a maintaining server run it); returns the
+    tables it tidied."""
+    from datetime import timedelta
+
+    from tactus_memory.storage.keys import KEYS
+
+    res = db.list_tables()
+    present = set(getattr(res, "tables", res))
+    done = []
+    for name in (KEYS, AUDIT):
+        if name in present:
+            db.open_table(name).optimize(cleanup_older_than=timedelta(seconds=retain_seconds))
+            done.append(name)
+    return done
