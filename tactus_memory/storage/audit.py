@@ -18,11 +18,12 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
+from tactus_memory.storage.tables import audit_schema
 from tactus_memory.storage.tenants import validate_tenant
 from tactus_memory.storage.where import _sql_float, _sql_str, finite_float
 
 if TYPE_CHECKING:
-    import pyarrow as pa
+    pass
 
 log = logging.getLogger(__name__)
 
@@ -33,21 +34,6 @@ FLUSH_EVERY = 1.0
 #: a maintaining server compacts the audit table (and drops versions older than the
 #: store's retention) after this many flushes, as the items table after ``compact_every``
 COMPACT_EVERY = 64
-
-
-def audit_schema() -> pa.Schema:
-    import pyarrow as pa
-
-    return pa.schema(
-        [
-            pa.field("t", pa.float64(), nullable=False),
-            pa.field("key_id", pa.string(), nullable=False),
-            pa.field("tenant", pa.string(), nullable=False),
-            pa.field("route", pa.string(), nullable=False),
-            pa.field("status", pa.int64(), nullable=False),
-            pa.field("count", pa.int64(), nullable=False),
-        ]
-    )
 
 
 @dataclass(frozen=True)

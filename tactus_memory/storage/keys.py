@@ -22,11 +22,12 @@ from typing import TYPE_CHECKING, Any
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
+from tactus_memory.storage.tables import keys_schema
 from tactus_memory.storage.tenants import validate_tenant
 from tactus_memory.storage.where import _sql_str, validate_id
 
 if TYPE_CHECKING:
-    import pyarrow as pa
+    pass
 
 log = logging.getLogger(__name__)
 
@@ -42,24 +43,6 @@ KEY_PREFIX = "tk_"
 LAST_USED_EVERY = 60.0
 #: presented keys whose scrypt check passed, remembered per process (by SHA-256)
 VERIFIED_CACHE = 4096
-
-
-def keys_schema() -> pa.Schema:
-    import pyarrow as pa
-
-    return pa.schema(
-        [
-            pa.field("key_id", pa.string(), nullable=False),
-            pa.field("tenant", pa.string(), nullable=False),
-            pa.field("scope", pa.string(), nullable=False),
-            pa.field("salt", pa.binary(), nullable=False),
-            pa.field("hash", pa.binary(), nullable=False),
-            pa.field("created", pa.float64(), nullable=False),
-            pa.field("expires", pa.float64()),
-            pa.field("revoked", pa.float64()),
-            pa.field("last_used", pa.float64()),
-        ]
-    )
 
 
 def check_scope(scope: str) -> str:
