@@ -70,6 +70,8 @@ in natural language.
 * Every write is acknowledged (201) only after its LanceDB commit.
 * With a token configured, send `Authorization: Bearer <token>` on every route but the open
   ones: `/live`, `/health`, `/ready`, `/`, `/static/*`, `/docs`, `/redoc`, `/openapi.json`.
+* Keys (`tactus keys create`) work as the token and scope every route to their tenant
+  (`read`, `write`, `admin`): another tenant's session or item is a 404, like a missing one.
 * Item ids belong to their session and sense: reusing another session's id is a 409.
 * Cross-field rules JSON Schema cannot state (422 when broken): `t_end >= t`,
   `after <= before`, one `t`/`t_end`/`meta`/`ids` entry per window or vector.
