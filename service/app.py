@@ -270,7 +270,7 @@ def create_app(
     for module in (
         sessions, senses, images, search, items, touch, touch_stream, ui, recordings, places,
     ):  # fmt: skip
-        app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
-    app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
+        app.include_router(module.router, dependencies=auth, responses=problem_responses(401, 403))
+    app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401, 403))
     app.include_router(ui.page_router)  # the browser page: static, no data, no token
     return app

@@ -7,15 +7,11 @@ from __future__ import annotations
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 from tactus_memory.group_commit import GroupCommitter
 from tactus_memory.memory import Memory
 from tactus_memory.settings import Settings
 from tactus_memory.storage.tenants import DEFAULT_TENANT, validate_tenant
-
-if TYPE_CHECKING:
-    pass
 
 
 @dataclass
