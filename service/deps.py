@@ -14,6 +14,7 @@ from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.group_commit import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
@@ -36,6 +37,7 @@ from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import allows
 from tactus_memory.storage.rows import WriteKwargs
+from tactus_memory.storage.tenants import DEFAULT_TENANT
 from tactus_memory.storage.where import Near, check_near, validate_frame
 
 
@@ -71,6 +73,12 @@ class ServiceState:
             self.tenants = Tenants(self.memory, self.settings)
         if self.gate is None:
             self.gate = Gate(self.settings, None)
+
+    @property
+    def committer(self) -> GroupCommitter | None:
+        """The default tenant's group committer (each tenant has its own, ``Tenant``)."""
+        assert self.tenants is not None
+        return self.tenants.get(DEFAULT_TENANT).committer
 
     async def write(
         self,

@@ -59,6 +59,7 @@ def maintain(
     from tactus_memory.errors import TactusError
     from tactus_memory.settings import Settings
     from tactus_memory.storage.audit import tidy
+    from tactus_memory.storage.keys import KeyStore
     from tactus_memory.storage.store import Store
     from tactus_memory.storage.tenants import tenant_names, tenant_uri
 
@@ -72,8 +73,10 @@ def maintain(
         cfg = Settings(**given).maintenance()
         store = Store(location, maintenance=cfg)
         # every tenant's database too (storage/tenants.py), each maintained as the root is
-        others = [Store(tenant_uri(location, t), maintenance=cfg) for t in tenant_names(location)]
-        stores = [store, *(s for s in others[1:] if s.exists)]
+        named = {key.tenant for key in KeyStore(location).list()}
+        names = tenant_names(location, named)
+        others = [Store(tenant_uri(location, t), maintenance=cfg) for t in names[1:]]
+        stores = [store, *(s for s in others if s.exists)]
     except (TactusError, ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

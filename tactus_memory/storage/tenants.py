@@ -11,6 +11,8 @@ default tenant's tables (:mod:`tactus_memory.storage.keys`).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from tactus_memory.limits import ID_RE
 from tactus_memory.storage.connect import normalise_uri
 from tactus_memory.storage.where import validate_id
@@ -36,18 +38,15 @@ def tenant_uri(root: str, tenant: str = DEFAULT_TENANT) -> str:
     return f"{root.rstrip('/')}/{TENANTS_DIR}/{tenant}"
 
 
-def tenant_names(root: str, storage_options: dict[str, str] | None = None) -> list[str]:
+def tenant_names(root: str, named: Iterable[str] = ()) -> list[str]:
     """The tenants of the store at ``root``, default first: the default tenant, each folder
-    under ``tenants/`` (local stores), and every tenant a key names (any store, object
-    storage included: a tenant without keys there is maintained by its own process)."""
+    under ``tenants/`` (local stores), and ``named`` (the tenants its keys name: on object
+    storage, a tenant without keys is found by no listing)."""
     import os
 
-    from tactus_memory.storage.keys import KeyStore
-
     root = normalise_uri(str(root))
-    names = {DEFAULT_TENANT}
+    names = {DEFAULT_TENANT, *map(validate_tenant, named)}
     folder = os.path.join(root, TENANTS_DIR)
     if "://" not in root and os.path.isdir(folder):
         names.update(n for n in os.listdir(folder) if ID_RE.fullmatch(n))
-    names.update(k.tenant for k in KeyStore(root, storage_options=storage_options).list())
     return [DEFAULT_TENANT, *sorted(names - {DEFAULT_TENANT})]
