@@ -111,3 +111,22 @@ def test_maintain_covers_every_tenant_and_the_key_and_audit_tables(tmp_path) -> 
     for name in (AUDIT, KEYS):
         assert len(db.open_table(name).list_versions()) == 1, name
     assert len(log.entries()) == 3  # compacted, nothing lost
+
+
+def test_guessing_a_keys_secret_is_throttled_per_key_id(tmp_path, monkeypatch) -> None:
+    from tactus_memory.storage import keys as keys_module
+    from tactus_memory.storage.keys import FAILED_CHECKS_PER_S, KeyStore
+
+    now = [1000.5]
+    monkeypatch.setattr(keys_module.time, "monotonic", lambda: now[0])
+    store = KeyStore(str(tmp_path), refresh=1e9)
+    key_id, key = store.create("A", "read")
+    other_id, other = store.create("A", "write")
+    assert store.verify(other) is not None  # checked before: remembered
+    for i in range(FAILED_CHECKS_PER_S):
+        assert store.verify(f"tk_{key_id}_wrong{i}") is None
+    assert store.verify(key) is None  # this second's checks of key_id are spent
+    assert store.verify(other) is not None  # another id, and a remembered key: unaffected
+    now[0] += 1.0
+    info = store.verify(key)
+    assert info is not None and info.key_id == key_id and other_id != key_id

@@ -43,6 +43,9 @@ KEY_PREFIX = "tk_"
 LAST_USED_EVERY = 60.0
 #: presented keys whose scrypt check passed, remembered per process (by SHA-256)
 VERIFIED_CACHE = 4096
+#: wrong secrets checked per key id and second, at most (each costs one scrypt); beyond
+#: that a presented key of that id is refused unchecked until the second is over
+FAILED_CHECKS_PER_S = 5
 
 
 def check_scope(scope: str) -> str:
@@ -101,6 +104,8 @@ class KeyStore:
         self._lock = threading.Lock()
         self._verified: OrderedDict[bytes, str] = OrderedDict()
         self._used: dict[str, float] = {}
+        #: key id -> (the second, wrong secrets checked in it)
+        self._failed: dict[str, tuple[int, int]] = {}
 
     # ----------------------------------------------------------- table
     def _open(self, create: bool = False) -> Any:
@@ -194,7 +199,15 @@ class KeyStore:
         with self._lock:
             known = self._verified.get(digest) == key_id
         if not known:
+            second = int(time.monotonic())
+            with self._lock:
+                at, failed = self._failed.get(key_id, (second, 0))
+                if at == second and failed >= FAILED_CHECKS_PER_S:
+                    return None  # guessing: refused without spending a scrypt on it
             if not hmac.compare_digest(_hash(secret, row["salt"]), row["hash"]):
+                with self._lock:
+                    at, failed = self._failed.get(key_id, (second, 0))
+                    self._failed[key_id] = (second, failed + 1 if at == second else 1)
                 return None
             with self._lock:
                 self._verified[digest] = key_id
