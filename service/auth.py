@@ -37,11 +37,13 @@ METHOD_SCOPE = {"GET": "read", "HEAD": "read", "DELETE": "admin", "WS": "write"}
 
 @dataclass(frozen=True)
 class Principal:
-    """The caller of one request: its key id, its tenant and its key's scope."""
+    """The caller of one request: its key id, its tenant, its key's scope and the session-id
+    prefix its key is limited to (None: every session)."""
 
     key_id: str
     tenant: str
     scope: str
+    sessions: str | None = None
 
 
 def needed_scope(method: str, route_name: str | None) -> str:
@@ -88,7 +90,7 @@ class Gate:
         if presented and self.keys is not None:
             info = self.keys.verify(presented)
             if info is not None:
-                return Principal(info.key_id, info.tenant, info.scope)
+                return Principal(info.key_id, info.tenant, info.scope, info.sessions)
         return None
 
     def for_connection(self, conn: HTTPConnection) -> Principal | None:

@@ -10,10 +10,11 @@ from dataclasses import dataclass, replace
 from typing import Annotated, Any, Literal
 
 from fastapi import Depends, HTTPException, Path, Query
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.group_commit import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
@@ -38,7 +39,13 @@ from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import allows
 from tactus_memory.storage.rows import WriteKwargs
 from tactus_memory.storage.tenants import DEFAULT_TENANT
-from tactus_memory.storage.where import Near, check_near, validate_frame
+from tactus_memory.storage.where import (
+    SESSION_PREFIX,
+    Near,
+    check_near,
+    session_visible,
+    validate_frame,
+)
 
 
 @dataclass
@@ -69,10 +76,15 @@ class ServiceState:
     def __post_init__(self) -> None:
         if self.write_threads is None:
             self.write_threads = WriteThreads(self.settings.write_threads)
-        if self.tenants is None:
-            self.tenants = Tenants(self.memory, self.settings)
         if self.gate is None:
             self.gate = Gate(self.settings, None)
+        if self.tenants is None:
+            self.tenants = Tenants(self.memory, self.settings, self.key_tenants)
+
+    def key_tenants(self) -> set[str]:
+        """The tenants the store's keys name (they exist, data or not)."""
+        keys = self.gate.keys if self.gate is not None else None
+        return set() if keys is None else keys.tenants()
 
     @property
     def committer(self) -> GroupCommitter | None:
@@ -141,14 +153,28 @@ TOKEN_REFUSED = "missing or wrong bearer token: send 'Authorization: Bearer <tok
 BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="tactus"'}
 
 
-def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
+def _caller(state: ServiceState, conn: HTTPConnection) -> Principal | None:
+    """The gate's principal for ``conn``, its tenant opened (UnknownTenantError, 404, for a
+    tenant that does not exist: a request never creates one)."""
+    assert state.gate is not None and state.tenants is not None
+    principal = state.gate.for_connection(conn)
+    if principal is not None:
+        state.tenants.get(principal.tenant)
+    return principal
+
+
+async def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
     """Every route but the open ones: the caller (``auth.Gate``: the operator's token, a key,
     or anyone on a store with neither; a WebSocket may pass ``?token=``) and whether its
     scope covers the route (``auth.needed_scope``). 401 for no or a wrong key, 403 for a key
     whose scope falls short. A write, delete or key change is marked for the audit log
-    (``middleware.AuditMiddleware``), refused or not."""
-    assert state.gate is not None
-    principal = state.gate.for_connection(conn)
+    (``middleware.AuditMiddleware``), refused or not.
+
+    A key limited to sessions (``--sessions PREFIX``) is walled in here, for every route: a
+    session in the path outside the prefix is a 404 like a missing session's, and the
+    prefix is set for the rest of the request (``where.SESSION_PREFIX``), so each store read
+    sees only the sessions under it (searches, listings, counts, items by id)."""
+    principal = await run_in_threadpool(_caller, state, conn)  # a key's scrypt, a tenant's open
     websocket = conn.scope["type"] == "websocket"
     if principal is None:
         how = " or ?token=" if websocket else ""
@@ -162,6 +188,10 @@ def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
         raise HTTPException(
             403, f"this key's scope is {principal.scope!r}; this route needs {need!r}"
         )
+    SESSION_PREFIX.set(principal.sessions)  # this request's context (its own task)
+    session = conn.path_params.get("session")
+    if session is not None and not session_visible(session):
+        raise NotFoundError(f"no session {session!r}")
     return principal
 
 

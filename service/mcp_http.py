@@ -51,6 +51,10 @@ class BearerGate:
                 challenge = [(k.lower().encode(), v.encode()) for k, v in BEARER_CHALLENGE.items()]
                 await send_problem(send, 401, problem, challenge)
                 return
+            if who.sessions is not None:  # its tools run outside the request's context
+                detail = "a key limited to sessions cannot use the MCP endpoint"
+                await send_problem(send, 403, problem_body(403, detail, instance=scope["path"]))
+                return
             if not allows(who.scope, self.need):
                 detail = f"this key's scope is {who.scope!r}; this server needs {self.need!r}"
                 await send_problem(send, 403, problem_body(403, detail, instance=scope["path"]))

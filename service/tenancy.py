@@ -5,13 +5,14 @@ shared (:mod:`tactus_memory.storage.tenants` says where each tenant's database l
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
+from tactus_memory.errors import UnknownTenantError
 from tactus_memory.group_commit import GroupCommitter
 from tactus_memory.memory import Memory
 from tactus_memory.settings import Settings
-from tactus_memory.storage.tenants import DEFAULT_TENANT, validate_tenant
+from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_exists, validate_tenant
 
 
 @dataclass
@@ -39,19 +40,31 @@ class Tenant:
 
 
 class Tenants:
-    """name -> :class:`Tenant`; the default one is the memory the app was made with."""
+    """name -> :class:`Tenant`; the default one is the memory the app was made with. Only
+    tenants that exist are opened (``storage.tenants.tenant_exists``): ``named`` gives the
+    tenants the store's keys name."""
 
-    def __init__(self, default: Memory, settings: Settings) -> None:
+    def __init__(
+        self, default: Memory, settings: Settings, named: Callable[[], Iterable[str]] = tuple
+    ) -> None:
         self.default = default
         self.settings = settings
+        self.named = named
         self._tenants = {DEFAULT_TENANT: Tenant(DEFAULT_TENANT, default, settings)}
         self._lock = threading.Lock()
 
     def get(self, name: str) -> Tenant:
-        """The tenant ``name`` (its memory opened, empty, on first use)."""
+        """The tenant ``name`` (its memory opened on first use); UnknownTenantError (404) for
+        a tenant that does not exist, which is never created here."""
         found = self._tenants.get(name)
         if found is not None:
             return found
+        base = self.default.store
+        if not tenant_exists(base.uri, name, self.named(), base.storage_options or None):
+            raise UnknownTenantError(
+                f"no tenant {name!r}: a tenant comes into being with its first key "
+                "(tactus keys create --tenant NAME)"
+            )
         with self._lock:
             if name not in self._tenants:
                 self._tenants[name] = Tenant(name, self._open(name), self.settings)

@@ -1,6 +1,7 @@
 """Keys, scopes and tenants on a real uvicorn server (issue 25): every route of the app against
-tenants x scopes, another tenant's data reading exactly like missing data on every route,
-revoked and expired keys, the WebSocket stream and the audit log."""
+tenants x scopes x session prefixes, another tenant's data (and a session outside a key's
+prefix) reading exactly like missing data on every route, unknown tenants, revoked and
+expired keys, the WebSocket stream and the audit log."""
 
 from __future__ import annotations
 
@@ -31,6 +32,8 @@ WRITES = {
 }  # fmt: skip
 ADMIN = {"delete_session", "add_sense"}
 SCOPES = ("read", "write", "admin")
+#: the session-id prefix of tenant A's limited keys (``--sessions lab-``)
+LAB = "lab-"
 
 
 @pytest.fixture(scope="module")
@@ -40,13 +43,14 @@ def server(tmp_path_factory):
     memory = make_memory(data)
     keys = KeyStore(str(data), refresh=0.2)
     made = {(t, s): keys.create(t, s) for t in ("A", "B") for s in SCOPES}
+    made |= {("A", s, LAB): keys.create("A", s, sessions=LAB) for s in SCOPES}
     app = create_app(Settings(token=OPERATOR), memory=memory)
     with serve_app(app) as base:
         yield {"base": base, "keys": keys, "made": made, "app": app, "data": data}
 
 
-def _h(server, tenant: str, scope: str) -> dict[str, str]:
-    return {"Authorization": f"Bearer {server['made'][(tenant, scope)][1]}"}
+def _h(server, tenant: str, scope: str, *prefix: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {server['made'][(tenant, scope, *prefix)][1]}"}
 
 
 def _need(name: str) -> str:
@@ -71,6 +75,12 @@ def test_every_route_x_scope(server) -> None:
                     short = SCOPES.index(scope) < SCOPES.index(_need(route.name))
                     assert (status == 403) == short, f"{method} {url} {scope}: {status}"
                     assert status != 401, f"{method} {url} {scope}"
+                    # a key limited to lab-*: the same scopes; "s1" in a path is outside
+                    r = c.request(method, url, headers=_h(server, "A", scope, LAB))
+                    assert (r.status_code == 403) == short, f"{method} {url} {scope} lab"
+                    if not short and "{session}" in route.path:
+                        assert r.status_code == 404, f"{method} {url} {scope} lab"
+                        assert r.json()["detail"] == "no session 's1'", (url, r.text)
                 seen += 1
     assert seen >= 25
 
@@ -227,3 +237,99 @@ def test_the_audit_log_names_key_tenant_route_and_count_never_key_or_payload(ser
     dump = json.dumps([e.__dict__ for e in log.entries()])
     assert key not in dump and "secret-payload-xyz" not in dump
     assert not re.search(r"tk_[0-9a-f]{12}_", dump)
+
+
+def _session_routes(app) -> list[tuple[str, str]]:
+    """(method, path template) of every HTTP route with a session in its path."""
+    return [
+        (method, route.path)
+        for route in flat_routes(app)
+        if isinstance(route, Route) and "{session}" in route.path
+        for method in sorted((route.methods or set()) - {"HEAD", "OPTIONS"})
+    ]
+
+
+def test_a_key_limited_to_sessions_sees_nothing_outside_its_prefix(server) -> None:
+    """``--sessions lab-``: every route with a session in its path answers a session outside
+    the prefix (existing or not) with the same 404 and changes nothing; every search,
+    listing, count and item read sees the sessions under the prefix only."""
+    ha, lab = _h(server, "A", "admin"), _h(server, "A", "admin", LAB)
+    with httpx.Client(base_url=server["base"], timeout=60) as c:
+        in_ids = _fill(c, lab, "lab-1", "pelican")  # the limited key writes its own sessions
+        out_ids = _fill(c, ha, "home-1", "narwhal")  # the unlimited key of the same tenant
+        before = c.get("/sessions/home-1", headers=ha).json()
+        routes = _session_routes(server["app"])
+        assert len(routes) >= 10
+        for method, path in routes:  # writes, reads, deletes, exports, images, poses, clock
+            theirs = c.request(method, _concrete(path.replace("{session}", "home-1")),
+                               headers=lab, json={"text": "x", "t": 1.0})  # fmt: skip
+            nobody = c.request(method, _concrete(path.replace("{session}", "home-zz")),
+                               headers=lab, json={"text": "x", "t": 1.0})  # fmt: skip
+            assert theirs.status_code == 404, (method, path, theirs.text)
+            _same(theirs, nobody, "home-1", "home-zz")
+        r = c.post("/sessions/home-2/text", json={"text": "sneaky", "t": 1.0}, headers=lab)
+        assert r.status_code == 404
+        assert c.get("/sessions/home-2", headers=ha).status_code == 404  # nothing written
+        assert c.get("/sessions/home-1", headers=ha).json() == before  # nothing changed
+        for path in SESSION_READS:  # the session as a query parameter too
+            _same(c.get(path.format(s="home-1"), headers=lab),
+                  c.get(path.format(s="home-zz"), headers=lab), "home-1", "home-zz")  # fmt: skip
+            assert c.get(path.format(s="lab-1"), headers=lab).status_code == 200, path
+        for path in ITEM_READS:
+            for out_id in out_ids:
+                _same(c.get(path.format(i=out_id), headers=lab),
+                      c.get(path.format(i="zz-none"), headers=lab), out_id, "zz-none")  # fmt: skip
+        assert c.get(f"/items/{in_ids[1]}/touch.json", headers=lab).status_code == 200
+        for path in GLOBAL_READS:
+            body = c.get(path, headers=lab)
+            assert body.status_code == 200, (path, body.text)
+            for secret in ("narwhal", "home-1", *out_ids):
+                assert secret not in body.text, (path, secret)
+        assert [s["id"] for s in c.get("/sessions", headers=lab).json()["sessions"]] == ["lab-1"]
+        assert "home-1" in c.get("/sessions", headers=ha).text
+        assert "pelican" in c.get("/search?q=pelican", headers=lab).text
+        rows = {s["name"]: s["rows"] for s in c.get("/senses", headers=lab).json()["senses"]}
+        assert rows["text"] == 1 and rows["touch"] == 1, rows  # lab-1's rows, not home-1's
+        assert c.delete("/sessions/home-1", headers=lab).status_code == 404
+        assert c.get("/sessions/home-1", headers=ha).json() == before
+    from websockets.sync.client import connect
+
+    port = server["base"].rsplit(":", 1)[1]
+    key = server["made"][("A", "write", LAB)][1]
+    for session, first in (("home-1", "error"), ("lab-ws", "ready")):
+        url = f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream?window=8&stride=8&t0=0&hz=100"
+        with connect(f"{url}&token={key}", open_timeout=30) as ws:
+            msg = json.loads(ws.recv(timeout=30))
+            assert msg["type"] == first, msg
+            if first == "error":
+                assert msg["error"]["status"] == 404, msg
+            else:
+                ws.send(npy_bytes(window(k=8, seed=4)))
+                assert json.loads(ws.recv(timeout=60))["type"] == "stored"
+    with httpx.Client(base_url=server["base"], timeout=30) as c:
+        assert c.get("/sessions/lab-ws", headers=ha).json()["n"] == 1
+        assert c.get("/sessions/home-1", headers=ha).json() == before
+
+
+def test_an_unknown_tenant_is_a_404_and_never_created(server) -> None:
+    """The operator's X-Tactus-Tenant naming a tenant no key names and no database holds:
+    404 unknown-tenant for reads and writes, and no database appears; the tenant's first key
+    brings it into being."""
+    op = {"Authorization": f"Bearer {OPERATOR}", "X-Tactus-Tenant": "tpyo"}
+    with httpx.Client(base_url=server["base"], timeout=30) as c:
+        note = {"text": "x", "t": 1.0}
+        for method, url, body in (
+            ("GET", "/sessions", None), ("GET", "/search?q=mug", None),
+            ("POST", "/sessions/s1/text", note),
+        ):  # fmt: skip
+            r = c.request(method, url, headers=op, json=body)
+            assert r.status_code == 404, (url, r.text)
+            assert r.json()["type"].endswith(":unknown-tenant"), r.text
+        assert not (server["data"] / "tenants" / "tpyo").exists()
+        server["keys"].create("tpyo", "read")
+        deadline = time.monotonic() + 30  # seen within the keys' re-read interval
+        while c.get("/sessions", headers=op).status_code != 200 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert c.get("/sessions", headers=op).json()["sessions"] == []
+        r = c.post("/sessions/s1/text", json={"text": "now it exists", "t": 1.0}, headers=op)
+        assert r.status_code == 201, r.text

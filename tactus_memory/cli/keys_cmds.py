@@ -50,20 +50,26 @@ def create(
     expires: Annotated[
         float | None, typer.Option(help="Days until the key stops working (default: never).")
     ] = None,
+    sessions: Annotated[
+        str | None,
+        typer.Option(help="Only sessions whose id starts with PREFIX (default: every session)."),
+    ] = None,
     data: ServiceData = None,
 ) -> None:
-    """Create a key; it is printed once, alone on the last line (only its hash is stored)."""
+    """Create a key; it is printed once, alone on the last line (only its hash is stored).
+    The first key of a tenant brings the tenant into being."""
     from tactus_memory.errors import TactusError
 
     keys, audit = _stores(data)
     try:
-        key_id, key = keys.create(tenant, scope, expires)
+        key_id, key = keys.create(tenant, scope, expires, sessions)
     except TactusError as exc:
         fail(str(exc))
     audit.record(CLI_KEY_ID, tenant, CLI_ROUTE.format("create") + f" {key_id}", 0, 1)
     audit.close()
     until = None if expires is None else time.time() + expires * 86400.0
-    typer.echo(f"key {key_id} for tenant {tenant!r}, scope {scope}, expires {_when(until)}")
+    only = "" if sessions is None else f", sessions {sessions}*"
+    typer.echo(f"key {key_id} for tenant {tenant!r}, scope {scope}{only}, expires {_when(until)}")
     typer.echo("the key (shown once; store it now):")
     typer.echo(key)
 
@@ -73,7 +79,8 @@ def list_keys(
     data: ServiceData = None,
     as_json: Annotated[bool, typer.Option("--json", help="One JSON object per key.")] = False,
 ) -> None:
-    """Every key: id, tenant, scope, created, expires, revoked, last used (never the key)."""
+    """Every key: id, tenant, scope, session prefix, created, expires, revoked, last used
+    (never the key)."""
     keys, _ = _stores(data)
     now = time.time()
     for info in keys.list():
@@ -81,8 +88,9 @@ def list_keys(
             typer.echo(json.dumps({**asdict(info), "live": info.live(now)}))
             continue
         state = "live" if info.live(now) else ("revoked" if info.revoked else "expired")
+        only = "" if info.sessions is None else f"  sessions {info.sessions}*"
         typer.echo(
-            f"{info.key_id}  {info.tenant}  {info.scope}  created {_when(info.created)}  "
+            f"{info.key_id}  {info.tenant}  {info.scope}{only}  created {_when(info.created)}  "
             f"expires {_when(info.expires)}  last used {_when(info.last_used)}  {state}"
         )
 

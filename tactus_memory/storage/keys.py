@@ -18,16 +18,13 @@ import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.tables import keys_schema
 from tactus_memory.storage.tenants import validate_tenant
-from tactus_memory.storage.where import _sql_str, validate_id
-
-if TYPE_CHECKING:
-    pass
+from tactus_memory.storage.where import _sql_str, validate_id, validate_session_prefix
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +71,8 @@ class KeyInfo:
     expires: float | None
     revoked: float | None
     last_used: float | None
+    #: the key sees only sessions whose id starts with this (None: every session)
+    sessions: str | None = None
 
     def live(self, now: float) -> bool:
         return self.revoked is None and (self.expires is None or now < self.expires)
@@ -134,13 +133,27 @@ class KeyStore:
         """Whether the store has any key (then every request must present one)."""
         return bool(self._read())
 
+    def tenants(self) -> set[str]:
+        """The tenants the keys name (revoked and expired ones included)."""
+        return {row["tenant"] for row in self._read().values()}
+
     # ----------------------------------------------------------- changes
-    def create(self, tenant: str, scope: str, expires_days: float | None = None) -> tuple[str, str]:
-        """A new key for ``tenant`` with ``scope``: returns (key id, the key). The key is shown
-        this once: only its hash is stored."""
+    def create(
+        self,
+        tenant: str,
+        scope: str,
+        expires_days: float | None = None,
+        sessions: str | None = None,
+    ) -> tuple[str, str]:
+        """A new key for ``tenant`` with ``scope`` (limited to the sessions whose id starts
+        with ``sessions`` when given): returns (key id, the key). The key is shown this once:
+        only its hash is stored. The first key naming a tenant brings the tenant into being
+        (:func:`tactus_memory.storage.tenants.tenant_exists`)."""
         import pyarrow as pa
 
         tenant, scope = validate_tenant(tenant), check_scope(scope)
+        if sessions is not None:
+            sessions = validate_session_prefix(sessions)
         if expires_days is not None and not expires_days > 0:
             raise InvalidInputError(f"--expires must be > 0 days, got {expires_days!r}")
         key_id, secret, salt = (
@@ -159,6 +172,7 @@ class KeyStore:
             "expires": None if expires_days is None else now + float(expires_days) * 86400.0,
             "revoked": None,
             "last_used": None,
+            "sessions": sessions,
         }
         self._open(create=True).add(pa.Table.from_pylist([row], schema=keys_schema()))
         self._read(force=True)
@@ -183,7 +197,7 @@ class KeyStore:
 
     @staticmethod
     def _info(row: dict[str, Any]) -> KeyInfo:
-        return KeyInfo(**{f: row[f] for f in KeyInfo.__dataclass_fields__})
+        return KeyInfo(**{f: row.get(f) for f in KeyInfo.__dataclass_fields__})
 
     # ----------------------------------------------------------- checks
     def verify(self, presented: str) -> KeyInfo | None:

@@ -104,6 +104,7 @@ def keys_schema() -> pa.Schema:
     return pa.schema(
         [pa.field(name, kind, nullable=False) for name, kind in required.items()]
         + [pa.field(name, pa.float64()) for name in times]
+        + [pa.field("sessions", pa.string())]  # a session-id prefix; null: every session
     )
 
 
