@@ -115,6 +115,7 @@ SESSION_READS = [
 ITEM_READS = ["/items/{i}/touch.png", "/items/{i}/touch.json", "/items/{i}/image.png"]
 GLOBAL_READS = [
     "/sessions", "/search?q=mug", "/moments?q=mug", "/count?q=mug", "/last?q=mug",
+    "/first?q=mug", "/before?q=mug&anchor=mug", "/after?q=mug&anchor=mug",
     "/where?q=mug", "/at?x=0&y=0&z=0&r=100", "/senses",
 ]  # fmt: skip
 
@@ -288,6 +289,12 @@ def test_a_key_limited_to_sessions_sees_nothing_outside_its_prefix(server) -> No
         assert [s["id"] for s in c.get("/sessions", headers=lab).json()["sessions"]] == ["lab-1"]
         assert "home-1" in c.get("/sessions", headers=ha).text
         assert "pelican" in c.get("/search?q=pelican", headers=lab).text
+        for like in (
+            {"sense": "touch", "frames": window().tolist()},
+            {"sense": "text", "text": "narwhal"},
+        ):
+            hits = c.post("/search/like", json={**like, "k": 10}, headers=lab).json()["hits"]
+            assert {h["session"] for h in hits} == {"lab-1"}, hits  # both sessions hold it
         rows = {s["name"]: s["rows"] for s in c.get("/senses", headers=lab).json()["senses"]}
         assert rows["text"] == 1 and rows["touch"] == 1, rows  # lab-1's rows, not home-1's
         assert c.delete("/sessions/home-1", headers=lab).status_code == 404
