@@ -81,6 +81,11 @@ def test_the_keys_and_audit_commands(tmp_path) -> None:
     assert routes == [f"cli: tactus keys create {key_id}", f"cli: tactus keys revoke {key_id}"]
     assert key not in "".join(audit)
     assert run("audit", "--tenant", "B") == ""
+    out = run("keys", "create", "--tenant", "A", "--sessions", "lab-", "--scope", "write")
+    limited = KeyStore(data).verify(out.strip().splitlines()[-1])
+    assert limited is not None and limited.sessions == "lab-" and "sessions lab-*" in out
+    assert "sessions lab-*" in run("keys", "list")
+    assert "session prefix" in run("keys", "create", "--tenant", "A", "--sessions", "a b", code=2)
 
 
 def test_maintain_covers_every_tenant_and_the_key_and_audit_tables(tmp_path) -> None:
@@ -130,3 +135,39 @@ def test_guessing_a_keys_secret_is_throttled_per_key_id(tmp_path, monkeypatch) -
     now[0] += 1.0
     info = store.verify(key)
     assert info is not None and info.key_id == key_id and other_id != key_id
+
+
+def test_sessions_under_a_prefix_limit_every_read_of_a_memory(tmp_path) -> None:
+    """``where.sessions_under``: what a key made with ``--sessions PREFIX`` sees (the server
+    sets it per request): sessions, items, searches, counts, rows per sense and deletes."""
+    from tactus_memory.storage.where import sessions_under
+
+    mem = _open(tmp_path, "A")
+    mem.add("lab-1", "text", "a red mug on the shelf", t=1.0, id="in1")
+    mem.add("home-1", "text", "a red mug in the sink", t=1.0, id="out1")
+    with sessions_under("lab-"):
+        assert [s.id for s in mem.sessions()] == ["lab-1"]
+        assert {h.session for h in mem.search("red mug", k=5)} == {"lab-1"}
+        assert mem.count("a red mug in the sink") == 0  # home-1's note, 1 below
+        assert {i.name: i.rows for i in mem.sense_info()}["text"] == 1
+        with pytest.raises(NotFoundError):
+            mem.get_item("out1")
+        with pytest.raises(NotFoundError):
+            mem.session("home-1")
+        assert mem.delete(["in1", "out1"]) == 1  # only its own
+        with sessions_under(None):  # a tenant-wide read inside
+            assert len(mem.sessions()) == 1
+    assert [s.id for s in mem.sessions()] == ["home-1"]
+    assert mem.count("a red mug in the sink") == 1
+    assert mem.get_item("out1").text == "a red mug in the sink"
+
+
+def test_a_tenant_exists_once_a_key_names_it_or_it_holds_data(tmp_path) -> None:
+    from tactus_memory.storage.tenants import tenant_exists
+
+    root = str(tmp_path / "mem")
+    assert tenant_exists(root, DEFAULT_TENANT)
+    assert not tenant_exists(root, "A") and not (tmp_path / "mem" / "tenants" / "A").exists()
+    assert tenant_exists(root, "A", named={"A"})
+    _open(root, "B").add("s1", "text", "a note", t=1.0)
+    assert tenant_exists(root, "B")
