@@ -20,10 +20,8 @@ from starlette.requests import HTTPConnection
 
 from tactus_memory.settings import Settings
 from tactus_memory.storage.keys import KeyStore
-from tactus_memory.storage.tenants import DEFAULT_TENANT, validate_tenant
+from tactus_memory.storage.tenants import DEFAULT_TENANT, TENANT_HEADER, validate_tenant
 
-#: the operator's ``--token`` chooses its tenant with this header (keys cannot)
-TENANT_HEADER = "x-tactus-tenant"
 #: key ids of the principals that are not keys
 OPERATOR, ANONYMOUS = "operator", "anonymous"
 #: routes (by name) whose method says write but which only read: a search by example, a

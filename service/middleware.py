@@ -26,6 +26,7 @@ from tactus_memory.errors import TactusError
 from tactus_memory.service.auth import bearer
 from tactus_memory.service.deps import OPEN_PATHS, OPEN_PREFIXES
 from tactus_memory.service.problems import PROBLEM_JSON, problem_body
+from tactus_memory.storage.tenants import TENANT_HEADER
 
 
 async def send_problem(
@@ -217,7 +218,7 @@ def _token_ok_for(scope: Scope) -> bool:
         return True
     headers = dict(scope.get("headers", ()))
     header = headers.get(b"authorization", b"").decode("latin-1")
-    tenant = headers.get(b"x-tactus-tenant", b"").decode("latin-1") or None
+    tenant = headers.get(TENANT_HEADER.encode(), b"").decode("latin-1") or None
     try:
         return scope["app"].state.tactus.gate.principal(bearer(header), tenant) is not None
     except TactusError:  # a malformed tenant header: refused like a wrong token

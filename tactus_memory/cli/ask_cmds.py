@@ -23,6 +23,7 @@ from tactus_memory.cli.common import (
     ServerToken,
     ServerUrl,
     Session,
+    Tenant,
 )
 from tactus_memory.cli.memory_cmds import (
     _open,
@@ -35,6 +36,7 @@ from tactus_memory.cli.memory_cmds import (
 )
 from tactus_memory.cli.remote import get_json, session_path
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
+from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 if TYPE_CHECKING:
     from tactus_memory.results import Moment, Occurrences
@@ -48,21 +50,21 @@ def _occurrences(
     session: str | None,
     after: float | None,
     before: float | None,
-    where: tuple[str | None, str | None, str | None],
+    where: tuple[str | None, str | None, str | None, str],
     space: tuple[str | None, str | None, int | None],
 ) -> Occurrences:
     """Every occurrence of ``query`` in scope, from the store (``--data``) or a server."""
     from tactus_memory.errors import TactusError
     from tactus_memory.results import Occurrences
 
-    data, url, token = where
+    data, url, token, tenant = where
     one_source(data, url)
     if url:
         params = {"q": query, "sense": sense, "session": session, "after": after}
-        answer = get_json(url, "/count", {**params, "before": before}, token)
+        answer = get_json(url, "/count", {**params, "before": before}, token, tenant)
         return Occurrences.model_validate(answer)
     try:
-        memory = _open(data, *space)
+        memory = _open(data, *space, tenant=tenant)
         if session is not None:
             memory.session(session)  # an unknown session is an error, as over HTTP
         return memory.occurrences(
@@ -118,6 +120,7 @@ def last(
     before: Before = None,
     as_json: AsJson = False,
     data: MemoryData = None,
+    tenant: Tenant = DEFAULT_TENANT,
     url: ServerUrl = None,
     token: ServerToken = None,
     space: SpaceName = None,
@@ -125,7 +128,7 @@ def last(
     space_dim: SpaceDim = None,
 ) -> None:
     """When did it last happen? The latest occurrence and its evidence across senses."""
-    where, spc = (data, url, token), (space, space_path, space_dim)
+    where, spc = (data, url, token, tenant), (space, space_path, space_dim)
     opts = {"sense": sense, "session": session, "after": after, "before": before}
     _ask("last", query, {**opts, "where": where, "space": spc, "as_json": as_json})
 
@@ -139,6 +142,7 @@ def first(
     before: Before = None,
     as_json: AsJson = False,
     data: MemoryData = None,
+    tenant: Tenant = DEFAULT_TENANT,
     url: ServerUrl = None,
     token: ServerToken = None,
     space: SpaceName = None,
@@ -146,7 +150,7 @@ def first(
     space_dim: SpaceDim = None,
 ) -> None:
     """When did it first happen? The earliest occurrence and its evidence across senses."""
-    where, spc = (data, url, token), (space, space_path, space_dim)
+    where, spc = (data, url, token, tenant), (space, space_path, space_dim)
     opts = {"sense": sense, "session": session, "after": after, "before": before}
     _ask("first", query, {**opts, "where": where, "space": spc, "as_json": as_json})
 
@@ -160,6 +164,7 @@ def count(
     before: Before = None,
     as_json: AsJson = False,
     data: MemoryData = None,
+    tenant: Tenant = DEFAULT_TENANT,
     url: ServerUrl = None,
     token: ServerToken = None,
     space: SpaceName = None,
@@ -167,7 +172,7 @@ def count(
     space_dim: SpaceDim = None,
 ) -> None:
     """How many distinct times did it happen? Each occurrence with its time and senses."""
-    where, spc = (data, url, token), (space, space_path, space_dim)
+    where, spc = (data, url, token, tenant), (space, space_path, space_dim)
     found = _occurrences(query, sense, session, after, before, where, spc)
     if as_json:
         _print_json(found.model_dump())
@@ -194,6 +199,7 @@ def timeline(
     limit: int | None = typer.Option(None, "--limit", min=1, help="Only the first LIMIT."),
     as_json: AsJson = False,
     data: MemoryData = None,
+    tenant: Tenant = DEFAULT_TENANT,
     url: ServerUrl = None,
     token: ServerToken = None,
     space: SpaceName = None,
@@ -211,14 +217,15 @@ def timeline(
     if url:
         params = {"sense": sense, "after": after, "before": before, "limit": limit}
         path = session_path(session, "/timeline")
-        answer = get_json(url, path, {**params, "episodes": str(episodes).lower()}, token)
+        params["episodes"] = str(episodes).lower()
+        answer = get_json(url, path, params, token, tenant)
         rows: list[Any] = [
             (Episode if episodes else TimelineItem).model_validate(r)
             for r in answer["episodes" if episodes else "items"]
         ]
     else:
         try:
-            memory = _open(data, space, space_path, space_dim)
+            memory = _open(data, space, space_path, space_dim, tenant=tenant)
             rows = memory.timeline(session, sense or None, after, before, episodes, limit=limit)
         except TactusError as exc:
             fail(str(exc))

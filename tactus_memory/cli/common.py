@@ -38,6 +38,17 @@ ServerUrl = Annotated[
         "TACTUS_URL).",
     ),
 ]
+#: ``--tenant`` of the commands that open a memory store: whose memory (README "Keys and
+#: tenants"); with ``--url`` it is sent as the operator's tenant header (a key's own wins)
+Tenant = Annotated[
+    str,
+    typer.Option(
+        "--tenant",
+        envvar="TACTUS_TENANT",
+        help="The tenant whose memory to open (env TACTUS_TENANT; default: default).",
+        show_envvar=False,
+    ),
+]
 #: the bearer token sent with ``--url`` (the server's ``--token``)
 ServerToken = Annotated[
     str | None,

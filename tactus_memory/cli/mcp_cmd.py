@@ -7,7 +7,7 @@ from typing import Annotated
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import MemoryData
+from tactus_memory.cli.common import MemoryData, Tenant
 from tactus_memory.cli.memory_cmds import _open
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 from tactus_memory.storage.tenants import DEFAULT_TENANT
@@ -38,10 +38,7 @@ def mcp(
         bool,
         typer.Option("--allow-writes", help="Offer the `remember` tool (store a note)."),
     ] = False,
-    tenant: Annotated[
-        str,
-        typer.Option(help="Serve this tenant's memory (--http: to its keys and the token)."),
-    ] = DEFAULT_TENANT,
+    tenant: Tenant = DEFAULT_TENANT,
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,

@@ -26,9 +26,11 @@ from tactus_memory.cli.common import (
     ServerToken,
     ServerUrl,
     Session,
+    Tenant,
 )
 from tactus_memory.cli.remote import get_json
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
+from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -52,16 +54,26 @@ def _open(
     space: str | None = None,
     space_path: str | None = None,
     space_dim: int | None = None,
+    tenant: str = DEFAULT_TENANT,
     **open_kw: Any,
 ) -> Memory:
-    """The memory at ``data`` in its recorded space (the space options find its model);
-    ``open_kw`` go to :meth:`Memory.open` (e.g. ``maintenance=``)."""
+    """``tenant``'s memory in the store at ``data``, in its recorded space (the space options
+    find its model); ``open_kw`` go to :meth:`Memory.open` (e.g. ``maintenance=``). A tenant
+    that does not exist is an error (a typo never makes a tenant)."""
     from tactus_memory.memory import Memory
+    from tactus_memory.storage.keys import KeyStore
+    from tactus_memory.storage.tenants import tenant_exists
 
     location = _data_dir(data)
     if "://" not in location and not Path(location).is_dir():
         fail(f"no memory at {location!r} (set --data or TACTUS_DATA, or ask a server with --url)")
-    return Memory.open(location, space=space, space_path=space_path, space_dim=space_dim, **open_kw)
+    if tenant != DEFAULT_TENANT and not tenant_exists(
+        location, tenant, KeyStore(location).tenants()
+    ):
+        fail(f"no tenant {tenant!r} in {location} (its first key makes it: tactus keys create)")
+    return Memory.open(
+        location, space=space, space_path=space_path, space_dim=space_dim, tenant=tenant, **open_kw
+    )
 
 
 def one_source(data: str | None, url: str | None) -> None:
@@ -130,6 +142,7 @@ def search(
     before: Before = None,
     as_json: AsJson = False,
     data: MemoryData = None,
+    tenant: Tenant = DEFAULT_TENANT,
     url: ServerUrl = None,
     token: ServerToken = None,
     space: SpaceName = None,
@@ -146,11 +159,12 @@ def search(
     one_source(data, url)
     if url:
         params = {"q": query, "k": k, "sense": sense, "session": session}
-        answer = get_json(url, "/search", {**params, "after": after, "before": before}, token)
+        params |= {"after": after, "before": before}
+        answer = get_json(url, "/search", params, token, tenant)
         hits = [Hit.model_validate(h) for h in answer["hits"]]
     else:
         try:
-            memory = _open(data, space, space_path, space_dim)
+            memory = _open(data, space, space_path, space_dim, tenant=tenant)
             hits = memory.search(
                 query, k=k, senses=sense or None, session=session, after=after, before=before
             )
@@ -178,6 +192,7 @@ def search(
 def sessions(
     as_json: AsJson = False,
     data: MemoryData = None,
+    tenant: Tenant = DEFAULT_TENANT,
     url: ServerUrl = None,
     token: ServerToken = None,
     space: SpaceName = None,
@@ -190,11 +205,11 @@ def sessions(
 
     one_source(data, url)
     if url:
-        answer = get_json(url, "/sessions", {}, token)
+        answer = get_json(url, "/sessions", {}, token, tenant)
         summaries = [SessionSummary.model_validate(s) for s in answer["sessions"]]
     else:
         try:
-            summaries = _open(data, space, space_path, space_dim).sessions()
+            summaries = _open(data, space, space_path, space_dim, tenant=tenant).sessions()
         except TactusError as exc:
             fail(str(exc))
     _print_results(

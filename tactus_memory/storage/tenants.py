@@ -26,6 +26,8 @@ from tactus_memory.storage.where import validate_id
 DEFAULT_TENANT = "default"
 #: where the non-default tenants' databases live, under the store's root
 TENANTS_DIR = "tenants"
+#: the HTTP header with which the operator's token (not a key) names its tenant
+TENANT_HEADER = "x-tactus-tenant"
 
 
 def validate_tenant(value: object) -> str:
