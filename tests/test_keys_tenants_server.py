@@ -340,3 +340,25 @@ def test_an_unknown_tenant_is_a_404_and_never_created(server) -> None:
         assert c.get("/sessions", headers=op).json()["sessions"] == []
         r = c.post("/sessions/s1/text", json={"text": "now it exists", "t": 1.0}, headers=op)
         assert r.status_code == 201, r.text
+
+
+def test_the_client_acts_for_the_operators_tenant(server) -> None:
+    """``Client(url, token, tenant=...)`` sends the operator's tenant header on every call
+    and on the touch stream; an unknown tenant raises UnknownTenantError (404)."""
+    from tactus_memory.client import Client
+    from tactus_memory.errors import UnknownTenantError
+
+    with Client(server["base"], OPERATOR, tenant="B") as b:
+        b.add("client-b", "text", "a note of the operator in B", t=1.0)
+        with b.stream_touch("client-b", window=8, stride=8, t0=0.0, hz=100.0) as stream:
+            stream.send(window(k=8, seed=5))
+            assert stream.wait(60) and len(stream.ids) == 1, stream.errors
+        assert b.session("client-b").n == 2
+    with httpx.Client(base_url=server["base"], timeout=30) as c:
+        assert c.get("/sessions/client-b", headers=_h(server, "B", "read")).json()["n"] == 2
+        assert c.get("/sessions/client-b", headers=_h(server, "A", "read")).status_code == 404
+    with (
+        Client(server["base"], OPERATOR, tenant="nosuch") as nobody,
+        pytest.raises(UnknownTenantError),
+    ):
+        nobody.sessions()
