@@ -1,6 +1,7 @@
 """The MCP server over HTTP behind tenants' keys (issue 25): served for one tenant, on real
 uvicorn; that tenant's keys (of the scope the server needs) and the operator's token get in,
-another tenant's key is refused like a wrong one, and the tools see the tenant's data only."""
+another tenant's key is refused like a wrong one, a key limited to sessions is refused (403),
+and the tools see the tenant's data only."""
 
 from __future__ import annotations
 
@@ -35,11 +36,12 @@ def test_mcp_http_serves_one_tenant_to_its_keys(tmp_path) -> None:
     _, a_write = keys.create("A", "write")
     _, a_read = keys.create("A", "read")
     _, b_admin = keys.create("B", "admin")
+    _, a_lab = keys.create("A", "admin", sessions="lab-")  # its tools would see every session
     settings = Settings(token="op-token")
     gate = Gate(settings, KeyStore(root))
     app = mcp_http_app(build_server(a, allow_writes=True), settings, gate, "A", "write")
     with serve_app(app) as base:
-        for key, status in ((b_admin, 401), ("tk_0_x", 401), (a_read, 403)):
+        for key, status in ((b_admin, 401), ("tk_0_x", 401), (a_read, 403), (a_lab, 403)):
             r = httpx.post(base + "/mcp", json=LIST, headers={"Authorization": f"Bearer {key}"})
             assert r.status_code == status, r.text
             assert r.headers["content-type"].startswith("application/problem+json")
