@@ -62,7 +62,7 @@ def create(
 
     keys, audit = _stores(data)
     try:
-        key_id, key = keys.create(tenant, scope, expires, sessions)
+        key_id, key = keys.create(tenant, scope, expires, sessions=sessions)
     except TactusError as exc:
         fail(str(exc))
     audit.record(CLI_KEY_ID, tenant, CLI_ROUTE.format("create") + f" {key_id}", 0, 1)

@@ -143,6 +143,7 @@ class KeyStore:
         tenant: str,
         scope: str,
         expires_days: float | None = None,
+        *,
         sessions: str | None = None,
     ) -> tuple[str, str]:
         """A new key for ``tenant`` with ``scope`` (limited to the sessions whose id starts
