@@ -14,7 +14,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
-from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.errors import InvalidInputError, NotFoundError, UnknownTenantError
 from tactus_memory.group_commit import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
@@ -153,14 +153,19 @@ TOKEN_REFUSED = "missing or wrong bearer token: send 'Authorization: Bearer <tok
 BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="tactus"'}
 
 
-def _caller(state: ServiceState, conn: HTTPConnection) -> Principal | None:
-    """The gate's principal for ``conn``, its tenant opened (UnknownTenantError, 404, for a
-    tenant that does not exist: a request never creates one)."""
+def _caller(
+    state: ServiceState, conn: HTTPConnection
+) -> tuple[Principal | None, UnknownTenantError | None]:
+    """The gate's principal for ``conn`` and its tenant opened, or why not: its tenant does
+    not exist (a request never creates one)."""
     assert state.gate is not None and state.tenants is not None
     principal = state.gate.for_connection(conn)
     if principal is not None:
-        state.tenants.get(principal.tenant)
-    return principal
+        try:
+            state.tenants.get(principal.tenant)
+        except UnknownTenantError as exc:
+            return principal, exc
+    return principal, None
 
 
 async def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
@@ -174,7 +179,7 @@ async def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
     session in the path outside the prefix is a 404 like a missing session's, and the
     prefix is set for the rest of the request (``where.SESSION_PREFIX``), so each store read
     sees only the sessions under it (searches, listings, counts, items by id)."""
-    principal = await run_in_threadpool(_caller, state, conn)  # a key's scrypt, a tenant's open
+    principal, unknown = await run_in_threadpool(_caller, state, conn)  # scrypt, tenant open
     websocket = conn.scope["type"] == "websocket"
     if principal is None:
         how = " or ?token=" if websocket else ""
@@ -184,6 +189,8 @@ async def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
     if need != "read":
         conn.state.audit = (principal, f"{'WS' if websocket else conn.scope['method']} "
                             f"{getattr(route, 'path', conn.url.path)}")  # fmt: skip
+    if unknown is not None:  # 404 unknown-tenant (a refused write is logged all the same)
+        raise unknown
     if not allows(principal.scope, need):
         raise HTTPException(
             403, f"this key's scope is {principal.scope!r}; this route needs {need!r}"

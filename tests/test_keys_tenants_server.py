@@ -333,6 +333,11 @@ def test_an_unknown_tenant_is_a_404_and_never_created(server) -> None:
             assert r.status_code == 404, (url, r.text)
             assert r.json()["type"].endswith(":unknown-tenant"), r.text
         assert not (server["data"] / "tenants" / "tpyo").exists()
+        log, deadline = AuditLog(str(server["data"])), time.monotonic() + 30
+        while not log.entries(tenant="tpyo") and time.monotonic() < deadline:
+            time.sleep(0.2)  # the refused write is logged, under the name it gave
+        got = [(e.key_id, e.route, e.status) for e in log.entries(tenant="tpyo")]
+        assert got == [("operator", "POST /sessions/{session}/text", 404)], got
         server["keys"].create("tpyo", "read")
         deadline = time.monotonic() + 30  # seen within the keys' re-read interval
         while c.get("/sessions", headers=op).status_code != 200 and time.monotonic() < deadline:
