@@ -1,11 +1,12 @@
 """API keys: per tenant, with a scope, stored hashed in the store's root database.
 
-A key reads ``tk_<key id>_<secret>``; the table ``keys`` keeps its id, tenant, scope, expiry,
-revocation and last use, and the secret's scrypt hash (a slow KDF, standard library; never the
-key). Every replica reads the same table, so a key created or revoked on one is seen by the
-others within the read consistency interval (:mod:`tactus_memory.storage.connect`): a verifier
-re-reads the table at most that often, and checks a presented key's scrypt hash once per
-process (then a SHA-256 of it is remembered, so a request costs a dictionary lookup).
+A key reads ``tk_<key id>_<secret>``; the table ``keys`` keeps its id, tenant, scope, session
+prefix (``--sessions``), expiry, revocation and last use, and the secret's scrypt hash (a slow
+KDF, standard library; never the key). Every replica reads the same table, so a key created
+or revoked on one is seen by the others within the read consistency interval
+(:mod:`tactus_memory.storage.connect`): a verifier re-reads the table at most that often, and
+checks a presented key's scrypt hash once per process (then a SHA-256 of it is remembered, so
+a request costs a dictionary lookup).
 """
 
 from __future__ import annotations
