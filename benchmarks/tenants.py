@@ -4,7 +4,9 @@ with the real MiniLM space:
 * verifying a key: the first time a process sees it (scrypt, N=2^14, r=8) and after (cached);
 * ``GET /sessions`` latency: an open store, the operator's token, a key (sequential requests);
 * a tenant's first request (its memory is opened then) and the process RSS per open tenant;
-* ``POST /sessions/{s}/text`` latency with the audit log on and off.
+* ``POST /sessions/{s}/text`` latency with the audit log on and off;
+* ``GET /search`` latency with a key limited to sessions (``--sessions lab-``: the store ANDs
+  ``starts_with(session, 'lab-')`` into the search) and with an unlimited key.
 
     python benchmarks/tenants.py                  # ~1-2 min on 2 cores
     python benchmarks/tenants.py --requests 100   # quicker
@@ -79,6 +81,10 @@ def run(requests: int, tenants: int) -> dict[str, Any]:
             settings = Settings(token=None if mode == "open" else "op-token")
             if mode == "key":
                 key = KeyStore(data).create("default", "write")[1]
+                lab = KeyStore(data).create("default", "read", sessions="lab-")[1]
+            if mode == "token":  # a tenant comes into being with its first key
+                for i in range(tenants):
+                    KeyStore(data).create(f"tenant-{i}", "read")
             headers = {
                 "open": {},
                 "token": {"Authorization": "Bearer op-token"},
@@ -108,6 +114,17 @@ def run(requests: int, tenants: int) -> dict[str, Any]:
                 app.state.tactus.audit = saved
                 writes = {k: _ms(v) for k, v in writes.items()}
                 out[f"post_text_{mode}"] = writes
+                if mode == "key":  # half the sessions under lab-, then interleaved searches
+                    url = "/sessions/lab-{i}/text"
+                    _latency(c, requests // 2, "POST", url, json=body, headers=headers)
+                    limited = {"Authorization": f"Bearer {lab}"}
+                    both = {"search_unlimited_key": headers, "search_limited_key": limited}
+                    took: dict[str, list[float]] = {name: [] for name in both}
+                    for block in range(max(1, requests // 10)):
+                        for name in sorted(both, reverse=bool(block % 2)):
+                            q = "/search?q=red+mug&k=10"
+                            took[name] += _latency(c, 10, "GET", q, headers=both[name])
+                    out |= {name: _ms(v) for name, v in took.items()}
                 if mode == "token":
                     proc = psutil.Process()
                     rss0 = proc.memory_info().rss
