@@ -104,8 +104,11 @@ def open_memory(path: str, cfg: IndexConfig, background: bool) -> Memory:
     return mem
 
 
-def ingest(mem: Memory, data: dict[str, np.ndarray], batch: int) -> tuple[np.ndarray, float]:
-    """Bulk add grouped by (session, sense) in chunks; returns ids (row order) and rows/s."""
+def ingest(
+    mem: Memory, data: dict[str, np.ndarray], batch: int, pos: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
+    """Bulk add grouped by (session, sense) in chunks; returns ids (row order) and rows/s.
+    With ``pos`` ((N, 3), row order) each row is placed at its position in frame ``map``."""
     n = len(data["vectors"])
     ids = np.empty(n, dtype=object)
     t0 = time.perf_counter()
@@ -117,8 +120,9 @@ def ingest(mem: Memory, data: dict[str, np.ndarray], batch: int) -> tuple[np.nda
         s, k = int(data["session"][g[0]]), int(data["sense"][g[0]])
         for a in range(0, len(g), batch):
             idx = g[a : a + batch]
+            placed = {} if pos is None else {"position": pos[idx], "frame": "map"}
             ids[idx] = mem.add_many(
-                f"s{s}", SENSES[k], list(data["vectors"][idx]), t=data["t"][idx].tolist()
+                f"s{s}", SENSES[k], list(data["vectors"][idx]), t=data["t"][idx].tolist(), **placed
             )
     return ids, n / (time.perf_counter() - t0)
 

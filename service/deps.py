@@ -247,10 +247,10 @@ Writable = Depends(require_writable)
 QueryText = Annotated[
     str,
     Query(
-        min_length=1,
-        max_length=MAX_TEXT_CHARS,
         description="The query in words.",
         examples=["holding a warm mug"],
+        min_length=1,
+        max_length=MAX_TEXT_CHARS,
     ),
 ]
 SensesQ = Annotated[

@@ -107,6 +107,16 @@ class Server:
         stop_process(self.proc)
 
 
+def add_notes(c: Any, session: str, notes: list[tuple[float, str]]) -> dict[str, str]:
+    """POST each ``(t, text)`` note to ``session`` with the httpx client ``c``; text -> id."""
+    ids = {}
+    for t, text in notes:
+        r = c.post(f"/sessions/{session}/text", json={"text": text, "t": t})
+        assert r.status_code == 201, r.text
+        ids[text] = r.json()["ids"][0]
+    return ids
+
+
 def _touch_sense(dim: int) -> tuple[Any, str]:
     """The shipped TactusEncoder. No fallback: the browser tests promise the real touch
     sense, so a checkpoint that fails to load (or a space mismatch) fails them loudly."""

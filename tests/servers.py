@@ -35,10 +35,11 @@ def wait_healthy(
 
 
 @contextmanager
-def serve_app(app: Any, startup_s: float = 60) -> Iterator[str]:
+def serve_app(app: Any, startup_s: float = 180, probe: str = "/live") -> Iterator[str]:
     """A real uvicorn server for ``app`` on a free port of 127.0.0.1, in a thread of this
     process (so a test can inject failures into the memory it serves); yields its base URL
-    once ``/live`` answers, and stops it (lifespan shutdown included) on exit."""
+    once ``probe`` answers 200, and stops it (lifespan shutdown included) on exit.
+    ``startup_s`` is a liveness bound only: a loaded machine starts slowly."""
     import uvicorn
 
     port = free_port()
@@ -49,14 +50,14 @@ def serve_app(app: Any, startup_s: float = 60) -> Iterator[str]:
     deadline = time.monotonic() + startup_s
     while True:
         try:
-            if httpx.get(base + "/live", timeout=2).status_code == 200:
+            if httpx.get(base + probe, timeout=2).status_code == 200:
                 break
         except httpx.TransportError:
             pass
         if time.monotonic() > deadline or not thread.is_alive():
             server.should_exit = True
             thread.join(15)
-            pytest.fail(f"uvicorn at {base} did not answer /live within {startup_s} s")
+            pytest.fail(f"uvicorn at {base} did not answer {probe} within {startup_s} s")
         time.sleep(0.05)
     try:
         yield base

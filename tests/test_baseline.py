@@ -65,15 +65,10 @@ def test_trains_above_chance_on_separable_data(tmp_path: Path):
     net, summary = train_baseline(td, cfg, progress=False)
     assert summary["steps"] == 60  # BN running statistics need a few dozen steps
     es = EvalSet(
-        calibrated=td.calibrated,
-        labels=td.labels,
-        recording_id=td.recording_id,
-        members=td.train_valid,
-        anchors=td.train_valid,
-        classes=td.classes,
-        recordings=[str(i) for i in range(6)],
-        split="all",
-    )
+        calibrated=td.calibrated, labels=td.labels, recording_id=td.recording_id,
+        members=td.train_valid, anchors=td.train_valid, classes=td.classes,
+        recordings=[str(i) for i in range(6)], split="all",
+    )  # fmt: skip
     m = evaluate_scorer(BaselineScorer(net, td.classes), es, votes=2, progress=False).metrics
     assert m["top1"] > 0.8 > 1 / 3  # chance is 1/3
     assert m["recording_top1"] >= 2 / 3

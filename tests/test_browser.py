@@ -42,6 +42,7 @@ from tactus_memory.touch.render import (
 from tests.browser_util import (
     ROOT,
     Server,
+    add_notes,
     launch,
     npy_bytes,
     stag_windows,
@@ -163,13 +164,9 @@ def served(tmp_path_factory):
     real = (stag / CORE_SUBSET / "metadata.mat").is_file()
     windows = stag_windows(stag, 6) if real else synthetic_windows(6)
     server = Server(tmp / "memory", tmp / "server.log")
-    ids: dict[str, str] = {}
     try:
         with httpx.Client(base_url=server.base, timeout=120) as c:
-            for t, note in NOTES:
-                r = c.post("/sessions/kitchen-demo/text", json={"text": note, "t": t})
-                assert r.status_code == 201, r.text
-                ids[note] = r.json()["ids"][0]
+            ids = add_notes(c, "kitchen-demo", NOTES)
             for i, (w, name) in enumerate(windows[:4]):
                 t = 1.5 + 4 * i
                 body = {"frames": w.tolist(), "t": t, "t_end": t + 8 / 30, "meta": {"object": name}}

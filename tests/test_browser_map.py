@@ -10,7 +10,7 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.browser_util import Server, launch, sync_playwright
+from tests.browser_util import Server, add_notes, launch, sync_playwright
 from tests.test_browser import shot
 
 pytestmark = pytest.mark.slow
@@ -31,13 +31,9 @@ NOTES = [
 def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("browser-map")
     server = Server(tmp / "memory", tmp / "server.log")
-    ids = {}
     try:
         with httpx.Client(base_url=server.base, timeout=120) as c:
-            for t, text in NOTES:
-                r = c.post("/sessions/walk/text", json={"text": text, "t": t})
-                assert r.status_code == 201, r.text
-                ids[text] = r.json()["ids"][0]
+            ids = add_notes(c, "walk", NOTES)
             body = {"t": T.tolist(), "position": np.column_stack([X, Y, 0 * T]).tolist()}
             r = c.post("/sessions/walk/poses", json=body)  # after the notes: backfill
             assert r.status_code == 201, r.text

@@ -8,24 +8,20 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import httpx
 import pytest
-import uvicorn
 from typer.testing import CliRunner
 
 import tactus_memory.spaces as spaces
-from benchmarks.serving import free_port
 from tactus_memory.cli import app
 from tactus_memory.memory import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.fakes import HashingSpace
 from tests.kitchen import MUG_GRASPS, S, kitchen_notes
+from tests.servers import serve_app
 
 DIM = 64
 
@@ -96,24 +92,8 @@ def served(store: Path) -> Iterator[str]:
     """A real uvicorn on 127.0.0.1 serving that store (the lifespan warms the space)."""
     memory = Memory.open(str(store), space=HashingSpace(dim=DIM), background=False)
     app = create_app(Settings(data=str(store), touch=False), memory=memory)
-    srv = uvicorn.Server(
-        uvicorn.Config(app, host="127.0.0.1", port=free_port(), log_level="warning")
-    )
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    base = f"http://127.0.0.1:{srv.config.port}"
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(base + "/ready", timeout=2).status_code == 200:
-                break
-        except httpx.TransportError:
-            time.sleep(0.1)
-    else:
-        pytest.fail(f"{base} did not get ready in 60 s")
-    yield base
-    srv.should_exit = True
-    thread.join(15)
+    with serve_app(app, probe="/ready") as base:
+        yield base
 
 
 @pytest.mark.parametrize(

@@ -60,12 +60,12 @@ def queued_together(
     first = {"frames": window().tolist(), "t": 0.0}
     threads = [threading.Thread(target=post, args=(0, "/sessions/gate/touch", first))]
     threads[0].start()
-    assert touch.entered.wait(30), "the gating write never reached the encoder"
+    assert touch.entered.wait(120), "the gating write never reached the encoder"
     for i, (path, body) in enumerate(posts, 1):
         threads.append(threading.Thread(target=post, args=(i, path, body)))
         threads[-1].start()
     committer = app.state.tactus.committer
-    deadline = time.monotonic() + 30
+    deadline = time.monotonic() + 120  # a liveness bound only
     while committer.pending < 1 + len(posts):  # every post queued (no timing: a condition)
         assert time.monotonic() < deadline, f"only {committer.pending} items queued"
         time.sleep(0.01)

@@ -14,13 +14,8 @@ from typer.testing import CliRunner
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.memory import Memory
 from tactus_memory.results import Grasp
+from tactus_memory.touch.training import stream_eval
 from tactus_memory.touch.training.data import load_stag
-from tactus_memory.touch.training.stream_eval import (
-    build_stream,
-    evaluate_stream,
-    load_queries,
-    stream_markdown,
-)
 from tests.touch_pair import Pair, train_pair
 
 
@@ -32,7 +27,7 @@ def pair(tmp_path_factory) -> Pair:
 @pytest.fixture(scope="module")
 def stream(pair):
     data = load_stag(pair.stag[0])
-    return build_stream(data, list(range(len(data.recordings))))
+    return stream_eval.build_stream(data, list(range(len(data.recordings))))
 
 
 def test_grasps_never_cross_recordings_and_pool_their_windows(tmp_path, pair, stream, minilm_space):
@@ -64,8 +59,8 @@ def test_grasps_never_cross_recordings_and_pool_their_windows(tmp_path, pair, st
 
 def test_stream_eval_scores_windows_and_grasps(pair, stream, minilm_space) -> None:
     present = set(stream.rec_object.values())
-    queries = {c: q for c, q in load_queries().items() if c in present}
-    out = evaluate_stream(
+    queries = {c: q for c, q in stream_eval.load_queries().items() if c in present}
+    out = stream_eval.evaluate_stream(
         pair.a, stream, queries, space=minilm_space, modes=("served",), groups=(None, "grasp"),
         pools=("mean", "max"),
     )  # fmt: skip
@@ -80,7 +75,7 @@ def test_stream_eval_scores_windows_and_grasps(pair, stream, minilm_space) -> No
         for key in ("r@1", "r@5", "mrr", "last_correct", "count_exact"):
             assert 0.0 <= m[key] <= 1.0
         assert m["r@1"] <= m["r@5"]
-    assert "served_grasp" in stream_markdown(out)
+    assert "served_grasp" in stream_eval.stream_markdown(out)
 
 
 def test_cli_eval_stream_group_grasp(pair, tmp_path) -> None:

@@ -180,7 +180,7 @@ def test_http_real_store_behind_the_token(real_store, tmp_path) -> None:
             pytest.fail("tactus mcp --http did not start:\n" + log.read_text()[-3000:])
         body = {"jsonrpc": "2.0", "id": 1, "method": "tools/list"}
         for headers in ({}, {"Authorization": "Bearer wrong"}):
-            r = httpx.post(base + "/mcp", json=body, headers=headers, timeout=10)
+            r = httpx.post(base + "/mcp", json=body, headers=headers, timeout=60)
             assert r.status_code == 401, r.text
             assert r.headers["content-type"].startswith("application/problem+json")
             assert "bearer token" in r.json()["detail"]

@@ -275,15 +275,17 @@ def test_sigkill_after_add_keeps_row(tmp_path) -> None:
         f"m = Memory.open({str(path)!r}, space=HashingSpace())\n"
         "m.add('s1', 'text', 'survives the crash', t=1.0, id='keep')\n"
         "print('added', flush=True)\n"
-        "time.sleep(60)\n"
+        "sys.stdin.read()\n"  # blocks until killed: no race with a sleep running out
     )
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert proc.stdout is not None
         assert proc.stdout.readline().strip() == "added"
     finally:
         os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(10)
+        proc.wait(60)
     assert proc.returncode == -signal.SIGKILL
     mem = Memory.open(str(path), space=HashingSpace())
     assert mem.get_item("keep").text == "survives the crash"

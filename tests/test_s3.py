@@ -197,7 +197,7 @@ def test_two_serve_replicas_on_s3_over_http(
         assert r.status_code == 201, r.text
         wait_for(
             lambda: httpx.get(first.base + "/sessions/kitchen", timeout=30).json()["n"] == 2,
-            timeout=30,
+            timeout=WAIT_S,
         )
     finally:
         first.stop()

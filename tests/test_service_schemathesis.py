@@ -14,18 +14,14 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
-import httpx
 import pytest
-import uvicorn
 from fastapi.testclient import TestClient
 
-from benchmarks.serving import free_port
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
+from tests.servers import serve_app
 from tests.test_service_helpers import make_memory, window
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,26 +37,8 @@ def server(tmp_path):
         client.post("/sessions/s1/text", json={"text": "a red ball", "t": 1.0})
         client.post("/sessions/s1/touch", json={"frames": window(k=2).tolist(), "t": 2.0})
         client.post("/senses", json={"name": "motion", "dim": 64})
-    port = free_port()
-    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning")
-    srv = uvicorn.Server(config)
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 180  # a liveness bound: a loaded machine starts slowly
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(base + "/ready", timeout=2).status_code == 200:
-                break
-        except httpx.TransportError:
-            time.sleep(0.1)
-    else:
-        srv.should_exit = True
-        thread.join(15)
-        pytest.fail(f"the server at {base} did not answer /ready with 200 within 60 s")
-    yield base
-    srv.should_exit = True
-    thread.join(15)
+    with serve_app(app, probe="/ready") as base:
+        yield base
 
 
 def test_schemathesis_all_checks_examples_coverage_stateful_zero_failures(server, tmp_path):

@@ -32,7 +32,6 @@ async def live() -> LiveOut:
 @router.get(
     "/health",
     summary="Health: the store is readable, and the configuration",
-    response_model=HealthOut,
     responses=problem_responses(503),
 )
 async def health(state: StateDep) -> HealthOut:

@@ -5,6 +5,7 @@ Every search and temporal route also takes ``near=x,y,z,r`` and ``frame=`` (``de
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Annotated, Any
 
 import numpy as np
@@ -127,7 +128,6 @@ def get_poses(
         "and frame, its span, score and evidence. Moments with no placed member are left out. "
         "Takes the scope (session, sense, source, after, before, near, frame) and match bar."
     ),
-    response_model=PlacesOut,
     responses=problem_responses(404, 422),
 )
 def where(
@@ -135,8 +135,8 @@ def where(
     q: QueryText,
     scope: ScopeDep,
     match: MatchDep,
-    k: Annotated[int, Query(ge=1, le=MAX_K, description="How many places.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
+    k: Annotated[int, Query(ge=1, le=MAX_K, description="How many places.")] = 10,
 ) -> PlacesOut:
     return PlacesOut(query=q, places=memory.where(q, k, gap=gap, scope=scope, match=match))
 
@@ -145,7 +145,6 @@ def where(
     "/at",
     summary="What happened near a place?",
     description="Items placed within `r` metres of (`x`, `y`, `z`), in time order.",
-    response_model=AtOut,
     responses=problem_responses(404, 422),
 )
 def at(
@@ -156,16 +155,8 @@ def at(
     z: Coordinate,
     r: Annotated[float, Query(gt=0.0, le=MAX_COORDINATE, description="Radius (m).")],
 ) -> AtOut:
-    if scope.near is not None:
+    filters = dataclasses.asdict(scope)
+    if filters.pop("near") is not None:
         raise InvalidInputError("/at takes the place as x, y, z and r; drop near")
-    items = memory.at(
-        (x, y, z),
-        r,
-        session=scope.session,
-        after=scope.after,
-        before=scope.before,
-        senses=scope.senses,
-        source=scope.source,
-        frame=scope.frame,
-    )
+    items = memory.at((x, y, z), r, **filters)
     return AtOut(position=(x, y, z), radius=r, items=items)

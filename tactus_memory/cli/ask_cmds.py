@@ -9,22 +9,15 @@ The same options as ``tactus search`` (``--sense``, ``--session``, ``--after``, 
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import (
-    After,
-    AsJson,
-    Before,
-    MemoryData,
-    Senses,
-    ServerToken,
-    ServerUrl,
-    Session,
-    Tenant,
-)
+from tactus_memory.cli.common import AsJson, Scope, Source, Window
 from tactus_memory.cli.memory_cmds import (
     _open,
     _print_json,
@@ -35,46 +28,44 @@ from tactus_memory.cli.memory_cmds import (
     plural,
 )
 from tactus_memory.cli.remote import get_json, session_path
-from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
-from tactus_memory.storage.tenants import DEFAULT_TENANT
+from tactus_memory.cli.space_opts import fail
+from tactus_memory.signatures import grouped
 
 if TYPE_CHECKING:
-    from tactus_memory.results import Moment, Occurrences
+    from tactus_memory.results import Occurrences
 
 Query = typer.Argument(..., help="What happened, in natural language.")
 
 
-def _occurrences(
-    query: str,
-    sense: list[str] | None,
-    session: str | None,
-    after: float | None,
-    before: float | None,
-    where: tuple[str | None, str | None, str | None, str],
-    space: tuple[str | None, str | None, int | None],
-) -> Occurrences:
+def _occurrences(query: str, scope: Scope, source: Source) -> Occurrences:
     """Every occurrence of ``query`` in scope, from the store (``--data``) or a server."""
     from tactus_memory.errors import TactusError
     from tactus_memory.results import Occurrences
 
-    data, url, token, tenant = where
-    one_source(data, url)
-    if url:
-        params = {"q": query, "sense": sense, "session": session, "after": after}
-        answer = get_json(url, "/count", {**params, "before": before}, token, tenant)
-        return Occurrences.model_validate(answer)
-    try:
-        memory = _open(data, *space, tenant=tenant)
-        if session is not None:
-            memory.session(session)  # an unknown session is an error, as over HTTP
-        return memory.occurrences(
-            query, senses=sense or None, session=session, after=after, before=before
+    one_source(source.data, source.url)
+    if source.url:
+        params = {"q": query, **dataclasses.asdict(scope)}
+        return Occurrences.model_validate(
+            get_json(source.url, "/count", params, source.token, source.tenant)
         )
+    try:
+        memory = _open(source.data, *source.spaces, tenant=source.tenant)
+        if scope.session is not None:
+            memory.session(scope.session)  # an unknown session is an error, as over HTTP
+        return memory.occurrences(query, **scope.filters())
     except TactusError as exc:
         fail(str(exc))
 
 
-def _print_moment(query: str, which: str, moment: Moment | None, as_json: bool) -> None:
+def _aligned(item: Any) -> str:
+    """An item's span on the session clock."""
+    return fmt_span(item.t_aligned, item.t_end_aligned)
+
+
+def _print_moment(which: str, query: str, found: Occurrences, as_json: bool) -> None:
+    moment = None
+    if found.moments:
+        moment = found.moments[-1] if which == "last" else found.moments[0]
     if as_json:
         _print_json(None if moment is None else moment.model_dump())
         return
@@ -91,89 +82,14 @@ def _print_moment(query: str, which: str, moment: Moment | None, as_json: bool) 
         title=f"its evidence ({plural(len(moment.hits), 'item')})",
         columns=("t", "sense", "score", "match (bar)", "id", "text"),
         row=lambda e: (
-            fmt_span(e.t_aligned, e.t_end_aligned),
-            e.sense,
-            f"{e.score:.2f}",
-            match_cell(e.score, e.match, e.bar),
-            e.id,
-            e.text or "",
+            *(_aligned(e), e.sense, f"{e.score:.2f}"),
+            *(match_cell(e.score, e.match, e.bar), e.id, e.text or ""),
         ),
         overflow="fold",
     )
 
 
-def _ask(which: str, query: str, options: dict[str, Any]) -> None:
-    as_json = options.pop("as_json")
-    found = _occurrences(query, **options)
-    moment = None
-    if found.moments:
-        moment = found.moments[-1] if which == "last" else found.moments[0]
-    _print_moment(query, which, moment, as_json)
-
-
-@app.command("last")
-def last(
-    query: str = Query,
-    sense: Senses = None,
-    session: Session = None,
-    after: After = None,
-    before: Before = None,
-    as_json: AsJson = False,
-    data: MemoryData = None,
-    tenant: Tenant = DEFAULT_TENANT,
-    url: ServerUrl = None,
-    token: ServerToken = None,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
-) -> None:
-    """When did it last happen? The latest occurrence and its evidence across senses."""
-    where, spc = (data, url, token, tenant), (space, space_path, space_dim)
-    opts = {"sense": sense, "session": session, "after": after, "before": before}
-    _ask("last", query, {**opts, "where": where, "space": spc, "as_json": as_json})
-
-
-@app.command("first")
-def first(
-    query: str = Query,
-    sense: Senses = None,
-    session: Session = None,
-    after: After = None,
-    before: Before = None,
-    as_json: AsJson = False,
-    data: MemoryData = None,
-    tenant: Tenant = DEFAULT_TENANT,
-    url: ServerUrl = None,
-    token: ServerToken = None,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
-) -> None:
-    """When did it first happen? The earliest occurrence and its evidence across senses."""
-    where, spc = (data, url, token, tenant), (space, space_path, space_dim)
-    opts = {"sense": sense, "session": session, "after": after, "before": before}
-    _ask("first", query, {**opts, "where": where, "space": spc, "as_json": as_json})
-
-
-@app.command("count")
-def count(
-    query: str = Query,
-    sense: Senses = None,
-    session: Session = None,
-    after: After = None,
-    before: Before = None,
-    as_json: AsJson = False,
-    data: MemoryData = None,
-    tenant: Tenant = DEFAULT_TENANT,
-    url: ServerUrl = None,
-    token: ServerToken = None,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
-) -> None:
-    """How many distinct times did it happen? Each occurrence with its time and senses."""
-    where, spc = (data, url, token, tenant), (space, space_path, space_dim)
-    found = _occurrences(query, sense, session, after, before, where, spc)
+def _print_count(query: str, found: Occurrences, as_json: bool) -> None:
     if as_json:
         _print_json(found.model_dump())
         return
@@ -187,24 +103,44 @@ def count(
     )
 
 
+def _question(name: str, doc: str, show: Callable[[str, Occurrences, bool], None]) -> None:
+    """Register ``tactus NAME QUERY``: the occurrences of QUERY in scope, shown by ``show``."""
+
+    @app.command(name, help=doc)
+    @grouped(scope=Scope, source=Source)
+    def ask(query: str = Query, *, scope: Scope, as_json: AsJson = False, source: Source) -> None:
+        show(query, _occurrences(query, scope, source), as_json)
+
+
+_question(
+    "last",
+    "When did it last happen? The latest occurrence and its evidence across senses.",
+    functools.partial(_print_moment, "last"),
+)
+_question(
+    "first",
+    "When did it first happen? The earliest occurrence and its evidence across senses.",
+    functools.partial(_print_moment, "first"),
+)
+_question(
+    "count",
+    "How many distinct times did it happen? Each occurrence with its time and senses.",
+    _print_count,
+)
+
+
 @app.command("timeline")
+@grouped(window=Window, source=Source)
 def timeline(
     session: str = typer.Argument(..., help="The session to lay out in time order."),
-    sense: Senses = None,
-    after: After = None,
-    before: Before = None,
+    *,
+    window: Window,
     episodes: bool = typer.Option(
         False, "--episodes", help="Episodes (coherent stretches of one stream), not items."
     ),
     limit: int | None = typer.Option(None, "--limit", min=1, help="Only the first LIMIT."),
     as_json: AsJson = False,
-    data: MemoryData = None,
-    tenant: Tenant = DEFAULT_TENANT,
-    url: ServerUrl = None,
-    token: ServerToken = None,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
+    source: Source,
 ) -> None:
     """A session in time order: its items, or its episodes, on the session clock.
 
@@ -213,49 +149,35 @@ def timeline(
     from tactus_memory.results import TimelineItem
     from tactus_memory.temporal.episodes import Episode
 
-    one_source(data, url)
-    if url:
-        params = {"sense": sense, "after": after, "before": before, "limit": limit}
+    one_source(source.data, source.url)
+    if source.url:
+        params = {**dataclasses.asdict(window), "limit": limit, "episodes": str(episodes).lower()}
         path = session_path(session, "/timeline")
-        params["episodes"] = str(episodes).lower()
-        answer = get_json(url, path, params, token, tenant)
+        answer = get_json(source.url, path, params, source.token, source.tenant)
         rows: list[Any] = [
             (Episode if episodes else TimelineItem).model_validate(r)
             for r in answer["episodes" if episodes else "items"]
         ]
     else:
         try:
-            memory = _open(data, space, space_path, space_dim, tenant=tenant)
-            rows = memory.timeline(session, sense or None, after, before, episodes, limit=limit)
+            memory = _open(source.data, *source.spaces, tenant=source.tenant)
+            rows = memory.timeline(session, **window.filters(), episodes=episodes, limit=limit)
         except TactusError as exc:
             fail(str(exc))
-    if episodes:
-        _print_results(
-            rows,
-            as_json=as_json,
-            title=f"session {session}: {plural(len(rows), 'episode')}",
-            columns=("t", "sense", "source", "episode", "items", "representative"),
-            row=lambda e: (
-                fmt_span(e.t_aligned, e.t_end_aligned),
-                e.sense,
-                e.source,
-                str(e.episode),
-                str(e.n),
-                e.representative,
-            ),
+    if episodes:  # one row an episode, or one an item
+        what, columns = "episode", ("t", "sense", "source", "episode", "items", "representative")
+        row: Callable[[Any], tuple[str, ...]] = lambda e: (  # noqa: E731
+            *(_aligned(e), e.sense, e.source),
+            *(str(e.episode), str(e.n), e.representative),
         )
-        return
+    else:
+        what, columns = "item", ("t", "sense", "source", "id", "text")
+        row = lambda it: (_aligned(it), it.sense, it.source, it.id, it.text or "")  # noqa: E731
     _print_results(
         rows,
         as_json=as_json,
-        title=f"session {session}: {plural(len(rows), 'item')}",
-        columns=("t", "sense", "source", "id", "text"),
-        row=lambda it: (
-            fmt_span(it.t_aligned, it.t_end_aligned),
-            it.sense,
-            it.source,
-            it.id,
-            it.text or "",
-        ),
-        overflow="fold",
+        title=f"session {session}: {plural(len(rows), what)}",
+        columns=columns,
+        row=row,
+        overflow="ellipsis" if episodes else "fold",
     )

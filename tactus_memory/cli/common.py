@@ -6,10 +6,14 @@ declares ``seed: Seed = 0`` and keeps its own default; the flag and its help liv
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+
+from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
+from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 #: ``--data``, shared by every command that reads STAG files (required)
 StagFiles = Annotated[
@@ -73,6 +77,51 @@ Before = Annotated[
 ]
 AsJson = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
 
+
+@dataclass(frozen=True)
+class Window:
+    """``--sense``, ``--after``, ``--before``: a time window over some senses, one group of
+    options (:func:`tactus_memory.signatures.grouped`; ``tactus timeline``)."""
+
+    sense: Senses = None
+    after: After = None
+    before: Before = None
+
+    def filters(self) -> dict[str, Any]:
+        """The library's scope keywords (``memory.search(q, **filters)``)."""
+        return {"senses": self.sense or None, "after": self.after, "before": self.before}
+
+
+@dataclass(frozen=True)
+class Scope(Window):
+    """A question's scope: the window and ``--session`` (search, last, first, count)."""
+
+    session: Session = None
+
+    def filters(self) -> dict[str, Any]:
+        return {**super().filters(), "session": self.session}
+
+
+@dataclass(frozen=True)
+class Source:
+    """The memory a command reads: a store here (``--data``, in the space the space options
+    name) or a running server (``--url``, ``--token``), and whose (``--tenant``); one group of
+    options."""
+
+    data: MemoryData = None
+    url: ServerUrl = None
+    token: ServerToken = None
+    space: SpaceName = None
+    space_path: SpacePath = None
+    space_dim: SpaceDim = None
+    tenant: Tenant = DEFAULT_TENANT
+
+    @property
+    def spaces(self) -> tuple[str | None, str | None, int | None]:
+        """The space options, in :func:`tactus_memory.cli.memory_cmds._open`'s order."""
+        return self.space, self.space_path, self.space_dim
+
+
 #: ``--data`` of the long-running processes (serve, maintain), whose settings read TACTUS_DATA
 ServiceData = Annotated[
     str | None,
@@ -120,20 +169,18 @@ Consecutive = Annotated[
 ]
 Augment = Annotated[str, typer.Option("--augment", help="default | strong | pressed-noise")]
 WeightDecay = Annotated[float, typer.Option("--weight-decay", help="AdamW weight decay")]
-InputGamma = Annotated[
-    float | None,
-    typer.Option("--input-gamma", help="model input: pressure ** gamma (default: the config's)"),
-]
+
+
+def _override(flag: str, what: str) -> Any:
+    """An option that overrides one field of the model's config (default: the config's)."""
+    return typer.Option(flag, help=f"{what} (default: the config's)")
+
+
+InputGamma = Annotated[float | None, _override("--input-gamma", "model input: pressure ** gamma")]
 InputBlur = Annotated[
-    float | None,
-    typer.Option(
-        "--input-blur", help="model input: Gaussian blur sigma, px (default: the config's)"
-    ),
+    float | None, _override("--input-blur", "model input: Gaussian blur sigma, px")
 ]
-Dropout = Annotated[
-    float | None,
-    typer.Option("--dropout", help="Dropout2d on trunk features (default: the config's)"),
-]
+Dropout = Annotated[float | None, _override("--dropout", "Dropout2d on trunk features")]
 #: the recordings ``tactus eval`` and ``tactus baseline eval`` score
 ScoredHoldout = Annotated[
     str | None,

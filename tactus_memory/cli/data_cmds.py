@@ -124,6 +124,13 @@ def path_cmd(
         typer.echo(how_to_get_stag(), err=True)
 
 
+#: ``tactus data fetch --base-url``
+MIRROR_HELP = (
+    "Download from this mirror: <base-url>/<subset>/metadata.mat "
+    "(default: TACTUS_STAG_BASE_URL, else the public ini_estim mirror on GitHub)."
+)
+
+
 @data_app.command("fetch")
 def fetch_cmd(
     dataset: str = typer.Argument(..., help="The data set to get: `stag`."),
@@ -133,12 +140,7 @@ def fetch_cmd(
         help="Import files you already have instead of downloading: a folder holding "
         "<subset>/metadata.mat (or stag/<subset>/metadata.mat, or one subset folder).",
     ),
-    base_url: str | None = typer.Option(
-        None,
-        "--base-url",
-        help="Download from this mirror: <base-url>/<subset>/metadata.mat "
-        "(default: TACTUS_STAG_BASE_URL, else the public ini_estim mirror on GitHub).",
-    ),
+    base_url: str | None = typer.Option(None, "--base-url", help=MIRROR_HELP),
     subset: list[str] = typer.Option(
         [], "--subset", help="Only these subsets (repeatable; default: all pinned ones)."
     ),

@@ -9,6 +9,7 @@ The questions (``last``, ``first``, ``count``, ``timeline``) are in
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -17,19 +18,10 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import (
-    After,
-    AsJson,
-    Before,
-    MemoryData,
-    Senses,
-    ServerToken,
-    ServerUrl,
-    Session,
-    Tenant,
-)
+from tactus_memory.cli.common import AsJson, MemoryData, Scope, Source
 from tactus_memory.cli.remote import get_json
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
+from tactus_memory.signatures import grouped
 from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 if TYPE_CHECKING:
@@ -133,21 +125,14 @@ def match_cell(score: float, match: bool, bar: float | None) -> str:
 
 
 @app.command("search")
+@grouped(scope=Scope, source=Source)
 def search(
     query: str = typer.Argument(..., help="What to look for, in natural language."),
     k: int = typer.Option(10, "--k", min=1, max=1000, help="How many hits."),
-    sense: Senses = None,
-    session: Session = None,
-    after: After = None,
-    before: Before = None,
+    *,
+    scope: Scope,
     as_json: AsJson = False,
-    data: MemoryData = None,
-    tenant: Tenant = DEFAULT_TENANT,
-    url: ServerUrl = None,
-    token: ServerToken = None,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
+    source: Source,
 ) -> None:
     """Search in plain language; each hit says whether it clears its sense's match bar.
 
@@ -156,18 +141,15 @@ def search(
     from tactus_memory.errors import TactusError
     from tactus_memory.results import Hit
 
-    one_source(data, url)
-    if url:
-        params = {"q": query, "k": k, "sense": sense, "session": session}
-        params |= {"after": after, "before": before}
-        answer = get_json(url, "/search", params, token, tenant)
+    one_source(source.data, source.url)
+    if source.url:
+        params = {"q": query, "k": k, **dataclasses.asdict(scope)}
+        answer = get_json(source.url, "/search", params, source.token, source.tenant)
         hits = [Hit.model_validate(h) for h in answer["hits"]]
     else:
         try:
-            memory = _open(data, space, space_path, space_dim, tenant=tenant)
-            hits = memory.search(
-                query, k=k, senses=sense or None, session=session, after=after, before=before
-            )
+            memory = _open(source.data, *source.spaces, tenant=source.tenant)
+            hits = memory.search(query, k=k, **scope.filters())
         except TactusError as exc:
             fail(str(exc))
     _print_results(
@@ -189,27 +171,19 @@ def search(
 
 
 @app.command("sessions")
-def sessions(
-    as_json: AsJson = False,
-    data: MemoryData = None,
-    tenant: Tenant = DEFAULT_TENANT,
-    url: ServerUrl = None,
-    token: ServerToken = None,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
-) -> None:
+@grouped(source=Source)
+def sessions(as_json: AsJson = False, *, source: Source) -> None:
     """List sessions: item counts per sense and time span."""
     from tactus_memory.errors import TactusError
     from tactus_memory.results import SessionSummary
 
-    one_source(data, url)
-    if url:
-        answer = get_json(url, "/sessions", {}, token, tenant)
+    one_source(source.data, source.url)
+    if source.url:
+        answer = get_json(source.url, "/sessions", {}, source.token, source.tenant)
         summaries = [SessionSummary.model_validate(s) for s in answer["sessions"]]
     else:
         try:
-            summaries = _open(data, space, space_path, space_dim, tenant=tenant).sessions()
+            summaries = _open(source.data, *source.spaces, tenant=source.tenant).sessions()
         except TactusError as exc:
             fail(str(exc))
     _print_results(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,7 @@ from tactus_memory.cli.common import (
     set_threads,
 )
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
+from tactus_memory.signatures import grouped
 
 
 @app.command("pretrain")
@@ -79,39 +81,54 @@ def pretrain_cmd(
     typer.echo(json.dumps(summary, indent=2))
 
 
-def training_run(
-    data: list[Path],
-    holdout: str,
-    *,
-    threads: int,
-    space: str | None,
-    space_path: Path | None,
-    space_dim: int | None,
-    positives: str,
-    balance: str,
-    augment: str,
-    input_gamma: float | None,
-    input_blur: float | None,
-    dropout: float | None,
-    **recipe: Any,
-) -> tuple[Any, Any, Any, int]:
+@dataclass(frozen=True)
+class Recipe:
+    """The options ``tactus train`` and ``tactus distill`` share (one group: the ladder's
+    options, checkpoints README)."""
+
+    data: StagFiles
+    out: CheckpointOut
+    model: ModelName = "tactus-lite"
+    pretrained: Pretrained = None
+    steps: Steps = 600
+    batch: Batch = 64
+    lr: LearningRate = 1e-3
+    seed: Seed = 0
+    device: Device = "auto"
+    holdout: TrainHoldout = "none"
+    half: Half = False
+    threads: Threads = 2
+    resume: Resume = False
+    space: SpaceName = None
+    space_path: SpacePath = None
+    space_dim: SpaceDim = None
+    positives: Positives = "valid"
+    balance: Balance = "none"
+    consecutive: Consecutive = 0.0
+    augment: Augment = "default"
+    weight_decay: WeightDecay = 0.05
+    input_gamma: InputGamma = None
+    input_blur: InputBlur = None
+    dropout: Dropout = None
+
+
+def training_run(r: Recipe) -> tuple[Any, Any, Any, int]:
     """The data, targets and TrainConfig of ``tactus train`` / ``tactus distill`` from their
-    shared options; ``recipe``: TrainConfig fields (model, steps, batch, lr, seed, half,
-    consecutive, weight_decay). Returns (TrainData, Targets, TrainConfig, the space's dim)."""
+    shared options. Returns (TrainData, Targets, TrainConfig, the space's dim)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     from tactus_memory.touch.training.augment import AUGMENT_PRESETS, augment_preset
     from tactus_memory.touch.training.train import BALANCE, POSITIVES
 
     # refuse a typo before the data is read and the targets embedded
     for flag, value, choices in (
-        ("--positives", positives, POSITIVES),
-        ("--balance", balance, BALANCE),
-        ("--augment", augment, tuple(AUGMENT_PRESETS)),
+        ("--positives", r.positives, POSITIVES),
+        ("--balance", r.balance, BALANCE),
+        ("--augment", r.augment, tuple(AUGMENT_PRESETS)),
     ):
         if value not in choices:
             raise typer.BadParameter(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
-    set_threads(threads)
-    sp = resolve_or_exit(space, space_path, space_dim)
+    set_threads(r.threads)
+    sp = resolve_or_exit(r.space, r.space_path, r.space_dim)
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.touch.training.pretrain import recipe_warmup
     from tactus_memory.touch.training.train import (
@@ -121,68 +138,40 @@ def training_run(
         prepare_data,
     )
 
-    d = load_data(data)
-    td = prepare_data(d, holdout_recordings(d, holdout), positives=positives)
+    d = load_data(r.data)
+    td = prepare_data(d, holdout_recordings(d, r.holdout), positives=r.positives)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
-    cfg = TrainConfig(balance=balance, **recipe)
+    fields = ("model", "steps", "batch", "lr", "seed", "half", "consecutive", "weight_decay")
+    cfg = TrainConfig(balance=r.balance, **{f: getattr(r, f) for f in fields})
     cfg.warmup = recipe_warmup(cfg.steps)
-    cfg.augment = augment_preset(augment)
-    model_opts = {"input_gamma": input_gamma, "input_blur": input_blur, "dropout": dropout}
+    cfg.augment = augment_preset(r.augment)
+    model_opts = {"input_gamma": r.input_gamma, "input_blur": r.input_blur, "dropout": r.dropout}
     cfg.model_overrides = {k: v for k, v in model_opts.items() if v is not None}
     return td, targets, cfg, sp.dim
 
 
 @app.command("train")
-def train_cmd(
-    data: StagFiles,
-    out: CheckpointOut,
-    model: ModelName = "tactus-lite",
-    pretrained: Pretrained = None,
-    steps: Steps = 600,
-    batch: Batch = 64,
-    lr: LearningRate = 1e-3,
-    seed: Seed = 0,
-    device: Device = "auto",
-    holdout: TrainHoldout = "none",
-    half: Half = False,
-    threads: Threads = 2,
-    resume: Resume = False,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
-    positives: Positives = "valid",
-    balance: Balance = "none",
-    consecutive: Consecutive = 0.0,
-    augment: Augment = "default",
-    weight_decay: WeightDecay = 0.05,
-    input_gamma: InputGamma = None,
-    input_blur: InputBlur = None,
-    dropout: Dropout = None,
-) -> None:
+@grouped(recipe=Recipe)
+def train_cmd(*, recipe: Recipe) -> None:
     """Train the touch encoder against centred class-phrase targets embedded in the frozen
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
     space's name, dim and model fingerprint, so it only registers in a memory of that space."""
-    td, targets, cfg, dim = training_run(
-        data, holdout, threads=threads, space=space, space_path=space_path,
-        space_dim=space_dim, positives=positives, balance=balance, augment=augment,
-        input_gamma=input_gamma, input_blur=input_blur, dropout=dropout, model=model,
-        steps=steps, batch=batch, lr=lr, seed=seed, half=half, consecutive=consecutive,
-        weight_decay=weight_decay,
-    )  # fmt: skip
+    td, targets, cfg, dim = training_run(recipe)
     from tactus_memory.touch.training.train import fit
 
+    r = recipe
     summary = fit(
-        td, targets, cfg, out, space_dim=dim, pretrained=pretrained, device=device, resume=resume
-    )
+        td, targets, cfg, r.out, space_dim=dim, pretrained=r.pretrained, device=r.device,
+        resume=r.resume,
+    )  # fmt: skip
     summary.pop("heldout_per_recording", None)
     typer.echo(json.dumps(summary, indent=2))
 
 
 @app.command("distill")
+@grouped(recipe=Recipe)
 def distill_cmd(
-    data: StagFiles,
-    out: CheckpointOut,
     teacher: list[Path] = typer.Option(
         ..., "--teacher", help="teacher checkpoint (same space); repeat to average several"
     ),
@@ -192,28 +181,8 @@ def distill_cmd(
     relational_weight: float = typer.Option(
         0.0, "--relational-weight", help="weight of the batch similarity-matrix MSE"
     ),
-    model: ModelName = "tactus-lite",
-    pretrained: Pretrained = None,
-    steps: Steps = 600,
-    batch: Batch = 64,
-    lr: LearningRate = 1e-3,
-    seed: Seed = 0,
-    device: Device = "auto",
-    holdout: TrainHoldout = "none",
-    half: Half = False,
-    threads: Threads = 2,
-    resume: Resume = False,
-    space: SpaceName = None,
-    space_path: SpacePath = None,
-    space_dim: SpaceDim = None,
-    positives: Positives = "valid",
-    balance: Balance = "none",
-    consecutive: Consecutive = 0.0,
-    augment: Augment = "default",
-    weight_decay: WeightDecay = 0.05,
-    input_gamma: InputGamma = None,
-    input_blur: InputBlur = None,
-    dropout: Dropout = None,
+    *,
+    recipe: Recipe,
 ) -> None:
     """Train a (fast) student as `tactus train` does, plus a loss pulling its embeddings
     towards the teachers' (mean of their unit embeddings of the same augmented windows).
@@ -227,17 +196,12 @@ def distill_cmd(
     missing = [str(p) for p in teacher if not p.is_file()]
     if missing:
         raise typer.BadParameter(f"--teacher: no such file: {', '.join(missing)}")
-    td, targets, cfg, dim = training_run(
-        data, holdout, threads=threads, space=space, space_path=space_path,
-        space_dim=space_dim, positives=positives, balance=balance, augment=augment,
-        input_gamma=input_gamma, input_blur=input_blur, dropout=dropout, model=model,
-        steps=steps, batch=batch, lr=lr, seed=seed, half=half, consecutive=consecutive,
-        weight_decay=weight_decay,
-    )  # fmt: skip
+    td, targets, cfg, dim = training_run(recipe)
+    r = recipe
     try:
         summary = distill(
-            td, targets, cfg, out, teacher, space_dim=dim, dcfg=dcfg, pretrained=pretrained,
-            device=device, resume=resume,
+            td, targets, cfg, r.out, teacher, space_dim=dim, dcfg=dcfg, pretrained=r.pretrained,
+            device=r.device, resume=r.resume,
         )  # fmt: skip
     except TeacherMismatchError as exc:
         typer.echo(f"error: {exc}", err=True)

@@ -25,6 +25,7 @@ import functools
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field, make_dataclass
 from typing import Annotated, Any, TypeVar
 
 from mcp.server.mcpserver import MCPServer
@@ -48,6 +49,7 @@ from tactus_memory.mcp_server.results import (
 from tactus_memory.memory import Memory
 from tactus_memory.search.matching import DEFAULT_MERGE_GAP, DEFAULT_WINDOW
 from tactus_memory.search.query import Scope
+from tactus_memory.signatures import grouped
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +109,42 @@ def scope_of(
     return Scope(session=session, senses=senses, after=after, before=before)
 
 
+@dataclass(frozen=True)
+class Question:
+    """The arguments of ``last``, ``first`` and ``count``, one group
+    (:func:`tactus_memory.signatures.grouped`)."""
+
+    query: QueryArg
+    session: SessionArg = None
+    senses: SensesArg = None
+    after: AfterArg = None
+    before: BeforeArg = None
+    merge_gap: MergeGapArg = DEFAULT_MERGE_GAP
+
+    def scope(self) -> Scope:
+        return scope_of(self.session, self.senses, self.after, self.before)
+
+
+def around_args(side: str) -> type:
+    """The arguments of the ``before`` or ``after`` tool (``side``), one group: the anchor,
+    the window on that side of it, and where to look."""
+    window = Field(gt=0, le=1e6, description=f"Seconds {side} it.")
+    return make_dataclass(
+        f"{side.title()}Args",
+        [
+            (
+                "anchor",
+                Annotated[QueryArg, Field(description=f"The moment to look {side}, in words.")],
+            ),
+            ("window", Annotated[float, window], field(default=DEFAULT_WINDOW)),
+            ("session", SessionArg, field(default=None)),
+            ("senses", SensesArg, field(default=None)),
+            ("anchor_senses", AnchorSensesArg, field(default=None)),
+        ],
+        frozen=True,
+    )
+
+
 def compact(result: BaseModel) -> CallToolResult:
     """One line of JSON as text (what a model reads) and the same object as structured
     content (what a program reads); empty fields are left out."""
@@ -151,100 +189,60 @@ class MemoryTools:
         hits = self.memory.search(query, k, scope=scope_of(session, senses, after, before))
         return compact(SearchResult(query=query, hits=self.compactor.items(hits)))  # type: ignore[return-value]
 
-    def _occurrence(self, which: int, query: str, scope: Scope, gap: float) -> OccurrenceResult:
-        moments = self.memory.occurrences(query, merge_gap=gap, scope=scope).moments
+    def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
+        memory, query = self.memory, ask.query
+        moments = memory.occurrences(query, merge_gap=ask.merge_gap, scope=ask.scope()).moments
         if not moments:
             return OccurrenceResult(query=query, found=False)
         (moment,) = self.compactor.moments([moments[which]])
         return OccurrenceResult(query=query, found=True, moment=moment)
 
     @tool_errors
-    def last(
-        self,
-        query: QueryArg,
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        after: AfterArg = None,
-        before: BeforeArg = None,
-        merge_gap: MergeGapArg = DEFAULT_MERGE_GAP,
-    ) -> OccurrenceResult:
+    @grouped(ask=Question)
+    def last(self, ask: Question) -> OccurrenceResult:
         """When did this last happen? The most recent occurrence (found: false if never)."""
-        scope = scope_of(session, senses, after, before)
-        return compact(self._occurrence(-1, query, scope, merge_gap))  # type: ignore[return-value]
+        return compact(self._occurrence(-1, ask))  # type: ignore[return-value]
 
     @tool_errors
-    def first(
-        self,
-        query: QueryArg,
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        after: AfterArg = None,
-        before: BeforeArg = None,
-        merge_gap: MergeGapArg = DEFAULT_MERGE_GAP,
-    ) -> OccurrenceResult:
-        """When did this first happen? The earliest occurrence (found: false if never)."""
-        scope = scope_of(session, senses, after, before)
-        return compact(self._occurrence(0, query, scope, merge_gap))  # type: ignore[return-value]
-
-    @tool_errors
-    def count(
-        self,
-        query: QueryArg,
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        after: AfterArg = None,
-        before: BeforeArg = None,
-        merge_gap: MergeGapArg = DEFAULT_MERGE_GAP,
-    ) -> CountResult:
+    @grouped(ask=Question)
+    def count(self, ask: Question) -> CountResult:
         """How many distinct times did this happen? Also answers yes/no (count > 0)."""
-        scope = scope_of(session, senses, after, before)
-        occ = self.memory.occurrences(query, merge_gap=merge_gap, scope=scope)
+        occ = self.memory.occurrences(ask.query, merge_gap=ask.merge_gap, scope=ask.scope())
         moments = self.compactor.moments(occ.moments)
-        result = CountResult(query=query, count=occ.count, capped=occ.capped, occurrences=moments)
+        result = CountResult(
+            query=ask.query, count=occ.count, capped=occ.capped, occurrences=moments
+        )
         return compact(result)  # type: ignore[return-value]
 
-    def _around(
-        self, side: str, anchor: str, window: float, scope: Scope, anchor_senses: Any
-    ) -> Any:
-        ask = self.memory.before if side == "before" else self.memory.after
-        ctx = ask(anchor, window, scope=scope, anchor_senses=anchor_senses)
+    @tool_errors
+    @grouped(ask=Question)
+    def first(self, ask: Question) -> OccurrenceResult:
+        """When did this first happen? The earliest occurrence (found: false if never)."""
+        return compact(self._occurrence(0, ask))  # type: ignore[return-value]
+
+    def _around(self, side: str, ask: Any) -> CallToolResult:
+        fn = self.memory.before if side == "before" else self.memory.after
+        scope = scope_of(ask.session, ask.senses, None, None)
+        ctx = fn(ask.anchor, ask.window, scope=scope, anchor_senses=ask.anchor_senses)
         if ctx is None:
-            return compact(ContextResult(side=side, window=window, items=[]))
+            return compact(ContextResult(side=side, window=ask.window, items=[]))
         items = self.compactor.items([ctx.anchor, *ctx.items])
-        result = ContextResult(side=side, window=window, anchor=items[0], items=items[1:])
+        result = ContextResult(side=side, window=ask.window, anchor=items[0], items=items[1:])
         return compact(result)
 
     @tool_errors
-    def before(
-        self,
-        anchor: Annotated[QueryArg, Field(description="The moment to look before, in words.")],
-        window: Annotated[float, Field(gt=0, le=1e6, description="Seconds before it.")] = (
-            DEFAULT_WINDOW
-        ),
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        anchor_senses: AnchorSensesArg = None,
-    ) -> ContextResult:
+    @grouped(ask=around_args("before"))
+    def before(self, ask: Any) -> ContextResult:
         """What happened just before something? The anchor's best match, then the items of its
         session that start in the `window` seconds before it."""
-        scope = scope_of(session, senses, None, None)
-        return self._around("before", anchor, window, scope, anchor_senses)
+        return self._around("before", ask)  # type: ignore[return-value]
 
     @tool_errors
-    def after(
-        self,
-        anchor: Annotated[QueryArg, Field(description="The moment to look after, in words.")],
-        window: Annotated[float, Field(gt=0, le=1e6, description="Seconds after it.")] = (
-            DEFAULT_WINDOW
-        ),
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        anchor_senses: AnchorSensesArg = None,
-    ) -> ContextResult:
+    @grouped(ask=around_args("after"))
+    def after(self, ask: Any) -> ContextResult:
         """What happened just after something? The anchor's best match, then the items of its
         session that start in the `window` seconds after it ends."""
-        scope = scope_of(session, senses, None, None)
-        return self._around("after", anchor, window, scope, anchor_senses)
+        return self._around("after", ask)  # type: ignore[return-value]
 
     @tool_errors
     def timeline(

@@ -121,6 +121,7 @@ def run_ablation(
         for row in cfg.rows:
             spec = ROWS[row]
             td = frames[spec["norm"]]
+            both = {"model": cfg.model, "seed": seed}  # pretraining and training alike
             mae_path = None
             if spec["mae"]:
                 key = (spec["norm"], seed)
@@ -132,11 +133,10 @@ def run_ablation(
                         held,
                         p,
                         PretrainConfig(
-                            model=cfg.model,
                             steps=cfg.pretrain_steps,
                             batch=cfg.pretrain_batch,
-                            seed=seed,
                             warmup=recipe_warmup(cfg.pretrain_steps),
+                            **both,
                         ),
                         fingerprint=td.fingerprint,
                         progress=progress,
@@ -148,10 +148,9 @@ def run_ablation(
                 td,
                 targets,
                 TrainConfig(
-                    model=cfg.model,
                     steps=cfg.steps,
                     batch=cfg.batch,
-                    seed=seed,
+                    **both,
                     sampling=spec["sampling"],
                     warmup=recipe_warmup(cfg.steps),
                     save_every=max(cfg.steps, 1),
