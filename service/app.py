@@ -25,9 +25,11 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.plugins import create_sense
-from tactus_memory.service.deps import ServiceState, require_token
+from tactus_memory.service.auth import Gate
+from tactus_memory.service.deps import ServiceState, authorize
 from tactus_memory.service.middleware import (
     AllowMiddleware,
+    AuditMiddleware,
     BodyLimitMiddleware,
     ReadOnlyMiddleware,
     StartingMiddleware,
@@ -52,6 +54,8 @@ from tactus_memory.service.routers import (
 )
 from tactus_memory.service.startup import StartupError
 from tactus_memory.settings import Settings
+from tactus_memory.storage.audit import AuditLog
+from tactus_memory.storage.keys import KeyStore
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -68,6 +72,8 @@ in natural language.
 * Every write is acknowledged (201) only after its LanceDB commit.
 * With a token configured, send `Authorization: Bearer <token>` on every route but the open
   ones: `/live`, `/health`, `/ready`, `/`, `/static/*`, `/docs`, `/redoc`, `/openapi.json`.
+* Keys (`tactus keys create`) work as the token and scope every route to their tenant
+  (`read`, `write`, `admin`): another tenant's session or item is a 404, like a missing one.
 * Item ids belong to their session and sense: reusing another session's id is a 409.
 * Cross-field rules JSON Schema cannot state (422 when broken): `t_end >= t`,
   `after <= before`, one `t`/`t_end`/`meta`/`ids` entry per window or vector.
@@ -96,6 +102,23 @@ def open_store(settings: Settings) -> Any:
             )
         memory.space.use_onnx(settings.onnx)
     return memory
+
+
+def key_store(memory: Any) -> KeyStore:
+    """The keys of the store ``memory`` (the default tenant's) lives in, re-read every read
+    consistency interval (1 s when it never re-reads)."""
+    store = memory.store
+    every = store.read_consistency.total_seconds() if store.read_consistency is not None else 1.0
+    return KeyStore(store.uri, storage_options=store.storage_options, refresh=every)
+
+
+def audit_log(memory: Any) -> AuditLog:
+    """The audit log of the store ``memory`` lives in (tidied here when this process
+    maintains the store)."""
+    store = memory.store
+    policy = store.maintenance
+    retain = policy.retain_seconds if policy.maintain else None
+    return AuditLog(store.uri, storage_options=store.storage_options, retain_seconds=retain)
 
 
 def open_memory(settings: Settings) -> tuple[Any, str | None]:
@@ -204,12 +227,15 @@ def create_app(
         touch_why = (
             None if "touch" in memory.senses else ("no touch sense is registered in this memory")
         )
+    read_only = store_read_only(memory.store.uri)
     state = ServiceState(
         settings=settings,
         memory=memory,
         touch_unavailable=touch_why,
-        read_only=store_read_only(memory.store.uri),
+        read_only=read_only,
         starting="loading the models" if loader is not None else None,
+        gate=Gate(settings, key_store(memory)),
+        audit=None if read_only else audit_log(memory),
     )
     damage = memory.store.integrity.damage(0)
     if damage:  # served (reads where they can), but unhealthy and refusing writes
@@ -225,7 +251,8 @@ def create_app(
         # do (the group committer has its own thread, prepares run on the write threads' limiter),
         # so bounding it bounds the reads alone.
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.read_threads
-        state.open_committer()
+        for tenant in state.tenants:
+            tenant.open_committer()
         loading: asyncio.Task[None] | None = None
         if loader is not None:
             # the socket opens now; the models load on a worker thread (see /ready)
@@ -243,8 +270,11 @@ def create_app(
         if loading is not None and not loading.done():
             loading.cancel()  # the worker thread finishes its step; nothing waits for it
         # Commit what is queued (its clients are waiting for their acks), then stop.
-        if state.committer is not None:
-            await run_in_threadpool(state.committer.close, 30.0)
+        for tenant in state.tenants:
+            if tenant.committer is not None:
+                await run_in_threadpool(tenant.committer.close, 30.0)
+        if state.audit is not None:
+            await run_in_threadpool(state.audit.close)
 
     app = FastAPI(
         title="tactus-memory",
@@ -258,17 +288,18 @@ def create_app(
     install_problem_handlers(app)
     app.add_middleware(BodyLimitMiddleware, max_body_bytes=settings.max_body_bytes)
     app.add_middleware(ReadOnlyMiddleware, read_only=lambda: state.read_only)
+    app.add_middleware(AuditMiddleware)
     app.add_middleware(AllowMiddleware)
     app.add_middleware(StartingMiddleware, starting=lambda: state.starting)
     install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 
-    auth = [Depends(require_token)]
+    auth = [Depends(authorize)]
     app.include_router(health.router)
     for module in (
         sessions, senses, images, search, items, touch, touch_stream, ui, recordings, places,
         retention,
     ):  # fmt: skip
-        app.include_router(module.router, dependencies=auth, responses=problem_responses(401))
-    app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401))
+        app.include_router(module.router, dependencies=auth, responses=problem_responses(401, 403))
+    app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401, 403))
     app.include_router(ui.page_router)  # the browser page: static, no data, no token
     return app

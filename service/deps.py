@@ -5,17 +5,16 @@ failure refuses the socket with the same problem, see ``problems.py``)."""
 from __future__ import annotations
 
 import asyncio
-import hmac
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Annotated, Any, Literal
 
 from fastapi import Depends, HTTPException, Path, Query
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
-from tactus_memory.encode_process import EncoderProcess
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import InvalidInputError, NotFoundError, UnknownTenantError
 from tactus_memory.group_commit import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
@@ -31,22 +30,39 @@ from tactus_memory.limits import (
 )
 from tactus_memory.memory import Memory
 from tactus_memory.search.query import Scope
+from tactus_memory.service.auth import Gate, Principal, needed_scope
 from tactus_memory.service.problems import ServiceUnavailable
+from tactus_memory.service.tenancy import Tenant, Tenants
 from tactus_memory.service.writes import WriteThreads
 from tactus_memory.settings import Settings
+from tactus_memory.storage.audit import AuditLog
+from tactus_memory.storage.keys import allows
 from tactus_memory.storage.rows import WriteKwargs
-from tactus_memory.storage.where import Near, check_near, validate_frame
+from tactus_memory.storage.tenants import DEFAULT_TENANT
+from tactus_memory.storage.where import (
+    SESSION_PREFIX,
+    Near,
+    check_near,
+    session_visible,
+    validate_frame,
+)
 
 
 @dataclass
 class ServiceState:
-    """What the app holds: the settings, the memory, and why touch is off (if it is)."""
+    """What the app holds: the settings, the default tenant's memory, the other tenants'
+    (``tenancy.Tenants``), the gate (``auth.Gate``), the audit log, and why touch is off."""
 
     settings: Settings
     memory: Memory
     touch_unavailable: str | None = None
     write_threads: WriteThreads | None = None
-    committer: GroupCommitter | None = None
+    #: the tenants' memories and committers (built from ``memory``, the default tenant's)
+    tenants: Tenants | None = None
+    #: who may ask: the operator's token and the store's keys
+    gate: Gate | None = None
+    #: where writes, deletes and key changes are logged (None: not logged)
+    audit: AuditLog | None = None
     #: the store's directory cannot be written: write routes answer 503 (reads still work)
     read_only: bool = False
     #: the space has been warmed up (the lifespan ran): ``/ready`` answers 200
@@ -60,37 +76,37 @@ class ServiceState:
     def __post_init__(self) -> None:
         if self.write_threads is None:
             self.write_threads = WriteThreads(self.settings.write_threads)
+        if self.gate is None:
+            self.gate = Gate(self.settings, None)
+        if self.tenants is None:
+            self.tenants = Tenants(self.memory, self.settings, self.key_tenants)
 
-    def open_committer(self) -> GroupCommitter:
-        """The running group committer (a new one after a shutdown closed the last)."""
-        if self.committer is None or self.committer.closed:
-            encoder = None
-            if self.settings.encode_process:
-                encoder = EncoderProcess(
-                    ("touch",), nice=self.settings.commit_nice, threads=self.settings.torch_threads
-                )
-            self.committer = GroupCommitter(
-                self.memory,
-                tick=self.settings.commit_tick_ms / 1000.0,
-                max_batch=self.settings.commit_max_batch,
-                max_pending=self.settings.commit_max_pending,
-                # torch threads; an ONNX server never imports torch
-                encode_threads=None if self.settings.onnx else self.settings.torch_threads,
-                nice=self.settings.commit_nice,
-                encoder=encoder,
-            )
-        return self.committer
+    def key_tenants(self) -> set[str]:
+        """The tenants the store's keys name (they exist, data or not)."""
+        keys = self.gate.keys if self.gate is not None else None
+        return set() if keys is None else keys.tenants()
+
+    @property
+    def committer(self) -> GroupCommitter | None:
+        """The default tenant's group committer (each tenant has its own, ``Tenant``)."""
+        assert self.tenants is not None
+        return self.tenants.get(DEFAULT_TENANT).committer
 
     async def write(
-        self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[WriteKwargs]
+        self,
+        tenant: Tenant,
+        session: str,
+        sense: str,
+        items: Sequence[Any],
+        **kw: Unpack[WriteKwargs],
     ) -> list[str]:
-        """Every HTTP write: the one library call, ``GroupCommitter.submit`` (the sense
-        validates the items, the write is queued), run on the writer threads; returns the ids
-        once the group commit stored them (OverloadedError at once when the queue is full:
-        503 + Retry-After)."""
+        """Every HTTP write: the one library call, ``GroupCommitter.submit`` of the caller's
+        tenant (the sense validates the items, the write is queued), run on the writer
+        threads; returns the ids once the group commit stored them (OverloadedError at once
+        when the queue is full: 503 + Retry-After)."""
         assert self.write_threads is not None
         queued = await self.write_threads.run(
-            self.open_committer().submit, session, sense, items, **kw
+            tenant.open_committer().submit, session, sense, items, **kw
         )
         return await asyncio.wrap_future(queued)
 
@@ -103,10 +119,6 @@ def get_settings(state: Annotated[ServiceState, Depends(get_state)]) -> Settings
     return state.settings
 
 
-def get_memory(state: Annotated[ServiceState, Depends(get_state)]) -> Memory:
-    return state.memory
-
-
 def get_write_threads(state: Annotated[ServiceState, Depends(get_state)]) -> WriteThreads:
     return state.write_threads
 
@@ -114,8 +126,6 @@ def get_write_threads(state: Annotated[ServiceState, Depends(get_state)]) -> Wri
 StateDep = Annotated[ServiceState, Depends(get_state)]
 WriteThreadsDep = Annotated[WriteThreads, Depends(get_write_threads)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
-#: the ``tactus_memory.memory.Memory`` behind the app
-MemoryDep = Annotated[Memory, Depends(get_memory)]
 SessionId = Annotated[
     str,
     Path(
@@ -138,42 +148,80 @@ OPEN_PATHS = frozenset(
 OPEN_PREFIXES = ("/static/",)
 
 
-def token_ok(settings: Settings, presented: str | None) -> bool:
-    """Constant-time check of a presented token (True when no token is configured)."""
-    if settings.token is None:
-        return True
-    if not presented:
-        return False
-    expected = settings.token.get_secret_value().encode()
-    return hmac.compare_digest(presented.encode(), expected)
-
-
-def bearer(authorization: str | None) -> str | None:
-    if not authorization:
-        return None
-    scheme, _, value = authorization.partition(" ")
-    if scheme.lower() != "bearer" or not value.strip():
-        return None
-    return value.strip()
-
-
 #: the 401's detail and challenge, for the API routes and the MCP endpoint (service/mcp_http.py)
 TOKEN_REFUSED = "missing or wrong bearer token: send 'Authorization: Bearer <token>'"
 BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="tactus"'}
 
 
-def require_token(conn: HTTPConnection, settings: SettingsDep) -> None:
-    """Every route but the open ones: ``Authorization: Bearer <token>`` when a token is set
-    (a WebSocket may pass ``?token=`` instead: browsers cannot set its headers)."""
-    if settings.token is None:
-        return
-    presented = bearer(conn.headers.get("authorization"))
+def _caller(
+    state: ServiceState, conn: HTTPConnection
+) -> tuple[Principal | None, UnknownTenantError | None]:
+    """The gate's principal for ``conn`` and its tenant opened, or why not: its tenant does
+    not exist (a request never creates one)."""
+    assert state.gate is not None and state.tenants is not None
+    principal = state.gate.for_connection(conn)
+    if principal is not None:
+        try:
+            state.tenants.get(principal.tenant)
+        except UnknownTenantError as exc:
+            return principal, exc
+    return principal, None
+
+
+async def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
+    """Every route but the open ones: the caller (``auth.Gate``: the operator's token, a key,
+    or anyone on a store with neither; a WebSocket may pass ``?token=``) and whether its
+    scope covers the route (``auth.needed_scope``). 401 for no or a wrong key, 403 for a key
+    whose scope falls short. A write, delete or key change is marked for the audit log
+    (``middleware.AuditMiddleware``), refused or not.
+
+    A key limited to sessions (``--sessions PREFIX``) is walled in here, for every route: a
+    session in the path outside the prefix is a 404 like a missing session's, and the
+    prefix is set for the rest of the request (``where.SESSION_PREFIX``), so each store read
+    sees only the sessions under it (searches, listings, counts, items by id)."""
+    principal, unknown = await run_in_threadpool(_caller, state, conn)  # scrypt, tenant open
     websocket = conn.scope["type"] == "websocket"
-    if websocket and presented is None:
-        presented = conn.query_params.get("token")
-    if not token_ok(settings, presented):
+    if principal is None:
         how = " or ?token=" if websocket else ""
         raise HTTPException(401, TOKEN_REFUSED + how, headers=BEARER_CHALLENGE)
+    route = conn.scope.get("route")
+    need = needed_scope("WS" if websocket else conn.scope["method"], getattr(route, "name", None))
+    if need != "read":
+        conn.state.audit = (principal, f"{'WS' if websocket else conn.scope['method']} "
+                            f"{getattr(route, 'path', conn.url.path)}")  # fmt: skip
+    if unknown is not None:  # 404 unknown-tenant (a refused write is logged all the same)
+        raise unknown
+    if not allows(principal.scope, need):
+        raise HTTPException(
+            403, f"this key's scope is {principal.scope!r}; this route needs {need!r}"
+        )
+    SESSION_PREFIX.set(principal.sessions)  # this request's context (its own task)
+    session = conn.path_params.get("session")
+    if session is not None and not session_visible(session):
+        raise NotFoundError(f"no session {session!r}")
+    return principal
+
+
+#: the caller of the request (FastAPI runs ``authorize`` once per request however often named)
+PrincipalDep = Annotated[Principal, Depends(authorize)]
+
+
+def get_tenant(state: StateDep, principal: PrincipalDep) -> Tenant:
+    """The caller's tenant: its memory and committer (every data route reaches the memory
+    through here, so no route can read or write outside the caller's tenant)."""
+    assert state.tenants is not None
+    return state.tenants.get(principal.tenant)
+
+
+TenantDep = Annotated[Tenant, Depends(get_tenant)]
+
+
+def get_memory(tenant: TenantDep) -> Memory:
+    return tenant.memory
+
+
+#: the caller's tenant's ``tactus_memory.memory.Memory``
+MemoryDep = Annotated[Memory, Depends(get_memory)]
 
 
 def require_writable(state: StateDep) -> None:
@@ -183,15 +231,14 @@ def require_writable(state: StateDep) -> None:
         raise ServiceUnavailable("the store is read-only: writes are refused")
 
 
-def require_touch(state: StateDep) -> None:
+def require_touch(state: StateDep, memory: MemoryDep) -> None:
     """Touch routes answer 503 when no touch sense is registered, naming why."""
-    memory = state.memory
     if "touch" not in memory.senses:
         why = state.touch_unavailable or "no sense named 'touch' is registered in this memory"
         raise ServiceUnavailable(f"touch is not available on this server: {why}")
 
 
-Authorized = Depends(require_token)
+Authorized = Depends(authorize)
 TouchAvailable = Depends(require_touch)
 Writable = Depends(require_writable)
 

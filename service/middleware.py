@@ -22,8 +22,11 @@ from starlette.exceptions import HTTPException
 from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from tactus_memory.service.deps import OPEN_PATHS, OPEN_PREFIXES, bearer, token_ok
+from tactus_memory.errors import TactusError
+from tactus_memory.service.auth import bearer
+from tactus_memory.service.deps import OPEN_PATHS, OPEN_PREFIXES
 from tactus_memory.service.problems import PROBLEM_JSON, problem_body
+from tactus_memory.storage.tenants import TENANT_HEADER
 
 
 async def send_problem(
@@ -213,9 +216,13 @@ def _token_ok_for(scope: Scope) -> bool:
     path = scope["path"]
     if path in OPEN_PATHS or path.startswith(OPEN_PREFIXES):
         return True
-    settings = scope["app"].state.tactus.settings
-    header = dict(scope.get("headers", ())).get(b"authorization", b"").decode("latin-1")
-    return token_ok(settings, bearer(header))
+    headers = dict(scope.get("headers", ()))
+    header = headers.get(b"authorization", b"").decode("latin-1")
+    tenant = headers.get(TENANT_HEADER.encode(), b"").decode("latin-1") or None
+    try:
+        return scope["app"].state.tactus.gate.principal(bearer(header), tenant) is not None
+    except TactusError:  # a malformed tenant header: refused like a wrong token
+        return False
 
 
 class AllowMiddleware:
@@ -279,3 +286,52 @@ class AllowMiddleware:
         detail = f"{method} is not allowed on {scope['path']}; allowed: {allow}"
         problem = problem_body(405, detail, instance=scope["path"])
         await send_problem(send, 405, problem, [(b"allow", allow.encode())])
+
+
+def _audit_count(body: bytes, status: int) -> int:
+    """How many items an answer says it wrote or removed (``count``, ``deleted``; 1 for
+    another success, 0 for a failure)."""
+    if status >= 400:
+        return 0
+    try:
+        out = json.loads(body)
+    except ValueError:
+        return 1
+    if isinstance(out, dict):
+        for key in ("count", "deleted", "stored"):
+            if isinstance(out.get(key), int):
+                return int(out[key])
+    return 1
+
+
+class AuditMiddleware:
+    """Logs each HTTP request the gate marked (a write, delete or key change,
+    ``deps.authorize``) once answered: key id, tenant, route template, status and the
+    count its answer gives (:mod:`tactus_memory.storage.audit`; never the key or the body)."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        audit = scope["app"].state.tactus.audit
+        if scope["type"] != "http" or scope["method"] in ("GET", "HEAD") or audit is None:
+            await self.app(scope, receive, send)
+            return
+        status, body = [0], bytearray()
+        state = scope.setdefault("state", {})  # shared with the copies inner layers make
+
+        async def keep(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                status[0] = message["status"]
+            elif message["type"] == "http.response.body" and len(body) < 65536:
+                body.extend(message.get("body", b""))
+            await send(message)
+
+        try:
+            await self.app(scope, receive, keep)
+        finally:
+            marked = state.get("audit")
+            if marked is not None:
+                principal, route = marked
+                count = _audit_count(bytes(body), status[0])
+                audit.record(principal.key_id, principal.tenant, route, status[0], count)

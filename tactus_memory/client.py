@@ -62,6 +62,7 @@ from tactus_memory.search.matching import (
 from tactus_memory.search.query import Scope, ScopeKwargs
 from tactus_memory.senses import VectorSense
 from tactus_memory.storage.rows import WriteKwargs, check_batch, per_item
+from tactus_memory.storage.tenants import TENANT_HEADER, validate_tenant
 from tactus_memory.storage.where import Near
 from tactus_memory.temporal.episodes import Episode
 from tactus_memory.temporal.grasps import grasp_params
@@ -115,6 +116,7 @@ class Client:
         url: str,
         token: str | None = None,
         *,
+        tenant: str | None = None,
         timeout: float = 60.0,
         retries: int = 3,
         max_retry_wait: float = 30.0,
@@ -123,10 +125,14 @@ class Client:
     ) -> None:
         self.url = url.rstrip("/")
         self.token = token
+        #: the tenant the operator's token acts for (``X-Tactus-Tenant``; a key's is its own)
+        self.tenant = None if tenant is None else validate_tenant(tenant)
         self.retries = int(retries)
         self.max_retry_wait = float(max_retry_wait)
         self._sleep = sleep
         headers = {} if token is None else {"Authorization": f"Bearer {token}"}
+        if self.tenant is not None:
+            headers[TENANT_HEADER] = self.tenant
         self.http = httpx.Client(
             base_url=self.url,
             headers=headers,
@@ -286,7 +292,8 @@ class Client:
         """A live glove: ``with client.stream_touch("s1", hz=30) as s: s.send(frame)``
         (see :class:`~tactus_memory.client_stream.TouchStream` for ``params``)."""
         ws = "ws" + self.url[4:] if self.url.startswith("http") else self.url
-        return TouchStream(f"{ws}/sessions/{session}/touch/stream", self.token, **params)
+        url = f"{ws}/sessions/{session}/touch/stream"
+        return TouchStream(url, self.token, tenant=self.tenant, **params)
 
     # ----------------------------------------------------------------- search
     def search(

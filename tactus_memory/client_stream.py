@@ -29,6 +29,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from tactus_memory.client_errors import problem_error
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.storage.tenants import TENANT_HEADER
 
 
 class TouchStream:
@@ -39,6 +40,7 @@ class TouchStream:
         url: str,
         token: str | None = None,
         *,
+        tenant: str | None = None,
         window: int | None = None,
         stride: int | None = None,
         calibrated: bool = False,
@@ -51,6 +53,7 @@ class TouchStream:
         parts.append(f"calibrated={'true' if calibrated else 'false'}")
         self.url = url + "?" + "&".join(parts)
         self.token = token
+        self.tenant = tenant
         self.timeout = float(timeout)
         self.ids: list[str] = []
         self.idle: list[dict[str, Any]] = []
@@ -66,6 +69,8 @@ class TouchStream:
 
     def __enter__(self) -> TouchStream:
         headers = {} if self.token is None else {"Authorization": f"Bearer {self.token}"}
+        if self.tenant is not None:
+            headers[TENANT_HEADER] = self.tenant
         self._stack = contextlib.ExitStack()
         opened = connect(self.url, additional_headers=headers, open_timeout=self.timeout)
         self._ws = self._stack.enter_context(opened)

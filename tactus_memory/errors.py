@@ -31,6 +31,11 @@ class NotFoundError(TactusError, LookupError):
     """A session or item that does not exist (HTTP 404)."""
 
 
+class UnknownTenantError(NotFoundError):
+    """A tenant no key names and no database holds (HTTP 404 ``unknown-tenant``): the server
+    never creates a tenant for a request (``storage.tenants.tenant_exists``)."""
+
+
 class SenseConflictError(TactusError, ValueError):
     """``add_sense`` with a duplicate name, or a sense bound to another space (HTTP 409)."""
 
@@ -93,6 +98,7 @@ ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
     InvalidInputError: (422, "invalid-input", "Invalid input"),
     UnknownSenseError: (404, "unknown-sense", "Unknown sense"),
     NotFoundError: (404, "not-found", "Not found"),
+    UnknownTenantError: (404, "unknown-tenant", "Unknown tenant"),
     SenseConflictError: (409, "sense-conflict", "Sense conflict"),
     IdConflictError: (409, "id-conflict", "Item id conflict"),
     SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),

@@ -69,6 +69,7 @@ from tactus_memory.storage.rows import (
 )
 from tactus_memory.storage.store import HIT_COLUMNS, Store
 from tactus_memory.storage.tables import IndexConfig
+from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_uri
 from tactus_memory.storage.vectors import as_unit_rows
 from tactus_memory.storage.where import DEFAULT_FRAME, Where
 from tactus_memory.temporal.grasps import GraspRule, check_group
@@ -106,8 +107,12 @@ class Memory:
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
     """
 
-    def __init__(self, store: Store, space: Space, *, background: bool = True) -> None:
+    def __init__(
+        self, store: Store, space: Space, *, background: bool = True, tenant: str = DEFAULT_TENANT
+    ) -> None:
         self.store = store
+        #: whose memory this is (``Memory.open(path, tenant=...)``; the store's root: default)
+        self.tenant = tenant
         self.space = space
         self.background = background
         self.lock = threading.RLock()
@@ -137,6 +142,7 @@ class Memory:
         read_consistency_interval: timedelta | float | str | None = "env",
         background: bool = True,
         maintenance: MaintenanceConfig | None = None,
+        tenant: str = DEFAULT_TENANT,
     ) -> Memory:
         """Open (or create) a memory at ``path``: a local directory, ``file://``, or an
         object-storage URI (``s3://``, ``gs://``, ``az://``) with ``storage_options``.
@@ -153,23 +159,27 @@ class Memory:
         ``read_consistency_interval`` (default ``TACTUS_READ_CONSISTENCY`` or 1 s), and only
         the one whose ``maintenance.maintain`` is true compacts and cleans up
         (:mod:`tactus_memory.storage.maintenance`, :mod:`tactus_memory.storage.connect`).
+
+        ``tenant``: whose memory in the store this is (:mod:`tactus_memory.storage.tenants`):
+        every read and write of the returned memory sees that tenant's sessions and ids only.
         """
         cfg = index or IndexConfig()
         if index_threshold is not None:
             cfg.threshold = int(index_threshold)
         store = Store(
-            str(path),
+            tenant_uri(str(path), tenant),
             storage_options=storage_options,
             read_consistency_interval=read_consistency_interval,
             index=cfg,
             maintenance=maintenance,
+            tenant=tenant,
         )
         if not isinstance(space, Space):
             from tactus_memory.spaces.resolve import SpaceChoice, recorded_space, resolve_space
 
             choice = SpaceChoice(space, None if space_path is None else str(space_path), space_dim)
             space = resolve_space(choice, recorded_space(store.get_meta("space")))
-        return cls(store, space, background=background)
+        return cls(store, space, background=background, tenant=tenant)
 
     # ----------------------------------------------------------- senses (registry.py)
     @property

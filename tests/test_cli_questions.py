@@ -155,3 +155,24 @@ def test_help_groups_commands_and_shows_plain_flags() -> None:
         code, out = run(*sub, "--help")
         assert code == 0 and "<bool>" not in out, out
     assert "--episodes" in run("timeline", "--help")[1]
+
+
+def test_tenant_chooses_whose_memory_locally_and_over_url(store: Path, served: str) -> None:
+    """``--tenant`` on the commands that open a store (and sent as the operator's tenant
+    header with --url); a tenant that does not exist is an error, not a new tenant."""
+    mem = Memory.open(str(store), space=HashingSpace(dim=DIM), tenant="A", background=False)
+    mem.add("a-only", "text", "the tenant's own mug", t=2.0)
+    for args in (["sessions"], ["search", "mug", "--k", "5"], ["count", "mug"]):
+        local = run(*args, "--json", "--tenant", "A", "--data", str(store))
+        remote = run(*args, "--json", "--tenant", "A", "--url", served)
+        assert local[0] == remote[0] == 0, (args, local, remote)
+        assert json.loads(local[1]) == json.loads(remote[1]), args
+        assert S not in local[1] and "other" not in local[1], (args, local[1])
+    assert [s["id"] for s in json.loads(run("sessions", "--json", "--tenant", "A",
+                                            "--data", str(store))[1])] == ["a-only"]  # fmt: skip
+    assert "a-only" not in run("sessions", "--json", "--data", str(store))[1]
+    code, out = run("sessions", "--tenant", "tpyo", "--data", str(store))
+    assert code == 2 and "no tenant 'tpyo'" in out, out
+    assert not (store / "tenants" / "tpyo").exists()
+    code, out = run("sessions", "--tenant", "tpyo", "--url", served)
+    assert code == 2 and "404" in out and "tpyo" in out, out

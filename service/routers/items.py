@@ -18,7 +18,13 @@ from fastapi import APIRouter, File, Form, UploadFile
 from tactus_memory.errors import CapabilityError, InvalidInputError
 from tactus_memory.limits import ID_PATTERN
 from tactus_memory.service.arrays import loads_strict
-from tactus_memory.service.deps import MemoryDep, SessionId, StateDep, WriteThreadsDep
+from tactus_memory.service.deps import (
+    MemoryDep,
+    SessionId,
+    StateDep,
+    TenantDep,
+    WriteThreadsDep,
+)
 from tactus_memory.service.images import decode_image
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
@@ -33,8 +39,11 @@ router = APIRouter(prefix="/sessions/{session}", tags=["items"])
     response_model=StoredOut,
     responses=problem_responses(404, 413, 422),
 )
-async def add_text(session: SessionId, body: TextIn, state: StateDep) -> StoredOut:
+async def add_text(
+    session: SessionId, body: TextIn, state: StateDep, tenant: TenantDep
+) -> StoredOut:
     ids = await state.write(
+        tenant,
         session,
         "text",
         [body.text],
@@ -57,12 +66,21 @@ async def add_text(session: SessionId, body: TextIn, state: StateDep) -> StoredO
     response_model=StoredOut,
     responses=problem_responses(404, 413, 422),
 )
-async def add_vectors(session: SessionId, body: VectorsIn, state: StateDep) -> StoredOut:
+async def add_vectors(
+    session: SessionId, body: VectorsIn, state: StateDep, tenant: TenantDep
+) -> StoredOut:
     n = len(body.vectors)
     if len(body.t) != n:
         raise InvalidInputError(f"t has {len(body.t)} entries for {n} vectors")
     ids = await state.write(
-        session, body.sense, body.vectors, t=body.t, t_end=body.t_end, meta=body.meta, ids=body.ids
+        tenant,
+        session,
+        body.sense,
+        body.vectors,
+        t=body.t,
+        t_end=body.t_end,
+        meta=body.meta,
+        ids=body.ids,
     )
     return StoredOut(ids=ids, count=len(ids))
 
@@ -83,6 +101,7 @@ async def add_image(
     memory: MemoryDep,
     threads: WriteThreadsDep,
     state: StateDep,
+    tenant: TenantDep,
     file: Annotated[UploadFile, File(description="PNG/JPEG/... image.")],
     t: Annotated[float, Form(allow_inf_nan=False)],
     t_end: Annotated[float | None, Form(allow_inf_nan=False)] = None,
@@ -101,6 +120,7 @@ async def add_image(
             raise InvalidInputError("meta must be a JSON object")
     image = await threads.run(decode_image, await file.read())
     ids = await state.write(
+        tenant,
         session,
         "image",
         [image],

@@ -21,6 +21,7 @@ from tactus_memory.service.deps import (
     MemoryDep,
     SessionId,
     StateDep,
+    TenantDep,
     TouchAvailable,
     WriteThreadsDep,
 )
@@ -130,6 +131,7 @@ async def add_touch(
     memory: MemoryDep,
     threads: WriteThreadsDep,
     state: StateDep,
+    tenant: TenantDep,
     t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
     t_end: Annotated[list[float] | None, Query(description="npy body only: end time(s).")] = None,
     calibrated: Annotated[bool, Query(description="npy body only.")] = False,
@@ -140,6 +142,7 @@ async def add_touch(
     # the edge checked shapes and sizes; the touch sense checks the rest (range, calibration,
     # idle) once, and one t (t_end) per window is the library's check (rows.per_item)
     ids = await state.write(
+        tenant,
         session,
         "touch",
         up.windows,

@@ -48,7 +48,15 @@ from fastapi import APIRouter, Depends, WebSocket, WebSocketDisconnect
 from tactus_memory.errors import IdleWindowError, InvalidInputError, OverloadedError, TactusError
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
-from tactus_memory.service.deps import SessionId, SettingsDep, StateDep, TouchAvailable, Writable
+from tactus_memory.service.deps import (
+    PrincipalDep,
+    SessionId,
+    SettingsDep,
+    StateDep,
+    TenantDep,
+    TouchAvailable,
+    Writable,
+)
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import WindowStream
@@ -125,6 +133,8 @@ async def touch_stream(
     websocket: WebSocket,
     session: SessionId,
     state: StateDep,
+    tenant: TenantDep,
+    principal: PrincipalDep,
     params: Annotated[StreamParams, Depends(stream_params)],
 ) -> None:
     """The token, the session id, a writable store and the touch sense are checked by the
@@ -168,9 +178,12 @@ async def touch_stream(
             except Exception as exc:  # noqa: BLE001  (report, keep the stream alive)
                 await _try_send(send, _window_error(exc, seq, stream_id))
                 continue
+            stored[0] += 1
             await _try_send(
                 send, {"type": "stored", "id": ids[0], "seq": seq, "t": t_first, "t_end": t_last}
             )
+
+    stored = [0]  # windows committed, for the audit log
 
     acker_task = asyncio.create_task(acker())
     frame_index = 0
@@ -193,7 +206,7 @@ async def touch_stream(
                 done = windower.push(frame, [t])
                 for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
                     try:  # the sense's own checks (range, calibration, idle), before queueing
-                        queued = state.open_committer().submit(  # the one library write call
+                        queued = tenant.open_committer().submit(  # the one library write call
                             session,
                             "touch",
                             [win],
@@ -222,6 +235,9 @@ async def touch_stream(
             await acks.put(None)
         with contextlib.suppress(Exception):
             await acker_task
+        if state.audit is not None:
+            route = "WS /sessions/{session}/touch/stream"
+            state.audit.record(principal.key_id, principal.tenant, route, 101, stored[0])
     with contextlib.suppress(Exception):
         await websocket.close()
 

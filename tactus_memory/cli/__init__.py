@@ -11,6 +11,7 @@ from tactus_memory.cli import (  # noqa: F401  (imported for their registrations
     ask_cmds,
     data_cmds,
     eval_cmds,
+    keys_cmds,
     maintain_cmd,
     mcp_cmd,
     memory_cmds,

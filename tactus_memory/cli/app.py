@@ -11,7 +11,7 @@ from typer.core import TyperGroup
 #: ``tactus --help``: panel -> its commands, in the order shown (a command not listed here
 #: is shown last, under Typer's own "Commands" panel)
 PANELS: dict[str, tuple[str, ...]] = {
-    "Serve and maintain a memory": ("serve", "mcp", "maintain"),
+    "Serve and maintain a memory": ("serve", "mcp", "maintain", "keys", "audit"),
     "Ask the memory (add --url to ask a running server)": (
         "search",
         "last",

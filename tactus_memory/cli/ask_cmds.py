@@ -45,9 +45,11 @@ def _occurrences(query: str, scope: Scope, source: Source) -> Occurrences:
     one_source(source.data, source.url)
     if source.url:
         params = {"q": query, **dataclasses.asdict(scope)}
-        return Occurrences.model_validate(get_json(source.url, "/count", params, source.token))
+        return Occurrences.model_validate(
+            get_json(source.url, "/count", params, source.token, source.tenant)
+        )
     try:
-        memory = _open(source.data, *source.spaces)
+        memory = _open(source.data, *source.spaces, tenant=source.tenant)
         if scope.session is not None:
             memory.session(scope.session)  # an unknown session is an error, as over HTTP
         return memory.occurrences(query, **scope.filters())
@@ -150,14 +152,15 @@ def timeline(
     one_source(source.data, source.url)
     if source.url:
         params = {**dataclasses.asdict(window), "limit": limit, "episodes": str(episodes).lower()}
-        answer = get_json(source.url, session_path(session, "/timeline"), params, source.token)
+        path = session_path(session, "/timeline")
+        answer = get_json(source.url, path, params, source.token, source.tenant)
         rows: list[Any] = [
             (Episode if episodes else TimelineItem).model_validate(r)
             for r in answer["episodes" if episodes else "items"]
         ]
     else:
         try:
-            memory = _open(source.data, *source.spaces)
+            memory = _open(source.data, *source.spaces, tenant=source.tenant)
             rows = memory.timeline(session, **window.filters(), episodes=episodes, limit=limit)
         except TactusError as exc:
             fail(str(exc))

@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
+from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 #: ``--data``, shared by every command that reads STAG files (required)
 StagFiles = Annotated[
@@ -77,6 +78,17 @@ ServerUrl = Annotated[
         "TACTUS_URL).",
     ),
 ]
+#: ``--tenant`` of the commands that open a memory store: whose memory (README "Keys and
+#: tenants"); with ``--url`` it is sent as the operator's tenant header (a key's own wins)
+Tenant = Annotated[
+    str,
+    typer.Option(
+        "--tenant",
+        envvar="TACTUS_TENANT",
+        help="The tenant whose memory to open (env TACTUS_TENANT; default: default).",
+        show_envvar=False,
+    ),
+]
 #: the bearer token sent with ``--url`` (the server's ``--token``)
 ServerToken = Annotated[
     str | None,
@@ -129,7 +141,8 @@ class Scope(Window):
 @dataclass(frozen=True)
 class Source:
     """The memory a command reads: a store here (``--data``, in the space the space options
-    name) or a running server (``--url``, ``--token``); one group of options."""
+    name) or a running server (``--url``, ``--token``), and whose (``--tenant``); one group of
+    options."""
 
     data: MemoryData = None
     url: ServerUrl = None
@@ -137,6 +150,7 @@ class Source:
     space: SpaceName = None
     space_path: SpacePath = None
     space_dim: SpaceDim = None
+    tenant: Tenant = DEFAULT_TENANT
 
     @property
     def spaces(self) -> tuple[str | None, str | None, int | None]:

@@ -60,7 +60,10 @@ def maintain(
     """
     from tactus_memory.errors import TactusError
     from tactus_memory.settings import Settings
+    from tactus_memory.storage.audit import tidy
+    from tactus_memory.storage.keys import KeyStore
     from tactus_memory.storage.store import Store
+    from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_names, tenant_uri
 
     location = _data_dir(data)
     given = {"maintain": True}
@@ -70,7 +73,12 @@ def maintain(
         given["retain_seconds"] = retain
     try:
         cfg = Settings(**given).maintenance()
-        store = Store(location, maintenance=cfg)
+        store = Store(location, maintenance=cfg, tenant=DEFAULT_TENANT)
+        # every tenant's database too (storage/tenants.py), each maintained as the root is
+        named = {key.tenant for key in KeyStore(location).list()}
+        names = tenant_names(location, named)
+        others = [Store(tenant_uri(location, t), maintenance=cfg, tenant=t) for t in names[1:]]
+        stores = [store, *(s for s in others if s.exists)]
     except (TactusError, ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -78,7 +86,7 @@ def maintain(
         typer.echo(f"error: no memory at {location!r} (no items table)", err=True)
         raise typer.Exit(2)
     if check:
-        raise typer.Exit(_check(store))
+        raise typer.Exit(max(_check(s) for s in stores))
     typer.echo(
         f"maintaining {store.uri} every {cfg.maintain_interval:g}s "
         f"(retain {cfg.retain_seconds:g}s, fan-in {cfg.fan_in})",
@@ -91,18 +99,21 @@ def maintain(
             try:
                 # a pass compacts inline; cleanup runs in its own thread (every
                 # cleanup_interval) unless this is the only pass
-                store.maintain(force=True, wait=once)
-                tables = store.maintainer().tables
-                for report in store.last_maintenance:
-                    t = tables[report.table.removesuffix(".lance")]
-                    totals = {
-                        "versions_removed_total": t.versions_removed_total,
-                        "bytes_removed_total": t.bytes_removed_total,
-                    }
-                    typer.echo(json.dumps({"pass": done, **asdict(report), **totals}))
-                if store.retention.enabled():
-                    retention = asdict(store.retention.report)
-                    typer.echo(json.dumps({"pass": done, "retention": retention}))
+                for one in stores:
+                    one.maintain(force=True, wait=once)
+                    tables = one.maintainer().tables
+                    for report in one.last_maintenance:
+                        t = tables[report.table.removesuffix(".lance")]
+                        totals = {
+                            "versions_removed_total": t.versions_removed_total,
+                            "bytes_removed_total": t.bytes_removed_total,
+                        }
+                        where = {} if one is store else {"tenant": one.uri.rsplit("/", 1)[1]}
+                        typer.echo(json.dumps({"pass": done, **where, **asdict(report), **totals}))
+                    if one.retention.enabled():
+                        retention = asdict(one.retention.report)
+                        typer.echo(json.dumps({"pass": done, **where, "retention": retention}))
+                tidy(store.db, cfg.retain_seconds)  # the key and audit tables
             except Exception as exc:  # noqa: BLE001  (a conflict or a transient store error:
                 # logged, retried next pass; the maintainer must keep running)
                 typer.echo(f"maintenance pass failed (retried): {exc}", err=True)
@@ -112,7 +123,8 @@ def maintain(
             time.sleep(max(0.0, cfg.maintain_interval - (time.monotonic() - t0)))
     except KeyboardInterrupt:
         pass
-    store.wait_for_cleanup(60)
+    for one in stores:
+        one.wait_for_cleanup(60)
 
 
 def _check(store: Store) -> int:

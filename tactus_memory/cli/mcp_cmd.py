@@ -7,9 +7,10 @@ from typing import Annotated
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import MemoryData
+from tactus_memory.cli.common import MemoryData, Tenant
 from tactus_memory.cli.memory_cmds import _open
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
+from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 #: ``--http`` without ``--port``: beside `tactus serve`'s 8000
 MCP_DEFAULT_PORT = 8001
@@ -37,6 +38,7 @@ def mcp(
         bool,
         typer.Option("--allow-writes", help="Offer the `remember` tool (store a note)."),
     ] = False,
+    tenant: Tenant = DEFAULT_TENANT,
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
@@ -69,7 +71,7 @@ def mcp(
     # beside `tactus serve` on the same store: compaction and cleanup stay with that process
     # (or `tactus maintain`), as for a replica; this one only reads and adds a few notes
     keep_out = Settings(maintain=False).maintenance()
-    memory = _open(data, space, space_path, space_dim, maintenance=keep_out)
+    memory = _open(data, space, space_path, space_dim, maintenance=keep_out, tenant=tenant)
     server = build_server(memory, allow_writes=allow_writes)
     if settings is None:
         server.run("stdio")  # stdout is the protocol's: nothing else may print there
@@ -77,4 +79,5 @@ def mcp(
     from tactus_memory.service.mcp_http import run_mcp_http
 
     settings = settings.model_copy(update={"data": memory.store.uri})
-    run_mcp_http(server, settings, say=lambda line: typer.echo(line, err=True))
+    need = "write" if allow_writes else "read"
+    run_mcp_http(server, settings, memory, need, say=lambda line: typer.echo(line, err=True))

@@ -31,6 +31,7 @@ from tactus_memory.cli.common import (
 from tactus_memory.cli.remote import get_json
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
 from tactus_memory.signatures import grouped
+from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -54,16 +55,26 @@ def _open(
     space: str | None = None,
     space_path: str | None = None,
     space_dim: int | None = None,
+    tenant: str = DEFAULT_TENANT,
     **open_kw: Any,
 ) -> Memory:
-    """The memory at ``data`` in its recorded space (the space options find its model);
-    ``open_kw`` go to :meth:`Memory.open` (e.g. ``maintenance=``)."""
+    """``tenant``'s memory in the store at ``data``, in its recorded space (the space options
+    find its model); ``open_kw`` go to :meth:`Memory.open` (e.g. ``maintenance=``). A tenant
+    that does not exist is an error (a typo never makes a tenant)."""
     from tactus_memory.memory import Memory
+    from tactus_memory.storage.keys import KeyStore
+    from tactus_memory.storage.tenants import tenant_exists
 
     location = _data_dir(data)
     if "://" not in location and not Path(location).is_dir():
         fail(f"no memory at {location!r} (set --data or TACTUS_DATA, or ask a server with --url)")
-    return Memory.open(location, space=space, space_path=space_path, space_dim=space_dim, **open_kw)
+    if tenant != DEFAULT_TENANT and not tenant_exists(
+        location, tenant, KeyStore(location).tenants()
+    ):
+        fail(f"no tenant {tenant!r} in {location} (its first key makes it: tactus keys create)")
+    return Memory.open(
+        location, space=space, space_path=space_path, space_dim=space_dim, tenant=tenant, **open_kw
+    )
 
 
 def one_source(data: str | None, url: str | None) -> None:
@@ -142,11 +153,11 @@ def search(
     one_source(source.data, source.url)
     if source.url:
         params = {"q": query, "k": k, **dataclasses.asdict(scope)}
-        answer = get_json(source.url, "/search", params, source.token)
+        answer = get_json(source.url, "/search", params, source.token, source.tenant)
         hits = [Hit.model_validate(h) for h in answer["hits"]]
     else:
         try:
-            memory = _open(source.data, *source.spaces)
+            memory = _open(source.data, *source.spaces, tenant=source.tenant)
             hits = memory.search(query, k=k, **scope.filters())
         except TactusError as exc:
             fail(str(exc))
@@ -177,11 +188,11 @@ def sessions(as_json: AsJson = False, *, source: Source) -> None:
 
     one_source(source.data, source.url)
     if source.url:
-        answer = get_json(source.url, "/sessions", {}, source.token)
+        answer = get_json(source.url, "/sessions", {}, source.token, source.tenant)
         summaries = [SessionSummary.model_validate(s) for s in answer["sessions"]]
     else:
         try:
-            summaries = _open(source.data, *source.spaces).sessions()
+            summaries = _open(source.data, *source.spaces, tenant=source.tenant).sessions()
         except TactusError as exc:
             fail(str(exc))
     _print_results(

@@ -14,18 +14,27 @@ from typing import Any
 from urllib.parse import quote
 
 from tactus_memory.cli.space_opts import fail
+from tactus_memory.storage.tenants import DEFAULT_TENANT, TENANT_HEADER, validate_tenant
 
 #: seconds one request may take (a search answers in milliseconds once the server is ready)
 TIMEOUT_S = 60.0
 
 
-def get_json(url: str, path: str, params: Mapping[str, Any], token: str | None = None) -> Any:
-    """GET ``url + path`` with ``params`` (None dropped; lists repeat the key); the JSON
-    answer, or a one-line error and exit 2."""
+def get_json(
+    url: str,
+    path: str,
+    params: Mapping[str, Any],
+    token: str | None = None,
+    tenant: str = DEFAULT_TENANT,
+) -> Any:
+    """GET ``url + path`` with ``params`` (None dropped; lists repeat the key) as ``tenant``
+    (the operator's tenant header); the JSON answer, or a one-line error and exit 2."""
     import httpx
 
     query = {k: v for k, v in params.items() if v is not None and v != []}
     headers = {"Authorization": f"Bearer {token}"} if token else {}
+    if tenant != DEFAULT_TENANT:
+        headers[TENANT_HEADER] = validate_tenant(tenant)
     target = url.rstrip("/") + path
     try:
         response = httpx.get(target, params=query, headers=headers, timeout=TIMEOUT_S)

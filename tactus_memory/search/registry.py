@@ -26,7 +26,7 @@ from tactus_memory.senses import Sense, array_to_bytes, bytes_to_array, validate
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
 from tactus_memory.storage.vectors import as_unit_rows, vector_column
-from tactus_memory.storage.where import Where
+from tactus_memory.storage.where import SESSION_PREFIX, Where, sessions_under
 
 log = logging.getLogger(__name__)
 
@@ -219,8 +219,9 @@ class SenseRegistry:
         raise UnknownSenseError(f"unknown sense {name!r}; registered: {sorted(self._stored)}")
 
     def sense_info(self) -> list[SenseInfo]:
-        """Every sense the store knows, live or not, with row counts and calibration."""
-        counts = self.counts()
+        """Every sense the store knows, live or not, with row counts (of the sessions this
+        context sees, ``where.SESSION_PREFIX``) and calibration."""
+        counts = self.counts() if SESSION_PREFIX.get() is None else self._count_rows()
         out = []
         for name, s in sorted(self._stored.items()):
             c = self._calib.get(name)
@@ -262,16 +263,19 @@ class SenseRegistry:
             self._counts = None
 
     def counts(self) -> dict[str, int]:
+        """Rows per sense in the whole memory (cached; whatever the context's session prefix)."""
         self.refresh()
         counts = self._counts
         if counts is None:
-            import pyarrow.compute as pc
-
-            col = self.store.scan(None, ["sense"]).column("sense")
-            vc = pc.value_counts(col).to_pylist()
-            counts = {d["values"]: int(d["counts"]) for d in vc}
-            self._counts = counts
+            with sessions_under(None):
+                counts = self._counts = self._count_rows()
         return counts
+
+    def _count_rows(self) -> dict[str, int]:
+        import pyarrow.compute as pc
+
+        vc = pc.value_counts(self.store.scan(None, ["sense"]).column("sense")).to_pylist()
+        return {d["values"]: int(d["counts"]) for d in vc}
 
     def probe_vectors(self) -> np.ndarray:
         """(P, D) embedded probe bank, cached in the store per space."""
@@ -295,7 +299,8 @@ class SenseRegistry:
             return calib
         s = self.search_sense(sense)
         probes = s.query_transform(self.probe_vectors())
-        sample = self.store.scan(Where().sense(sense).sql(), ["vector"], limit=SAMPLE)
+        with sessions_under(None):  # the sense's statistics: every session's rows
+            sample = self.store.scan(Where().sense(sense).sql(), ["vector"], limit=SAMPLE)
         vecs = vector_column(sample, self.space.dim)
         calib = estimate(probes, vecs, rows)
         self._calib[sense] = calib

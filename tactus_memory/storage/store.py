@@ -15,6 +15,8 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
 
 Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.storage.where.Where` from
 validated values (ids and sense names by regex, finite numbers; literals quote-escaped).
+Every read of the items (scan, count, vector search) and every delete ANDs the session prefix
+of its context (``where.SESSION_PREFIX``: a key limited to sessions) into its filter.
 
 Indexes: :class:`IndexConfig` (scalar indexes from 10k rows, an IVF_SQ cosine index from 20k,
 retrained after 4x growth or 8 deltas; selective filters scan flat). Compaction, index
@@ -57,7 +59,7 @@ from tactus_memory.storage.tables import (
     meta_schema,
     senses_schema,
 )
-from tactus_memory.storage.where import Where, _sql_str
+from tactus_memory.storage.where import Where, _sql_str, sessions_under, within_sessions
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa
@@ -312,7 +314,8 @@ class Store(StoreIndexes):
         """
         if self._items is None or not ids:
             return 0
-        rows = self.scan(Where().ids(ids).sql(), ["id", "session", "sense"]).to_pylist()
+        with sessions_under(None):  # ids are the tenant's: a prefix key may not reuse one
+            rows = self.scan(Where().ids(ids).sql(), ["id", "session", "sense"]).to_pylist()
         for row in rows:
             if row["session"] != session or row["sense"] != sense:
                 raise IdConflictError(
@@ -323,13 +326,14 @@ class Store(StoreIndexes):
 
     def delete(self, where: str) -> None:
         self.integrity.require()
+        where = within_sessions(where) or where
         with self.commit_lock:
             self.items.delete(where)
             self.erasure.note_delete()
         self._committed(ITEMS)
 
     def count(self, where: str | None = None) -> int:
-        return 0 if self._items is None else int(self.items.count_rows(where))
+        return 0 if self._items is None else int(self.items.count_rows(within_sessions(where)))
 
     # ----------------------------------------------------------- reads
     def vector_search(
@@ -352,6 +356,7 @@ class Store(StoreIndexes):
         rows are scored.
         """
         cfg = self.index
+        where = within_sessions(where)
         q = self.items.search(vector, vector_column_name="vector").distance_type("cosine")
         if where:
             q = q.where(where, prefilter=True)
@@ -372,6 +377,7 @@ class Store(StoreIndexes):
 
     def scan(self, where: str | None, columns: Sequence[str], limit: int | None = None) -> pa.Table:
         q = self.items.search()
+        where = within_sessions(where)
         if where:
             q = q.where(where)
         return q.select(self.present(columns)).limit(limit).to_arrow()

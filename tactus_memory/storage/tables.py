@@ -93,6 +93,31 @@ def meta_schema() -> pa.Schema:
     return pa.schema([pa.field("key", pa.string(), nullable=False), pa.field("value", pa.string())])
 
 
+def keys_schema() -> pa.Schema:
+    """The ``keys`` table (:mod:`tactus_memory.storage.keys`): one row per key, its secret
+    only as a salted scrypt hash."""
+    import pyarrow as pa
+
+    required = {"key_id": pa.string(), "tenant": pa.string(), "scope": pa.string()}
+    required |= {"salt": pa.binary(), "hash": pa.binary(), "created": pa.float64()}
+    times = ("expires", "revoked", "last_used")  # null: never expires, not revoked, unused
+    return pa.schema(
+        [pa.field(name, kind, nullable=False) for name, kind in required.items()]
+        + [pa.field(name, pa.float64()) for name in times]
+        + [pa.field("sessions", pa.string())]  # a session-id prefix; null: every session
+    )
+
+
+def audit_schema() -> pa.Schema:
+    """The ``audit`` table (:mod:`tactus_memory.storage.audit`): one row per write, delete
+    or key change."""
+    import pyarrow as pa
+
+    kinds = {"t": pa.float64(), "key_id": pa.string(), "tenant": pa.string()}
+    kinds |= {"route": pa.string(), "status": pa.int64(), "count": pa.int64()}
+    return pa.schema([pa.field(name, kind, nullable=False) for name, kind in kinds.items()])
+
+
 # --------------------------------------------------------------------------- index config
 @dataclass
 class IndexConfig:

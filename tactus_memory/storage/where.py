@@ -5,7 +5,9 @@ literals are also quote-escaped; no user string reaches LanceDB any other way)."
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -138,6 +140,12 @@ class Where:
     def sessions(self, sessions: Iterable[str] | None) -> Where:
         return self._in("session", sessions, _session_id)
 
+    def session_prefix(self, prefix: str | None) -> Where:
+        """Sessions whose id starts with ``prefix`` (itself an id)."""
+        if prefix is not None:
+            self.parts.append(f"starts_with(session, {_sql_str(validate_session_prefix(prefix))})")
+        return self
+
     def sense(self, sense: str | None) -> Where:
         return self._eq("sense", sense, validate_sense_name)
 
@@ -206,3 +214,40 @@ class Where:
         """The filter without its refine conditions: a superset of :meth:`sql`'s rows that
         the scalar indexes alone answer (to size a search, not to return rows)."""
         return " AND ".join(f"({p})" for p in self.parts) if self.parts else None
+
+
+# --------------------------------------------------------------------------- session walls
+#: the session-id prefix every read of the items in this context is limited to (a key made
+#: with ``tactus keys create --sessions PREFIX``; the service's gate sets it per request);
+#: None: every session. :func:`within_sessions` ANDs it into each filter the store runs.
+SESSION_PREFIX: ContextVar[str | None] = ContextVar("tactus_session_prefix", default=None)
+
+
+def validate_session_prefix(value: Any) -> str:
+    """A session-id prefix: itself an id (1-128 chars of ``[A-Za-z0-9._:-]``)."""
+    return validate_id(value, "session prefix")
+
+
+def session_visible(session: str) -> bool:
+    """Whether ``session`` lies under this context's :data:`SESSION_PREFIX`."""
+    prefix = SESSION_PREFIX.get()
+    return prefix is None or session.startswith(prefix)
+
+
+def within_sessions(where: str | None) -> str | None:
+    """``where`` AND the session prefix of this context (``where`` itself when none)."""
+    term = Where().session_prefix(SESSION_PREFIX.get()).sql()
+    if term is None:
+        return where
+    return term if not where else f"({where}) AND {term}"
+
+
+@contextmanager
+def sessions_under(prefix: str | None) -> Iterator[None]:
+    """Limit the store reads inside the block to sessions starting with ``prefix`` (None:
+    every session, e.g. for a tenant-wide statistic read while a request's prefix is set)."""
+    token = SESSION_PREFIX.set(None if prefix is None else validate_session_prefix(prefix))
+    try:
+        yield
+    finally:
+        SESSION_PREFIX.reset(token)
