@@ -130,12 +130,13 @@ class Client:
         self.retries = int(retries)
         self.max_retry_wait = float(max_retry_wait)
         self._sleep = sleep
-        headers = {} if token is None else {"Authorization": f"Bearer {token}"}
+        #: what every call and the touch stream send: the token, the operator's tenant
+        self.headers = {} if token is None else {"Authorization": f"Bearer {token}"}
         if self.tenant is not None:
-            headers[TENANT_HEADER] = self.tenant
+            self.headers[TENANT_HEADER] = self.tenant
         self.http = httpx.Client(
             base_url=self.url,
-            headers=headers,
+            headers=self.headers,
             timeout=timeout,
             transport=transport or httpx.HTTPTransport(retries=1),  # connect errors only
         )
@@ -293,7 +294,7 @@ class Client:
         (see :class:`~tactus_memory.client_stream.TouchStream` for ``params``)."""
         ws = "ws" + self.url[4:] if self.url.startswith("http") else self.url
         url = f"{ws}/sessions/{session}/touch/stream"
-        return TouchStream(url, self.token, tenant=self.tenant, **params)
+        return TouchStream(url, self.headers, **params)
 
     # ----------------------------------------------------------------- search
     def search(

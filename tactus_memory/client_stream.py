@@ -21,6 +21,7 @@ import io
 import json
 import threading
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -29,7 +30,6 @@ from websockets.sync.client import ClientConnection, connect
 
 from tactus_memory.client_errors import problem_error
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.storage.tenants import TENANT_HEADER
 
 
 class TouchStream:
@@ -38,9 +38,8 @@ class TouchStream:
     def __init__(
         self,
         url: str,
-        token: str | None = None,
+        headers: Mapping[str, str] | None = None,
         *,
-        tenant: str | None = None,
         window: int | None = None,
         stride: int | None = None,
         calibrated: bool = False,
@@ -52,8 +51,8 @@ class TouchStream:
         parts = [f"{k}={v}" for k, v in query.items() if v is not None]
         parts.append(f"calibrated={'true' if calibrated else 'false'}")
         self.url = url + "?" + "&".join(parts)
-        self.token = token
-        self.tenant = tenant
+        #: the connection's headers (the client's: its token, the operator's tenant)
+        self.headers = dict(headers or {})
         self.timeout = float(timeout)
         self.ids: list[str] = []
         self.idle: list[dict[str, Any]] = []
@@ -68,11 +67,8 @@ class TouchStream:
         self._reader: threading.Thread | None = None
 
     def __enter__(self) -> TouchStream:
-        headers = {} if self.token is None else {"Authorization": f"Bearer {self.token}"}
-        if self.tenant is not None:
-            headers[TENANT_HEADER] = self.tenant
         self._stack = contextlib.ExitStack()
-        opened = connect(self.url, additional_headers=headers, open_timeout=self.timeout)
+        opened = connect(self.url, additional_headers=self.headers, open_timeout=self.timeout)
         self._ws = self._stack.enter_context(opened)
         first = json.loads(self._ws.recv(timeout=self.timeout))
         if first.get("type") != "ready":

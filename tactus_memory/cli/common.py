@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
+from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 #: ``--data``, shared by every command that reads STAG files (required)
@@ -112,6 +113,16 @@ Before = Annotated[
     float | None, typer.Option("--before", help="Items overlapping t <= BEFORE (seconds).")
 ]
 AsJson = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
+# how touch streams are cut into windows (`tactus serve`, `tactus ingest`); unset: the touch
+# sense's own window (its checkpoint's K, 8 for the shipped one) and stride
+TouchWindow = Annotated[
+    int | None,
+    typer.Option("--window", min=1, max=MAX_WINDOW_FRAMES, help="Touch frames per window."),
+]
+TouchStride = Annotated[
+    int | None,
+    typer.Option("--stride", min=1, max=MAX_WINDOW_FRAMES, help="Frames between window starts."),
+]
 
 
 @dataclass(frozen=True)

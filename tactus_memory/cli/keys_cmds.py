@@ -47,6 +47,7 @@ def create(
     scope: Annotated[
         str, typer.Option(help=f"One of {', '.join(SCOPES)} (admin may also delete sessions).")
     ] = "read",
+    data: ServiceData = None,
     expires: Annotated[
         float | None, typer.Option(help="Days until the key stops working (default: never).")
     ] = None,
@@ -54,7 +55,6 @@ def create(
         str | None,
         typer.Option(help="Only sessions whose id starts with PREFIX (default: every session)."),
     ] = None,
-    data: ServiceData = None,
 ) -> None:
     """Create a key; it is printed once, alone on the last line (only its hash is stored).
     The first key of a tenant brings the tenant into being."""

@@ -17,10 +17,17 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import MemoryData, RayAddress, RayWorkers, UseRay, ray_cluster
+from tactus_memory.cli.common import (
+    MemoryData,
+    RayAddress,
+    RayWorkers,
+    TouchStride,
+    TouchWindow,
+    UseRay,
+    ray_cluster,
+)
 from tactus_memory.cli.memory_cmds import _data_dir, _open, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
-from tactus_memory.limits import MAX_WINDOW_FRAMES
 
 if TYPE_CHECKING:
     from tactus_memory.memory import Memory
@@ -73,13 +80,8 @@ def ingest(
     list_only: Annotated[
         bool, typer.Option("--list", help="Print topics, types, counts, default senses.")
     ] = False,
-    window: Annotated[
-        int | None,
-        typer.Option(min=1, max=MAX_WINDOW_FRAMES, help="Touch frames per window (default K)."),
-    ] = None,
-    stride: Annotated[
-        int | None, typer.Option(min=1, max=MAX_WINDOW_FRAMES, help="Frames between window starts.")
-    ] = None,
+    window: TouchWindow = None,
+    stride: TouchStride = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     ray: UseRay = False,
     ray_address: RayAddress = None,

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import ServiceData
+from tactus_memory.cli.common import ServiceData, TouchStride, TouchWindow
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 
 
@@ -41,12 +41,8 @@ def serve(
         int | None,
         typer.Option(help="Largest request body, 413 beyond (env TACTUS_MAX_BODY_BYTES)."),
     ] = None,
-    window: Annotated[
-        int | None, typer.Option(help="Default frames per window on touch streams (default 8).")
-    ] = None,
-    stride: Annotated[
-        int | None, typer.Option(help="Frames between window starts on touch streams (default 8).")
-    ] = None,
+    window: TouchWindow = None,
+    stride: TouchStride = None,
     no_touch: Annotated[
         bool, typer.Option("--no-touch", help="Do not load the touch encoder.")
     ] = False,

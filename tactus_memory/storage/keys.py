@@ -142,7 +142,7 @@ class KeyStore:
     def create(
         self,
         tenant: str,
-        scope: str,
+        scope: str = "read",
         expires_days: float | None = None,
         *,
         sessions: str | None = None,
