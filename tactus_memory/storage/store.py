@@ -51,6 +51,7 @@ from tactus_memory.storage.maintenance import (
     MaintenanceConfig,
     TableReport,
     fragment_infos,
+    start_background,
 )
 from tactus_memory.storage.retention import Erasure, Retention
 from tactus_memory.storage.tables import (
@@ -467,8 +468,7 @@ class Store(StoreIndexes):
         if busy or not due:
             return
         self._last_cleanup = time.monotonic()
-        self._cleanup_thread = threading.Thread(target=self._cleanup_quietly, daemon=True)
-        self._cleanup_thread.start()
+        self._cleanup_thread = start_background(self._cleanup_quietly, "tactus-cleanup")
 
     def _cleanup_quietly(self) -> None:
         try:
