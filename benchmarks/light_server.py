@@ -10,7 +10,7 @@ round, as on a robot that restarts its server). The variants run back to back in
 of them; the 1-minute load average is recorded with every figure. A model-only child
 reports the seconds and RSS after its imports and after loading and running each model.
 
-    python benchmarks/light_server.py [--rounds 3] [--onnx-dir /work/runs/onnx]
+    python benchmarks/light_server.py [--rounds 3] [--onnx-dir runs/onnx]
 """
 
 from __future__ import annotations
@@ -132,7 +132,8 @@ def summary(runs: list[dict[str, Any]], key: str) -> dict[str, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--onnx-dir", type=Path, default=Path("/work/runs/onnx"))
+    onnx_dir = Path(__file__).resolve().parents[1] / "runs" / "onnx"  # the ignored runs/
+    ap.add_argument("--onnx-dir", type=Path, default=onnx_dir, help="`tactus export-onnx` output")
     ap.add_argument("--child", choices=("torch", "onnx", "parts"), help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()

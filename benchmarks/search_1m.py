@@ -41,7 +41,8 @@ from tactus_memory.search.query import Scope
 from tactus_memory.senses import VectorSense
 from tactus_memory.storage.tables import IndexConfig
 
-RESULTS = Path(__file__).resolve().parent / "results" / "search_1m.json"
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results" / "search_1m.json"
 K = 10
 #: search settings tried per index type (nprobes x refine_factor [x ef])
 GRIDS: dict[str, list[dict[str, Any]]] = {
@@ -235,10 +236,10 @@ def main() -> None:
     ap.add_argument("--rows", type=int, default=1_000_000)
     specs_help = "TYPE:ROWS_PER_PARTITION index specs, built and swept in turn"
     ap.add_argument("--specs", nargs="+", default=["IVF_SQ:4096"], help=specs_help)
-    ap.add_argument("--cache", type=Path, default=Path("/work/runs/bench1m"))
-    ap.add_argument(
-        "--stag", type=Path, default=Path("/work/shared/data/stag/blindfolded_lite_train")
-    )
+    # the cache (1.6 GB of rows, ~2 GB per index) in the checkout's ignored runs/ folder
+    ap.add_argument("--cache", type=Path, default=ROOT / "runs" / "bench1m")
+    stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
+    ap.add_argument("--stag", type=Path, default=stag / "blindfolded_lite_train")
     ap.add_argument("--queries", type=int, default=200, help="held-out (and tuning) queries")
     ap.add_argument("--target", type=float, default=0.98, help="recall@10 to tune for")
     ap.add_argument("--repeats", type=int, default=3, help="A/B rounds of the chosen settings")

@@ -38,7 +38,6 @@ README section "Always-on: disk, maintenance, replicas, object storage").
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import logging
 import math
@@ -51,6 +50,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field, field_validator
 
+from tactus_memory.storage.background import start_background
 from tactus_memory.storage.retention import THIN_COSINE, RetentionRule, never_is_none
 
 log = logging.getLogger(__name__)
@@ -404,43 +404,6 @@ class Maintainer:
 
 
 # --------------------------------------------------------------------------- background
-#: the longest an exiting interpreter waits for background maintenance (s): a daemon thread
-#: still inside Lance's native code while Python finalises aborts the process (SIGABRT)
-EXIT_WAIT_S = 120.0
-_running: set[threading.Thread] = set()
-_running_lock = threading.Lock()
-
-
-def start_background(target: Any, name: str) -> threading.Thread:
-    """A daemon thread for maintenance work that an exiting interpreter waits for (at most
-    :data:`EXIT_WAIT_S` in all), so a script that writes or deletes and ends at once exits
-    cleanly instead of aborting mid-compaction."""
-
-    def run() -> None:
-        try:
-            target()
-        finally:
-            with _running_lock:
-                _running.discard(threading.current_thread())
-
-    thread = threading.Thread(target=run, name=name, daemon=True)
-    with _running_lock:
-        _running.add(thread)
-    thread.start()
-    return thread
-
-
-@atexit.register
-def _wait_for_background() -> None:
-    deadline = time.monotonic() + EXIT_WAIT_S
-    while True:
-        with _running_lock:
-            alive = [t for t in _running if t.is_alive()]
-        if not alive or time.monotonic() >= deadline:
-            return
-        alive[0].join(max(0.0, deadline - time.monotonic()))
-
-
 class Background:
     """Runs a memory's store maintenance off the write path: :meth:`schedule` after each
     commit starts one background pass when the store says one is due (compaction, cleanup, an

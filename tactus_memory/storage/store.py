@@ -42,6 +42,7 @@ import numpy as np
 
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
 from tactus_memory.settings import Settings
+from tactus_memory.storage.background import start_background
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
@@ -51,7 +52,6 @@ from tactus_memory.storage.maintenance import (
     MaintenanceConfig,
     TableReport,
     fragment_infos,
-    start_background,
 )
 from tactus_memory.storage.retention import Erasure, Retention
 from tactus_memory.storage.tables import (
