@@ -12,6 +12,7 @@ the touch routes answer 503 naming it.
 from __future__ import annotations
 
 import asyncio
+import ctypes
 import logging
 import os
 from collections.abc import AsyncIterator, Callable
@@ -168,6 +169,20 @@ async def _load_in_background(state: ServiceState, loader: Loader) -> None:
     state.touch_unavailable = why
     state.warm = True
     state.starting = None
+    return_freed_heap()
+
+
+def return_freed_heap() -> bool:
+    """Give the heap pages freed while the models loaded (tokenizer, weight-loading and
+    warm-up temporaries) back to the OS, which glibc's allocator otherwise keeps: an ONNX
+    server's idle RSS is ~15 MB lower for it (``benchmarks/light_server.py``). False where
+    the C library has no ``malloc_trim`` (not glibc)."""
+    try:
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):
+        return False
+    trim(0)
+    return True
 
 
 def serving_torch_threads() -> int:
