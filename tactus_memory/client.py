@@ -62,7 +62,7 @@ from tactus_memory.search.matching import (
 from tactus_memory.search.query import Scope, ScopeKwargs
 from tactus_memory.senses import VectorSense
 from tactus_memory.storage.rows import WriteKwargs, check_batch, per_item
-from tactus_memory.storage.tenants import TENANT_HEADER, validate_tenant
+from tactus_memory.storage.tenants import auth_headers, validate_tenant
 from tactus_memory.storage.where import Near
 from tactus_memory.temporal.episodes import Episode
 from tactus_memory.temporal.grasps import grasp_params
@@ -131,9 +131,7 @@ class Client:
         self.max_retry_wait = float(max_retry_wait)
         self._sleep = sleep
         #: what every call and the touch stream send: the token, the operator's tenant
-        self.headers = {} if token is None else {"Authorization": f"Bearer {token}"}
-        if self.tenant is not None:
-            self.headers[TENANT_HEADER] = self.tenant
+        self.headers = auth_headers(token, self.tenant)
         self.http = httpx.Client(
             base_url=self.url,
             headers=self.headers,

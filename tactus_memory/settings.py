@@ -28,6 +28,7 @@ from pydantic_settings import (
 
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.storage.maintenance import MaintenanceConfig
+from tactus_memory.storage.retention import never_is_none
 
 #: the memory every command opens when given no location (``Memory.open()``, ``tactus serve``,
 #: ``tactus search``/``ingest``/..., ``make run``): ``./memory`` of the current folder, or
@@ -182,10 +183,8 @@ class Settings(BaseSettings, MaintenanceConfig):
     @field_validator("read_consistency", mode="before")
     @classmethod
     def _never(cls, value: Any) -> Any:
-        """``off``/``none``/``never`` (or empty): never re-read (None)."""
-        if isinstance(value, str) and value.strip().lower() in {"off", "none", "never", ""}:
-            return None
-        return value
+        """``off``/``none``/``never``/``forever`` (or empty): never re-read (None)."""
+        return never_is_none(value)
 
     def maintenance(self) -> MaintenanceConfig:
         """The maintenance policy these settings describe."""

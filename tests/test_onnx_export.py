@@ -95,3 +95,13 @@ def test_serve_on_onnx_without_torch(folder: Path, tmp_path: Path) -> None:
         assert hits[0]["sense"] == "text"
     finally:
         stop_process(proc)
+
+
+def test_a_pickled_onnx_space_stays_on_onnx(tmp_path: Path) -> None:
+    """Ray workers get the space pickled: its ONNX folder goes with it (a space that came
+    back on torch would load another runtime and, without torch, fail)."""
+    import pickle
+
+    space = MiniLMSpace(onnx=tmp_path, batch_size=7)
+    back = pickle.loads(pickle.dumps(space))
+    assert (back.onnx, back.path, back.batch_size) == (tmp_path, None, 7)

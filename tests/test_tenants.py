@@ -118,6 +118,35 @@ def test_maintain_covers_every_tenant_and_the_key_and_audit_tables(tmp_path) -> 
     assert len(log.entries()) == 3  # compacted, nothing lost
 
 
+def test_maintain_labels_each_tenants_retention_even_when_a_store_is_skipped(
+    tmp_path, monkeypatch
+) -> None:
+    """A store maintenance skips (damaged or busy: no table reports this pass) still gets its
+    own retention line, and the next tenant's line names that tenant."""
+    from typer.testing import CliRunner
+
+    from tactus_memory.cli import app
+    from tactus_memory.storage.store import Store
+
+    root = str(tmp_path / "mem")
+    for tenant in (DEFAULT_TENANT, "A"):
+        _open(root, tenant).add("s1", "text", "a note", t=0.0)
+    monkeypatch.setenv("TACTUS_RETAIN_DAYS", "365")
+    real = Store.maintain
+
+    def maintain(self: Store, **kw):
+        if self.retention.tenant == DEFAULT_TENANT:
+            return False  # as a damaged store is skipped
+        return real(self, **kw)
+
+    monkeypatch.setattr(Store, "maintain", maintain)
+    res = CliRunner().invoke(app, ["maintain", "--once", "--retain", "0", "--data", root])
+    assert res.exit_code == 0, res.output
+    assert "maintenance pass failed" not in res.output
+    lines = [json.loads(line) for line in res.stdout.splitlines() if line.startswith("{")]
+    assert [line.get("tenant") for line in lines if "retention" in line] == [None, "A"]
+
+
 def test_guessing_a_keys_secret_is_throttled_per_key_id(tmp_path, monkeypatch) -> None:
     from tactus_memory.storage import keys as keys_module
     from tactus_memory.storage.keys import FAILED_CHECKS_PER_S, KeyStore

@@ -13,11 +13,12 @@ from fastapi import APIRouter
 
 from tactus_memory.service.deps import MemoryDep
 from tactus_memory.service.schemas import RetentionOut
+from tactus_memory.storage.retention import POLICY_FIELDS
 
 router = APIRouter(tags=["health"])
 
 #: the policy fields reported as they are
-POLICY = {"retain_days", "thin_after_days", "thin_cosine", "erase_deleted", "retain_seconds"}
+POLICY = {*POLICY_FIELDS, "erase_deleted", "retain_seconds"}
 
 
 @router.get(

@@ -101,6 +101,7 @@ def maintain(
                 # cleanup_interval) unless this is the only pass
                 for one in stores:
                     one.maintain(force=True, wait=once)
+                    where = {} if one is store else {"tenant": one.retention.tenant}
                     tables = one.maintainer().tables
                     for report in one.last_maintenance:
                         t = tables[report.table.removesuffix(".lance")]
@@ -108,7 +109,6 @@ def maintain(
                             "versions_removed_total": t.versions_removed_total,
                             "bytes_removed_total": t.bytes_removed_total,
                         }
-                        where = {} if one is store else {"tenant": one.uri.rsplit("/", 1)[1]}
                         typer.echo(json.dumps({"pass": done, **where, **asdict(report), **totals}))
                     if one.retention.enabled():
                         retention = asdict(one.retention.report)

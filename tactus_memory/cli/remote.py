@@ -14,7 +14,7 @@ from typing import Any
 from urllib.parse import quote
 
 from tactus_memory.cli.space_opts import fail
-from tactus_memory.storage.tenants import DEFAULT_TENANT, TENANT_HEADER, validate_tenant
+from tactus_memory.storage.tenants import DEFAULT_TENANT, auth_headers
 
 #: seconds one request may take (a search answers in milliseconds once the server is ready)
 TIMEOUT_S = 60.0
@@ -32,9 +32,7 @@ def get_json(
     import httpx
 
     query = {k: v for k, v in params.items() if v is not None and v != []}
-    headers = {"Authorization": f"Bearer {token}"} if token else {}
-    if tenant != DEFAULT_TENANT:
-        headers[TENANT_HEADER] = validate_tenant(tenant)
+    headers = auth_headers(token, None if tenant == DEFAULT_TENANT else tenant)
     target = url.rstrip("/") + path
     try:
         response = httpx.get(target, params=query, headers=headers, timeout=TIMEOUT_S)

@@ -79,7 +79,7 @@ class MiniLMSpace(Space):
     def __getstate__(self) -> dict[str, Any]:
         """Pickled as its settings (Ray workers, :mod:`tactus_memory.ray_jobs`): the model
         loads lazily where it is unpickled, from the same local folder."""
-        keys = ("path", "device", "batch_size", "cache_size")
+        keys = ("path", "device", "batch_size", "cache_size", "onnx")
         return {k: getattr(self, k) for k in keys}
 
     def __setstate__(self, state: dict[str, Any]) -> None:

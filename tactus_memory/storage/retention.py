@@ -278,6 +278,8 @@ class Retention:
         days = _all_values(self.cfg, "retain_days")
         if not days:
             return 0
+        if not self.cfg.retention:  # one store-wide age: one delete, no rows read
+            return self._delete(f"created < {_sql_float(now - days[0] * DAY_S)}")
         oldest_bar = now - min(days) * DAY_S
         rows = self.store.scan(f"created < {_sql_float(oldest_bar)}", ["session", "sense"])
         sessions, senses = (rows.column(c).to_pylist() for c in ("session", "sense"))
@@ -305,12 +307,15 @@ class Retention:
             where += f" AND created >= {_sql_float(lo)}"
         rows = self.store.scan(where, ["session", "sense", "source", "created"])
         groups: dict[tuple[str, str, str], Policy] = {}
+        policies: dict[tuple[str, str], Policy] = {}
         for session, sense, source, created in zip(
             *(rows.column(c).to_pylist() for c in ("session", "sense", "source", "created")),
             strict=True,
         ):
             key = (session, sense, source)
-            policy = groups.get(key) or resolve(self.cfg, self.tenant, session, sense)
+            policy = policies.get((session, sense))
+            if policy is None:
+                policy = policies[(session, sense)] = resolve(self.cfg, self.tenant, session, sense)
             wait = policy.thin_after_days
             # a row that aged past its own bar since the last pass
             if wait is not None and since - wait * DAY_S <= created < now - wait * DAY_S:

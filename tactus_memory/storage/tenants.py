@@ -35,6 +35,15 @@ def validate_tenant(value: object) -> str:
     return validate_id(value, "tenant")
 
 
+def auth_headers(token: str | None, tenant: str | None = None) -> dict[str, str]:
+    """The headers a client sends: the bearer ``token`` (none without one) and, for the
+    operator's token acting for a tenant, that ``tenant`` (None: no tenant header)."""
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    if tenant is not None:
+        headers[TENANT_HEADER] = validate_tenant(tenant)
+    return headers
+
+
 def tenant_uri(root: str, tenant: str = DEFAULT_TENANT) -> str:
     """The location of ``tenant``'s database in the store at ``root`` (a path or URI)."""
     root = normalise_uri(str(root))
