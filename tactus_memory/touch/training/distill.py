@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Any
 
@@ -95,7 +96,11 @@ class TeacherLoss:
     @torch.no_grad()
     def teach(self, x: torch.Tensor) -> torch.Tensor:
         """x: (B, K, 32, 32) -> (B, D) unit mean of the teachers' unit embeddings."""
-        zs = [m(x).float() for m in self.models]
+        # on CUDA the teachers run under bf16 autocast like the student (their outputs are
+        # normalised in float32 below); on CPU in float32
+        amp = torch.autocast("cuda", dtype=torch.bfloat16) if x.is_cuda else nullcontext()
+        with amp:
+            zs = [m(x).float() for m in self.models]
         return F.normalize(torch.stack(zs).mean(dim=0), dim=-1)
 
     def __call__(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:

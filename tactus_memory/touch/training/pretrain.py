@@ -26,6 +26,7 @@ import math
 import os
 import time
 from collections.abc import Iterable
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -197,6 +198,9 @@ def pretrain(
             state_path, module=mae, opt=opt, gen=gen, device=device, key="mae"
         )
         log.info("resumed MAE pretraining at step %d", step)
+    amp = (
+        torch.autocast("cuda", dtype=torch.bfloat16) if device.startswith("cuda") else nullcontext()
+    )
     mae.train()
     t0, ema, ema_base = time.perf_counter(), None, None
     bar = tqdm(total=cfg.steps, initial=step, desc="mae", disable=not progress)
@@ -207,7 +211,8 @@ def pretrain(
         idx = torch.randint(0, len(frames), (cfg.batch,), generator=gen)
         x = frames[idx].to(device)
         mask = random_mask(cfg.batch, gen).to(device)
-        loss, base = mae(x, mask)
+        with amp:  # bf16 autocast on CUDA (the losses are computed in float32)
+            loss, base = mae(x, mask)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

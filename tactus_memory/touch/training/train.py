@@ -71,6 +71,9 @@ class TrainConfig:
     # they end up in the checkpoint's model config, so serving builds the same model
     model_overrides: dict[str, Any] = field(default_factory=dict)
     half: bool = False  # store float16 weights in the final checkpoint
+    # bf16 autocast of the forward pass on CUDA (no effect on CPU, which always runs float32);
+    # the protocol's device check trains with it off to pair the two numeric paths
+    amp: bool = True
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
 
@@ -114,21 +117,24 @@ def holdout_recordings(data: Any, spec: str) -> list[int]:
 
     ``none``                       nothing held out
     ``one-per-object@SUBSTR``      for every object, the lowest-id recording with valid
-                                   frames among files whose path contains SUBSTR
+                                   frames among files whose path contains SUBSTR (fold A of
+                                   the protocol, ``protocol.py``)
+    ``last-per-object@SUBSTR``     the same with the highest-id recording (fold B)
     ``recordings@A,B,...``         recordings by name (as in ``data.recordings``) or id
     """
     spec = (spec or "none").strip()
     if spec == "none":
         return []
     kind, _, arg = spec.partition("@")
-    if kind == "one-per-object":
+    if kind in ("one-per-object", "last-per-object"):
+        pick = min if kind == "one-per-object" else max
         srcs = [i for i, s in enumerate(data.sources) if arg in s]
         if not srcs:
             raise ValueError(f"holdout {spec!r}: no --data path contains {arg!r}")
         m = np.isin(data.subset, srcs) & data.valid
         out = []
         for obj in np.unique(data.object_id[m]):
-            out.append(int(data.recording_id[m & (data.object_id == obj)].min()))
+            out.append(int(pick(data.recording_id[m & (data.object_id == obj)])))
         return sorted(out)
     if kind == "recordings":
         out = []
@@ -141,7 +147,8 @@ def holdout_recordings(data: Any, spec: str) -> list[int]:
                 raise ValueError(f"holdout: unknown recording {tok!r}")
         return sorted(set(out))
     raise ValueError(
-        f"unknown holdout spec {spec!r} (none | one-per-object@SUBSTR | recordings@..)"
+        f"unknown holdout spec {spec!r} "
+        "(none | one-per-object@SUBSTR | last-per-object@SUBSTR | recordings@..)"
     )
 
 
@@ -325,7 +332,9 @@ def fit(
         net = torch.nn.parallel.DistributedDataParallel(model)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     amp = (
-        torch.autocast("cuda", dtype=torch.bfloat16) if device.startswith("cuda") else nullcontext()
+        torch.autocast("cuda", dtype=torch.bfloat16)
+        if device.startswith("cuda") and cfg.amp
+        else nullcontext()
     )
     tgt = torch.from_numpy(np.ascontiguousarray(targets.centred, np.float32)).to(device)
 
