@@ -42,17 +42,29 @@ def main(path: str) -> None:
         messages.append((int(t * NS), "/notes", TYPES[0], {"data": text}))
     for i, frame in enumerate(grasp(90)):  # 3 s at 30 Hz
         ns = round(i * NS / 30)
-        image = {"header": stamp(ns, "glove"), "height": 32, "width": 32, "encoding": "mono16",
-                 "is_bigendian": 0, "step": 64, "data": frame.astype("<u2").tobytes()}  # fmt: skip
+        image = {
+            "header": stamp(ns, "glove"),
+            "height": 32,
+            "width": 32,
+            "encoding": "mono16",
+            "is_bigendian": 0,
+            "step": 64,
+            "data": frame.astype("<u2").tobytes(),
+        }
         messages.append((ns, "/glove/pressure", TYPES[1], image))
     zero = {"x": 0.0, "y": 0.0, "z": 0.0}
     for i in range(61):  # 6 s at 10 Hz
         ns, x = i * NS // 10, 0.05 * i
-        pose = {"position": {"x": x, "y": 0.0, "z": 0.0},
-                "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}  # fmt: skip
-        odom = {"header": stamp(ns, "odom"), "child_frame_id": "base_link",
-                "pose": {"pose": pose, "covariance": [0.0] * 36},
-                "twist": {"twist": {"linear": zero, "angular": zero}, "covariance": [0.0] * 36}}  # fmt: skip
+        pose = {
+            "position": {"x": x, "y": 0.0, "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+        }
+        odom = {
+            "header": stamp(ns, "odom"),
+            "child_frame_id": "base_link",
+            "pose": {"pose": pose, "covariance": [0.0] * 36},
+            "twist": {"twist": {"linear": zero, "angular": zero}, "covariance": [0.0] * 36},
+        }
         messages.append((ns, "/odom", TYPES[2], odom))
     with open(path, "wb") as fh:
         writer = Writer(fh)
