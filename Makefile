@@ -1,7 +1,7 @@
 # The two commands a new user needs (see README):
 #   make run    set up .venv and start the service on the default store (./memory); then
 #               `source .venv/bin/activate` puts `tactus` on your PATH (the README assumes it)
-#   make test   set up .venv (with test extras) and run ruff + the test suite
+#   make test   set up .venv (with test extras) and run ruff + the test suite (docs build included)
 VENV ?= .venv
 PY := $(VENV)/bin/python
 # setuptools' note on every editable install ("Please be careful with folders ...") is not a
@@ -32,7 +32,8 @@ $(VENV)/.base: pyproject.toml
 	  echo "installing torch $(TORCH_VERSION) from the default index"; \
 	  $(PIP) install -q torch==$(TORCH_VERSION); \
 	fi
-	$(PIP) install -q -e .
+	# the extras the tour and the guides use: recordings (ingest, Rerun export) and mcp
+	$(PIP) install -q -e ".[recordings,mcp]"
 	touch $@
 
 $(VENV)/.test: $(VENV)/.base

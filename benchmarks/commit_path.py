@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from load import run_header
 
 ROOT = Path(__file__).resolve().parents[1]

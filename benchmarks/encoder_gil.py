@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from load import run_header
 
 ROOT = Path(__file__).resolve().parents[1]

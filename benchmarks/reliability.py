@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from load import npy
 from serving import free_port, kill_process, start_serve, wait_ok
 

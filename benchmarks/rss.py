@@ -18,6 +18,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+
 from serving import free_port, start_serve, stop_process, wait_ok
 
 RESULTS = Path(__file__).resolve().parent / "results" / "rss.json"

@@ -31,11 +31,11 @@ from typing import Any
 
 import httpx
 import numpy as np
+
 import realistic_vectors as rv
 from memory import exact_topk, ingest, measure, pct, tune
 from places import plan
 from serving import free_port, start_serve, stop_process, wait_ok
-
 from tactus_memory.memory import Memory
 from tactus_memory.search.query import Scope
 from tactus_memory.senses import VectorSense

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from load import Barrier, GloveStats, pct, queries, run_header, stream_gloves
 from serving import free_port, stop_process, wait_ok
 

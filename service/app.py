@@ -39,6 +39,7 @@ from tactus_memory.service.openapi import install_openapi
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
 from tactus_memory.service.readiness import store_read_only
 from tactus_memory.service.routers import (
+    api_docs,
     health,
     images,
     items,
@@ -298,6 +299,8 @@ def create_app(
         lifespan=lifespan,
         responses=problem_responses(500),
         generate_unique_id_function=operation_id,
+        docs_url=None,  # /docs and /redoc: service/routers/api_docs.py, assets from the package
+        redoc_url=None,
     )
     app.state.tactus = state
     install_problem_handlers(app)
@@ -317,4 +320,5 @@ def create_app(
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401, 403))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401, 403))
     app.include_router(ui.page_router)  # the browser page: static, no data, no token
+    app.include_router(api_docs.router)  # /docs and /redoc, served offline; no token
     return app

@@ -20,6 +20,8 @@ _LAZY = {
     "Space": "tactus_memory.spaces.base",
     "MiniLMSpace": "tactus_memory.spaces.minilm",
     "Qwen3VLSpace": "tactus_memory.spaces.qwen3vl",
+    # the touch sense (imports torch when first used, not on ``import tactus_memory``)
+    "TactusEncoder": "tactus_memory.adapters.touch",
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -1,17 +1,20 @@
-"""A newcomer's first hour (issue 26), as CI runs it: a fresh copy of the checkout, `make run`,
-then every ``bash`` and ``python`` block of the README's "Quickstart" sections, in order and
-as written, then the page. Real uvicorn, real MiniLM, the shipped touch encoder.
+"""A newcomer's first hour, as CI runs it: a fresh copy of the checkout, an empty ``HOME``,
+``make run``, then every ``bash`` and ``python`` block of the README's tour, of the docs'
+Getting-started page and of the guides in ``PAGES``, in order and as written (``--8<--``
+includes of ``examples/`` resolved as the docs build does), then the page. Real uvicorn on
+127.0.0.1, real MiniLM, the shipped touch encoder.
 
 * The copy holds the checkout's files (tracked and new, not ignored ones: no store, no
   runs), so ``./memory`` starts empty as on a fresh clone. The checkout's own ``.venv`` is
   linked in and ``make`` is told it is built (``-o .venv/.base``): nothing is installed.
-* ``make run PORT=<free port>``; the README's ``localhost:8000`` / ``127.0.0.1:8000`` are
-  rewritten to that port, nothing else. ``tactus`` is on PATH as after ``source
-  .venv/bin/activate`` (the README's first step in a new terminal).
+* The block that is ``make run`` starts the server (``PORT=<free port>``); the docs'
+  ``localhost:8000`` / ``127.0.0.1:8000`` are rewritten to that port, nothing else.
+  ``tactus`` is on PATH as after ``source .venv/bin/activate`` (a block of its own).
+* ``curl`` fails on an HTTP error (``--fail-with-body``): a snippet answered 404 fails here.
 * A block followed by a ``prints`` block (```text) must print those lines in that order;
   ``...`` stands for anything. Every block must exit 0.
-* The ROS 2 bag quickstart needs a bag: ``run1_bag`` is written first (real rosbags files,
-  a note and a glove grasp), as the reader would have their own.
+* Anything a snippet needs (a recording, poses, arrays) is made by an earlier snippet or
+  by a script in ``examples/``.
 * The page: a search in a real Chromium shows hits with their match bar.
 
 Also here: ``tactus serve`` opens its socket at once (``/live`` 200, ``/ready`` 503 naming
@@ -41,28 +44,40 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+#: the pages whose every bash/python block runs, in this order, after the README's tour
+PAGES = [
+    "docs/getting-started.md",
+    "docs/guides/questions.md",
+    "docs/guides/places.md",
+    "docs/guides/agents.md",
+]
 VENV = Path(sys.prefix)
 STARTUP_S = 180
 BLOCK_S = 300
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```\n", re.M | re.S)
+INCLUDE = re.compile(r'^--8<-- "([^"]+)"\n', re.M)
+MAKE_RUN = re.compile(r"^make run(\s+#.*)?\n$")
+CURL_FAILS = 'curl() { command curl --fail-with-body -sS "$@"; }\n'
 
 
 @dataclass
 class Block:
+    page: str
     section: str
     lang: str
     code: str
     prints: list[str] | None = None
 
 
-def quickstart_blocks(text: str) -> list[Block]:
-    """The bash/python blocks of the "## Quickstart..." sections, in order, each with the
-    ```text block that follows it (after at most a line such as "prints")."""
+def page_blocks(page: str, text: str, *, only: str | None = None) -> list[Block]:
+    """The bash/python blocks of a page, in order (``only``: of the "## " sections whose
+    title starts so), each with the ```text block that follows it (after at most a line such
+    as "prints"); ``--8<--`` includes are replaced by the file they name."""
+    text = INCLUDE.sub(lambda m: (ROOT / m.group(1)).read_text(), text)
     blocks: list[Block] = []
-    sections = re.split(r"^## ", text, flags=re.M)
-    for section in sections:
+    for section in re.split(r"^## ", text, flags=re.M):
         title = section.splitlines()[0] if section else ""
-        if not title.startswith("Quickstart"):
+        if only is not None and not title.startswith(only):
             continue
         last_end = None
         for m in FENCE.finditer(section):
@@ -71,8 +86,15 @@ def quickstart_blocks(text: str) -> list[Block]:
             if lang == "text" and blocks and between is not None and between.count("\n") <= 3:
                 blocks[-1].prints = [ln for ln in code.splitlines() if ln.strip()]
             elif lang in ("bash", "python"):
-                blocks.append(Block(title, lang, code))
+                blocks.append(Block(page, title, lang, code))
             last_end = m.end()
+    return blocks
+
+
+def all_blocks() -> list[Block]:
+    blocks = page_blocks("README.md", README.read_text(), only="A 5-minute tour")
+    for page in PAGES:
+        blocks += page_blocks(page, (ROOT / page).read_text())
     return blocks
 
 
@@ -84,7 +106,7 @@ def lines_in_order(expected: list[str], output: str) -> None:
         pattern = re.compile(".*".join(re.escape(p) for p in want.split("...")))
         while i < len(got) and not pattern.fullmatch(got[i].rstrip()):
             i += 1
-        assert i < len(got), f"the README says it prints {want!r}; it printed:\n{output}"
+        assert i < len(got), f"the docs say it prints {want!r}; it printed:\n{output}"
         i += 1
 
 
@@ -104,50 +126,49 @@ def fresh_copy(dest: Path) -> None:
     (dest / ".venv").symlink_to(VENV, target_is_directory=True)
 
 
-def write_run1_bag(path: Path) -> None:
-    """The reader's own recording: notes and a 3 s glove grasp (real ROS 2 bag files)."""
-    from tests.recording_files import NS, glove, note, synthetic_grasp, write_bag
-
-    msgs = [note("/notes", 1 * NS, "picked up the mug"), note("/notes", 4 * NS, "put it down")]
-    msgs += glove("/glove/pressure", synthetic_grasp(90), start_ns=0)
-    write_bag(path, msgs)
-
-
-def shell_env(port: int) -> dict[str, str]:
-    """As after ``source .venv/bin/activate``: the venv's bin first on PATH."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TACTUS_")}
+def shell_env(port: int, home: Path | None = None) -> dict[str, str]:
+    """As after ``source .venv/bin/activate``: the venv's bin first on PATH (and an empty
+    ``HOME`` of its own when given: nothing of the developer's user folder is used)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("TACTUS_", "XDG_"))}
     env["PATH"] = f"{VENV / 'bin'}{os.pathsep}{env.get('PATH', '')}"
     env["VIRTUAL_ENV"] = str(VENV)
     env["OMP_NUM_THREADS"] = "1"
+    if home is not None:
+        home.mkdir(exist_ok=True)
+        env["HOME"] = str(home)
     return env
 
 
 def run_block(block: Block, cwd: Path, port: int, env: dict[str, str]) -> str:
     code = re.sub(r"(localhost|127\.0\.0\.1):8000", rf"\1:{port}", block.code)
     if block.lang == "bash":
-        cmd = ["bash", "-e", "-o", "pipefail", "-c", code]
+        cmd = ["bash", "-e", "-o", "pipefail", "-c", CURL_FAILS + code]
     else:
         cmd = [str(VENV / "bin" / "python"), "-c", code]
     done = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=BLOCK_S)
     out = done.stdout + done.stderr
-    assert done.returncode == 0, f"README block in {block.section!r} failed:\n{code}\n---\n{out}"
+    where = f"{block.page} ({block.section!r})"
+    assert done.returncode == 0, f"block of {where} failed:\n{code}\n---\n{out}"
     if block.prints:
         lines_in_order(block.prints, done.stdout)
     return out
 
 
-def test_readme_quickstarts_run_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
+def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
     clone = tmp_path / "tactus-memory"
     fresh_copy(clone)
     assert not (clone / "memory").exists()
-    blocks = quickstart_blocks(README.read_text())
-    assert [b.section for b in blocks if b.lang == "python"], "no Python quickstart"
-    assert any("touch" in b.code and "npy" in b.code for b in blocks), "no touch over HTTP"
+    blocks = all_blocks()
+    starts = [b for b in blocks if MAKE_RUN.match(b.code)]
+    assert len(starts) == 1 and starts[0].page == PAGES[0], [b.code for b in starts]
+    assert [b for b in blocks if b.page == "README.md"], "no tour in the README"
+    assert {b.page for b in blocks} == {"README.md", *PAGES}  # every page has snippets
     assert any("websockets.connect" in b.code for b in blocks), "no glove client"
+    assert any("make_recording.py" in b.code for b in blocks), "no recording"
     port = free_port()
     log = tmp_path / "make-run.log"
-    env = shell_env(port)
-    make = ["make", "run", f"PORT={port}", "-o", ".venv/.base"]
+    env = shell_env(port, tmp_path / "home")
+    make = ["make", "run", f"PORT={port}", "-o", ".venv/.base"]  # the block, on a free port
     with log.open("ab") as fh:
         server = subprocess.Popen(
             make, cwd=clone, env=env, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True
@@ -159,27 +180,35 @@ def test_readme_quickstarts_run_as_written_on_a_fresh_copy(tmp_path: Path) -> No
         started = log.read_text()
         assert "pip" not in started.lower(), started  # nothing was installed
         assert f"memory browser: {base}/" in started and "ready: GET /ready" in started
+        # the README's tour comes after `make run`: run the pages' blocks in that order
+        order = [b for b in blocks if b.page != "README.md"]
+        i = order.index(starts[0]) + 1
+        order = [*order[:i], *[b for b in blocks if b.page == "README.md"], *order[i:]]
         outputs: dict[str, list[str]] = {}
         timings: list[tuple[float, str]] = []
-        for block in blocks:
-            bag = clone / "run1_bag"
-            if block.section.startswith("Quickstart: a ROS 2 bag") and not bag.exists():
-                write_run1_bag(bag)
+        for block in order:
+            if block is starts[0]:
+                continue  # the server above
             t0 = time.monotonic()
-            outputs.setdefault(block.section, []).append(run_block(block, clone, port, env))
+            out = run_block(block, clone, port, env)
+            outputs.setdefault(block.section, []).append(out)
             timings.append((round(time.monotonic() - t0, 1), block.code.splitlines()[0]))
-        print("README blocks, seconds each:", timings)
+        print("snippets, seconds each:", timings)
         http = "\n".join(outputs["Quickstart: touch and notes over HTTP"])
         assert http.count('"count":1') == 3, http  # the note, the JSON window, the .npy one
         assert '"match":' in http and '"bar":' in http
         shell = "\n".join(outputs["Quickstart: the shell"])
-        assert "1 occurrence of" in shell and "1 session" in shell and "<bool>" not in shell
-        # the recording went into the store the server serves (it answered 404 before)
+        assert "1 occurrence of" in shell and "<bool>" not in shell
+        assert re.search(r"\b\d+ sessions?\b", shell), shell
+        assert '"deleted":' in shell  # the delete example
+        # the recording went into the store the server serves
         assert (clone / "run1-served.rrd").stat().st_size > 1000
         assert (clone / "run1.rrd").stat().st_size > 1000
-        assert '"deleted":' in shell  # the delete example
         sessions = {s["id"] for s in httpx.get(base + "/sessions").json()["sessions"]}
-        assert "run1" in sessions and not {"s1", "s2"} & sessions, sessions  # both deleted
+        assert {"run1", "tour", "kitchen", "walk", "yard", "desk"} <= sessions, sessions
+        assert not {"s1", "s2"} & sessions, sessions  # both deleted
+        where = httpx.get(base + "/where", params={"q": "picked up the drill", "session": "yard"})
+        assert where.json()["places"][0]["position"][0] == pytest.approx(6.0, abs=0.1), where.text
         page_search(base, tmp_path)
     finally:
         stop_process(server)

@@ -29,8 +29,12 @@ pytestmark = pytest.mark.slow
 STARTUP_S = 180
 SERVE = [sys.executable, "-c", "from tactus_memory.cli import main; main()", "serve"]
 #: an unprivileged user for the read-only tests when the tests run as root (root ignores
-#: file permissions); `setpriv` is util-linux
+#: file permissions); `setpriv` is util-linux. It keeps one capability, CAP_DAC_READ_SEARCH
+#: (read any file, search any folder; never write), so it can run this checkout's Python and
+#: import its code wherever the checkout lives (a clone in a mode-700 folder included), while
+#: file permissions still keep it from writing the read-only store.
 NOBODY = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+READS_ANYWHERE = ["--inh-caps=+dac_read_search", "--ambient-caps=+dac_read_search"]
 
 
 def _env() -> dict[str, str]:
@@ -125,7 +129,32 @@ def _unprivileged() -> list[str]:
         return []
     if shutil.which("setpriv") is None:
         pytest.skip("running as root without setpriv: cannot drop privileges")
-    return NOBODY
+    return [*NOBODY, *READS_ANYWHERE]
+
+
+def test_the_unprivileged_user_reads_a_private_folder_but_cannot_write(tmp_path):
+    """What the read-only tests rely on, wherever the checkout lives: the user they run the
+    server as imports code from a mode-700 folder it does not own, and cannot write there."""
+    prefix = _unprivileged()
+    private = tmp_path / "private"
+    (private / "pkg").mkdir(parents=True)
+    (private / "pkg" / "__init__.py").write_text("WORD = 'imported'\n")
+    (private / "pkg").chmod(0o555)
+    private.chmod(0o700)
+    probe = (
+        "import os, sys\n"
+        f"sys.path.insert(0, {str(private)!r})\n"
+        "import pkg\n"
+        f"print(pkg.WORD, os.access({str(private / 'pkg')!r}, os.W_OK))\n"
+    )
+    try:
+        done = subprocess.run(
+            [*prefix, sys.executable, "-B", "-c", probe], capture_output=True, text=True, cwd="/"
+        )
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.split() == ["imported", "False"], done.stdout
+    finally:
+        (private / "pkg").chmod(0o755)
 
 
 def _world_readable_dir() -> Path:

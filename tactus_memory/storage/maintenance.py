@@ -27,13 +27,13 @@ Before these, retention (expiry, stale-duplicate thinning:
 compaction rewrites every fragment that holds a deleted row, and a delete that is a table's
 latest version is superseded by an empty commit (its manifest names the delete's filter),
 so once cleanup has run ``retain_seconds`` later no file of the store holds deleted data
-(README "Retention and deletion").
+(docs/operations/retention.md).
 
 Disk then stays near the live data: the extra is what compaction rewrote within the last
 ``retain_seconds`` plus the small tier-0 tail (measured by ``benchmarks/disk.py``).
 
 Knobs: :class:`MaintenanceConfig` (settings ``TACTUS_*``, :mod:`tactus_memory.settings`;
-README section "Always-on: disk, maintenance, replicas, object storage").
+docs/operations/maintenance.md).
 """
 
 from __future__ import annotations
@@ -113,7 +113,7 @@ class MaintenanceConfig(BaseModel):
         "deletion_threshold), so deleted, expired and thinned data leave the store's files "
         "once cleanup removes the versions that still name them (after retain_seconds).",
     )
-    # retention (tactus_memory.storage.retention; README "Retention and deletion")
+    # retention (tactus_memory.storage.retention; docs/operations/retention.md)
     retain_days: float | None = Field(
         None, gt=0.0, description="Delete items written more than this many days ago (none: keep)."
     )

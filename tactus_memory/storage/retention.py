@@ -3,7 +3,7 @@
 The policy lives in the maintenance policy, so in the one settings object
 (:class:`~tactus_memory.storage.maintenance.MaintenanceConfig` fields ``retain_days``,
 ``thin_after_days``, ``thin_cosine``, ``retention_interval`` and the rule list
-``retention``; ``TACTUS_<FIELD>`` or the TOML file, README "Retention and deletion"). A
+``retention``; ``TACTUS_<FIELD>`` or the TOML file, docs/operations/retention.md). A
 :class:`RetentionRule` narrows it to a tenant, a session (an id, or a prefix ending in ``*``)
 and/or a sense; for one item the most specific matching rule wins field by field (session id
 over session prefix over sense over tenant; among equals, the later rule), and a field no

@@ -121,7 +121,8 @@ def audit_schema() -> pa.Schema:
 # --------------------------------------------------------------------------- index config
 @dataclass
 class IndexConfig:
-    """Vector/scalar index policy. Defaults chosen by ``benchmarks/memory.py`` (see README)."""
+    """Vector/scalar index policy. Defaults chosen by ``benchmarks/memory.py``
+    (benchmarks/README.md)."""
 
     #: build the ANN index once the table has this many rows (flat search below it)
     threshold: int = 20_000
