@@ -9,7 +9,7 @@
 #   STAG=... DEVICE=cpu MAX_STEPS=3 SEEDS=0 SWAP=tactus-r18=tactus-tiny bash scripts/gpu_recipe.sh OUT
 #                                                             # the CPU smoke test (tests/)
 # Environment: STAG (folder with weights_lite/ and blindfolded_lite_train/), PLAN (gpu), JOBS
-# (processes at a time, 20), DEADLINE_S (runner deadline, 450: the whole command stays inside
+# (processes at a time, 20), ONLY (space-separated recipes to run, with what they need), DEADLINE_S (runner deadline, 450: the whole command stays inside
 # 9 minutes), DEVICE (auto), PYTHON (python3), WORK (where runs are written: the teachers stay
 # there, too big to carry), MAX_STEPS / SEEDS / SWAP / FOLDS (smoke test only).
 #
@@ -33,6 +33,7 @@ args=(--plan "${PLAN:-gpu}" --out "$WORK" --jobs "${JOBS:-20}" --device "${DEVIC
 [ -n "${SEEDS:-}" ] && args+=(--seeds "$SEEDS")
 [ -n "${SWAP:-}" ] && args+=(--swap-model "$SWAP")
 [ -n "${FOLDS:-}" ] && args+=(--folds "$FOLDS")
+for r in ${ONLY:-}; do args+=(--only "$r"); done
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 "$PY" -m tactus_memory.touch.training.protocol run "${args[@]}" 2>&1 | tee "$WORK/runner.log"
 rc=${PIPESTATUS[0]}

@@ -249,6 +249,15 @@ class HitOut(BaseModel):
     )
     position: Position | None = Field(None, description="Where it happened (x, y, z), if known.")
     frame: str | None = Field(None, description="The frame of `position`.")
+    n: int | None = Field(
+        None,
+        description="A touch answer is a grasp by default (group=auto): the windows it pools; "
+        "null for a single item.",
+    )
+    ids: list[str] | None = Field(None, description="A grasp's member windows, in time order.")
+    window_score: float | None = Field(
+        None, description="A grasp's best window's own score (`score` is the pooled one)."
+    )
 
 
 class SearchOut(BaseModel):

@@ -300,12 +300,13 @@ class Client:
         query: str,
         k: int = 10,
         *,
-        group: str | None = None,
+        group: str | None = "auto",
         gap: float | None = None,
         pool: str = "mean",
         **scope: Unpack[ScopeKwargs],
     ) -> list[Hit] | list[Moment] | list[Grasp]:
-        """Natural-language search (see :meth:`Memory.search`)."""
+        """Natural-language search (see :meth:`Memory.search`): touch answers are grasps by
+        default (``group="auto"``), ``group="window"`` one hit per stored window."""
         params = {"q": query, "k": k, "pool": pool, **scope_params(Scope.of(**scope))}
         if group is not None:
             params["group"] = group
@@ -314,7 +315,7 @@ class Client:
         body = self._get("/search", params)
         if group == "grasp":
             return [Grasp.model_validate(g) for g in body["grasps"] or []]
-        if group is not None:
+        if group == "moment":
             return [Moment.model_validate(m) for m in body["moments"] or []]
         return [Hit.model_validate(h) for h in body["hits"]]
 

@@ -72,7 +72,13 @@ from tactus_memory.storage.tables import IndexConfig
 from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_uri
 from tactus_memory.storage.vectors import as_unit_rows
 from tactus_memory.storage.where import DEFAULT_FRAME, Where
-from tactus_memory.temporal.grasps import GraspRule, check_group
+from tactus_memory.temporal.grasps import (
+    DEFAULT_GROUP,
+    GRASP_MODALITY,
+    GraspRule,
+    as_hit,
+    check_group,
+)
 from tactus_memory.temporal.operators import Temporal
 from tactus_memory.writes import WritePath
 
@@ -310,7 +316,7 @@ class Memory:
         query: str,
         k: int = 10,
         *,
-        group: str | None = None,
+        group: str | None = DEFAULT_GROUP,
         gap: float | None = None,
         pool: str = "mean",
         **scope: Unpack[ScopeKwargs],
@@ -318,18 +324,28 @@ class Memory:
         """Natural-language search over the scope's senses (default: every sense with rows).
 
         Filters: ``session``, ``senses``, ``source``, ``after``/``before``, ``near``/``frame``
-        (or one ``scope=`` :class:`Scope`). ``group="moment"`` returns Moments instead (see
-        :meth:`search_moments`), ``group="grasp"`` one Grasp per grasp, ranked by its pooled
-        vector (``pool``: see :mod:`tactus_memory.temporal.grasps`); the query is embedded once."""
+        (or one ``scope=`` :class:`Scope`). ``group``: ``"auto"`` (the default) answers touch
+        with grasps: one Hit per grasp (a touch stream's contiguous windows, :mod:`tactus_memory.
+        temporal.grasps`), scored by its pooled vector (``pool``), spanning the grasp, with its
+        members in ``ids`` and ``n``; other senses one Hit per item. ``"window"`` (or None): one
+        Hit per stored item, touch windows too. ``"grasp"``: one Grasp per grasp of every
+        sense; ``"moment"``: Moments (see :meth:`search_moments`). The query is embedded once."""
         where = Scope.of(**scope)
-        if check_group(group) == "grasp":
+        g = check_group(group)
+        if g == "grasp":
             rule = GraspRule(pool=pool)
             return self.temporal.grasps(embed_query(self.space, query), k, where, rule)
-        if group is not None:
+        if g == "moment":
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
-            return self.search_moments(query, k, gap=gap, scope=where)
+            return self.search_moments(query, k, gap=gap, scope=where, group=DEFAULT_GROUP)
         k = check_k(k)
         names = self.resolve_senses(where.senses)
+        if g == "auto" and any(
+            self.registry.search_sense(n).modality == GRASP_MODALITY for n in names
+        ):
+            rule = GraspRule(pool=pool, modality=GRASP_MODALITY)
+            found = self.temporal.grasps(embed_query(self.space, query), k, where, rule)
+            return [as_hit(e) for e in found]
         hits = self.rank(embed_query(self.space, query), k, names, where.where(), transform=True)
         return mark_matches(hits)
 

@@ -46,6 +46,15 @@ class Hit(Span):
     )
     position: Position | None = None
     frame: str | None = None
+    n: int | None = Field(
+        None,
+        description="A grasp (touch answers by default, group='auto'): how many windows it "
+        "pools; None for a single item.",
+    )
+    ids: list[str] | None = Field(None, description="A grasp's member windows, in time order.")
+    window_score: float | None = Field(
+        None, description="A grasp's best member window's own score (score is the pooled one)."
+    )
 
 
 class Item(Span):

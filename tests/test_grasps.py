@@ -16,8 +16,11 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.memory import Memory
 from tactus_memory.results import Evidence, Grasp
+from tactus_memory.senses import VectorSense
 from tactus_memory.temporal.grasps import GRASP_READ_S, GraspRule, find_grasps, grasp_labels, pooled
+from tests.fakes import HashingSpace
 from tests.kitchen import kitchen_memory, near_caption
 
 S = "day"
@@ -162,7 +165,64 @@ def test_grasps_over_http(day) -> None:
         assert r.status_code == 200 and r.json()["count"] == 3  # at 10, 30 and 200 s
         r = c.get("/moments", params={**params, "group": "grasp"})
         assert r.status_code == 200 and r.json()["moments"][0]["t"] == pytest.approx(100.0)
-        r = c.get("/search", params={**params, "group": "window"})
+        r = c.get("/search", params={**params, "group": "bogus"})
         assert r.status_code == 422
         r = c.get("/search", params={**params, "group": "grasp", "pool": "max"})
         assert r.status_code == 200 and set(r.json()["grasps"][0]["ids"]) == set(ids[3])
+
+
+class TouchStandIn(VectorSense):
+    """A touch stream stand-in with controlled vectors: modality ``touch``, so the default
+    grouping (``auto``) answers it with grasps."""
+
+    modality = "touch"
+
+
+@pytest.fixture(scope="module")
+def touch_day(tmp_path_factory):
+    mem = Memory.open(
+        str(tmp_path_factory.mktemp("auto") / "mem"), space=HashingSpace(dim=384), background=False
+    )
+    mem.add_sense(TouchStandIn("touch", dim=384))
+    ids = _fill(mem)
+    note = mem.add(S, "text", FEEL["sponge"], t=150.0)
+    return mem, ids, note
+
+
+def test_touch_answers_are_grasps_by_default_and_windows_one_flag_away(touch_day) -> None:
+    mem, ids, note = touch_day
+    hits = mem.search(FEEL["sponge"], k=3, session=S)
+    touch = [h for h in hits if h.sense == "touch"]
+    # the 90 s sponge grasp is one answer, spanning the grasp, its windows in ids
+    assert touch[0].n == len(ids[3]) and set(touch[0].ids) == set(ids[3])
+    assert touch[0].id in ids[3] and touch[0].t_end - touch[0].t > 89.0
+    assert touch[0].window_score is not None
+    # a note stays one item beside it
+    text = [h for h in hits if h.sense == "text"]
+    assert text and text[0].id == note and text[0].n is None and text[0].ids is None
+    # windows: one hit per stored window, the best ones all inside the sponge grasp
+    wins = mem.search(FEEL["sponge"], k=3, session=S, senses=["touch"], group="window")
+    assert len(wins) == 3 and all(h.n is None and h.id in ids[3] for h in wins)
+    # last / count ask of grasps by default: the mug was held three times (10, 30, 200 s)
+    assert mem.count(FEEL["mug"], session=S, senses=["touch"]) == 3
+    last = mem.last(FEEL["mug"], session=S, senses=["touch"])
+    assert last is not None and last.t == pytest.approx(200.0)
+    # per window, the same question counts windows merged by time, not grasps: the mug at
+    # 200 s and the screwdriver handed on without a release become one occurrence or more,
+    # never fewer than the grasp answer's distinct times
+    assert mem.count(FEEL["mug"], session=S, senses=["touch"], group="window") >= 1
+
+
+def test_touch_grasps_by_default_over_http(touch_day) -> None:
+    from tactus_memory.service.app import create_app
+    from tactus_memory.settings import Settings
+
+    mem, ids, _ = touch_day
+    with TestClient(create_app(Settings(), memory=mem)) as c:
+        params = {"q": FEEL["sponge"], "sense": "touch", "session": S, "k": 2}
+        hit = c.get("/search", params=params).json()["hits"][0]
+        assert hit["n"] == len(ids[3]) and set(hit["ids"]) == set(ids[3])
+        win = c.get("/search", params={**params, "group": "window"}).json()["hits"][0]
+        assert win["n"] is None and win["ids"] is None and win["id"] in ids[3]
+        r = c.get("/count", params={"q": FEEL["mug"], "session": S, "sense": "touch"})
+        assert r.status_code == 200 and r.json()["count"] == 3

@@ -46,13 +46,15 @@ def search(
     scope: ScopeDep,
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many hits.")] = 10,
     group: Annotated[
-        Literal["moment", "grasp"] | None,
+        Literal["auto", "window", "moment", "grasp"],
         Query(
-            description="`moment`: merge hits close in time into moments across senses; "
-            "`grasp`: one hit per grasp (a stream's contiguous windows), ranked by the grasp's "
-            "pooled embedding, with the grasp's t/t_end."
+            description="`auto` (default): touch answers are grasps (a touch stream's "
+            "contiguous windows, one hit each, scored by the pooled embedding, spanning the "
+            "grasp, members in `ids`), other senses one hit per item; `window`: one hit per "
+            "stored item, touch windows too; `moment`: merge hits close in time into moments "
+            "across senses; `grasp`: one hit per grasp of every sense, listed in `grasps`."
         ),
-    ] = None,
+    ] = "auto",
     gap: Annotated[
         float | None,
         Query(ge=0.0, le=3600.0, description="With group=moment: seconds that still join hits."),
@@ -71,7 +73,7 @@ def search(
         grasps = memory.search(q, k=k, group="grasp", pool=pool, scope=scope)
         _timing(response, t0)
         return SearchOut(hits=_out(grasps).hits, grasps=grasps)
-    hits = memory.search(q, k=k, scope=scope)
+    hits = memory.search(q, k=k, group=group, pool=pool, scope=scope)
     _timing(response, t0)
     return _out(hits)
 

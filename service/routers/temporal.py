@@ -59,9 +59,11 @@ MergeGap = Annotated[
     float, Query(ge=0.0, le=1e9, description="Matches this close (s) are one occurrence.")
 ]
 GroupGrasp = Annotated[
-    Literal["grasp"] | None,
+    Literal["auto", "window", "grasp"],
     Query(
-        description="`grasp`: ask of grasps (a stream's contiguous windows, pooled), not windows."
+        description="`auto` (default): touch is asked of grasps (a touch stream's contiguous "
+        "windows, pooled), other senses of items; `window`: of items everywhere; `grasp`: of "
+        "grasps for every sense."
     ),
 ]
 
@@ -93,7 +95,7 @@ class Occurrence:
     asked: AskedDep
     q: QueryText
     merge_gap: MergeGap = DEFAULT_MERGE_GAP
-    group: GroupGrasp = None
+    group: GroupGrasp = "auto"
     pool: GraspPool = "mean"
 
     def ask(self, per_stream: bool = False) -> Occurrences:
@@ -228,7 +230,7 @@ def moments(
     match: MatchDep,
     k: Annotated[int, Query(ge=1, le=MAX_K, description="How many moments.")] = 10,
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
-    group: GroupGrasp = None,
+    group: GroupGrasp = "auto",
     pool: GraspPool = "mean",
 ) -> MomentsOut:
     moments = memory.search_moments(q, k, gap=gap, group=group, pool=pool, scope=scope, match=match)

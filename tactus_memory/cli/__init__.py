@@ -15,6 +15,7 @@ from tactus_memory.cli import (  # noqa: F401  (imported for their registrations
     maintain_cmd,
     mcp_cmd,
     memory_cmds,
+    recipe_cmds,
     recording_cmds,
     serve_cmd,
     train_cmds,

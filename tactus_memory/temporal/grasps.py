@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.results import Evidence, Grasp
+from tactus_memory.results import Evidence, Grasp, Hit
 from tactus_memory.storage.vectors import vector_column
 from tactus_memory.storage.where import Where, finite_float
 
@@ -62,8 +62,13 @@ GRASP_MIN_COS = 0.2
 GRASP_READ_S = 30.0
 #: the widest neighbourhood read around candidates; a longer grasp is cut at its edges
 GRASP_MAX_S = 600.0
-#: group values the search and temporal operators take
-GROUPS = ("moment", "grasp")
+#: group values the search and temporal operators take: ``auto`` (the default) asks of grasps
+#: for touch senses and of items for the others; ``window`` of items everywhere (one hit per
+#: stored window); ``grasp`` of grasps for every sense; ``moment`` (search only) moments
+GROUPS = ("moment", "grasp", "window", "auto")
+DEFAULT_GROUP = "auto"
+#: the modality whose items ``auto`` groups into grasps: streams of short windows
+GRASP_MODALITY = "touch"
 #: how a grasp is scored: ``mean`` the pooled vector of every member (the paper's
 #: recording-level pooling), ``top`` the pooled vector of its GRASP_TOP members closest to the
 #: query, ``max`` its best member window
@@ -78,6 +83,11 @@ class GraspRule:
     max_gap: float = GRASP_MAX_GAP
     min_cos: float = GRASP_MIN_COS
     pool: str = "mean"  # one of POOLS
+    modality: str | None = None  # group only senses of this modality (None: every sense)
+
+    def applies(self, modality: str) -> bool:
+        """Whether this rule groups the items of a sense of ``modality``."""
+        return self.modality is None or modality == self.modality
 
     def __post_init__(self) -> None:
         if self.pool not in POOLS:
@@ -96,9 +106,24 @@ def check_group(group: str | None, allowed: Sequence[str] = GROUPS) -> str | Non
 
 
 def grasp_rule(group: str | None, pool: str = "mean") -> GraspRule | None:
-    """``group="grasp"``: the grasp rule with ``pool`` (questions asked of grasps, not
-    windows); None: items. Anything else raises InvalidInputError."""
-    return GraspRule(pool=pool) if check_group(group, ("grasp",)) else None
+    """The grasp rule of ``group``: ``"grasp"`` groups every sense, ``"auto"`` (the default)
+    touch senses only (:data:`GRASP_MODALITY`); ``"window"`` or None: items, not grasps.
+    Anything else raises InvalidInputError."""
+    g = check_group(group, ("grasp", "window", "auto"))
+    if g == "grasp":
+        return GraspRule(pool=pool)
+    if g == "auto":
+        return GraspRule(pool=pool, modality=GRASP_MODALITY)
+    return None
+
+
+def as_hit(e: Evidence) -> Hit:
+    """A search answer as a :class:`Hit`: a Grasp keeps its span, pooled score, ``n`` and
+    member ``ids`` (its ``id`` is its best window); other evidence is one item."""
+    fields = e.model_dump(include=set(Hit.model_fields))
+    if isinstance(e, Grasp):
+        fields.update(n=e.n, ids=e.ids, window_score=e.window_score)
+    return Hit(**fields)
 
 
 def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:

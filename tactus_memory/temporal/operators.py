@@ -76,7 +76,7 @@ from tactus_memory.temporal.episodes import (
     number_episodes,
     representative,
 )
-from tactus_memory.temporal.grasps import GraspRule, grasp_rule, pool_grasps
+from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, grasp_rule, pool_grasps
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None
@@ -160,7 +160,7 @@ class Temporal:
                 )
                 for h in hits
             ]
-            if grasp is not None:
+            if grasp is not None and grasp.applies(self.registry.search_sense(name).modality):
                 evs = pool_grasps(self.ranker, q, name, evs, grasp)
             bar = sense_bar([e.score for e in evs], bars[name], relative)
             flags = [e.score >= bar for e in evs]
@@ -188,7 +188,7 @@ class Temporal:
         *,
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
-        group: str | None = None,
+        group: str | None = DEFAULT_GROUP,
         pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
@@ -450,7 +450,7 @@ class Temporal:
         k: int = 10,
         *,
         gap: float = DEFAULT_MOMENT_GAP,
-        group: str | None = None,
+        group: str | None = DEFAULT_GROUP,
         pool: str = "mean",
         **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
