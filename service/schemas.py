@@ -350,6 +350,14 @@ class SenseOut(BaseModel):
     rows: int = Field(description="Items of this sense in the store.")
     mu: float | None = Field(None, description="Score calibration: null cosine mean.")
     sigma: float | None = Field(None, description="Score calibration: null cosine spread.")
+    calib_n: int | None = Field(
+        None, description="Rows the score calibration was estimated on (null: not yet)."
+    )
+    calib_final: bool = Field(
+        False,
+        description="The calibration is frozen: this sense's scores no longer move as data "
+        "arrives (estimated on enough rows; re-estimated only after a re-embed).",
+    )
 
 
 class SensesOut(BaseModel):

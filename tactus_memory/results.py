@@ -97,6 +97,14 @@ class SenseInfo(BaseModel):
     rows: int
     mu: float | None = None
     sigma: float | None = None
+    calib_n: int | None = Field(
+        None, description="Rows the score calibration was estimated on (None: not yet)."
+    )
+    calib_final: bool = Field(
+        False,
+        description="The calibration is frozen (estimated on enough rows): scores of this "
+        "sense no longer move as data arrives.",
+    )
 
 
 def row_fields(row: dict[str, Any]) -> dict[str, Any]:

@@ -341,6 +341,16 @@ def test_touch_hits_show_heat_maps(page, served, tmp_path):
     assert len(bars) == len(senses) and all(re.search(r"bar \d+\.\d\d", b) for b in bars), bars
     assert re.search(r"\d+ clear the match bar", page.text_content("#search-status"))
     assert "object" in page.text_content(f"{HIT} .meta")
+    # touch answers are grasps by default; "Touch as single windows" asks for windows
+    grasps = page.eval_on_selector_all(f"{HIT} .grasp", "els => els.map(e => e.textContent)")
+    assert grasps and all(re.fullmatch(r"grasp of \d+ windows?", g) for g in grasps), grasps
+    page.check("#f-windows")
+    page.click("#search-form button[type=submit]")
+    page.wait_for_function(
+        "() => document.querySelectorAll('#results li.hit').length > 0"
+        " && document.querySelectorAll('#results li.hit .grasp').length === 0"
+    )
+    page.uncheck("#f-windows")
     # the same sense boxes again: all checked -> search every sense
     for sense in ("text", "motion"):
         page.check(f"#sense-{sense}")

@@ -454,6 +454,8 @@ async function onSearch(e) {
   let path = "/search";
   if (grouped && state.caps.group === "/moments") path = "/moments";
   else if (grouped) params.set("group", "moment");
+  // touch answers are grasps by default (group=auto); single windows are one box away
+  if (!grouped && $("#f-windows").checked) params.set("group", "window");
   setStatus(status, "Searching…", "busy");
   $("#results").setAttribute("aria-busy", "true");
   try {
@@ -569,6 +571,13 @@ function hitCard(hit, rank, inMoment = false) {
         },
         inMoment ? "show in timeline" : `session ${hit.session}`,
       ),
+      typeof hit.n === "number"
+        ? h(
+            "span",
+            { class: "grasp", title: "a grasp: the contiguous windows of one hold, scored together" },
+            `grasp of ${hit.n} window${hit.n === 1 ? "" : "s"}`,
+          )
+        : null,
       h("span", { class: "time" }, fmtSpan(hit.t, hit.t_end)),
     ),
     body,

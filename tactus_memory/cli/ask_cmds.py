@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import AsJson, Scope, Source, Window
+from tactus_memory.cli.common import AsJson, Scope, Source, Window, Windows
 from tactus_memory.cli.memory_cmds import (
     _open,
     _print_json,
@@ -37,14 +37,16 @@ if TYPE_CHECKING:
 Query = typer.Argument(..., help="What happened, in natural language.")
 
 
-def _occurrences(query: str, scope: Scope, source: Source) -> Occurrences:
-    """Every occurrence of ``query`` in scope, from the store (``--data``) or a server."""
+def _occurrences(query: str, scope: Scope, source: Source, windows: bool = False) -> Occurrences:
+    """Every occurrence of ``query`` in scope, from the store (``--data``) or a server;
+    touch asked of grasps unless ``windows``."""
+    group = "window" if windows else "auto"
     from tactus_memory.errors import TactusError
     from tactus_memory.results import Occurrences
 
     one_source(source.data, source.url)
     if source.url:
-        params = {"q": query, **dataclasses.asdict(scope)}
+        params = {"q": query, "group": group, **dataclasses.asdict(scope)}
         return Occurrences.model_validate(
             get_json(source.url, "/count", params, source.token, source.tenant)
         )
@@ -52,7 +54,7 @@ def _occurrences(query: str, scope: Scope, source: Source) -> Occurrences:
         memory = _open(source.data, *source.spaces, tenant=source.tenant)
         if scope.session is not None:
             memory.session(scope.session)  # an unknown session is an error, as over HTTP
-        return memory.occurrences(query, **scope.filters())
+        return memory.occurrences(query, group=group, **scope.filters())
     except TactusError as exc:
         fail(str(exc))
 
@@ -108,8 +110,15 @@ def _question(name: str, doc: str, show: Callable[[str, Occurrences, bool], None
 
     @app.command(name, help=doc)
     @grouped(scope=Scope, source=Source)
-    def ask(query: str = Query, *, scope: Scope, as_json: AsJson = False, source: Source) -> None:
-        show(query, _occurrences(query, scope, source), as_json)
+    def ask(
+        query: str = Query,
+        *,
+        scope: Scope,
+        as_json: AsJson = False,
+        source: Source,
+        windows: Windows = False,
+    ) -> None:
+        show(query, _occurrences(query, scope, source, windows), as_json)
 
 
 _question(

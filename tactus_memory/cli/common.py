@@ -21,6 +21,16 @@ StagFiles = Annotated[
     list[Path], typer.Option("--data", help="STAG metadata.mat or folder; repeat")
 ]
 
+#: ``--windows``: touch answers as single windows, not grasps (the default, group=auto)
+Windows = Annotated[
+    bool,
+    typer.Option(
+        "--windows",
+        help="Touch as single windows; by default a touch answer is a grasp (the contiguous "
+        "windows of one hold, scored together).",
+    ),
+]
+
 # ----------------------------------------------------------------------------- a memory store
 #: ``--data`` of the commands that open a memory store (search, sessions, ingest, export)
 MemoryData = Annotated[

@@ -26,6 +26,7 @@ from tactus_memory.cli.common import (
     Scope,
     Source,
     UseRay,
+    Windows,
     ray_cluster,
 )
 from tactus_memory.cli.remote import get_json
@@ -142,8 +143,10 @@ def search(
     scope: Scope,
     as_json: AsJson = False,
     source: Source,
+    windows: Windows = False,
 ) -> None:
-    """Search in plain language; each hit says whether it clears its sense's match bar.
+    """Search in plain language; each hit says whether it clears its sense's match bar; a
+    touch hit is a grasp (its windows together) unless --windows.
 
     Scores are calibrated z-scores comparable across senses; a hit matches when its score
     reaches its sense's bar for this query, the rule of last/first/count."""
@@ -151,14 +154,15 @@ def search(
     from tactus_memory.results import Hit
 
     one_source(source.data, source.url)
+    group = "window" if windows else "auto"
     if source.url:
-        params = {"q": query, "k": k, **dataclasses.asdict(scope)}
+        params = {"q": query, "k": k, "group": group, **dataclasses.asdict(scope)}
         answer = get_json(source.url, "/search", params, source.token, source.tenant)
         hits = [Hit.model_validate(h) for h in answer["hits"]]
     else:
         try:
             memory = _open(source.data, *source.spaces, tenant=source.tenant)
-            hits = memory.search(query, k=k, **scope.filters())
+            hits = memory.search(query, k=k, group=group, **scope.filters())
         except TactusError as exc:
             fail(str(exc))
     _print_results(

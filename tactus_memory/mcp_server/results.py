@@ -59,6 +59,11 @@ class Found(BaseModel):
     meta: dict[str, Any] | None = None
     meta_omitted: int | None = Field(None, description="Size (chars) of meta left out.")
     touch: TouchSummary | None = None
+    grasp_windows: int | None = Field(
+        None,
+        description="A touch answer is a grasp by default: the windows of that hold it pools "
+        "(id is its best window, t/t_end span the hold).",
+    )
 
 
 class SearchResult(BaseModel):
@@ -173,6 +178,7 @@ def found(item: Any, touch: dict[str, TouchSummary]) -> Found:
         meta=meta,
         meta_omitted=omitted,
         touch=touch.get(item.id),
+        grasp_windows=getattr(item, "n", None),
     )
 
 

@@ -98,6 +98,13 @@ BeforeArg = Annotated[float | None, Field(description="Only items started at or 
 MergeGapArg = Annotated[
     float, Field(ge=0.0, le=1e9, description="Matches this close (s) count as one occurrence.")
 ]
+WindowsArg = Annotated[
+    bool,
+    Field(
+        description="Touch as single windows. By default a touch answer is a grasp (the "
+        "contiguous windows of one hold, scored together)."
+    ),
+]
 
 R = TypeVar("R")
 
@@ -120,9 +127,14 @@ class Question:
     after: AfterArg = None
     before: BeforeArg = None
     merge_gap: MergeGapArg = DEFAULT_MERGE_GAP
+    windows: WindowsArg = False
 
     def scope(self) -> Scope:
         return scope_of(self.session, self.senses, self.after, self.before)
+
+    @property
+    def group(self) -> str:
+        return "window" if self.windows else "auto"
 
 
 def around_args(side: str) -> type:
@@ -183,15 +195,21 @@ class MemoryTools:
         senses: SensesArg = None,
         after: AfterArg = None,
         before: BeforeArg = None,
+        windows: WindowsArg = False,
     ) -> SearchResult:
-        """Find remembered items (touch windows, notes, ...) that match a description, best
-        first. Each hit says when (t, t_end), which sense, its score and its id."""
-        hits = self.memory.search(query, k, scope=scope_of(session, senses, after, before))
+        """Find remembered things (touch grasps, notes, ...) that match a description, best
+        first. Each hit says when (t, t_end), which sense, its score and its id; a touch hit
+        is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones."""
+        scope = scope_of(session, senses, after, before)
+        group = "window" if windows else "auto"
+        hits = self.memory.search(query, k, group=group, scope=scope)
         return compact(SearchResult(query=query, hits=self.compactor.items(hits)))  # type: ignore[return-value]
 
     def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
         memory, query = self.memory, ask.query
-        moments = memory.occurrences(query, merge_gap=ask.merge_gap, scope=ask.scope()).moments
+        moments = memory.occurrences(
+            query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
+        ).moments
         if not moments:
             return OccurrenceResult(query=query, found=False)
         (moment,) = self.compactor.moments([moments[which]])
@@ -207,7 +225,9 @@ class MemoryTools:
     @grouped(ask=Question)
     def count(self, ask: Question) -> CountResult:
         """How many distinct times did this happen? Also answers yes/no (count > 0)."""
-        occ = self.memory.occurrences(ask.query, merge_gap=ask.merge_gap, scope=ask.scope())
+        occ = self.memory.occurrences(
+            ask.query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
+        )
         moments = self.compactor.moments(occ.moments)
         result = CountResult(
             query=ask.query, count=occ.count, capped=occ.capped, occurrences=moments

@@ -235,6 +235,8 @@ class SenseRegistry:
                     rows=counts.get(name, 0),
                     mu=c.mu if c else None,
                     sigma=c.sigma if c else None,
+                    calib_n=c.n if c and c.n else None,
+                    calib_final=bool(c and c.final),
                 )
             )
         return out

@@ -18,8 +18,12 @@ Method (two steps, both per sense):
 
    i.e. how many null standard deviations above chance the match is. Raw cosine is kept
    as ``hit.cosine``. The statistics are persisted in the store's ``senses`` table and
-   recomputed lazily when the sense's row count has doubled since the last estimate
-   (so they are cheap and stable under streaming ingest).
+   recomputed lazily when the sense's row count has doubled since the last estimate, until
+   an estimate was made on at least :data:`FINAL_ROWS` rows: from then on they are frozen,
+   so a hit's score no longer moves when unrelated data arrives (``GET /senses`` shows the
+   rows each sense was calibrated on, ``calib_n``, and whether that is final). Before that,
+   a young sense's scores move by design: its null distribution is still being learnt.
+   ``tactus reembed`` (a new encoder) starts the estimate again.
 
 ``search_vector`` / ``search_like`` use the same statistics: their scores rank hits of one
 sense exactly like cosine, and are comparable across senses to the extent the query looks
@@ -102,6 +106,9 @@ PROBES: tuple[str, ...] = (
 
 #: stored vectors sampled per sense for the null statistics
 SAMPLE = 2048
+#: an estimate made on at least this many rows is final (never re-estimated): with the
+#: 64 probes that is >= 131k probe-item cosines, whose mean and std no longer move materially
+FINAL_ROWS = SAMPLE
 #: floor on sigma so a degenerate sense (all identical vectors) does not explode scores
 MIN_SIGMA = 1e-3
 
@@ -117,9 +124,15 @@ class Calibration:
     def score(self, cosine: np.ndarray | float) -> np.ndarray | float:
         return (cosine - self.mu) / self.sigma
 
+    @property
+    def final(self) -> bool:
+        """Estimated on at least FINAL_ROWS rows: frozen from now on."""
+        return self.n >= FINAL_ROWS
+
     def stale(self, rows: int) -> bool:
-        """Re-estimate when never estimated or the row count has at least doubled."""
-        return rows > 0 and (self.n == 0 or rows >= 2 * self.n)
+        """Re-estimate when never estimated, or the row count has at least doubled and the
+        estimate is not final yet."""
+        return rows > 0 and (self.n == 0 or (rows >= 2 * self.n and not self.final))
 
 
 def estimate(probes: np.ndarray, items: np.ndarray, rows: int) -> Calibration:
