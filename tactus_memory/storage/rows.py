@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 import numpy as np
 
 from tactus_memory.errors import IdConflictError, InvalidInputError
-from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
+from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
 from tactus_memory.results import SessionSummary
 from tactus_memory.senses import Sense
 from tactus_memory.storage.places import Placement, given_placement
@@ -44,11 +44,33 @@ class WriteKwargs(BatchKwargs, total=False):
     options: Mapping[str, Any] | None
 
 
+def nesting_depth(value: Any, limit: int) -> int:
+    """How deep dicts and lists nest in ``value`` (a scalar 0, ``{}`` 1), counted without
+    recursion and given up past ``limit`` (returns ``limit + 1``): a hostile value deep
+    enough to overflow a recursive walk is answered at once."""
+    deepest, todo = 0, [(value, 1)]
+    while todo:
+        node, depth = todo.pop()
+        if isinstance(node, dict):
+            children = node.values()
+        elif isinstance(node, (list, tuple)):
+            children = node
+        else:
+            continue
+        deepest = max(deepest, depth)
+        if deepest > limit:
+            return limit + 1
+        todo.extend((child, depth + 1) for child in children)
+    return deepest
+
+
 def meta_json(meta: Any) -> str:
     if meta is None:
         return "{}"
     if not isinstance(meta, dict) or not all(isinstance(key, str) for key in meta):
         raise InvalidInputError("meta must be a dict with string keys")
+    if nesting_depth(meta, MAX_META_DEPTH) > MAX_META_DEPTH:
+        raise InvalidInputError(f"meta nests deeper than {MAX_META_DEPTH} levels")
     try:
         out = json.dumps(meta, allow_nan=False, sort_keys=True, ensure_ascii=False)
         size = len(out.encode())
