@@ -57,6 +57,7 @@ from tactus_memory.service.startup import StartupError
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
+from tactus_memory.storage.tenants import store_root
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -106,20 +107,23 @@ def open_store(settings: Settings) -> Any:
 
 
 def key_store(memory: Any) -> KeyStore:
-    """The keys of the store ``memory`` (the default tenant's) lives in, re-read every read
-    consistency interval (1 s when it never re-reads)."""
+    """The keys of the store ``memory`` (any tenant's) lives in: the ``keys`` table of the
+    store's root (never of a tenant's database), re-read every read consistency interval
+    (1 s when it never re-reads)."""
     store = memory.store
     every = store.read_consistency.total_seconds() if store.read_consistency is not None else 1.0
-    return KeyStore(store.uri, storage_options=store.storage_options, refresh=every)
+    root = store_root(store.uri, memory.tenant)
+    return KeyStore(root, storage_options=store.storage_options, refresh=every)
 
 
 def audit_log(memory: Any) -> AuditLog:
-    """The audit log of the store ``memory`` lives in (tidied here when this process
-    maintains the store)."""
+    """The audit log of the store ``memory`` (any tenant's) lives in, in the store's root
+    (tidied here when this process maintains the store)."""
     store = memory.store
     policy = store.maintenance
     retain = policy.retain_seconds if policy.maintain else None
-    return AuditLog(store.uri, storage_options=store.storage_options, retain_seconds=retain)
+    root = store_root(store.uri, memory.tenant)
+    return AuditLog(root, storage_options=store.storage_options, retain_seconds=retain)
 
 
 def open_memory(settings: Settings) -> tuple[Any, str | None]:
