@@ -25,6 +25,7 @@ from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
+from tactus_memory.errors import UnknownTenantError
 from tactus_memory.plugins import create_sense
 from tactus_memory.service.auth import Gate
 from tactus_memory.service.deps import ServiceState, authorize
@@ -57,7 +58,7 @@ from tactus_memory.service.startup import StartupError
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
-from tactus_memory.storage.tenants import store_root
+from tactus_memory.storage.tenants import store_root, tenant_names
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -211,13 +212,35 @@ def operation_id(route: APIRoute) -> str:
 Loader = Callable[[ServiceState], "str | None"]
 
 
-async def _maintenance_ticks(memory: Any, interval: float) -> None:
-    """Every ``interval`` seconds, a maintenance pass when one is due without a commit
-    (retention, erasure of deleted rows): commits alone schedule it otherwise."""
+def maintain_every_tenant(state: ServiceState) -> list[str]:
+    """One idle tick: a maintenance pass, where one is due, of every tenant of the store
+    (``tenants.tenant_names``: the default, each folder under ``tenants/``, each tenant a
+    key names), each opened if no request has opened it yet, so a tenant nobody asks still
+    expires and erases. Returns the tenants ticked; one tenant's failure is logged and the
+    others are ticked all the same."""
+    assert state.tenants is not None
+    store = state.memory.store
+    names = tenant_names(store.uri, state.key_tenants())
+    ticked = []
+    for name in names:
+        try:
+            state.tenants.get(name).memory.maintain_if_due()
+            ticked.append(name)
+        except UnknownTenantError:
+            continue  # a key names it, its database is gone: nothing to maintain
+        except Exception:  # noqa: BLE001  (retried on the next tick)
+            log.exception("scheduling maintenance of tenant %r failed; retried next tick", name)
+    return ticked
+
+
+async def _maintenance_ticks(state: ServiceState, interval: float) -> None:
+    """Every ``interval`` seconds, a maintenance pass of every tenant when one is due
+    without a commit (retention, erasure of deleted rows): commits alone schedule it
+    otherwise."""
     while True:
         await asyncio.sleep(interval)
         try:
-            await run_in_threadpool(memory.maintain_if_due)
+            await run_in_threadpool(maintain_every_tenant, state)
         except Exception:  # noqa: BLE001  (retried on the next tick)
             log.exception("scheduling maintenance failed; retried on the next tick")
 
@@ -283,7 +306,7 @@ def create_app(
             except Exception:  # noqa: BLE001
                 log.exception("warming up the space failed")
             state.warm = True
-        ticking = asyncio.create_task(_maintenance_ticks(memory, settings.maintain_interval))
+        ticking = asyncio.create_task(_maintenance_ticks(state, settings.maintain_interval))
         yield
         ticking.cancel()
         if loading is not None and not loading.done():
