@@ -15,7 +15,7 @@ import numpy as np
 
 from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
-from tactus_memory.results import SessionSummary
+from tactus_memory.results import SessionSummary, Stored
 from tactus_memory.senses import Sense
 from tactus_memory.storage.places import Placement, given_placement
 from tactus_memory.storage.store import Store
@@ -42,6 +42,9 @@ class WriteKwargs(BatchKwargs, total=False):
     """:class:`BatchKwargs` plus the sense's ``validate`` options (``Memory.add_many``)."""
 
     options: Mapping[str, Any] | None
+    #: skip the items the sense finds idle (their indices in ``Stored.skipped``); False
+    #: raises ``IdleWindowError`` (``Memory.add``, one window: there is nothing else to store)
+    skip_idle: bool
 
 
 def nesting_depth(value: Any, limit: int) -> int:
@@ -112,6 +115,21 @@ class Batch:
     created: float
     place: Placement
 
+    def without(self, drop: Sequence[int]) -> Batch:
+        """This batch less the items ``drop`` (indices), the rest in order."""
+        gone = set(drop)
+        keep = [i for i in range(len(self.t)) if i not in gone]
+        p = self.place
+        place = Placement(
+            p.position[keep], p.orientation[keep], [p.frame[i] for i in keep],
+            [p.placed[i] for i in keep],
+        )  # fmt: skip
+        return Batch(
+            [self.t[i] for i in keep], [self.t_end[i] for i in keep],
+            [self.meta[i] for i in keep], [self.ids[i] for i in keep], self.upsert,
+            self.created, place,
+        )  # fmt: skip
+
 
 def check_batch(
     n: int,
@@ -168,6 +186,8 @@ class PreparedWrite:
     vectors: np.ndarray | None = None
     error: Exception | None = None
     dup: set[int] = field(default_factory=set)
+    #: (index in the caller's items, reason) of each item skipped, not stored
+    skipped: list[tuple[int, str]] = field(default_factory=list)
 
     @property
     def ids(self) -> list[str]:
@@ -175,6 +195,10 @@ class PreparedWrite:
 
     def __len__(self) -> int:
         return len(self.canon)
+
+    def stored(self) -> Stored:
+        """What the write returns: its ids and the items it skipped."""
+        return Stored(self.ids, self.skipped)
 
 
 def embed_groups(
