@@ -17,6 +17,7 @@ service's.
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Any
 
@@ -25,6 +26,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from tactus_memory.errors import ThrottledError
 from tactus_memory.limits import MAX_JSON_DEPTH
 from tactus_memory.service.auth import Gate, Principal, bearer
 from tactus_memory.service.deps import BEARER_CHALLENGE, TOKEN_REFUSED
@@ -111,7 +113,13 @@ class BearerGate:
             send = self._shutdown_hook(send)
         if scope["type"] == "http" and scope["path"] != LIVE_PATH:
             headers = {k.decode("latin-1"): v.decode("latin-1") for k, v in scope["headers"]}
-            who = self.gate.principal(bearer(headers.get("authorization")), self.tenant)
+            try:
+                who = self.gate.principal(bearer(headers.get("authorization")), self.tenant)
+            except ThrottledError as exc:  # a key id flooded with checks: come back later
+                retry = [(b"retry-after", str(max(1, math.ceil(exc.retry_after))).encode())]
+                body = problem_body(429, str(exc), instance=scope["path"])
+                await send_problem(send, 429, body, retry)
+                return
             if who is None or who.tenant != self.tenant:
                 problem = problem_body(401, TOKEN_REFUSED, instance=scope["path"])
                 challenge = [(k.lower().encode(), v.encode()) for k, v in BEARER_CHALLENGE.items()]
