@@ -83,6 +83,11 @@ class OverloadedError(TactusError):
         self.retry_after = retry_after
 
 
+class PoseConflictError(TactusError):
+    """Poses re-sent for times a session's trajectory already holds (in that frame): refused
+    whole (HTTP 409), naming the times; nothing is written."""
+
+
 class ThrottledError(TactusError):
     """Too many secret checks for one key id this second (each is a scrypt): retry after
     ``retry_after`` seconds (HTTP 429). Says nothing of whether the presented key is right."""
@@ -117,5 +122,6 @@ ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
     IdleWindowError: (422, "idle-window", "Idle touch window"),
     OverloadedError: (503, "overloaded", "Write queue full"),
     ThrottledError: (429, "throttled", "Too many key checks"),
+    PoseConflictError: (409, "pose-conflict", "Poses already stored"),
     StoreDamagedError: (503, "store-damaged", "Store is damaged"),
 }
