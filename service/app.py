@@ -25,6 +25,7 @@ from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
+from tactus_memory.errors import UnknownTenantError
 from tactus_memory.plugins import create_sense
 from tactus_memory.service.auth import Gate
 from tactus_memory.service.deps import ServiceState, authorize
@@ -58,6 +59,7 @@ from tactus_memory.service.startup import StartupError
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
+from tactus_memory.storage.tenants import store_root, tenant_names
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -107,20 +109,23 @@ def open_store(settings: Settings) -> Any:
 
 
 def key_store(memory: Any) -> KeyStore:
-    """The keys of the store ``memory`` (the default tenant's) lives in, re-read every read
-    consistency interval (1 s when it never re-reads)."""
+    """The keys of the store ``memory`` (any tenant's) lives in: the ``keys`` table of the
+    store's root (never of a tenant's database), re-read every read consistency interval
+    (1 s when it never re-reads)."""
     store = memory.store
     every = store.read_consistency.total_seconds() if store.read_consistency is not None else 1.0
-    return KeyStore(store.uri, storage_options=store.storage_options, refresh=every)
+    root = store_root(store.uri, memory.tenant)
+    return KeyStore(root, storage_options=store.storage_options, refresh=every)
 
 
 def audit_log(memory: Any) -> AuditLog:
-    """The audit log of the store ``memory`` lives in (tidied here when this process
-    maintains the store)."""
+    """The audit log of the store ``memory`` (any tenant's) lives in, in the store's root
+    (tidied here when this process maintains the store)."""
     store = memory.store
     policy = store.maintenance
     retain = policy.retain_seconds if policy.maintain else None
-    return AuditLog(store.uri, storage_options=store.storage_options, retain_seconds=retain)
+    root = store_root(store.uri, memory.tenant)
+    return AuditLog(root, storage_options=store.storage_options, retain_seconds=retain)
 
 
 def open_memory(settings: Settings) -> tuple[Any, str | None]:
@@ -208,13 +213,35 @@ def operation_id(route: APIRoute) -> str:
 Loader = Callable[[ServiceState], "str | None"]
 
 
-async def _maintenance_ticks(memory: Any, interval: float) -> None:
-    """Every ``interval`` seconds, a maintenance pass when one is due without a commit
-    (retention, erasure of deleted rows): commits alone schedule it otherwise."""
+def maintain_every_tenant(state: ServiceState) -> list[str]:
+    """One idle tick: a maintenance pass, where one is due, of every tenant of the store
+    (``tenants.tenant_names``: the default, each folder under ``tenants/``, each tenant a
+    key names), each opened if no request has opened it yet, so a tenant nobody asks still
+    expires and erases. Returns the tenants ticked; one tenant's failure is logged and the
+    others are ticked all the same."""
+    assert state.tenants is not None
+    store = state.memory.store
+    names = tenant_names(store.uri, state.key_tenants())
+    ticked = []
+    for name in names:
+        try:
+            state.tenants.get(name).memory.maintain_if_due()
+            ticked.append(name)
+        except UnknownTenantError:
+            continue  # a key names it, its database is gone: nothing to maintain
+        except Exception:  # noqa: BLE001  (retried on the next tick)
+            log.exception("scheduling maintenance of tenant %r failed; retried next tick", name)
+    return ticked
+
+
+async def _maintenance_ticks(state: ServiceState, interval: float) -> None:
+    """Every ``interval`` seconds, a maintenance pass of every tenant when one is due
+    without a commit (retention, erasure of deleted rows): commits alone schedule it
+    otherwise."""
     while True:
         await asyncio.sleep(interval)
         try:
-            await run_in_threadpool(memory.maintain_if_due)
+            await run_in_threadpool(maintain_every_tenant, state)
         except Exception:  # noqa: BLE001  (retried on the next tick)
             log.exception("scheduling maintenance failed; retried on the next tick")
 
@@ -280,7 +307,7 @@ def create_app(
             except Exception:  # noqa: BLE001
                 log.exception("warming up the space failed")
             state.warm = True
-        ticking = asyncio.create_task(_maintenance_ticks(memory, settings.maintain_interval))
+        ticking = asyncio.create_task(_maintenance_ticks(state, settings.maintain_interval))
         yield
         ticking.cancel()
         if loading is not None and not loading.done():

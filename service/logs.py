@@ -4,7 +4,9 @@ uvicorn's access log prints the request line with its query string, and its WebS
 print the path with the query: a token passed as ``?token=`` would be written verbatim.
 :class:`RedactSecrets` (a ``logging.Filter`` on every uvicorn handler, see
 :func:`log_config`) replaces the value of ``token``/``access_token`` query parameters and of
-``Bearer`` credentials with ``***`` before a record is formatted.
+``Bearer`` credentials with ``***`` before a record is formatted. A query parameter's name is
+compared once percent-decoded, as the server reads it (``?tok%65n=`` is ``?token=``), and
+a value that is an API key (``tk_...``, decoded) is redacted whatever its parameter's name.
 """
 
 from __future__ import annotations
@@ -13,13 +15,38 @@ import copy
 import logging
 import re
 from typing import Any
+from urllib.parse import unquote_plus
 
 REDACTED = "***"
 #: ``token=...`` / ``access_token=...`` query values, and ``Bearer <credential>``
 SECRET_RE = re.compile(r"(?i)((?:[?&;]|\b)(?:access_)?token=)[^&\s\"';]*|(bearer\s+)[^\s\"',]+")
 
 
+#: the query parameters whose value is a secret (names compared percent-decoded, lowercase)
+SECRET_PARAMS = frozenset({"token", "access_token"})
+#: a query string in a log line: after ``?``, up to a space or a quote
+QUERY_RE = re.compile(r"\?([^\s\"'#]*)")
+#: an API key's start (storage.keys.KEY_PREFIX), decoded
+KEY_START = "tk_"
+
+
+def _redact_param(part: str) -> str:
+    name, eq, value = part.partition("=")
+    if not eq:
+        return part
+    secret = unquote_plus(name).strip().lower() in SECRET_PARAMS
+    if secret or unquote_plus(value).strip().startswith(KEY_START):
+        return f"{name}={REDACTED}"
+    return part
+
+
+def _redact_query(m: re.Match[str]) -> str:
+    parts = re.split(r"([&;])", m.group(1))
+    return "?" + "".join(p if p in "&;" else _redact_param(p) for p in parts)
+
+
 def redact(text: str) -> str:
+    text = QUERY_RE.sub(_redact_query, text)
     return SECRET_RE.sub(lambda m: (m.group(1) or m.group(2)) + REDACTED, text)
 
 

@@ -217,11 +217,26 @@ class SenseIn(Strict):
     checkpoint_sha256: str = Field("", max_length=128)
 
 
+class SkippedOut(BaseModel):
+    index: int = Field(description="The item's index in the request.")
+    reason: str = Field(description="`idle`: a touch window with no contact, not stored.")
+
+
 class StoredOut(BaseModel):
-    model_config = ConfigDict(json_schema_extra={"examples": [{"ids": ["a1b2c3"], "count": 1}]})
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {"ids": ["a1b2c3"], "count": 1, "skipped": [{"index": 1, "reason": "idle"}]}
+            ]
+        }
+    )
 
     ids: list[str] = Field(description="Ids of the stored items, in input order.")
     count: int
+    skipped: list[SkippedOut] = Field(
+        default_factory=list,
+        description="Items of a batch skipped, not stored (an idle touch window), by index.",
+    )
 
 
 # ----------------------------------------------------------------------------- reads

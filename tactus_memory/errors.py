@@ -83,6 +83,20 @@ class OverloadedError(TactusError):
         self.retry_after = retry_after
 
 
+class PoseConflictError(TactusError):
+    """Poses re-sent for times a session's trajectory already holds (in that frame): refused
+    whole (HTTP 409), naming the times; nothing is written."""
+
+
+class ThrottledError(TactusError):
+    """Too many secret checks for one key id this second (each is a scrypt): retry after
+    ``retry_after`` seconds (HTTP 429). Says nothing of whether the presented key is right."""
+
+    def __init__(self, message: str, retry_after: float = 1.0) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after
+
+
 class StoreDamagedError(TactusError):
     """The store fails its integrity check (a data file missing or truncated, a manifest
     unreadable): writes are refused so nothing lands in a store that cannot be read back
@@ -107,5 +121,7 @@ ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
     DynamicRangeError: (422, "dynamic-range", "Insufficient dynamic range"),
     IdleWindowError: (422, "idle-window", "Idle touch window"),
     OverloadedError: (503, "overloaded", "Write queue full"),
+    ThrottledError: (429, "throttled", "Too many key checks"),
+    PoseConflictError: (409, "pose-conflict", "Poses already stored"),
     StoreDamagedError: (503, "store-damaged", "Store is damaged"),
 }

@@ -144,7 +144,7 @@ class GroupCommitter:
         fut: Future[list[str]] = Future()
         n = len(write)
         if n == 0:
-            fut.set_result([])
+            fut.set_result(write.stored())
             return fut
         with self._cond:
             if self._closing:
@@ -278,7 +278,7 @@ class GroupCommitter:
             if q.write.error is not None:
                 q.future.set_exception(q.write.error)
             else:
-                q.future.set_result(list(q.write.ids))
+                q.future.set_result(q.write.stored())
 
     def _record(self, batch: list[_Queued], seconds: float) -> None:
         s = self.stats

@@ -13,6 +13,11 @@ MAX_K = 1000
 MAX_TEXT_CHARS = 8192
 #: the largest ``meta`` dict, as JSON bytes
 MAX_META_BYTES = 65_536
+#: the deepest nesting of a ``meta`` dict (objects and lists inside it; the dict itself is 1)
+MAX_META_DEPTH = 32
+#: the deepest nesting of a JSON request body the MCP endpoint reads (its envelope, the
+#: tool's arguments and a meta at MAX_META_DEPTH fit well within it)
+MAX_JSON_DEPTH = 64
 #: the most items one ``add_many`` call writes
 MAX_BATCH = 100_000
 #: the longest session / item / source id

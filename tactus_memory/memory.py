@@ -51,7 +51,16 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
-from tactus_memory.results import Grasp, Hit, Item, Moment, SenseInfo, SessionSummary, item_from_row
+from tactus_memory.results import (
+    Grasp,
+    Hit,
+    Item,
+    Moment,
+    SenseInfo,
+    SessionSummary,
+    Stored,
+    item_from_row,
+)
 from tactus_memory.search.matching import DEFAULT_MOMENT_GAP, mark_matches
 from tactus_memory.search.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.search.ranking import Ranker
@@ -249,14 +258,18 @@ class Memory:
             options=options,
             position=None if position is None else [position],
             frame=frame,
+            skip_idle=False,  # one window: an idle one is refused (IdleWindowError)
         )[0]
 
     def add_many(
         self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[WriteKwargs]
-    ) -> list[str]:
-        """Remember N items of one sense in one commit; returns their ids (in order).
+    ) -> Stored:
+        """Remember N items of one sense in one commit; returns their ids (in order), a
+        list whose ``skipped`` names the items skipped rather than stored: ``(index,
+        "idle")`` for a touch window with no contact (an idle hand is never stored as a
+        grasp; the other windows are). ``skip_idle=False`` raises ``IdleWindowError``.
 
-        Everything is validated and embedded before the write: a failure writes nothing.
+        Everything else is validated and embedded before the write: a failure writes nothing.
         ``options`` go to the sense's ``validate`` (e.g. ``{"calibrated": True}`` for touch);
         the sense's ``embed`` then takes the validated items as they are. The keywords are
         :meth:`prepare_write`'s.

@@ -76,6 +76,16 @@ class Item(Span):
     vector: list[float] | None = None
 
 
+class Stored(list):  # type: ignore[type-arg]
+    """What a write returns: the ids of the items stored, in input order (a list, as
+    before), and ``skipped``: ``(index, reason)`` of each input item the sense skipped
+    rather than stored (``"idle"``: a touch window with no contact)."""
+
+    def __init__(self, ids: Any = (), skipped: Any = ()) -> None:
+        super().__init__(ids)
+        self.skipped: list[tuple[int, str]] = list(skipped)
+
+
 class SessionSummary(BaseModel):
     """Counts per sense and the time span of one session."""
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from typing_extensions import Unpack
 
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import InvalidInputError, PoseConflictError
 from tactus_memory.limits import MAX_K
 from tactus_memory.results import Place, TimelineItem, TrajectoryOut, row_fields
 from tactus_memory.search.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
@@ -95,6 +95,16 @@ class Places:
         source = validate_source(source or "")
         ts, pos, ori = check_poses(t, position, orientation)
         with self.lock:
+            stored = [tr.t for tr in self.poses.trajectories(session) if tr.frame == frame]
+            again = np.intersect1d(ts, np.concatenate(stored)) if stored else ts[:0]
+            if again.size:
+                shown = ", ".join(f"{x:g}" for x in again[:10])
+                more = f" and {again.size - 10} more" if again.size > 10 else ""
+                raise PoseConflictError(
+                    f"session {session!r} already has poses in frame {frame!r} at t = "
+                    f"{shown}{more}: poses are never replaced; delete the session's poses "
+                    "or send only new times"
+                )
             self.poses.write(session, ts, pos, ori, frame, source)
             self.place_items(session, float(ts[0]), float(ts[-1]))
         return int(ts.shape[0])

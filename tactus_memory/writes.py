@@ -14,7 +14,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import IdleWindowError, InvalidInputError
+from tactus_memory.results import Stored
 from tactus_memory.search.registry import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.spatial import Places
@@ -56,10 +57,13 @@ class WritePath:
         options: Mapping[str, Any] | None = None,
         position: Any = None,
         frame: str = DEFAULT_FRAME,
+        skip_idle: bool = True,
     ) -> PreparedWrite:
         """Validate one write (``add_many``'s arguments) without embedding or storing it;
         ``position``: one ``(x, y, z)`` for every item or one per item (None: placed from the
-        session's poses), in ``frame``.
+        session's poses), in ``frame``. An item the sense finds idle (a touch window with no
+        contact, ``IdleWindowError``) is skipped and reported (``PreparedWrite.skipped``: its
+        index, ``"idle"``), the rest are written; ``skip_idle=False`` raises instead.
 
         Raises the typed error naming the problem; the result goes to :meth:`commit_writes`,
         alone or with the writes of other sessions (group commit, ``tactus_memory.group_commit``).
@@ -70,12 +74,21 @@ class WritePath:
         items = list(items)
         batch = check_batch(len(items), t, t_end, meta, ids, position, frame)
         opts = options_for(s, options)
-        canon = [s.validate(x, **opts) for x in items]
-        return PreparedWrite(session, s, canon, batch, source)
+        canon, skipped = [], []
+        for i, x in enumerate(items):
+            try:
+                canon.append(s.validate(x, **opts))
+            except IdleWindowError:
+                if not skip_idle:
+                    raise
+                skipped.append((i, "idle"))
+        if skipped:
+            batch = batch.without([i for i, _ in skipped])
+        return PreparedWrite(session, s, canon, batch, source, skipped=skipped)
 
     def commit_writes(
         self, writes: Sequence[PreparedWrite], *, isolate: bool = False
-    ) -> list[list[str]]:
+    ) -> list[Stored]:
         """Embed prepared writes (ONE ``embed`` call per sense across all of them) and store
         them all in ONE LanceDB commit; returns each write's ids, in order.
 
@@ -91,7 +104,7 @@ class WritePath:
         """
         live = [w for w in writes if len(w)]
         if not live:
-            return [list(w.ids) for w in writes]
+            return [w.stored() for w in writes]
         if isolate:
             embed_isolated(live, self.space.dim)
             resolve_shared_ids(live)
@@ -104,14 +117,14 @@ class WritePath:
             replaced = claim_ids(self.store, live, isolate)  # under the lock: no racing writer
             ok = [w for w in live if w.error is None]
             if not ok:
-                return [list(w.ids) for w in writes]
+                return [w.stored() for w in writes]
             self.places.fill(ok)  # under the lock: poses added meanwhile are seen
             before = self.store.version()
             self.store.write(
                 writes_table(self.store.schema, ok), upsert=any(w.batch.upsert for w in ok)
             )
             self.registry.note_writes(before, ok, replaced)  # never raises: the rows are stored
-        return [list(w.ids) for w in writes]
+        return [w.stored() for w in writes]
 
     def validate_item(self, sense: str, item: Any, options: Mapping[str, Any] | None = None) -> Any:
         """``item`` checked (and canonicalised) by the live ``sense``, as ``add`` would store

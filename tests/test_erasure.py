@@ -176,3 +176,65 @@ def test_a_script_that_deletes_and_exits_at_once_exits_cleanly(tmp_path) -> None
         )
         assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
         assert done.stdout.strip().splitlines()[-1] == "2"
+
+
+def test_an_idle_server_erases_and_expires_in_every_tenant(tmp_path, minilm_space) -> None:
+    """Issue 36: the idle ticks maintain every tenant, not the default one only. Tenant B
+    deletes a session through the API (its own key) and holds an expiring note; tenant C is
+    never asked by anyone: both are erased and expired by the server's own passes, and B's
+    ``/retention`` (B's key) reports B's own counts."""
+    from tactus_memory.storage.keys import KeyStore
+
+    secret = f"zq{uuid.uuid4().hex}"
+    settings = Settings(
+        retain_seconds=0.5,
+        cleanup_interval=0,
+        maintain_interval=0.2,
+        retention_interval=0.2,
+        retention=[{"session": "exp-*", "retain_days": 1e-5}],  # 0.86 s
+    )
+    root = tmp_path / "mem"
+    mem = Memory.open(str(root), space=minilm_space, maintenance=settings.maintenance())
+    mem.add("home", "text", "a default note", t=1.0)
+    setup = Settings(retain_seconds=0.5, cleanup_interval=0).maintenance()  # no expiry here
+    for tenant in ("B", "C"):
+        other = Memory.open(str(root), space=minilm_space, maintenance=setup, tenant=tenant)
+        for batch in range(10):  # fragments the deleted rows share with kept ones
+            other.add_many("keep", "text", [f"kept note {batch}.{i}" for i in range(5)])
+            if batch == 4:
+                other.add_many(f"gone-{secret}", "text", [f"the {tenant} {secret} note"])
+                other.add_many(f"exp-{secret}", "text", [f"expiring {tenant} {secret[::-1]}"])
+        other.optimize()
+        other.wait_for_maintenance(60)
+        other.close()
+    _, b_admin = KeyStore(str(root)).create("B", "admin")
+    needles = {
+        f"{t} {what}": text.encode()
+        for t in ("B", "C")
+        for what, text in (
+            ("deleted", f"the {t} {secret} note"),
+            ("expired", f"expiring {t} {secret[::-1]}"),
+        )  # fmt: skip
+    }
+    folders = {t: root / "tenants" / t for t in ("B", "C")}
+    assert set(found(folders["B"], needles)) == {"B deleted", "B expired"}  # the control
+    assert set(found(folders["C"], needles)) == {"C deleted", "C expired"}
+    auth = {"Authorization": f"Bearer {b_admin}"}
+    with serve_app(create_app(settings, memory=mem)) as base:
+        r = httpx.delete(f"{base}/sessions/gone-{secret}", headers=auth, timeout=60)
+        assert r.status_code == 200 and r.json()["deleted"] == 1, r.text
+        deadline = time.monotonic() + 180  # a liveness bound, not a speed target
+        while True:
+            status = httpx.get(f"{base}/retention", headers=auth, timeout=30).json()
+            left = {**found(folders["B"], needles), **found(folders["C"], needles)}
+            left.pop("C deleted", None)  # nobody deleted C's session: it stays
+            if status["expired_total"] == 1 and not status["erasure_pending"] and not left:
+                break
+            assert time.monotonic() < deadline, (
+                {k: status[k] for k in ("expired_total", "erasure_pending")},
+                left,
+            )
+            time.sleep(0.3)
+    assert set(found(folders["C"], needles)) == {"C deleted"}
+    assert found(folders["B"], needles) == {}
+    assert [i.text for i in mem.timeline("home")] == ["a default note"]

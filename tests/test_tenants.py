@@ -147,19 +147,20 @@ def test_maintain_labels_each_tenants_retention_even_when_a_store_is_skipped(
     assert [line.get("tenant") for line in lines if "retention" in line] == [None, "A"]
 
 
-def test_guessing_a_keys_secret_is_throttled_per_key_id(tmp_path, monkeypatch) -> None:
-    from tactus_memory.storage import keys as keys_module
+def test_guessing_a_keys_secret_is_throttled_per_key_id(tmp_path) -> None:
+    from tactus_memory.errors import ThrottledError
     from tactus_memory.storage.keys import FAILED_CHECKS_PER_S, KeyStore
 
     now = [1000.5]
-    monkeypatch.setattr(keys_module.time, "monotonic", lambda: now[0])
     store = KeyStore(str(tmp_path), refresh=1e9)
+    store.clock = lambda: now[0]
     key_id, key = store.create("A", "read")
     other_id, other = store.create("A", "write")
     assert store.verify(other) is not None  # checked before: remembered
     for i in range(FAILED_CHECKS_PER_S):
         assert store.verify(f"tk_{key_id}_wrong{i}") is None
-    assert store.verify(key) is None  # this second's checks of key_id are spent
+    with pytest.raises(ThrottledError):  # this second's checks are spent: 429, not "wrong"
+        store.verify(key)
     assert store.verify(other) is not None  # another id, and a remembered key: unaffected
     now[0] += 1.0
     info = store.verify(key)

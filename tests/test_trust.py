@@ -259,3 +259,31 @@ def test_deleting_a_session_removes_its_clock_offsets(client):
     assert_problem(client.get("/sessions/s1/clock"), 404)  # deleted: gone, offsets too
     r = client.put("/sessions/s9/clock", json={"sense": "touch", "offset": 1.0})
     assert client.get("/sessions/s9/clock").json()["offsets"], r.text  # offsets alone: exists
+
+
+# --------------------------------------------------------------------- issue 36: meta depth
+def _nested(levels: int) -> dict:
+    meta: dict = {}
+    inner = meta
+    for _ in range(levels - 1):
+        inner["a"] = {}
+        inner = inner["a"]
+    return meta
+
+
+def test_meta_nested_too_deep_is_refused_naming_the_limit(client, memory):
+    from tactus_memory.errors import InvalidInputError
+    from tactus_memory.limits import MAX_META_DEPTH
+
+    memory.add("s1", "text", "x", t=1.0, meta=_nested(MAX_META_DEPTH))  # at the limit: stored
+    for levels in (MAX_META_DEPTH + 1, 250, 5000):
+        with pytest.raises(InvalidInputError, match="nests deeper than"):
+            memory.add("s1", "text", "x", t=1.0, meta=_nested(levels))
+    deep_list: list = []
+    for _ in range(300):
+        deep_list = [deep_list]
+    with pytest.raises(InvalidInputError, match="nests deeper than"):
+        memory.add("s1", "text", "x", t=1.0, meta={"k": deep_list})
+    assert len(memory) == 1
+    body = {"text": "a note", "t": 1, "meta": _nested(250)}
+    assert_problem(client.post("/sessions/s1/text", json=body), 422, "nests deeper")

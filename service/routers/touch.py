@@ -26,7 +26,7 @@ from tactus_memory.service.deps import (
     WriteThreadsDep,
 )
 from tactus_memory.service.problems import problem_responses
-from tactus_memory.service.schemas import StoredOut, TouchBatchIn, TouchWindowIn
+from tactus_memory.service.schemas import SkippedOut, StoredOut, TouchBatchIn, TouchWindowIn
 from tactus_memory.touch.profile import FRAME_SHAPE
 
 router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
@@ -73,6 +73,9 @@ class _Upload:
     meta: Any
     ids: list[str] | None
     calibrated: bool
+    #: a batch (JSON ``windows``, a 4-D .npy): idle windows are skipped and named; one
+    #: window alone that is idle is refused (422 idle-window), as ``Memory.add`` refuses it
+    batch: bool = True
 
 
 def _upload(
@@ -92,7 +95,7 @@ def _upload(
         windows = list(as_windows(arr[None] if arr.ndim == 3 else arr, "npy body"))
         if not t:
             raise InvalidInputError("query parameter 't' is required with an npy body")
-        return _Upload(windows, t, t_end, None, None, calibrated)
+        return _Upload(windows, t, t_end, None, None, calibrated, batch=arr.ndim == 4)
     if ctype not in ("application/json", "") and not ctype.endswith("+json"):
         raise HTTPException(
             415, f"unsupported content type {ctype!r}: use application/json or application/x-npy"
@@ -108,7 +111,7 @@ def _upload(
     window = as_window(one.frames, "frames")
     t_end_one = None if one.t_end is None else [one.t_end]
     ids = None if one.id is None else [one.id]
-    return _Upload([window], [one.t], t_end_one, one.meta, ids, one.calibrated)
+    return _Upload([window], [one.t], t_end_one, one.meta, ids, one.calibrated, batch=False)
 
 
 @router.post(
@@ -118,7 +121,9 @@ def _upload(
     description=(
         'JSON, one window: `{"frames": (K,32,32), "t": 12.5, "t_end": 13.6, "meta": '
         '{...}, "calibrated": false}`. JSON batch: `{"windows": (B,K,32,32), "t": [B '
-        "times], ...}`. Frames are RAW sensor units unless `calibrated` is true. " + NPY_DOC
+        "times], ...}`. Frames are RAW sensor units unless `calibrated` is true. A batch's "
+        "idle windows (no contact) are skipped and listed in `skipped` (201, the rest "
+        "stored); one window alone that is idle is refused (422 idle-window). " + NPY_DOC
     ),
     response_model=StoredOut,
     responses=problem_responses(404, 413, 415, 422, 503),
@@ -151,5 +156,7 @@ async def add_touch(
         meta=up.meta,
         ids=up.ids,
         options={"calibrated": up.calibrated},
+        skip_idle=up.batch,
     )
-    return StoredOut(ids=ids, count=len(ids))
+    skipped = [SkippedOut(index=i, reason=why) for i, why in getattr(ids, "skipped", ())]
+    return StoredOut(ids=ids, count=len(ids), skipped=skipped)

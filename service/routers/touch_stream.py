@@ -214,6 +214,7 @@ async def touch_stream(
                             t_end=[float(t_last)],
                             source=stream_id,
                             options={"calibrated": params.calibrated},
+                            skip_idle=False,  # one window: an "idle" ack, below
                         )
                         fut = asyncio.wrap_future(queued)
                     except IdleWindowError:  # no contact: never stored as a grasp

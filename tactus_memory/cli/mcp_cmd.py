@@ -72,12 +72,12 @@ def mcp(
     # (or `tactus maintain`), as for a replica; this one only reads and adds a few notes
     keep_out = Settings(maintain=False).maintenance()
     memory = _open(data, space, space_path, space_dim, maintenance=keep_out, tenant=tenant)
-    server = build_server(memory, allow_writes=allow_writes)
     if settings is None:
+        server = build_server(memory, allow_writes=allow_writes)
         server.run("stdio")  # stdout is the protocol's: nothing else may print there
         return
     from tactus_memory.service.mcp_http import run_mcp_http
 
     settings = settings.model_copy(update={"data": memory.store.uri})
-    need = "write" if allow_writes else "read"
-    run_mcp_http(server, settings, memory, need, say=lambda line: typer.echo(line, err=True))
+    say = lambda line: typer.echo(line, err=True)  # noqa: E731
+    run_mcp_http(memory, settings, allow_writes, say, build_server)

@@ -28,10 +28,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
 from typing import Annotated, Any, TypeVar
 
-from mcp.server.mcpserver import MCPServer
+from mcp.server.mcpserver import Context, MCPServer
 from mcp.server.mcpserver.exceptions import ToolError
 from mcp.types import CallToolResult, TextContent, ToolAnnotations
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, Strict
 
 import tactus_memory
 from tactus_memory.errors import TactusError
@@ -67,6 +67,10 @@ INSTRUCTIONS = (
 )
 
 # ----------------------------------------------------------------- arguments
+#: a number argument: strict, so a JSON ``true`` is refused rather than read as 1.0 (as the
+#: HTTP API and the library refuse booleans as numbers)
+Number = Annotated[float, Strict()]
+
 QueryArg = Annotated[
     str,
     Field(
@@ -92,11 +96,11 @@ AnchorSensesArg = Annotated[
     list[str] | None, Field(description="Search the anchor only in these senses.")
 ]
 AfterArg = Annotated[
-    float | None, Field(description="Only items still going on at or after this time (s).")
+    Number | None, Field(description="Only items still going on at or after this time (s).")
 ]
-BeforeArg = Annotated[float | None, Field(description="Only items started at or before (s).")]
+BeforeArg = Annotated[Number | None, Field(description="Only items started at or before (s).")]
 MergeGapArg = Annotated[
-    float, Field(ge=0.0, le=1e9, description="Matches this close (s) count as one occurrence.")
+    Number, Field(ge=0.0, le=1e9, description="Matches this close (s) count as one occurrence.")
 ]
 WindowsArg = Annotated[
     bool,
@@ -105,6 +109,11 @@ WindowsArg = Annotated[
         "contiguous windows of one hold, scored together)."
     ),
 ]
+
+#: what a server that audits writes is told after each ``remember``: the request context
+#: of the call (the HTTP request, on HTTP), the status (201 stored, 422 refused) and the
+#: number of items stored
+WriteHook = Callable[[Any, int, int], None]
 
 R = TypeVar("R")
 
@@ -148,7 +157,7 @@ def around_args(side: str) -> type:
                 "anchor",
                 Annotated[QueryArg, Field(description=f"The moment to look {side}, in words.")],
             ),
-            ("window", Annotated[float, window], field(default=DEFAULT_WINDOW)),
+            ("window", Annotated[Number, window], field(default=DEFAULT_WINDOW)),
             ("session", SessionArg, field(default=None)),
             ("senses", SensesArg, field(default=None)),
             ("anchor_senses", AnchorSensesArg, field(default=None)),
@@ -182,9 +191,10 @@ def tool_errors(fn: Callable[..., R]) -> Callable[..., R]:
 class MemoryTools:
     """The tools over one memory (each a method; :func:`build_server` registers them)."""
 
-    def __init__(self, memory: Memory) -> None:
+    def __init__(self, memory: Memory, on_write: WriteHook | None = None) -> None:
         self.memory = memory
         self.compactor = Compactor(memory.store)
+        self.on_write = on_write
 
     @tool_errors
     def search(
@@ -297,27 +307,47 @@ class MemoryTools:
         text: Annotated[
             str, Field(min_length=1, max_length=MAX_TEXT_CHARS, description="The note.")
         ],
-        t: Annotated[float | None, Field(description="When (s); default: now (unix).")] = None,
+        t: Annotated[Number | None, Field(description="When (s); default: now (unix).")] = None,
         meta: Annotated[
             dict[str, Any] | None, Field(description="Free JSON stored with the note.")
         ] = None,
+        ctx: Context | None = None,
     ) -> Remembered:
         """Store a note in the memory (e.g. what the robot was told or decided)."""
         t = time.time() if t is None else t
-        item_id = self.memory.add(session, "text", text, t=t, meta=meta)
+        try:
+            item_id = self.memory.add(session, "text", text, t=t, meta=meta)
+        except TactusError:
+            self._written(ctx, 422, 0)
+            raise
+        self._written(ctx, 201, 1)
         return compact(Remembered(id=item_id, session=session, t=t))  # type: ignore[return-value]
+
+    def _written(self, ctx: Context | None, status: int, count: int) -> None:
+        """Tell the write hook (the audit log of ``tactus mcp --http``) about one write."""
+        if self.on_write is not None:
+            request = None
+            if ctx is not None:
+                try:
+                    request = ctx.request_context.request
+                except ValueError:  # no request (called outside a session)
+                    request = None
+            self.on_write(request, status, count)
 
 
 #: the read-only tools, in the order an agent sees them
 READ_TOOLS = ("sessions", "search", "last", "first", "count", "before", "after", "timeline")
 
 
-def build_server(memory: Memory, *, allow_writes: bool = False) -> MCPServer:
-    """An MCP server whose tools read (and with ``allow_writes``, add notes to) ``memory``."""
+def build_server(
+    memory: Memory, *, allow_writes: bool = False, on_write: WriteHook | None = None
+) -> MCPServer:
+    """An MCP server whose tools read (and with ``allow_writes``, add notes to) ``memory``;
+    ``on_write`` is told of every ``remember`` (:data:`WriteHook`: the audit log)."""
     server = MCPServer(
         "tactus-memory", instructions=INSTRUCTIONS, version=tactus_memory.__version__
     )
-    tools = MemoryTools(memory)
+    tools = MemoryTools(memory, on_write)
     read_only = ToolAnnotations(read_only_hint=True, open_world_hint=False)
     for name in READ_TOOLS:
         server.add_tool(getattr(tools, name), name=name, annotations=read_only)

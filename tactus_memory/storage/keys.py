@@ -21,7 +21,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.errors import InvalidInputError, NotFoundError, ThrottledError
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.tables import keys_schema
 from tactus_memory.storage.tenants import validate_tenant
@@ -41,8 +41,10 @@ KEY_PREFIX = "tk_"
 LAST_USED_EVERY = 60.0
 #: presented keys whose scrypt check passed, remembered per process (by SHA-256)
 VERIFIED_CACHE = 4096
-#: wrong secrets checked per key id and second, at most (each costs one scrypt); beyond
-#: that a presented key of that id is refused unchecked until the second is over
+#: secret checks per key id and second, at most, counting those that failed and those under
+#: way (each costs one scrypt; a check that passes gives its slot back): beyond that a
+#: presented key of that id, right or wrong, is answered ThrottledError (429 +
+#: Retry-After) unchecked until the second is over, never refused as wrong
 FAILED_CHECKS_PER_S = 5
 
 
@@ -104,7 +106,9 @@ class KeyStore:
         self._lock = threading.Lock()
         self._verified: OrderedDict[bytes, str] = OrderedDict()
         self._used: dict[str, float] = {}
-        #: key id -> (the second, wrong secrets checked in it)
+        #: the throttle's clock (seconds, monotonic)
+        self.clock = time.monotonic
+        #: key id -> (the second, checks in it that failed or are under way)
         self._failed: dict[str, tuple[int, int]] = {}
 
     # ----------------------------------------------------------- table
@@ -204,7 +208,8 @@ class KeyStore:
     # ----------------------------------------------------------- checks
     def verify(self, presented: str) -> KeyInfo | None:
         """The live key ``presented`` is (its record), or None: unknown, wrong, revoked or
-        expired (all alike to the caller)."""
+        expired (all alike to the caller). ThrottledError (429) when its key id has had
+        :data:`FAILED_CHECKS_PER_S` checks this second, before any check of this one."""
         if not presented.startswith(KEY_PREFIX):
             return None
         key_id, _, secret = presented[len(KEY_PREFIX) :].partition("_")
@@ -215,17 +220,13 @@ class KeyStore:
         with self._lock:
             known = self._verified.get(digest) == key_id
         if not known:
-            second = int(time.monotonic())
-            with self._lock:
-                at, failed = self._failed.get(key_id, (second, 0))
-                if at == second and failed >= FAILED_CHECKS_PER_S:
-                    return None  # guessing: refused without spending a scrypt on it
+            second = self._reserve(key_id)
             if not hmac.compare_digest(_hash(secret, row["salt"]), row["hash"]):
-                with self._lock:
-                    at, failed = self._failed.get(key_id, (second, 0))
-                    self._failed[key_id] = (second, failed + 1 if at == second else 1)
-                return None
+                return None  # the reserved slot stays taken: a failure this second
             with self._lock:
+                at, used = self._failed.get(key_id, (second, 0))
+                if at == second and used > 0:  # a right secret gives its slot back
+                    self._failed[key_id] = (at, used - 1)
                 self._verified[digest] = key_id
                 while len(self._verified) > VERIFIED_CACHE:
                     self._verified.popitem(last=False)
@@ -235,6 +236,24 @@ class KeyStore:
             return None
         self._touch(key_id, now)
         return info
+
+    def _reserve(self, key_id: str) -> int:
+        """Take one of this second's :data:`FAILED_CHECKS_PER_S` check slots of ``key_id``
+        (checked and taken under one lock, so no number of threads gets more); returns the
+        second. ThrottledError when none is left."""
+        now = self.clock()
+        second = int(now)
+        with self._lock:
+            at, used = self._failed.get(key_id, (second, 0))
+            used = used if at == second else 0
+            if used >= FAILED_CHECKS_PER_S:
+                raise ThrottledError(
+                    f"too many key checks for key id {key_id!r} this second "
+                    f"(at most {FAILED_CHECKS_PER_S}): retry after a second",
+                    retry_after=max(0.001, second + 1 - now),
+                )
+            self._failed[key_id] = (second, used + 1)
+        return second
 
     def _touch(self, key_id: str, now: float) -> None:
         """Write the key's last use back, at most every :data:`LAST_USED_EVERY` seconds."""

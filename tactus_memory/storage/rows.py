@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any, TypedDict
 import numpy as np
 
 from tactus_memory.errors import IdConflictError, InvalidInputError
-from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES
-from tactus_memory.results import SessionSummary
+from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
+from tactus_memory.results import SessionSummary, Stored
 from tactus_memory.senses import Sense
 from tactus_memory.storage.places import Placement, given_placement
 from tactus_memory.storage.store import Store
@@ -42,6 +42,29 @@ class WriteKwargs(BatchKwargs, total=False):
     """:class:`BatchKwargs` plus the sense's ``validate`` options (``Memory.add_many``)."""
 
     options: Mapping[str, Any] | None
+    #: skip the items the sense finds idle (their indices in ``Stored.skipped``); False
+    #: raises ``IdleWindowError`` (``Memory.add``, one window: there is nothing else to store)
+    skip_idle: bool
+
+
+def nesting_depth(value: Any, limit: int) -> int:
+    """How deep dicts and lists nest in ``value`` (a scalar 0, ``{}`` 1), counted without
+    recursion and given up past ``limit`` (returns ``limit + 1``): a hostile value deep
+    enough to overflow a recursive walk is answered at once."""
+    deepest, todo = 0, [(value, 1)]
+    while todo:
+        node, depth = todo.pop()
+        if isinstance(node, dict):
+            children = node.values()
+        elif isinstance(node, (list, tuple)):
+            children = node
+        else:
+            continue
+        deepest = max(deepest, depth)
+        if deepest > limit:
+            return limit + 1
+        todo.extend((child, depth + 1) for child in children)
+    return deepest
 
 
 def meta_json(meta: Any) -> str:
@@ -49,6 +72,8 @@ def meta_json(meta: Any) -> str:
         return "{}"
     if not isinstance(meta, dict) or not all(isinstance(key, str) for key in meta):
         raise InvalidInputError("meta must be a dict with string keys")
+    if nesting_depth(meta, MAX_META_DEPTH) > MAX_META_DEPTH:
+        raise InvalidInputError(f"meta nests deeper than {MAX_META_DEPTH} levels")
     try:
         out = json.dumps(meta, allow_nan=False, sort_keys=True, ensure_ascii=False)
         size = len(out.encode())
@@ -89,6 +114,21 @@ class Batch:
     upsert: bool
     created: float
     place: Placement
+
+    def without(self, drop: Sequence[int]) -> Batch:
+        """This batch less the items ``drop`` (indices), the rest in order."""
+        gone = set(drop)
+        keep = [i for i in range(len(self.t)) if i not in gone]
+        p = self.place
+        place = Placement(
+            p.position[keep], p.orientation[keep], [p.frame[i] for i in keep],
+            [p.placed[i] for i in keep],
+        )  # fmt: skip
+        return Batch(
+            [self.t[i] for i in keep], [self.t_end[i] for i in keep],
+            [self.meta[i] for i in keep], [self.ids[i] for i in keep], self.upsert,
+            self.created, place,
+        )  # fmt: skip
 
 
 def check_batch(
@@ -146,6 +186,8 @@ class PreparedWrite:
     vectors: np.ndarray | None = None
     error: Exception | None = None
     dup: set[int] = field(default_factory=set)
+    #: (index in the caller's items, reason) of each item skipped, not stored
+    skipped: list[tuple[int, str]] = field(default_factory=list)
 
     @property
     def ids(self) -> list[str]:
@@ -153,6 +195,10 @@ class PreparedWrite:
 
     def __len__(self) -> int:
         return len(self.canon)
+
+    def stored(self) -> Stored:
+        """What the write returns: its ids and the items it skipped."""
+        return Stored(self.ids, self.skipped)
 
 
 def embed_groups(

@@ -53,6 +53,19 @@ def tenant_uri(root: str, tenant: str = DEFAULT_TENANT) -> str:
     return f"{root.rstrip('/')}/{TENANTS_DIR}/{tenant}"
 
 
+def store_root(uri: str, tenant: str = DEFAULT_TENANT) -> str:
+    """The root of the store whose ``tenant`` database is at ``uri`` (the inverse of
+    :func:`tenant_uri`): where the store's ``keys`` and ``audit`` tables live."""
+    uri = normalise_uri(str(uri)).rstrip("/")
+    tenant = validate_tenant(tenant)
+    if tenant == DEFAULT_TENANT:
+        return uri
+    suffix = f"/{TENANTS_DIR}/{tenant}"
+    if not uri.endswith(suffix):
+        raise ValueError(f"{uri!r} is not the database of tenant {tenant!r} (no {suffix!r})")
+    return uri[: -len(suffix)]
+
+
 def tenant_names(root: str, named: Iterable[str] = ()) -> list[str]:
     """The tenants of the store at ``root``, default first: the default tenant, each folder
     under ``tenants/`` (local stores), and ``named`` (the tenants its keys name: on object
