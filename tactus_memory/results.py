@@ -213,6 +213,12 @@ class Occurrences(BaseModel):
     )
     merge_gap: float
     moments: list[Moment]
+    passed: int | None = Field(
+        None,
+        description="Occurrences past the match bar; the `count` answering ones score >= "
+        "`answer` x the best of them (tactus_memory.search.matching).",
+    )
+    answer: float | None = Field(None, description="The answer ratio used (0: every one).")
 
 
 class Context(BaseModel):

@@ -18,6 +18,7 @@ from fastapi import APIRouter, Depends, Query
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
 from tactus_memory.results import Occurrences, Side
 from tactus_memory.search.matching import (
+    ANSWER_KEEP,
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
@@ -68,9 +69,22 @@ GroupGrasp = Annotated[
 ]
 
 
-def match_bar(threshold: Threshold = None, relative: Relative = RELATIVE_KEEP) -> Match:
+Answer = Annotated[
+    float,
+    Query(
+        ge=0.0,
+        le=1.0,
+        description="last/first/count answer from occurrences scoring >= answer x the best one "
+        "(0: every occurrence past the bar).",
+    ),
+]
+
+
+def match_bar(
+    threshold: Threshold = None, relative: Relative = RELATIVE_KEEP, answer: Answer = ANSWER_KEEP
+) -> Match:
     """The match bar's query parameters -> :class:`~tactus_memory.search.matching.Match`."""
-    return Match(threshold=threshold, relative=relative)
+    return Match(threshold=threshold, relative=relative, answer=answer)
 
 
 MatchDep = Annotated[Match, Depends(match_bar)]

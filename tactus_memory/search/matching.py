@@ -38,6 +38,17 @@ session whose (aligned) spans ``[t, t_end]`` overlap or lie within ``merge_gap``
 each other merge into one; adjacent windows of one stream (same session + sense + source)
 are one occurrence, and a touch window with the note written about it is one too.
 
+**Which occurrences answer.** Past the bar, several occurrences can remain that match
+unequally well: for "picked up the mug", the note that says it (8.6) and "put the mug down"
+(5-6). ``count``/``last``/``first`` answer from the occurrences that match *about as well as
+the best one*: an occurrence (a moment: its best member's score plus the corroboration
+bonus) answers when its score >= ``answer`` x the best occurrence's score for the query
+(:data:`ANSWER_KEEP`; ``answer=0`` answers from every occurrence past the bar, the rule
+before). ``last`` is the latest of those, ``first`` the earliest, ``count`` their number;
+``Occurrences.passed`` still counts every occurrence past the bar. Scores are calibrated z
+(never negative past the bar), so the ratio is scale-free across queries. How the value was
+chosen: the checkpoints README, "Answer rule" (stream evaluation of held-out recordings).
+
 **Candidates.** Each sense contributes at most :data:`MATCH_CANDIDATES` candidates (the top of
 a prefiltered search): ``count`` over a long session with more matching windows than that is
 a lower bound, and :class:`Occurrences` says so (``capped=True``); narrow it with
@@ -65,6 +76,9 @@ MATCH_Z: dict[str, float] = {"text": 3.0, "touch": 3.0}
 DEFAULT_MATCH_Z = 3.0
 #: a match must also score >= RELATIVE_KEEP x the best score of its sense for the query
 RELATIVE_KEEP = 0.4
+#: count/last/first answer from the occurrences scoring >= ANSWER_KEEP x the best one (see
+#: "Which occurrences answer"; measured in the checkpoints README, "Answer rule")
+ANSWER_KEEP = 0.75
 #: candidates pulled per sense before thresholding (the cap on count over long sessions)
 MATCH_CANDIDATES = 500
 #: occurrences: matching items within this many seconds of each other are one occurrence
@@ -92,6 +106,7 @@ class Match:
 
     threshold: float | Mapping[str, float] | None = None
     relative: float = RELATIVE_KEEP
+    answer: float = ANSWER_KEEP  # occurrences answering: score >= answer x the best one
 
 
 class MatchKwargs(ScopeKwargs, total=False):
@@ -100,13 +115,14 @@ class MatchKwargs(ScopeKwargs, total=False):
 
     threshold: float | Mapping[str, float] | None
     relative: float
+    answer: float
     match: Match | None
 
 
 def split_match(kw: Mapping[str, Any]) -> tuple[Scope, Match]:
     """Keyword arguments -> (Scope, Match); unknown keywords raise TypeError."""
     scope, rest = split_scope(kw)
-    unknown = sorted(set(rest) - {"threshold", "relative", "match"})
+    unknown = sorted(set(rest) - {"threshold", "relative", "answer", "match"})
     if unknown:
         raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
     match = rest.pop("match", None) or Match()
@@ -136,6 +152,18 @@ def check_relative(relative: float) -> float:
     if not 0.0 <= value <= 1.0:
         raise InvalidInputError(f"relative must be in [0, 1], got {relative!r}")
     return value
+
+
+def answering(moments: Sequence[Moment], answer: float) -> list[Moment]:
+    """The occurrences that answer count/last/first: score >= ``answer`` x the best
+    occurrence's score (see "Which occurrences answer"); order kept."""
+    value = finite_float(answer, "answer")
+    if not 0.0 <= value <= 1.0:
+        raise InvalidInputError(f"answer must be in [0, 1], got {answer!r}")
+    if not moments or value == 0.0:
+        return list(moments)
+    best = max(m.score for m in moments)
+    return [m for m in moments if m.score >= value * best]
 
 
 def check_seconds(value: float, what: str) -> float:

@@ -51,6 +51,7 @@ from tactus_memory.search.matching import (
     TIMELINE_MAX,
     Match,
     MatchKwargs,
+    answering,
     check_relative,
     check_seconds,
     group_moments,
@@ -201,10 +202,12 @@ class Temporal:
         rule = grasp_rule(group, pool)
         q = embed_query(self.space, query)
         ev, capped = self._evidence(q, scope, match, MATCH_CANDIDATES, rule)
-        moments = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
+        passed = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
+        moments = answering(passed, match.answer)
         return Occurrences(
-            query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments
-        )
+            query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments,
+            passed=len(passed), answer=match.answer,
+        )  # fmt: skip
 
     def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
         """How many distinct times ``query`` happened (see :meth:`occurrences`)."""

@@ -204,7 +204,7 @@ def _score_mode(
 
     def label(h: Any) -> tuple[str | None, bool]:
         """(object of the hit, or None when its windows mix objects; is it idle)."""
-        members = [where[i] for i in getattr(h, "ids", [h.id])]
+        members = [where[i] for i in (getattr(h, "ids", None) or [h.id])]
         objs = {stream.obj[i] for i in members}
         return (objs.pop() if len(objs) == 1 else None), bool(stream.idle[members].all())
 
