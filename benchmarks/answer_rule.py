@@ -6,8 +6,9 @@ recordings), the fold's held-out recordings are streamed into a real memory (rea
 real MiniLM; ``touch/training/stream_eval.py``'s session: one recording per object, idle
 windows not stored) and every natural query of ``stream_queries.json`` is asked:
 
-* ``answer`` sweep: the occurrences past the bar (touch asked of grasps, the default) are
-  taken once (``answer=0``), then each ratio keeps those scoring >= ratio x the best;
+* ``answer`` sweep: the occurrences past the bar (touch asked of grasps, the default, and of
+  windows) are taken once (``answer=0``), then ``search.matching.answering`` cuts them at
+  each ratio (the first score step down to less than ratio x the score above it);
   ``last`` is right when the latest kept occurrence overlaps the object's recording,
   ``count`` exact when it is 1 (0 for a class with no recording);
 * the match bar on grasps vs windows: how often another object's grasp (window) passes
@@ -39,7 +40,7 @@ THRESHOLDS = (2.0, 3.0, 4.0)  # the match bar for last/count (threshold=)
 GROUPS = ("auto", "window")
 
 
-def key(k: tuple) -> str:
+def combo(k: tuple) -> str:
     return "|".join(str(x) for x in k)
 
 
@@ -123,8 +124,8 @@ def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
             "checkpoint": str(ckpt),
             "fold": fold_of(ckpt),
             "queries": len(exact[(GROUPS[0], THRESHOLDS[0], ANSWERS[0])]),
-            "last_correct": {key(k): float(np.mean(v)) for k, v in last.items()},
-            "count_exact": {key(k): float(np.mean(v)) for k, v in exact.items()},
+            "last_correct": {combo(k): float(np.mean(v)) for k, v in last.items()},
+            "count_exact": {combo(k): float(np.mean(v)) for k, v in exact.items()},
             "bar_rates": rates,
         }
     finally:

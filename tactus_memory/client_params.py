@@ -34,7 +34,9 @@ def scope_params(scope: Scope) -> dict[str, Any]:
 def match_params(match: Match) -> dict[str, Any]:
     if match.threshold is not None and not isinstance(match.threshold, (int, float)):
         raise InvalidInputError("over HTTP, threshold is one number for every sense")
-    out: dict[str, Any] = {"relative": match.relative, "answer": match.answer}
+    out: dict[str, Any] = {"relative": match.relative}
+    if match.answer is not None:
+        out["answer"] = match.answer
     if match.threshold is not None:
         out["threshold"] = match.threshold
     return out

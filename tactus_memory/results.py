@@ -218,7 +218,9 @@ class Occurrences(BaseModel):
         description="Occurrences past the match bar; the `count` answering ones score >= "
         "`answer` x the best of them (tactus_memory.search.matching).",
     )
-    answer: float | None = Field(None, description="The answer ratio used (0: every one).")
+    answer: float | None = Field(
+        None, description="The answer ratio asked for (null: the per-sense defaults)."
+    )
 
 
 class Context(BaseModel):

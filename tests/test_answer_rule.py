@@ -9,7 +9,8 @@ from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.memory import Memory
-from tactus_memory.search.matching import ANSWER_KEEP, answering
+from tactus_memory.results import Moment
+from tactus_memory.search.matching import answering
 from tactus_memory.search.scoring import FINAL_ROWS
 from tests.fakes import HashingSpace
 
@@ -39,7 +40,7 @@ def test_last_is_the_note_that_says_it_not_the_latest_near_miss(notes: Memory) -
     assert every.moments[-1].t > 10.0
     # ... but only the note that says it matches about as well as the best one
     occ = notes.occurrences("picked up the mug", session="notes")
-    assert occ.answer == ANSWER_KEEP and occ.passed == every.passed
+    assert occ.answer is None and occ.passed == every.passed
     assert occ.count == 1 and occ.moments[0].t == 10.0
     assert notes.last("picked up the mug", session="notes").t == 10.0
     assert notes.first("picked up the mug", session="notes").t == 10.0
@@ -55,21 +56,36 @@ def test_answer_rule_over_http(notes: Memory) -> None:
     with TestClient(create_app(Settings(), memory=notes)) as c:
         q = {"q": "picked up the mug", "session": "notes"}
         body = c.get("/count", params=q).json()
-        assert body["count"] == 1 and body["passed"] >= 3 and body["answer"] == ANSWER_KEEP
+        assert body["count"] == 1 and body["passed"] >= 3 and body["answer"] is None
         assert c.get("/last", params=q).json()["moment"]["t"] == 10.0
         late = c.get("/last", params={**q, "answer": 0}).json()["moment"]["t"]
         assert late > 10.0
         assert c.get("/count", params={**q, "answer": 1.5}).status_code == 422
 
 
-def test_answering_is_a_ratio_of_the_best(notes: Memory) -> None:
-    occ = notes.occurrences("picked up the mug", session="notes", answer=0.0)
-    best = max(m.score for m in occ.moments)
-    for ratio in (0.0, 0.5, 0.75, 1.0):
-        kept = answering(occ.moments, ratio)
-        assert [m.t for m in kept] == [m.t for m in occ.moments if m.score >= ratio * best]
+def _moment(t: float, score: float, sense: str = "text") -> Moment:
+    return Moment(session="s", t=t, t_end=t + 1, score=score, senses=[sense], best="x", hits=[])
+
+
+def test_answering_cuts_at_the_first_clear_break() -> None:
+    # repeats that match alike all answer; a clear best answers alone
+    alike = [_moment(10, 6.5), _moment(40, 5.8), _moment(70, 4.9)]
+    assert [m.t for m in answering(alike, 0.75)] == [10, 40, 70]
+    clear = [_moment(10, 8.0), _moment(40, 5.5), _moment(70, 4.3), _moment(130, 4.2)]
+    assert [m.t for m in answering(clear, 0.75)] == [10]
+    # the break is taken where it first occurs, best first: 8 -> 7.5 -> 4 cuts below 7.5
+    two = [_moment(10, 4.0), _moment(40, 7.5), _moment(70, 8.0)]
+    assert [m.t for m in answering(two, 0.75)] == [40, 70]
+    assert answering(clear, 0.0) == clear and answering([], 0.75) == []
+    # per sense: a note far above two grasps does not silence them
+    mixed = [_moment(10, 8.5), _moment(20, 6.0, "touch"), _moment(30, 5.2, "touch")]
+    assert [m.t for m in answering(mixed, 0.75)] == [10, 20, 30]
+    # the defaults: text cut at 0.75, touch not cut (its repeats vary too much)
+    touch = [_moment(10, 7.3, "touch"), _moment(40, 6.7, "touch"), _moment(70, 3.4, "touch")]
+    assert [m.t for m in answering(touch)] == [10, 40, 70]
+    assert [m.t for m in answering(clear)] == [10]
     with pytest.raises(InvalidInputError, match="answer"):
-        answering(occ.moments, -0.1)
+        answering(clear, -0.1)
 
 
 def _notes(mem: Memory, n: int, start: float, word: str) -> None:

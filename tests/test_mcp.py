@@ -115,13 +115,21 @@ def test_tools_in_process(tmp_path) -> None:
             schema_seen.update(tools["search"].input_schema["properties"])
             assert tools["search"].annotations.read_only_hint is True
             assert tools["remember"].annotations.read_only_hint is False
-            assert tools["search"].description.startswith("Find remembered items")
+            assert tools["search"].description.startswith("Find remembered things")
             r = await client.call_tool("remember", {"session": "kitchen", "text": "door shut"})
             assert not r.is_error
             stored = json.loads(r.content[0].text)
             assert memory.get_item(stored["id"]).text == "door shut"
             r = await client.call_tool("remember", {"session": "kitchen", "text": "x", "meta": 3})
             assert r.is_error
+            # touch answers are grasps by default (one window here: a grasp of 1); windows on ask
+            r = await client.call_tool("search", {"query": "mug", "senses": ["touch"]})
+            (hit,) = json.loads(r.content[0].text)["hits"]
+            assert hit["grasp_windows"] == 1 and hit["sense"] == "touch"
+            args = {"query": "mug", "senses": ["touch"], "windows": True}
+            r = await client.call_tool("search", args)
+            (hit,) = json.loads(r.content[0].text)["hits"]
+            assert hit.get("grasp_windows") is None
             # an unexpected failure below the tools: a tool error naming the tool, no internals,
             # and the server goes on answering
             memory.search = broken

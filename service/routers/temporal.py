@@ -18,7 +18,6 @@ from fastapi import APIRouter, Depends, Query
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
 from tactus_memory.results import Occurrences, Side
 from tactus_memory.search.matching import (
-    ANSWER_KEEP,
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
@@ -70,18 +69,19 @@ GroupGrasp = Annotated[
 
 
 Answer = Annotated[
-    float,
+    float | None,
     Query(
         ge=0.0,
         le=1.0,
-        description="last/first/count answer from occurrences scoring >= answer x the best one "
-        "(0: every occurrence past the bar).",
+        description="last/first/count answer from the occurrences above the first step down "
+        "to less than answer x the score above it, per sense (default: 0.75 for text, 0 for "
+        "the others; 0: every occurrence past the bar).",
     ),
 ]
 
 
 def match_bar(
-    threshold: Threshold = None, relative: Relative = RELATIVE_KEEP, answer: Answer = ANSWER_KEEP
+    threshold: Threshold = None, relative: Relative = RELATIVE_KEEP, answer: Answer = None
 ) -> Match:
     """The match bar's query parameters -> :class:`~tactus_memory.search.matching.Match`."""
     return Match(threshold=threshold, relative=relative, answer=answer)
