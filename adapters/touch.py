@@ -111,6 +111,18 @@ class TactusEncoder(Sense):
         self.query_centroid = self.ckpt.targets.centroid.astype(np.float32)
         self._targets = self.ckpt.targets.centred.astype(np.float32)  # (C, D) unit rows
 
+    def class_targets(self) -> tuple[list[str], np.ndarray]:
+        """The trained classes and their (C, D) raw template-averaged phrase embeddings: the
+        search targets a text query is matched to (:mod:`tactus_memory.search.teaching`)."""
+        return list(self.classes), np.asarray(self.ckpt.targets.raw, np.float32)
+
+    def target_phrases(self, label: str) -> list[str]:
+        """The phrases of a taught label: the training templates filled with it, as a class's
+        target is built (:func:`tactus_memory.touch.targets.class_phrases`)."""
+        from tactus_memory.touch.targets import class_phrases
+
+        return class_phrases(label)
+
     def bind(self, space: Space) -> None:
         """Refuse a memory of another space: name and dim (``Sense.bind``), then the model
         fingerprint when both the checkpoint and the space record one."""

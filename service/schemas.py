@@ -341,6 +341,13 @@ class SenseOut(BaseModel):
     rows: int = Field(description="Items of this sense in the store.")
     mu: float | None = Field(None, description="Score calibration: null cosine mean.")
     sigma: float | None = Field(None, description="Score calibration: null cosine spread.")
+    classes: list[str] = Field(
+        default_factory=list, description="What the sense recognises: its trained classes."
+    )
+    taught: list[str] = Field(
+        default_factory=list,
+        description="Labels taught to it (`POST /sessions/{id}/labels`), searchable by text.",
+    )
 
 
 class SensesOut(BaseModel):

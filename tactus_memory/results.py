@@ -88,6 +88,9 @@ class SenseInfo(BaseModel):
     rows: int
     mu: float | None = None
     sigma: float | None = None
+    #: what a touch sense recognises: its trained classes and the labels taught to it
+    classes: list[str] = []
+    taught: list[str] = []
 
 
 def row_fields(row: dict[str, Any]) -> dict[str, Any]:
