@@ -51,7 +51,6 @@ from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.vectors import as_unit_rows
 from tactus_memory.touch.checkpoint import default_checkpoint_path
-from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import CONTACT_LEVEL, CONTACT_MIN_TAXELS, window_idle
 
 
@@ -111,6 +110,18 @@ class TactusEncoder(Sense):
         self.query_centroid = self.ckpt.targets.centroid.astype(np.float32)
         self._targets = self.ckpt.targets.centred.astype(np.float32)  # (C, D) unit rows
 
+    def class_targets(self) -> tuple[list[str], np.ndarray]:
+        """The trained classes and their (C, D) raw template-averaged phrase embeddings: the
+        search targets a text query is matched to (:mod:`tactus_memory.search.teaching`)."""
+        return list(self.classes), np.asarray(self.ckpt.targets.raw, np.float32)
+
+    def target_phrases(self, label: str) -> list[str]:
+        """The phrases of a taught label: the training templates filled with it, as a class's
+        target is built (:func:`tactus_memory.touch.targets.class_phrases`)."""
+        from tactus_memory.touch.targets import class_phrases
+
+        return class_phrases(label)
+
     def bind(self, space: Space) -> None:
         """Refuse a memory of another space: name and dim (``Sense.bind``), then the model
         fingerprint when both the checkpoint and the space record one."""
@@ -141,7 +152,7 @@ class TactusEncoder(Sense):
 
     def from_message(self, msg: Any, msgtype: str, where: str) -> np.ndarray:
         """One recorded touch message -> one (32, 32) frame (``recordings.decode``)."""
-        return touch_frame(msg, msgtype, FRAME_SHAPE, where)
+        return touch_frame(msg, msgtype, self.profile.shape, where)
 
     def validate(
         self, item: Any, *, calibrated: bool | None = None, keep_idle: bool = False
@@ -174,8 +185,12 @@ class TactusEncoder(Sense):
             or arr.dtype == bool
         ):
             raise InvalidInputError(f"touch window must be numeric, got dtype {arr.dtype}")
-        if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE:
-            raise InvalidInputError(f"touch window must have shape (K, 32, 32), got {arr.shape}")
+        h, w = self.profile.shape
+        if arr.ndim != 3 or arr.shape[1:] != (h, w):
+            raise InvalidInputError(
+                f"touch window must have shape (K, {h}, {w}), got {arr.shape}: sense "
+                f"{self.name!r} reads {h}x{w} frames (sensor {self.profile.name!r})"
+            )
         k = arr.shape[0]
         if not 1 <= k <= self.frames:
             raise InvalidInputError(
@@ -224,7 +239,7 @@ class TactusEncoder(Sense):
         else:
             items = list(batch)
         if not items:
-            return np.zeros((0, self.frames, *FRAME_SHAPE), np.float32)
+            return np.zeros((0, self.frames, *self.profile.shape), np.float32)
         # validated windows (what Memory passes) are trusted; raw ones are validated here
         trusted = calibrated is not False
         checked = [  # embedding any window is allowed (the evaluation embeds idle ones too)

@@ -44,6 +44,7 @@ from tactus_memory.service.routers import (
     health,
     images,
     items,
+    labels,
     places,
     recordings,
     retention,
@@ -342,7 +343,7 @@ def create_app(
     app.include_router(health.router)
     for module in (
         sessions, senses, images, search, items, touch, touch_stream, ui, recordings, places,
-        retention,
+        retention, labels,
     ):  # fmt: skip
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401, 403))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401, 403))

@@ -373,6 +373,13 @@ class SenseOut(BaseModel):
         description="The calibration is frozen: this sense's scores no longer move as data "
         "arrives (estimated on enough rows; re-estimated only after a re-embed).",
     )
+    classes: list[str] = Field(
+        default_factory=list, description="What the sense recognises: its trained classes."
+    )
+    taught: list[str] = Field(
+        default_factory=list,
+        description="Labels taught to it (`POST /sessions/{id}/labels`), searchable by text.",
+    )
 
 
 class SensesOut(BaseModel):

@@ -40,6 +40,7 @@ from typing_extensions import Unpack
 from tactus_memory.client_errors import problem_error
 from tactus_memory.client_params import match_params, npy, scope_params
 from tactus_memory.client_stream import TouchStream
+from tactus_memory.client_teach import TeachingCalls
 from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
 from tactus_memory.results import (
     ClockOffset,
@@ -108,7 +109,7 @@ def image_bytes(image: Any) -> bytes:
     raise InvalidInputError(f"an image is PNG/JPEG bytes or a PIL image, not {type(image)}")
 
 
-class Client:
+class Client(TeachingCalls):
     """The service at ``url`` with the :class:`~tactus_memory.memory.Memory` API."""
 
     def __init__(

@@ -66,6 +66,7 @@ from tactus_memory.search.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.registry import SenseRegistry
 from tactus_memory.search.scoring import Calibration
+from tactus_memory.search.teaching import Teachings
 from tactus_memory.senses import Sense, TextSense, bytes_to_array, validate_sense_name
 from tactus_memory.settings import DEFAULT_MEMORY
 from tactus_memory.spaces.base import Space
@@ -107,6 +108,8 @@ TEMPORAL_QUESTIONS = (
 WRITE_CALLS = ("prepare_write", "commit_writes", "validate_item")
 #: the place questions: ``memory.where(q)`` IS ``memory.places.where``
 PLACE_QUESTIONS = ("add_poses", "place_items", "trajectory", "where", "at")
+#: objects you teach: ``memory.teach("drill", session=...)`` IS ``memory.teachings.teach``
+TEACH_CALLS = ("teach", "taught", "forget")
 
 
 def _delegate(part: str, owner: type, name: str) -> Any:
@@ -140,6 +143,9 @@ class Memory:
         self.temporal = Temporal(store, self.registry, self.ranker, space, self.lock)
         self.places = Places(store, self.lock, self.registry, space, self.temporal)
         self.write_path = WritePath(store, self.registry, space, self.lock, self.places)
+        #: objects taught by example (:mod:`tactus_memory.search.teaching`)
+        self.teachings = Teachings(store, self.registry, space, self.lock)
+        self.ranker.steer = self.teachings.steer
         self.add_sense(TextSense(space))
 
     # ----------------------------------------------------------- construction
@@ -213,8 +219,14 @@ class Memory:
         return self.registry.restore(skip)
 
     def sense_info(self) -> list[SenseInfo]:
-        """Every sense the store knows, live or not, with row counts and calibration."""
-        return self.registry.sense_info()
+        """Every sense the store knows, live or not, with row counts and calibration, and
+        what each recognises: its trained ``classes`` and the labels ``taught`` to it."""
+        out = []
+        for info in self.registry.sense_info():
+            classes = self.teachings.targets(info.name, taught=False)[0]
+            taught = self.teachings.labels(info.name)
+            out.append(info.model_copy(update={"classes": classes, "taught": taught}))
+        return out
 
     def calibration(self, sense: str) -> Calibration:
         """The null statistics of a sense, re-estimated when its row count has doubled."""
@@ -285,9 +297,10 @@ class Memory:
         return self._delete(where)
 
     def delete_session(self, session: str) -> int:
-        """Delete every item of a session, its poses and clock offsets; returns the item rows
-        removed."""
+        """Delete every item of a session, its poses, clock offsets and teachings; returns the
+        item rows removed."""
         deleted = self._delete(Where().session(session).sql())
+        self.teachings.drop_session(session)
         self.places.delete_session(session)
         self.temporal.clocks.drop_session(session)  # its one meta row
         return deleted
@@ -500,3 +513,5 @@ for _name in WRITE_CALLS:
     setattr(Memory, _name, _delegate("write_path", WritePath, _name))
 for _name in PLACE_QUESTIONS:
     setattr(Memory, _name, _delegate("places", Places, _name))
+for _name in TEACH_CALLS:
+    setattr(Memory, _name, _delegate("teachings", Teachings, _name))

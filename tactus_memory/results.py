@@ -115,6 +115,9 @@ class SenseInfo(BaseModel):
         description="The calibration is frozen (estimated on enough rows): scores of this "
         "sense no longer move as data arrives.",
     )
+    #: what a touch sense recognises: its trained classes and the labels taught to it
+    classes: list[str] = []
+    taught: list[str] = []
 
 
 def row_fields(row: dict[str, Any]) -> dict[str, Any]:

@@ -18,7 +18,7 @@ from mcp import Client, StdioServerParameters
 from mcp.client.streamable_http import streamable_http_client
 
 from benchmarks.serving import free_port, wait_ok
-from tactus_memory.mcp_server.server import READ_TOOLS, build_server
+from tactus_memory.mcp_server.server import READ_TOOLS, WRITE_TOOLS, build_server
 from tests.servers import stop_process
 from tests.test_service_helpers import make_memory, window
 
@@ -83,7 +83,7 @@ def check_answers(results: dict[str, Any]) -> None:
 async def drive(client: Client, *, writes: bool = False) -> dict[str, Any]:
     """List the tools, call each, then the bad calls: returns the parsed answers."""
     names = [t.name for t in (await client.list_tools()).tools]
-    assert names == [*READ_TOOLS, *(["remember"] if writes else [])]
+    assert names == [*READ_TOOLS, *(WRITE_TOOLS if writes else ())]
     results = {}
     for name, args in CALLS.items():
         r = await client.call_tool(name, args)

@@ -13,7 +13,7 @@ import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -252,3 +252,42 @@ def reembed(
         fail(str(exc))
         return
     _print_json(report.model_dump())
+
+
+@app.command("teach")
+@grouped(source=Source)
+def teach(
+    label: Annotated[str, typer.Argument(help="What was held, in words (e.g. drill).")],
+    session: Annotated[str, typer.Option("--session", help="The session of the grasp.")],
+    after: Annotated[float | None, typer.Option(help="Span start (s, session clock).")] = None,
+    before: Annotated[float | None, typer.Option(help="Span end (s, session clock).")] = None,
+    sense: Annotated[str, typer.Option(help="The sense whose windows were the grasp.")] = "touch",
+    as_json: AsJson = False,
+    *,
+    source: Source,
+) -> None:
+    """Teach an object: the session's windows between --after and --before held LABEL.
+
+    The label becomes a search target beside the encoder's classes (``tactus search "when was
+    I holding the drill"`` then ranks touch by the label and the taught grasp)."""
+    from tactus_memory.errors import TactusError
+
+    one_source(source.data, source.url)
+    try:
+        if source.url:
+            from tactus_memory.client import Client
+
+            with Client(source.url, token=source.token, tenant=source.tenant) as client:
+                got = client.teach(label, session=session, after=after, before=before, sense=sense)
+        else:
+            with _open(source.data, *source.spaces, tenant=source.tenant) as memory:
+                got = memory.teach(label, session=session, after=after, before=before, sense=sense)
+    except TactusError as exc:
+        fail(str(exc))
+    if as_json:
+        _print_json(got.to_dict())
+        return
+    typer.echo(
+        f"taught {got.label!r}: {plural(got.windows, 'window')} of {got.session} "
+        f"({got.sense}) from {fmt_span(got.t, got.t_end)}; id {got.id}"
+    )

@@ -123,6 +123,17 @@ class Remembered(BaseModel):
     t: float
 
 
+class Taught(BaseModel):
+    """A teaching: ``windows`` of ``session`` between ``t`` and ``t_end`` held ``label``."""
+
+    id: str
+    label: str
+    session: str
+    t: float
+    t_end: float
+    windows: int
+
+
 def when(t: float) -> str | None:
     """ISO 8601 UTC of a unix time; None for a relative clock."""
     if t < UNIX_EPOCH_FLOOR:

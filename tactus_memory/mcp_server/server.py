@@ -44,6 +44,7 @@ from tactus_memory.mcp_server.results import (
     Remembered,
     SearchResult,
     SessionsResult,
+    Taught,
     TimelineResult,
 )
 from tactus_memory.memory import Memory
@@ -334,9 +335,30 @@ class MemoryTools:
                     request = None
             self.on_write(request, status, count)
 
+    @tool_errors
+    def teach(
+        self,
+        session: Annotated[
+            str,
+            Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Session id."),
+        ],
+        label: Annotated[
+            str, Field(min_length=1, max_length=64, description="What was held, e.g. 'drill'.")
+        ],
+        after: Annotated[float | None, Field(description="Span start (s).")] = None,
+        before: Annotated[float | None, Field(description="Span end (s).")] = None,
+    ) -> Taught:
+        """Teach an object: the touch windows of the session between after and before were a
+        grasp of `label`. Afterwards `search` and `last` find that object by its name."""
+        got = self.memory.teach(label, session=session, after=after, before=before)
+        out = Taught(**{k: v for k, v in got.to_dict().items() if k in Taught.model_fields})
+        return compact(out)  # type: ignore[return-value]
+
 
 #: the read-only tools, in the order an agent sees them
 READ_TOOLS = ("sessions", "search", "last", "first", "count", "before", "after", "timeline")
+#: the tools that write, offered only with ``allow_writes``
+WRITE_TOOLS = ("remember", "teach")
 
 
 def build_server(
@@ -353,5 +375,6 @@ def build_server(
         server.add_tool(getattr(tools, name), name=name, annotations=read_only)
     if allow_writes:
         writes = ToolAnnotations(read_only_hint=False, destructive_hint=False)
-        server.add_tool(tools.remember, name="remember", annotations=writes)
+        for name in WRITE_TOOLS:
+            server.add_tool(getattr(tools, name), name=name, annotations=writes)
     return server

@@ -26,6 +26,9 @@ class Ranker:
         self.store = store
         self.registry = registry
         self.space = registry.space
+        #: ``(q, sense, transformed) -> (1, D)``: the taught labels' steering of a text query
+        #: (:meth:`tactus_memory.search.teaching.Teachings.steer`); None: none
+        self.steer: Any = None
 
     def rank(
         self,
@@ -67,7 +70,10 @@ class Ranker:
     def query_for(self, q: np.ndarray, name: str) -> np.ndarray:
         """The (1, D) text query ``q`` as sense ``name`` compares it: its query transform."""
         s = self.registry.search_sense(name)
-        return as_unit_rows(s.query_transform(q), self.space.dim, what="query")
+        out = as_unit_rows(s.query_transform(q), self.space.dim, what="query")
+        if self.steer is not None:
+            out = as_unit_rows(self.steer(q, name, out), self.space.dim, what="query")
+        return out
 
     def _search_group(
         self,

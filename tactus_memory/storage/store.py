@@ -399,6 +399,10 @@ class Store(StoreIndexes):
     def senses_version(self) -> int:
         return 0 if self._senses is None else int(self._senses.version)
 
+    def meta_version(self) -> int:
+        """The meta table's version (caches of meta records key on it)."""
+        return 0 if self._meta is None else int(self._meta.version)
+
     def maintainer(self) -> Maintainer:
         """The maintenance runner for this store's tables (built on first use)."""
         if self._maintainer is None or set(self._maintainer.tables) != set(self.table_uris()):

@@ -37,6 +37,9 @@ from torch import nn
 
 from tactus_memory.touch.profile import FRAME_SHAPE
 
+#: the smallest frame side the trunk takes (its stem and stages pool; the fused map is averaged)
+MIN_SIDE = 4
+
 
 @dataclass
 class TactusConfig:
@@ -182,8 +185,10 @@ class TactusModel(nn.Module):
 
     def pad_frames(self, frames: torch.Tensor) -> torch.Tensor:
         """(B, k, 32, 32) with k <= K -> (B, K, 32, 32), repeating the last frame."""
-        if frames.ndim != 4 or tuple(frames.shape[-2:]) != FRAME_SHAPE:
-            raise ValueError(f"frames must be (B, K, 32, 32), got {tuple(frames.shape)}")
+        if frames.ndim != 4 or min(frames.shape[-2:]) < MIN_SIDE:
+            raise ValueError(
+                f"frames must be (B, K, H, W) with H, W >= {MIN_SIDE}, got {tuple(frames.shape)}"
+            )
         k, big_k = frames.shape[1], self.cfg.frames
         if k < 1:
             raise ValueError("a window needs at least one frame")
@@ -201,7 +206,7 @@ class TactusModel(nn.Module):
         """(B, K, 32, 32) -> pooled fused features (B, C), before the projector."""
         frames = self.pad_frames(frames)
         b, k = frames.shape[:2]
-        x = self.shape_input(frames.reshape(b * k, 1, *FRAME_SHAPE))
+        x = self.shape_input(frames.reshape(b * k, 1, *frames.shape[-2:]))  # any sensor's H, W
         f = self.drop(self.trunk(x))  # (B*K, C, h, w)
         f = f.reshape(b, k * f.shape[1], f.shape[2], f.shape[3])  # concat frames on channels
         return self.fuse(f).mean(dim=(2, 3))

@@ -1,0 +1,49 @@
+"""Request and response models of the teaching routes (``routers/labels.py``)."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from tactus_memory.limits import SENSE_NAME_PATTERN
+from tactus_memory.search.teaching import MAX_LABEL_CHARS
+from tactus_memory.service.schemas import Strict
+
+
+class LabelIn(Strict):
+    """A span of the session marked "holding <label>"."""
+
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"label": "drill", "t": 12.0, "t_end": 15.5}]}
+    )
+
+    label: str = Field(
+        min_length=1, max_length=MAX_LABEL_CHARS, description="What was held, in words."
+    )
+    t: float | None = Field(
+        None, description="Start of the span (seconds, the session clock); none: from the start."
+    )
+    t_end: float | None = Field(
+        None, description="End of the span (>= t); none: to the end of the session."
+    )
+    sense: str = Field(
+        "touch", pattern=SENSE_NAME_PATTERN, description="The sense whose windows were the grasp."
+    )
+
+
+class TaughtOut(BaseModel):
+    id: str
+    label: str
+    session: str
+    sense: str
+    t: float
+    t_end: float
+    windows: int = Field(description="Windows of the span when it was taught.")
+    created: float
+
+
+class TaughtListOut(BaseModel):
+    labels: list[TaughtOut]
+
+
+class ForgottenOut(BaseModel):
+    deleted: int
