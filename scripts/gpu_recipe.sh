@@ -35,7 +35,7 @@ args=(--plan "${PLAN:-gpu}" --out "$WORK" --jobs "${JOBS:-20}" --device "${DEVIC
 [ -n "${FOLDS:-}" ] && args+=(--folds "$FOLDS")
 for r in ${ONLY:-}; do args+=(--only "$r"); done
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
-"$PY" -m tactus_memory.touch.training.protocol run "${args[@]}" 2>&1 | tee "$WORK/runner.log"
+"$PY" -m tactus_memory.touch.training.protocol_run run "${args[@]}" 2>&1 | tee "$WORK/runner.log"
 rc=${PIPESTATUS[0]}
 
 # pack: JSON and logs, then the checkpoints that serving or the CPU stream metrics need

@@ -9,7 +9,6 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from tactus_memory.limits import (
     ID_DESCRIPTION,
     ID_PATTERN,
-    MAX_CLOCK_OFFSET,
     MAX_COORDINATE,
     MAX_ID_CHARS,
     MAX_K,
@@ -19,22 +18,13 @@ from tactus_memory.limits import (
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
 from tactus_memory.results import (
-    ClockOffset,
-    Evidence,
     Grasp,
     Moment,
     Position,
-    TimelineItem,
 )
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
 from tactus_memory.storage.vectors import MAX_COMPONENT
 from tactus_memory.storage.where import DEFAULT_FRAME
-from tactus_memory.temporal.episodes import (
-    EPISODE_MAX_GAP,
-    EPISODE_MEAN_COS,
-    EPISODE_MIN_COS,
-    Episode,
-)
 from tactus_memory.touch.profile import FRAME_SHAPE
 
 #: vectors (and ids) in one JSON write request, far below the library's limits.MAX_BATCH:
@@ -462,62 +452,3 @@ class LiveOut(BaseModel):
 class ReadyOut(BaseModel):
     status: str = "ready"
     read_only: bool = False
-
-
-# --------------------------------------------------------------------------- temporal
-class MomentOut(BaseModel):
-    """The occurrence found, or null when nothing matches."""
-
-    moment: Moment | None
-
-
-class MomentsOut(BaseModel):
-    moments: list[Moment]
-
-
-class ContextOut(BaseModel):
-    """What happened before/after the anchor; ``anchor`` null when nothing matches it."""
-
-    side: str
-    window: float
-    anchor: Evidence | None = None
-    t_from: float | None = None
-    t_to: float | None = None
-    items: list[TimelineItem] = Field(default_factory=list)
-
-
-class TimelineOut(BaseModel):
-    session: str
-    items: list[TimelineItem] | None = None
-    episodes: list[Episode] | None = None
-
-
-class ClockIn(Strict):
-    model_config = ConfigDict(
-        json_schema_extra={"examples": [{"sense": "touch", "source": "glove-l", "offset": 2.5}]},
-    )
-
-    sense: str = Field(pattern=SENSE_PATTERN)
-    source: str = Field(
-        "", max_length=MAX_ID_CHARS, pattern=SOURCE_PATTERN, description="Stream id ('' for none)."
-    )
-    offset: float = Field(
-        ge=-MAX_CLOCK_OFFSET,
-        le=MAX_CLOCK_OFFSET,
-        description="Seconds added to the stream's t to put it on the session clock (0 clears).",
-    )
-
-
-class ClockOut(BaseModel):
-    offsets: list[ClockOffset]
-
-
-class SegmentIn(Strict):
-    min_cos: float = Field(EPISODE_MIN_COS, ge=-1.0, le=1.0)
-    mean_cos: float = Field(EPISODE_MEAN_COS, ge=-1.0, le=1.0)
-    max_gap: float = Field(EPISODE_MAX_GAP, ge=0.0)
-
-
-class SegmentOut(BaseModel):
-    session: str
-    episodes: int = Field(description="Episodes written.")

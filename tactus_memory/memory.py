@@ -11,11 +11,10 @@ LanceDB commit (all-or-nothing) under a lock. ``id=`` / ``ids=`` make a write an
 upsert (merge-insert on ``id``). Maintenance (ANN index past a row threshold, compaction of
 small appends) runs in a background daemon thread; unindexed rows are still searched (flat).
 
-Search: the query is embedded once by the space, then for each sense searched it passes the
-sense's query transform, runs a prefiltered ANN search restricted to that sense, and hit
-cosines are calibrated into z-scores (see :mod:`tactus_memory.search.scoring`) so senses merge
-fairly. Time filters use overlap semantics: an item spanning ``[t, t_end]`` matches
-``after``/``before`` when ``t_end >= after`` and ``t <= before``.
+Search: the query is embedded once, passes each sense's query transform, a prefiltered ANN
+search per sense, cosines calibrated into z-scores (:mod:`tactus_memory.search.scoring`) so
+senses merge fairly; touch answers are grasps by default. Time filters use overlap: an item
+spanning ``[t, t_end]`` matches when ``t_end >= after`` and ``t <= before``.
 
 Senses: "text" is registered on open. Other live senses are rebuilt after a reopen by
 ``memory.restore_senses()`` (from the record each registered sense leaves in the store) or
@@ -24,14 +23,11 @@ re-added with ``add_sense``; their registration (name, modality, dim, provenance
 without its live object: its query transform is rebuilt from the stored centroid
 (``q - c``, renormalised).
 
-Where the parts live: result models in :mod:`tactus_memory.results`, the sense registry
-(live/stored senses, counts, calibration) in :mod:`tactus_memory.search.registry`, the ranked search
-in :mod:`tactus_memory.search.ranking`, query checks and the
-:class:`~tactus_memory.search.query.Scope` in
-:mod:`tactus_memory.search.query`, the temporal operators in :mod:`tactus_memory.temporal.operators`
-(``memory.count``, ``memory.last``, ... are the methods of ``memory.temporal``), the places
-in :mod:`tactus_memory.spatial` (``memory.add_poses``, ``memory.where``, ``memory.at``, ...
-are the methods of ``memory.places``).
+Where the parts live: results in :mod:`tactus_memory.results`, the sense registry in
+:mod:`tactus_memory.search.registry`, the ranked search in :mod:`tactus_memory.search.ranking`,
+``Scope`` in :mod:`tactus_memory.search.query`, ``memory.count``/``last``/... (the methods of
+``memory.temporal``) in :mod:`tactus_memory.temporal.operators`, the places
+(``memory.where``/``at``/...) in :mod:`tactus_memory.spatial`.
 
 Extension points (temporal operators and the service build on these, not on LanceDB):
 ``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
@@ -82,13 +78,7 @@ from tactus_memory.storage.tables import IndexConfig
 from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_uri
 from tactus_memory.storage.vectors import as_unit_rows
 from tactus_memory.storage.where import DEFAULT_FRAME, Where
-from tactus_memory.temporal.grasps import (
-    DEFAULT_GROUP,
-    GRASP_MODALITY,
-    GraspRule,
-    as_hit,
-    check_group,
-)
+from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, check_group, grasp_hits
 from tactus_memory.temporal.operators import Temporal
 from tactus_memory.writes import WritePath
 
@@ -350,30 +340,20 @@ class Memory:
         """Natural-language search over the scope's senses (default: every sense with rows).
 
         Filters: ``session``, ``senses``, ``source``, ``after``/``before``, ``near``/``frame``
-        (or one ``scope=`` :class:`Scope`). ``group``: ``"auto"`` (the default) answers touch
-        with grasps: one Hit per grasp (a touch stream's contiguous windows, :mod:`tactus_memory.
-        temporal.grasps`), scored by its pooled vector (``pool``), spanning the grasp, with its
-        members in ``ids`` and ``n``; other senses one Hit per item. ``"window"`` (or None): one
-        Hit per stored item, touch windows too. ``"grasp"``: one Grasp per grasp of every
-        sense; ``"moment"``: Moments (see :meth:`search_moments`). The query is embedded once."""
-        where = Scope.of(**scope)
-        g = check_group(group)
+        (or one ``scope=`` :class:`Scope`). ``group``: ``"auto"`` (default) answers touch with
+        grasps, one Hit each (``temporal.grasps.grasp_hits``); ``"window"`` (or None) one Hit per
+        stored item; ``"grasp"`` one Grasp per grasp of every sense; ``"moment"`` Moments
+        (:meth:`search_moments`). The query is embedded once."""
+        where, g, q = Scope.of(**scope), check_group(group), embed_query(self.space, query)
         if g == "grasp":
-            rule = GraspRule(pool=pool)
-            return self.temporal.grasps(embed_query(self.space, query), k, where, rule)
+            return self.temporal.grasps(q, k, where, GraspRule(pool=pool))
         if g == "moment":
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
-            return self.search_moments(query, k, gap=gap, scope=where, group=DEFAULT_GROUP)
-        k = check_k(k)
-        names = self.resolve_senses(where.senses)
-        if g == "auto" and any(
-            self.registry.search_sense(n).modality == GRASP_MODALITY for n in names
-        ):
-            rule = GraspRule(pool=pool, modality=GRASP_MODALITY)
-            found = self.temporal.grasps(embed_query(self.space, query), k, where, rule)
-            return [as_hit(e) for e in found]
-        hits = self.rank(embed_query(self.space, query), k, names, where.where(), transform=True)
-        return mark_matches(hits)
+            return self.search_moments(query, k, gap=gap, scope=where)
+        k, names = check_k(k), self.resolve_senses(where.senses)
+        if g == "auto" and (hits := grasp_hits(self.temporal, q, k, where, names, pool)):
+            return hits
+        return mark_matches(self.rank(q, k, names, where.where(), transform=True))
 
     def search_vector(
         self,

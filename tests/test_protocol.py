@@ -18,15 +18,13 @@ from tactus_memory.touch.training.protocol import (
     FOLDS,
     Plan,
     Recipe,
-    RunnerConfig,
     budget_scale,
     build_jobs,
-    interval,
-    report,
-    run_plan,
     shrink,
     without,
 )
+from tactus_memory.touch.training.protocol_report import interval, report
+from tactus_memory.touch.training.protocol_run import RunnerConfig, run_plan
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -33,7 +33,7 @@ from tactus_memory.service.deps import (
     StreamScopeDep,
 )
 from tactus_memory.service.problems import problem_responses
-from tactus_memory.service.schemas import (
+from tactus_memory.service.temporal_schemas import (
     ClockIn,
     ClockOut,
     ContextOut,

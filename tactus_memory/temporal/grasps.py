@@ -126,6 +126,18 @@ def as_hit(e: Evidence) -> Hit:
     return Hit(**fields)
 
 
+def grasp_hits(
+    temporal: Any, q: np.ndarray, k: int, scope: Any, names: Sequence[str], pool: str = "mean"
+) -> list[Hit] | None:
+    """``search(group="auto")`` over the senses ``names``: touch senses answered by grasps (one
+    Hit each, spanning the grasp, pooled score, members in ``ids``/``n``), the other senses by
+    items; None when no touch sense is among them (a plain search answers alike)."""
+    if not any(temporal.registry.search_sense(n).modality == GRASP_MODALITY for n in names):
+        return None
+    rule = GraspRule(pool=pool, modality=GRASP_MODALITY)
+    return [as_hit(e) for e in temporal.grasps(q, k, scope, rule)]
+
+
 def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:
     """The grasp keywords (``group``, ``pool``) popped from ``kw``, as the service's query
     parameters (the remote Client's questions)."""
