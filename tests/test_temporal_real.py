@@ -167,6 +167,12 @@ def test_real_touch_encoder_on_stag_windows(tmp_path, minilm_space, stag_dir) ->
             ids[kind] += mem.add_many(
                 S, "touch", pair, t=[t0, t0 + WINDOW_S], t_end=[t0 + WINDOW_S, t0 + 2 * WINDOW_S]
             )
+    # a touch answer is a grasp by default: the two windows of one hold, one hit
+    top = mem.search("a mug", k=3, senses=["touch"])
+    assert top[0].n == 2 and set(top[0].ids) <= set(ids["mug"]) and top[0].t in MUG_GRASPS
+    assert top[0].t_end == pytest.approx(top[0].t + 2 * WINDOW_S)
+    windows = mem.search("a mug", k=3, senses=["touch"], group="window")
+    assert all(h.n is None for h in windows) and windows[0].id in ids["mug"]
     # touch alone: the three mug grasps match object words, as three occurrences
     for q in ["a mug", "holding a coffee mug"]:
         occ = mem.occurrences(q, senses=["touch"])
