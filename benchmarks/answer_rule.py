@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 
 ANSWERS = (0.0, 0.5, 0.75, 0.9)
-BARS = (2.0, 3.0, 4.0, 5.0)
-THRESHOLDS = (2.0, 3.0, 4.0)  # the match bar for last/count (threshold=)
+BARS = (2.0, 2.5, 3.0, 4.0, 5.0)
+THRESHOLDS = (2.0, 2.5, 3.0)  # the match bar for last/count (threshold=)
 GROUPS = ("auto", "window")
 
 

@@ -76,6 +76,13 @@ from tactus_memory.storage.where import finite_float
 #: per-sense match threshold on the calibrated score (z vs the probe null); see the module
 #: docstring and tests/test_temporal_real.py for the measured separation behind each value
 MATCH_Z: dict[str, float] = {"text": 3.0, "touch": 3.0}
+#: the bar on a grasp's pooled score (touch answered by grasps, the default) where it differs
+#: from MATCH_Z: pooling averages a grasp's transition windows in, so the right object's
+#: pooled scores run lower than its best windows'. Measured on held-out STAG recordings
+#: (benchmarks/answer_rule.py, 4 fold checkpoints, 81 queries each): grasps at 2.0 pass
+#: 27 % of the queried object's grasps and 12 % of other objects' (windows at 3.0: 27 % and
+#: 14 %); grasps at 3.0 pass only 13 % of the right ones
+GRASP_MATCH_Z: dict[str, float] = {"touch": 2.5}
 #: threshold for senses not in MATCH_Z (motion, image, ...)
 DEFAULT_MATCH_Z = 3.0
 #: a match must also score >= RELATIVE_KEEP x the best score of its sense for the query

@@ -44,6 +44,7 @@ from tactus_memory.search.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
+    GRASP_MATCH_Z,
     MATCH_CANDIDATES,
     MOMENT_MIN_Z,
     MOMENT_POOL_FACTOR,
@@ -161,9 +162,12 @@ class Temporal:
                 )
                 for h in hits
             ]
+            floor = bars[name]
             if grasp is not None and grasp.applies(self.registry.search_sense(name).modality):
                 evs = pool_grasps(self.ranker, q, name, evs, grasp)
-            bar = sense_bar([e.score for e in evs], bars[name], relative)
+                if match.threshold is None:  # pooled scores have their own bar
+                    floor = GRASP_MATCH_Z.get(name, floor)
+            bar = sense_bar([e.score for e in evs], floor, relative)
             flags = [e.score >= bar for e in evs]
             capped = capped or (len(hits) >= per_sense and all(flags))
             for e, flag in zip(evs, flags, strict=True):
