@@ -36,8 +36,8 @@ import numpy as np
 
 ANSWERS = (0.0, 0.5, 0.75, 0.9)
 BARS = (2.0, 2.5, 3.0, 4.0, 5.0)
-THRESHOLDS = (2.0, 2.5, 3.0)  # the match bar for last/count (threshold=)
-GROUPS = ("auto", "window")
+THRESHOLDS = (2.5, 3.0)  # the match bar for last/count (threshold=)
+GROUPS = ("auto", "auto-max", "window")  # auto-max: grasps scored by their best window
 
 
 def combo(k: tuple) -> str:
@@ -92,8 +92,12 @@ def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
             truth = len(spans) if cls in present else 0
             for q in qs:
                 for g in GROUPS:
+                    group, _, how = g.partition("-")
+                    pool = {"": "mean", "max": "max"}[how]
                     for b in THRESHOLDS:
-                        occ = mem.occurrences(q, answer=0.0, group=g, threshold=b, **ask)
+                        occ = mem.occurrences(
+                            q, answer=0.0, group=group, pool=pool, threshold=b, **ask
+                        )
                         for a in ANSWERS:
                             kept = answering(occ.moments, a)
                             exact[(g, b, a)].append(float(len(kept) == truth))
@@ -103,7 +107,7 @@ def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
                                     m.t <= e and m.t_end >= s for s, e in spans
                                 )
                                 last[(g, b, a)].append(float(ok))
-                    for h in mem.search(q, k=50, group=g, **ask):
+                    for h in mem.search(q, k=50, group=group, pool=pool, **ask):
                         objs = {stream.obj[where[i]] for i in (h.ids or [h.id])}
                         own = objs == {cls}
                         for b in BARS:

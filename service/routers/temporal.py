@@ -43,6 +43,7 @@ from tactus_memory.service.temporal_schemas import (
     SegmentOut,
     TimelineOut,
 )
+from tactus_memory.temporal.grasps import OCCURRENCE_POOL
 
 ERRORS = problem_responses(404, 422)
 #: every temporal route answers 404 (unknown session/sense) and 422 (bad input) problems
@@ -110,7 +111,7 @@ class Occurrence:
     q: QueryText
     merge_gap: MergeGap = DEFAULT_MERGE_GAP
     group: GroupGrasp = "auto"
-    pool: GraspPool = "mean"
+    pool: GraspPool = OCCURRENCE_POOL
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked

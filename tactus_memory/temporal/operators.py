@@ -78,7 +78,13 @@ from tactus_memory.temporal.episodes import (
     number_episodes,
     representative,
 )
-from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, grasp_rule, pool_grasps
+from tactus_memory.temporal.grasps import (
+    DEFAULT_GROUP,
+    OCCURRENCE_POOL,
+    GraspRule,
+    grasp_rule,
+    pool_grasps,
+)
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None
@@ -165,7 +171,7 @@ class Temporal:
             floor = bars[name]
             if grasp is not None and grasp.applies(self.registry.search_sense(name).modality):
                 evs = pool_grasps(self.ranker, q, name, evs, grasp)
-                if match.threshold is None:  # pooled scores have their own bar
+                if match.threshold is None and grasp.pool != "max":  # pooled: their own bar
                     floor = GRASP_MATCH_Z.get(name, floor)
             bar = sense_bar([e.score for e in evs], floor, relative)
             flags = [e.score >= bar for e in evs]
@@ -194,7 +200,7 @@ class Temporal:
         merge_gap: float = DEFAULT_MERGE_GAP,
         per_stream: bool = False,
         group: str | None = DEFAULT_GROUP,
-        pool: str = "mean",
+        pool: str = OCCURRENCE_POOL,
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
         """Distinct occurrences of ``query``: matching items (``group="grasp"``: grasps,
