@@ -1,6 +1,8 @@
 """Store checks for ``/health`` and ``/ready``, and the read-only flag.
 
-``store_problem(memory)`` is cheap: the store's integrity check
+``service_problem(state)`` is ``store_problem`` and the store's ``keys`` and ``audit`` tables
+(integrity and one row each) and each opened tenant's folder, so damage there is a 503
+naming the table or tenant. ``store_problem(memory)`` is cheap: the store's integrity check
 (:mod:`tactus_memory.storage.integrity`:
 every data file the latest manifests name present and of its recorded size, Lance's own
 validation), then the three tables' manifests (row counts) and one row of the items table,
@@ -64,6 +66,48 @@ def store_problem(memory: Any) -> str | None:
         store.get_meta("space")  # meta table
     except Exception as exc:  # noqa: BLE001  (any failure is the answer: report it)
         return f"the store cannot be read: {short(exc)}"
+    return None
+
+
+def side_table_problem(name: str, db: Any, storage_options: dict[str, str] | None) -> str | None:
+    """None when the root database's ``name`` table (``keys``, ``audit``) is absent, or intact
+    and readable (its integrity check and one row); else what is wrong, naming the table."""
+    from tactus_memory.storage.integrity import check_table
+
+    try:
+        res = db.list_tables()
+        if name not in set(getattr(res, "tables", res)):
+            return None
+        table = db.open_table(name)
+        damage = check_table(name, table.uri, storage_options)
+        if damage:
+            return f"the store's {name} table is damaged: " + no_paths(
+                "; ".join(map(str, damage[:3]))
+            )
+        table.search().limit(1).to_arrow()
+    except Exception as exc:  # noqa: BLE001  (any failure is the answer: report it)
+        return f"the store's {name} table cannot be read: {short(exc)}"
+    return None
+
+
+def service_problem(state: Any) -> str | None:
+    """:func:`store_problem` of the default tenant's store, then the store's ``keys`` and
+    ``audit`` tables, then each opened tenant's folder: None when all answer, else the
+    first problem, naming the table or the tenant."""
+    why = store_problem(state.memory)
+    if why is not None:
+        return why
+    options = state.memory.store.storage_options or None
+    keys = state.gate.keys if state.gate is not None else None
+    for name, owner in (("keys", keys), ("audit", state.audit)):
+        if owner is not None:
+            why = side_table_problem(name, owner.db, options)
+            if why is not None:
+                return why
+    for tenant in state.tenants or ():
+        why = state.tenants.missing(tenant)
+        if why is not None:
+            return why
     return None
 
 

@@ -4,16 +4,23 @@ shared (:mod:`tactus_memory.storage.tenants` says where each tenant's database l
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from tactus_memory.encode_process import EncoderProcess
-from tactus_memory.errors import UnknownTenantError
+from tactus_memory.errors import StoreDamagedError, UnknownTenantError
 from tactus_memory.group_commit import GroupCommitter
 from tactus_memory.memory import Memory
 from tactus_memory.settings import Settings
-from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_exists, validate_tenant
+from tactus_memory.storage.connect import is_remote_uri
+from tactus_memory.storage.tenants import (
+    DEFAULT_TENANT,
+    TENANTS_DIR,
+    tenant_exists,
+    validate_tenant,
+)
 
 
 @dataclass
@@ -69,6 +76,9 @@ class Tenants:
         a tenant that does not exist, which is never created here."""
         found = self._tenants.get(name)
         if found is not None:
+            why = self.missing(found)
+            if why is not None:
+                raise StoreDamagedError(why)
             return found
         base = self.default.store
         if not tenant_exists(base.uri, name, self.named(), base.storage_options or None):
@@ -80,6 +90,20 @@ class Tenants:
             if name not in self._tenants:
                 self._tenants[name] = Tenant(name, self._open(name), self.settings)
             return self._tenants[name]
+
+    @staticmethod
+    def missing(tenant: Tenant) -> str | None:
+        """Why an opened tenant's database is gone (its local folder was removed under the
+        running server), else None: a 503 naming the tenant, not a 500 on the next read.
+        Object stores are not checked here (a listing per request); their reads fail as a
+        store failure (503) anyway."""
+        uri = tenant.memory.store.uri
+        if tenant.name == DEFAULT_TENANT or is_remote_uri(uri) or os.path.isdir(uri):
+            return None
+        return (
+            f"tenant {tenant.name!r}: its folder ({TENANTS_DIR}/{tenant.name}) is gone from the "
+            "store; restore it from a backup (nothing is answered or written until then)"
+        )
 
     def _open(self, name: str) -> Memory:
         base = self.default.store

@@ -40,6 +40,14 @@ class SenseConflictError(TactusError, ValueError):
     """``add_sense`` with a duplicate name, or a sense bound to another space (HTTP 409)."""
 
 
+class SenseSwappedError(SenseConflictError):
+    """A write embedded by an encoder the store no longer records for its sense: a
+    re-embedding (maybe by another process, ``tactus reembed``) swapped the sense to another
+    checkpoint. Refused whole (HTTP 409), so a store never holds vectors of two encoders;
+    the memory rebuilds the sense from the store's record when it can, and the write sent
+    again is embedded by the new encoder."""
+
+
 class IdConflictError(TactusError, ValueError):
     """An explicit item id already names a row of another session or another sense (HTTP 409).
 
@@ -114,6 +122,7 @@ ERROR_STATUS: dict[type[TactusError], tuple[int, str, str]] = {
     NotFoundError: (404, "not-found", "Not found"),
     UnknownTenantError: (404, "unknown-tenant", "Unknown tenant"),
     SenseConflictError: (409, "sense-conflict", "Sense conflict"),
+    SenseSwappedError: (409, "sense-swapped", "Sense re-embedded to another encoder"),
     IdConflictError: (409, "id-conflict", "Item id conflict"),
     SpaceMismatchError: (409, "space-mismatch", "Space mismatch"),
     CapabilityError: (400, "capability", "Not supported by this memory"),

@@ -21,7 +21,15 @@ How it stays safe:
    re-estimated; the provenance is per sense (no row carries its own), so after the swap
    every row's vector is the recorded checkpoint's. A kill between the swap and this step is
    mended by the rerun (the swap is idempotent).
-4. **Rows that cannot be redone.** A row whose raw input was not kept (no ``raw``, no
+4. **Servers already running on the store.** Every commit checks that the encoder that
+   embedded its rows is the one the store records for their sense (the registration re-read
+   at its latest version, ``SenseRegistry.check_embedded_by``): after a swap, a server
+   still holding the old encoder refuses those writes (SenseSwappedError, HTTP 409
+   ``sense-swapped``, nothing stored) and rebuilds the sense from the store's record (the
+   new checkpoint), so the write sent again is embedded by the new encoder. Rows such a
+   server committed between the swap and the new registration are embedded again right
+   after the registration.
+5. **Rows that cannot be redone.** A row whose raw input was not kept (no ``raw``, no
    ``text``) keeps its old vector: the report names them (count and ids), nothing is
    silently left.
 """
@@ -237,6 +245,16 @@ def swap(memory: Reembeddable, job: Staged, batches: int) -> ReembedReport:
             with store.commit_lock:  # THE swap
                 store.items.merge_insert("id").when_matched_update_all().execute(new)
         memory.registry.replace_sense(encoder)
+        # rows another process committed between the swap and the new registration carry
+        # the old encoder's vectors (a writer checks the registration as it commits, and
+        # refuses from now on): embedded here too, so none is left behind
+        store.items.checkout_latest()
+        done = set(current)
+        after = [i for i in _ids(store, job.redo) if i not in done]
+        if after:
+            redo = vector_table(after, _embed(store, encoder, after, job.dim))
+            with store.commit_lock:
+                store.items.merge_insert("id").when_matched_update_all().execute(redo)
         missing = _ids(store, missing_where)
     store.db.drop_table(STAGING_PREFIX + job.sense)
     return ReembedReport(
@@ -245,7 +263,7 @@ def swap(memory: Reembeddable, job: Staged, batches: int) -> ReembedReport:
         rows=len(current),
         staged_before=job.staged_before,
         batches=batches,
-        late=len(late),
+        late=len(late) + len(after),
         missing=len(missing),
         missing_ids=missing[:MISSING_IDS_MAX],
         seconds=round(time.perf_counter() - job.started, 3),

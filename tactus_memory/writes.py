@@ -99,8 +99,12 @@ class WritePath:
         session's row) gets its ``error`` and is left out, the rest still commit once (an
         identical repeat of an id is written once,
         :func:`~tactus_memory.storage.rows.resolve_shared_ids`).
-        Once the rows are stored nothing raises: a failing step after the commit is logged
-        and its caches dropped, so no caller retries (and duplicates) a stored write.
+        Rows embedded by an encoder the store no longer records for their sense (a
+        re-embedding swapped it, here or in another process) are refused with
+        SenseSwappedError (``isolate``: those writes' ``error``); the sense is rebuilt from
+        the store's record when it can be. Once the rows are stored nothing raises: a failing
+        step after the commit is logged and its caches dropped, so no caller retries (and
+        duplicates) a stored write.
         """
         live = [w for w in writes if len(w)]
         if not live:
@@ -114,6 +118,14 @@ class WritePath:
             if len(set(all_ids)) != len(all_ids):
                 raise InvalidInputError("the same id appears in two writes of one commit")
         with self.lock:
+            # embedded by an encoder the store no longer records (a re-embedding swapped the
+            # sense meanwhile, maybe in another process): refused, never mixed
+            swapped = self.registry.check_embedded_by([w.sense for w in live if w.error is None])
+            for w in live:
+                if w.sense.name in swapped and w.error is None:
+                    if not isolate:
+                        raise swapped[w.sense.name]
+                    w.error = swapped[w.sense.name]
             replaced = claim_ids(self.store, live, isolate)  # under the lock: no racing writer
             ok = [w for w in live if w.error is None]
             if not ok:

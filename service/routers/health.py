@@ -2,8 +2,9 @@
 
 * ``GET /live``: liveness. The process and its event loop answer; touches nothing else.
 * ``GET /health``: the store is readable (manifests and one row, see
-  :mod:`tactus_memory.service.readiness`) plus the configuration (space, senses, touch);
-  503 problem naming the reason when the store cannot be read.
+  :mod:`tactus_memory.service.readiness`; the ``keys`` and ``audit`` tables and each opened
+  tenant's folder too) plus the configuration (space, senses, touch); 503 problem naming
+  the reason (the table, the tenant) when the store cannot be read.
 * ``GET /ready``: readiness for traffic: the store is readable and the text model is loaded;
   503 with the reason otherwise: while ``tactus serve`` loads its models (the socket opens
   first), ``starting: [2/3] loading the text model (...)``, then the touch encoder's step.
@@ -18,7 +19,7 @@ from starlette.concurrency import run_in_threadpool
 import tactus_memory
 from tactus_memory.service.deps import StateDep
 from tactus_memory.service.problems import ServiceUnavailable, problem_responses
-from tactus_memory.service.readiness import no_paths, store_problem
+from tactus_memory.service.readiness import no_paths, service_problem
 from tactus_memory.service.schemas import HealthOut, LiveOut, ReadyOut
 
 router = APIRouter(tags=["health"])
@@ -38,7 +39,7 @@ async def health(state: StateDep) -> HealthOut:
     if state.starting is not None:  # the configuration (senses) is not final yet
         raise ServiceUnavailable(f"starting: {state.starting}", retry_after=1)
     memory = state.memory
-    why = await run_in_threadpool(store_problem, memory)
+    why = await run_in_threadpool(service_problem, state)
     if why is not None:
         raise ServiceUnavailable(why)
     senses = sorted(memory.senses)
@@ -64,7 +65,7 @@ async def ready(state: StateDep) -> ReadyOut:
         raise ServiceUnavailable(f"starting: {state.starting}", retry_after=1)
     if not state.warm:
         raise ServiceUnavailable("starting: the text model is still loading", retry_after=1)
-    why = await run_in_threadpool(store_problem, state.memory)
+    why = await run_in_threadpool(service_problem, state)
     if why is not None:
         raise ServiceUnavailable(why)
     return ReadyOut(read_only=state.read_only)

@@ -18,7 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import InvalidInputError, SenseConflictError, UnknownSenseError
+from tactus_memory.errors import (
+    InvalidInputError,
+    SenseConflictError,
+    SenseSwappedError,
+    UnknownSenseError,
+)
 from tactus_memory.plugins import lookup, registered_name
 from tactus_memory.results import SenseInfo
 from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, estimate
@@ -68,6 +73,16 @@ class StoredSense(Sense):
         return dict(self._provenance)
 
 
+def provenance_of(sense: Sense) -> dict[str, Any]:
+    """``sense.provenance()`` as the senses table stores it (JSON round trip)."""
+    return json.loads(json.dumps(sense.provenance(), sort_keys=True, default=str))
+
+
+def _checkpoint(provenance: dict[str, Any]) -> str:
+    sha = provenance.get("checkpoint_sha256")
+    return f"checkpoint {str(sha)[:12]}" if sha else "another encoder"
+
+
 def _same_vector(a: np.ndarray | None, b: np.ndarray | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
@@ -91,6 +106,7 @@ class SenseRegistry:
         self.space = space
         self.lock = lock
         self._live: dict[str, Sense] = {}
+        self._live_prov: dict[str, dict[str, Any]] = {}  # each live sense's provenance
         self._stored: dict[str, StoredSense] = {}
         self._calib: dict[str, Calibration] = {}
         self._counts: dict[str, int] | None = None
@@ -171,7 +187,7 @@ class SenseRegistry:
                 if self.store.get_meta(RECORD_KEY + name) != record:
                     self.store.set_meta(RECORD_KEY + name, record)
             self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
-            self._live[name] = sense
+            self._live[name], self._live_prov[name] = sense, provenance
 
     def restore(self, skip: Collection[str] = ()) -> dict[str, str]:
         """Rebuild the live senses the store records (each not live yet, but those in
@@ -201,6 +217,63 @@ class SenseRegistry:
         with self.lock:
             self._live.pop(validate_sense_name(sense.name), None)
             self.add_sense(sense)
+
+    def check_embedded_by(self, encoders: Collection[Sense]) -> dict[str, SenseSwappedError]:
+        """The senses among ``encoders`` (those that embedded the rows about to be committed)
+        that the store no longer records: a re-embedding swapped them to another encoder,
+        in this process or another (``tactus reembed``). Call it under the write lock, just
+        before the commit: the senses and meta tables are re-read at their latest version
+        first (one version check each), so a swap committed anywhere before is seen.
+
+        Returns name -> the error to answer those writes with (nothing of them may be
+        stored: the store would hold vectors of two encoders). Each swapped live sense is
+        rebuilt from the store's record (the new checkpoint) when it can be, so that writes
+        prepared from now on embed with the encoder the store records."""
+        by_name = {s.name: s for s in encoders}
+        if not by_name:
+            return {}
+        self.store.read_latest_registry()
+        self.refresh()
+        out: dict[str, SenseSwappedError] = {}
+        for name, s in by_name.items():
+            stored = self._stored.get(name)
+            mine = self._live_prov.get(name) if self._live.get(name) is s else None
+            if stored is None or (mine or provenance_of(s)) == stored.provenance():
+                continue
+            why_not = None
+            if self._live.get(name) is s or name not in self._live:
+                why_not = self._follow(name)
+            now = _checkpoint(stored.provenance())
+            then = (
+                "the encoder this server now embeds with"
+                if why_not is None
+                else f"this server could not load it ({why_not}): restart it"
+            )
+            out[name] = SenseSwappedError(
+                f"sense {name!r} was re-embedded to {now} (these rows were embedded by "
+                f"{_checkpoint(mine or provenance_of(s))}); nothing was stored, so the store "
+                f"does not mix two encoders. Send the write again: {then}"
+            )
+        return out
+
+    def _follow(self, name: str) -> str | None:
+        """Rebuild the live sense ``name`` from the store's record when the store records
+        another encoder for it; None when done, else why not."""
+        raw = self.store.get_meta(RECORD_KEY + name)
+        if raw is None:
+            return "the store has no record of how to build it"
+        record = json.loads(raw)
+        try:
+            new = lookup("sense", record["kind"]).create(self.space, **record["config"])
+            new.bind(self.space)
+        except Exception as exc:  # noqa: BLE001  (reported; the writes are refused either way)
+            return f"{type(exc).__name__}: {exc}"
+        provenance = provenance_of(new)
+        if provenance != self._stored[name].provenance():
+            return "its record builds yet another encoder"
+        log.warning("sense %r was re-embedded elsewhere; now embedding with its new encoder", name)
+        self._live[name], self._live_prov[name] = new, provenance
+        return None
 
     def live_sense(self, name: str) -> Sense:
         validate_sense_name(name)

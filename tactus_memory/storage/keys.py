@@ -21,8 +21,14 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from tactus_memory.errors import InvalidInputError, NotFoundError, ThrottledError
+from tactus_memory.errors import (
+    InvalidInputError,
+    NotFoundError,
+    StoreDamagedError,
+    ThrottledError,
+)
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
+from tactus_memory.storage.integrity import _lance_message
 from tactus_memory.storage.tables import keys_schema
 from tactus_memory.storage.tenants import validate_tenant
 from tactus_memory.storage.where import _sql_str, validate_id, validate_session_prefix
@@ -126,11 +132,17 @@ class KeyStore:
         with self._lock:
             if not force and time.monotonic() - self._read_at < self.refresh:
                 return self._rows
-            table = self._open()
-            if table is not None:
-                table.checkout_latest()
-                rows = table.search().limit(None).to_arrow().to_pylist()
-                self._rows = {r["key_id"]: r for r in rows}
+            try:
+                table = self._open()
+                if table is not None:
+                    table.checkout_latest()
+                    rows = table.search().limit(None).to_arrow().to_pylist()
+                    self._rows = {r["key_id"]: r for r in rows}
+            except Exception as exc:  # noqa: BLE001  (no key can be checked: say so, 503)
+                raise StoreDamagedError(
+                    "the store's keys table cannot be read, so no key can be checked "
+                    f"({_lance_message(exc, self.uri)}); restore it from a backup"
+                ) from exc
             self._read_at = time.monotonic()
             return self._rows
 

@@ -42,24 +42,15 @@ import numpy as np
 
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
 from tactus_memory.settings import Settings
+from tactus_memory.storage import maintenance as maint
 from tactus_memory.storage.background import start_background
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
 from tactus_memory.storage.integrity import IntegrityWatch, check_store
-from tactus_memory.storage.maintenance import (
-    Maintainer,
-    MaintenanceConfig,
-    TableReport,
-    fragment_infos,
-)
+from tactus_memory.storage.maintenance import Maintainer, MaintenanceConfig, TableReport
 from tactus_memory.storage.retention import Erasure, Retention
-from tactus_memory.storage.tables import (
-    IndexConfig,
-    items_schema,
-    meta_schema,
-    senses_schema,
-)
+from tactus_memory.storage.tables import IndexConfig, items_schema, meta_schema, senses_schema
 from tactus_memory.storage.where import Where, _sql_str, sessions_under, within_sessions
 
 if TYPE_CHECKING:  # heavy imports stay lazy
@@ -403,6 +394,13 @@ class Store(StoreIndexes):
         """The meta table's version (caches of meta records key on it)."""
         return 0 if self._meta is None else int(self._meta.version)
 
+    def read_latest_registry(self) -> None:
+        """The senses and meta tables at their latest version now (other processes' commits,
+        not only within the read consistency interval): a sense swap check."""
+        for table in (self._senses, self._meta):
+            if table is not None:
+                table.checkout_latest()
+
     def maintainer(self) -> Maintainer:
         """The maintenance runner for this store's tables (built on first use)."""
         if self._maintainer is None or set(self._maintainer.tables) != set(self.table_uris()):
@@ -447,7 +445,7 @@ class Store(StoreIndexes):
             maintainer = self.maintainer()
             reports = maintainer.run(cleanup=False)
             if self._items is not None and self.maintenance.erase_deleted:  # else never erased
-                left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
+                left = sum(f.deleted for f in maint.fragment_infos(self.items.to_lance()))
                 self.erasure.note_compacted(deletes, left)
             for tbl in (self._items, self._senses, self._meta):
                 if tbl is not None:  # our handles must not stay on versions cleanup removes
