@@ -159,7 +159,13 @@ class Settings(BaseSettings, MaintenanceConfig):
     onnx: str | None = Field(
         None,
         description="Folder of ONNX exports (`tactus export-onnx`): serve MiniLM and the touch "
-        "encoder on ONNX Runtime instead of torch (the [onnx] extra; a lighter, faster start).",
+        "encoder on ONNX Runtime. `tactus serve` without it (and without `torch`) uses the "
+        "default folder in the user's cache (MiniLM exported there on the first start).",
+    )
+    torch: bool = Field(
+        False,
+        description="`tactus serve`: run MiniLM and the touch encoder on torch instead of the "
+        "default ONNX Runtime (a heavier, slower start; needed for spaces other than MiniLM).",
     )
     log_level: str = "info"
 
