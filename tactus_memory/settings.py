@@ -162,6 +162,13 @@ class Settings(BaseSettings, MaintenanceConfig):
         "encoder on ONNX Runtime. `tactus serve` without it (and without `torch`) uses the "
         "default folder in the user's cache (MiniLM exported there on the first start).",
     )
+    workers: int = Field(
+        1,
+        ge=1,
+        le=64,
+        description="`tactus serve`: server processes on one port and one store (each its own "
+        "event loop, committer and models; worker 0 maintains). 1: one process.",
+    )
     torch: bool = Field(
         False,
         description="`tactus serve`: run MiniLM and the touch encoder on torch instead of the "

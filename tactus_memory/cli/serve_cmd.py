@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -54,6 +55,16 @@ def serve(
             "the user's cache, MiniLM exported there on the first start; env TACTUS_ONNX)."
         ),
     ] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            max=64,
+            help="Server processes on one port and one store (SO_REUSEPORT; each with its own "
+            "event loop, committer and models; worker 0 maintains; env TACTUS_WORKERS). "
+            "Default 1.",
+        ),
+    ] = None,
     torch: Annotated[
         bool,
         typer.Option(
@@ -102,6 +113,7 @@ def serve(
         "space_dim": space_dim,
         "touch_checkpoint": touch_checkpoint,
         "onnx": onnx,
+        "workers": workers,
         "max_body_bytes": max_body_bytes,
         "window": window,
         "stride": stride,
@@ -122,11 +134,22 @@ def serve(
         check_location(settings.data)
         check_checkpoint(settings.touch_checkpoint if settings.touch else None)
         settings = default_onnx(settings)
+        if settings.workers > 1:  # forked before anything heavy is imported
+            from tactus_memory.cli.workers import serve_workers, worker_torch_threads
+
+            settings = worker_torch_threads(settings)
+            say = lambda line: typer.echo(line, err=True)  # noqa: E731
+            status = serve_workers(settings, settings.workers, say, debug)
+            if status:
+                raise typer.Exit(status)
+            return
         if settings.torch_threads is None and not settings.onnx:
             from tactus_memory.service.app import serving_torch_threads
 
             settings = settings.model_copy(update={"torch_threads": serving_torch_threads()})
         application = load_app(settings, say=lambda line: typer.echo(line, err=True))
+    except typer.Exit:
+        raise
     except Exception as exc:  # noqa: BLE001  (startup: one line and exit 2, unless --debug)
         if debug:
             raise
@@ -175,7 +198,9 @@ def page_url(settings: Any, port: int | None = None) -> str:
     return f"http://{host}:{port or settings.port}/"
 
 
-def load_app(settings: Any, say: Callable[[str], None]) -> Any:
+def load_app(
+    settings: Any, say: Callable[[str], None], on_ready: Callable[[], None] | None = None
+) -> Any:
     """Open the store now (step 1: a damaged store or a bad setting stops the command before
     anything listens), and build the app whose lifespan loads the text model and the touch
     encoder (steps 2 and 3, seconds each on a CPU; on the first start of the default ONNX
@@ -214,7 +239,11 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
         why = step(3, touch, lambda: register_default_senses(memory, settings), state)
         if why:
             say(f"touch is off: {why}")
-        say("ready: GET /ready answers 200")
+        if on_ready is not None:
+            on_ready()  # a worker of several: /ready answers 200 once every one is
+            say("ready: GET /ready answers 200 once every worker is")
+        else:
+            say("ready: GET /ready answers 200")
         return why
 
     return create_app(settings, memory=memory, loader=finish)
@@ -229,14 +258,22 @@ def default_folder_of(settings: Any) -> Path | None:
     return default_folder(settings.touch_checkpoint if settings.touch else None)
 
 
-def run_server(application: Any, settings: Any) -> None:
-    """uvicorn (tokens redacted in its logs); once it listens, print the page's URL."""
+def run_server(
+    application: Any, settings: Any, sockets: list[Any] | None = None, worker: Any = None
+) -> None:
+    """uvicorn (tokens redacted in its logs); once it listens, print the page's URL.
+    ``sockets``: listen there (a worker of ``--workers``, :mod:`tactus_memory.cli.workers`,
+    whose ``worker`` group says which one it is)."""
     import uvicorn
 
     from tactus_memory.service.logs import log_config
 
     state = getattr(getattr(application, "state", None), "tactus", None)
     models = f"ONNX Runtime ({settings.onnx})" if settings.onnx else "torch"
+    maintenance = "on" if settings.maintain else "off (tactus maintain)"
+    if worker is not None:
+        maintenance = "on" if settings.maintain else "off (worker 0 maintains)"
+        maintenance += f"\n  worker:         {worker.index} of {worker.count}, pid {os.getpid()}"
     read_only = bool(getattr(state, "read_only", False))
 
     config = uvicorn.Config(
@@ -267,7 +304,7 @@ def run_server(application: Any, settings: Any) -> None:
                     f"  memory browser: {url}\n"
                     f"  API docs:       {url}docs\n"
                     f"  token:          {'required' if settings.token else 'off'}\n"
-                    f"  maintenance:    {'on' if settings.maintain else 'off (tactus maintain)'}\n"
+                    f"  maintenance:    {maintenance}\n"
                     f"  models run on:  {models}\n"
                     + ("  READ-ONLY store: writes answer 503\n" if read_only else "")
                     + "  (models load now: GET /ready answers 200 once 'ready' is printed; "
@@ -275,4 +312,4 @@ def run_server(application: Any, settings: Any) -> None:
                     err=True,
                 )
 
-    Server(config).run()
+    Server(config).run(sockets=sockets)
