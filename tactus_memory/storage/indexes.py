@@ -34,6 +34,7 @@ class StoreIndexes:
     _probes: int | None
 
     items: Any  # the LanceDB table (Store.items)
+    _meta: Any  # the store's meta table (Store._meta), None before it exists
 
     if TYPE_CHECKING:  # Store's, used here
 
@@ -63,24 +64,44 @@ class StoreIndexes:
 
     def measure_probes(self, k: int = 10) -> dict[str, Any]:
         """Recall@k of the ANN index at a ladder of probes (each with the configured refine
-        factor), on ``tune_queries`` queries: stored rows with as much random direction added
-        (cosine ~0.55 to their row, as far as a text query is from what it finds), each
-        answered exactly by a flat scan. A hit counts when it is no farther than the exact
-        k-th (ties count). Returns the fewest probes reaching ``target_recall`` (else the
-        best), their recall, and the ladder."""
+        factor), unfiltered and within each sense (``sense = X``, as a search asks per sense),
+        each query answered exactly by a flat scan; a hit counts when it is no farther than
+        the exact k-th (ties count). The hard case is a text query searching a touch sense:
+        its nearest touch rows lie in partitions far from the query (the nearest partitions
+        hold notes). So the queries are the store's text probe bank when a search has cached
+        it, else blends of three rows *of the other senses* (of any sense, unfiltered) with
+        random direction added. Returns the fewest probes at which every part reaches
+        ``target_recall`` (else the best), the worst part's recall, and the ladder."""
         cfg = self.index
         parts = self.partitions()
+        dim = self.dim()
         ds = self.items.to_lance()
-        n = ds.count_rows()
         rng = np.random.default_rng(0)
-        rows = np.sort(rng.choice(n, size=min(cfg.tune_queries, n), replace=False))
-        vecs = as_unit_rows(vector_column(ds.take(rows.tolist(), columns=["vector"]), self.dim()))
-        noise = rng.standard_normal(vecs.shape).astype(np.float32)
-        noise *= 1.5 / np.linalg.norm(noise, axis=1, keepdims=True)
-        queries = as_unit_rows(vecs + noise)
+        bank = self._probe_bank(dim)[: cfg.tune_queries]
+        senses = ds.to_table(columns=["sense"]).column("sense").to_numpy(zero_copy_only=False)
+        names, counts = np.unique(senses, return_counts=True)
 
-        def search(q: np.ndarray, probes: int | None) -> np.ndarray:
+        def blends(pool: np.ndarray) -> np.ndarray:
+            if len(bank):
+                return bank
+            take = rng.choice(pool, size=min(3 * cfg.tune_queries, len(pool)), replace=False)
+            vecs = as_unit_rows(vector_column(ds.take(sorted(take), columns=["vector"]), dim))
+            vecs = vecs[rng.permutation(len(vecs))]
+            mixed = as_unit_rows(vecs[: len(vecs) // 3 * 3].reshape(-1, 3, dim).sum(1))
+            noise = as_unit_rows(rng.standard_normal(mixed.shape).astype(np.float32))
+            return as_unit_rows(mixed + noise)
+
+        everything = np.arange(len(senses))
+        checks: list[tuple[str | None, np.ndarray]] = [(None, blends(everything))]
+        for name, count in zip(names, counts, strict=True):
+            if count >= k and len(names) > 1:
+                others = np.flatnonzero(senses != name)
+                checks.append((str(name), blends(others if len(others) >= 3 else everything)))
+
+        def search(q: np.ndarray, probes: int | None, sense: str | None) -> np.ndarray:
             s = self.items.search(q, vector_column_name="vector").distance_type("cosine")
+            if sense is not None:
+                s = s.where(f"sense = '{sense.replace(chr(39), chr(39) * 2)}'", prefilter=True)
             if probes is None:
                 s = s.bypass_vector_index()
             else:
@@ -91,18 +112,33 @@ class StoreIndexes:
                     s = s.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
             return np.asarray(s.select(["_distance"]).limit(k).to_arrow()["_distance"])
 
-        kth = [search(q, None)[-1] + 1e-6 for q in queries]
+        exact = [[search(q, None, sense)[-1] + 1e-6 for q in qs] for sense, qs in checks]
         ladder: dict[int, float] = {}
         steps = [p for p in (4, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256) if p < parts]
         for p in [*steps, parts]:
-            got = [int((search(q, p) <= t).sum()) for q, t in zip(queries, kth, strict=True)]
-            ladder[p] = round(sum(got) / (k * len(queries)), 4)
+            worst = 1.0
+            for (sense, qs), kth in zip(checks, exact, strict=True):
+                hits = [search(q, p, sense) <= t for q, t in zip(qs, kth, strict=True)]
+                got = sum(int(h.sum()) for h in hits)
+                worst = min(worst, got / (k * len(qs)))
+            ladder[p] = round(worst, 4)
             if ladder[p] >= cfg.target_recall:
                 break
         best = next((p for p, r in ladder.items() if r >= cfg.target_recall), None)
         if best is None:
             best = max(ladder, key=lambda p: (ladder[p], -p))
         return {"nprobes": best, "recall": ladder[best], "ladder": ladder}
+
+    def _probe_bank(self, dim: int) -> np.ndarray:
+        """The text probe bank a search cached in the store (``probes:<space>:<n>``, the
+        registry's calibration queries), or none."""
+        if self._meta is not None:
+            rows = self._meta.search().where("key LIKE 'probes:%'").limit(16).to_arrow()
+            for value in rows.column("value").to_pylist():
+                bank = np.asarray(json.loads(value or "[]"), dtype=np.float32)
+                if bank.ndim == 2 and bank.shape[1] == dim and len(bank):
+                    return as_unit_rows(bank, dim)
+        return np.zeros((0, dim), np.float32)
 
     def has_vector_index(self) -> bool:
         if not self._indexed:
