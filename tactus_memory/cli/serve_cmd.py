@@ -139,7 +139,7 @@ def serve(
 
             settings = worker_torch_threads(settings)
             say = lambda line: typer.echo(line, err=True)  # noqa: E731
-            status = serve_workers(settings, settings.workers, say, debug)
+            status = serve_workers(settings, settings.workers, say, (load_app, run_server), debug)
             if status:
                 raise typer.Exit(status)
             return

@@ -81,15 +81,19 @@ def listening_socket(host: str, port: int, *, reuse_port: bool = True) -> socket
     return sock
 
 
+#: what a worker runs (``tactus serve``'s own steps: ``serve_cmd.load_app``, ``run_server``)
+Server = tuple[Callable[..., Any], Callable[..., None]]
+
+
 def _worker(
-    settings: Any, group: Workers, say: Callable[[str], None], debug: bool
+    settings: Any, group: Workers, say: Callable[[str], None], debug: bool, server: Server
 ) -> None:  # pragma: no cover  (runs in the forked child; tests/test_workers.py drives it)
     """A forked worker: a whole server on the group's port; never returns."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     status = 0
+    load_app, run_server = server
     try:
-        from tactus_memory.cli.serve_cmd import load_app, run_server
         from tactus_memory.service.startup import explain
 
         def line(text: str) -> None:
@@ -123,9 +127,10 @@ def _worker(
 
 
 def serve_workers(
-    settings: Any, count: int, say: Callable[[str], None], debug: bool = False
+    settings: Any, count: int, say: Callable[[str], None], server: Server, debug: bool = False
 ) -> int:
-    """Run ``count`` workers until SIGTERM/SIGINT; the exit status for the command."""
+    """Run ``count`` workers (each runs ``server``: load the app, serve it) until SIGTERM or
+    SIGINT; the exit status for the command."""
     reserve = listening_socket(settings.host, settings.port)  # holds the port; never listens
     port = reserve.getsockname()[1]
     settings = settings.model_copy(update={"port": port})
@@ -142,7 +147,7 @@ def serve_workers(
         pid = os.fork()
         if pid == 0:
             reserve.close()
-            _worker(own, group, say, debug)
+            _worker(own, group, say, debug, server)
         pids[index] = pid
 
     def stop(signum: int, frame: Any) -> None:
