@@ -69,8 +69,8 @@ class StoreIndexes:
         the exact k-th (ties count). The hard case is a text query searching a touch sense:
         its nearest touch rows lie in partitions far from the query (the nearest partitions
         hold notes). So the queries are the store's text probe bank when a search has cached
-        it, else blends of three rows *of the other senses* (of any sense, unfiltered) with
-        random direction added. Returns the fewest probes at which every part reaches
+        it, else, within a sense, rows of the other senses (unfiltered: rows with random
+        direction added). Returns the fewest probes at which every part reaches
         ``target_recall`` (else the best), the worst part's recall, and the ladder."""
         cfg = self.index
         parts = self.partitions()
@@ -81,22 +81,24 @@ class StoreIndexes:
         senses = ds.to_table(columns=["sense"]).column("sense").to_numpy(zero_copy_only=False)
         names, counts = np.unique(senses, return_counts=True)
 
-        def blends(pool: np.ndarray) -> np.ndarray:
+        def rows(pool: np.ndarray, noise: float) -> np.ndarray:
+            """``tune_queries`` rows of ``pool`` with ``noise`` times as much random
+            direction added (the cached text probe bank instead, when there is one)."""
             if len(bank):
                 return bank
-            take = rng.choice(pool, size=min(3 * cfg.tune_queries, len(pool)), replace=False)
+            take = rng.choice(pool, size=min(cfg.tune_queries, len(pool)), replace=False)
             vecs = as_unit_rows(vector_column(ds.take(sorted(take), columns=["vector"]), dim))
-            vecs = vecs[rng.permutation(len(vecs))]
-            mixed = as_unit_rows(vecs[: len(vecs) // 3 * 3].reshape(-1, 3, dim).sum(1))
-            noise = as_unit_rows(rng.standard_normal(mixed.shape).astype(np.float32))
-            return as_unit_rows(mixed + noise)
+            jitter = as_unit_rows(rng.standard_normal(vecs.shape).astype(np.float32))
+            return as_unit_rows(vecs + noise * jitter)
 
+        # unfiltered: rows moved away from themselves (cosine ~0.55 to their row); within a
+        # sense: the other senses' rows, a note standing for a text query
         everything = np.arange(len(senses))
-        checks: list[tuple[str | None, np.ndarray]] = [(None, blends(everything))]
+        checks: list[tuple[str | None, np.ndarray]] = [(None, rows(everything, 1.5))]
         for name, count in zip(names, counts, strict=True):
-            if count >= k and len(names) > 1:
-                others = np.flatnonzero(senses != name)
-                checks.append((str(name), blends(others if len(others) >= 3 else everything)))
+            others = np.flatnonzero(senses != name)
+            if count >= k and len(others):
+                checks.append((str(name), rows(others, 0.0)))
 
         def search(q: np.ndarray, probes: int | None, sense: str | None) -> np.ndarray:
             s = self.items.search(q, vector_column_name="vector").distance_type("cosine")
