@@ -1,5 +1,6 @@
 # The two commands a new user needs (see README):
-#   make run    set up .venv and start the service on the default store (./memory); then
+#   make run    set up .venv and start the service on the default store (./memory), on ONNX
+#               Runtime (its first start exports MiniLM once into ~/.cache/tactus); then
 #               `source .venv/bin/activate` puts `tactus` on your PATH (the README assumes it)
 #   make test   set up .venv (with test extras) and run ruff + the test suite (docs build included)
 VENV ?= .venv

@@ -102,8 +102,8 @@ def open_store(settings: Settings) -> Any:
 
         if not isinstance(memory.space, MiniLMSpace):
             raise StartupError(
-                f"--onnx serves the MiniLM space; this memory is in {memory.space.name!r}: "
-                "leave --onnx out"
+                f"ONNX Runtime serves the MiniLM space; this memory is in "
+                f"{memory.space.name!r}: serve it with --torch (and no --onnx)"
             )
         memory.space.use_onnx(settings.onnx)
     return memory

@@ -72,6 +72,9 @@ class ServiceState:
     starting: str | None = None
     #: what loading the models in the background raised (the server then stops)
     load_error: BaseException | None = None
+    #: ``tactus serve --workers N``: this worker's group (``cli.workers.Workers``); /ready
+    #: answers 200 only while every worker is ready. None: one process.
+    workers: Any = None
 
     def __post_init__(self) -> None:
         if self.write_threads is None:

@@ -159,7 +159,20 @@ class Settings(BaseSettings, MaintenanceConfig):
     onnx: str | None = Field(
         None,
         description="Folder of ONNX exports (`tactus export-onnx`): serve MiniLM and the touch "
-        "encoder on ONNX Runtime instead of torch (the [onnx] extra; a lighter, faster start).",
+        "encoder on ONNX Runtime. `tactus serve` without it (and without `torch`) uses the "
+        "default folder in the user's cache (MiniLM exported there on the first start).",
+    )
+    workers: int = Field(
+        1,
+        ge=1,
+        le=64,
+        description="`tactus serve`: server processes on one port and one store (each its own "
+        "event loop, committer and models; worker 0 maintains). 1: one process.",
+    )
+    torch: bool = Field(
+        False,
+        description="`tactus serve`: run MiniLM and the touch encoder on torch instead of the "
+        "default ONNX Runtime (a heavier, slower start; needed for spaces other than MiniLM).",
     )
     log_level: str = "info"
 

@@ -331,7 +331,8 @@ def test_reads_do_not_wait_for_writes(tmp_path):
 
 
 def test_serve_sets_torch_threads_to_half_the_cores(monkeypatch):
-    """``tactus serve`` passes half the cores as torch threads (unless told otherwise)."""
+    """``tactus serve --torch`` passes half the cores as torch threads (unless told
+    otherwise); the default server, on ONNX Runtime, sets none (torch is never imported)."""
     from typer.testing import CliRunner
 
     import tactus_memory.cli.serve_cmd as serve_cmd
@@ -341,10 +342,13 @@ def test_serve_sets_torch_threads_to_half_the_cores(monkeypatch):
     monkeypatch.setattr(serve_cmd, "load_app", lambda settings, say: seen.append(settings))
     monkeypatch.setattr(serve_cmd, "run_server", lambda application, settings: None)
     monkeypatch.delenv("TACTUS_TORCH_THREADS", raising=False)
-    assert CliRunner().invoke(cli_app, ["serve"]).exit_code == 0
+    assert CliRunner().invoke(cli_app, ["serve", "--torch"]).exit_code == 0
     assert seen[-1].torch_threads == max(1, (os.cpu_count() or 2) // 2)
-    monkeypatch.setenv("TACTUS_TORCH_THREADS", "3")
+    assert seen[-1].onnx is None
     assert CliRunner().invoke(cli_app, ["serve"]).exit_code == 0
+    assert seen[-1].torch_threads is None and seen[-1].onnx  # the default: ONNX Runtime
+    monkeypatch.setenv("TACTUS_TORCH_THREADS", "3")
+    assert CliRunner().invoke(cli_app, ["serve", "--torch"]).exit_code == 0
     assert seen[-1].torch_threads == 3
 
 

@@ -167,7 +167,8 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
     assert any("make_recording.py" in b.code for b in blocks), "no recording"
     port = free_port()
     log = tmp_path / "make-run.log"
-    env = shell_env(port, tmp_path / "home")
+    home = tmp_path / "home"
+    env = shell_env(port, home)
     make = ["make", "run", f"PORT={port}", "-o", ".venv/.base"]  # the block, on a free port
     with log.open("ab") as fh:
         server = subprocess.Popen(
@@ -180,6 +181,14 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
         started = log.read_text()
         assert "pip" not in started.lower(), started  # nothing was installed
         assert f"memory browser: {base}/" in started and "ready: GET /ready" in started
+        # the light server: ONNX Runtime from the user's cache (MiniLM exported there on this
+        # first start, the touch graph shipped), torch never loaded by the server
+        onnx = home / ".cache" / "tactus" / "onnx"
+        assert f"models run on:  ONNX Runtime ({onnx}/" in started, started
+        assert "exporting MiniLM to ONNX once" in started, started
+        (served,) = serving_processes(server.pid)
+        maps = Path(f"/proc/{served}/maps").read_text()
+        assert "onnxruntime" in maps and "libtorch" not in maps
         # the README's tour comes after `make run`: run the pages' blocks in that order
         order = [b for b in blocks if b.page != "README.md"]
         i = order.index(starts[0]) + 1
@@ -213,6 +222,20 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
     finally:
         stop_process(server)
     assert (clone / "memory").is_dir()  # the one default store, in the checkout
+
+
+def serving_processes(session: int) -> list[int]:
+    """The ``tactus serve`` processes of the session ``make run`` leads."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            cmdline = (stat.parent / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue  # gone meanwhile
+        if int(fields[3]) == session and b"serve" in cmdline and b"make" not in cmdline[0]:
+            found.append(int(stat.parent.name))
+    return found
 
 
 def page_search(base: str, tmp_path: Path) -> None:

@@ -7,7 +7,8 @@
   the reason (the table, the tenant) when the store cannot be read.
 * ``GET /ready``: readiness for traffic: the store is readable and the text model is loaded;
   503 with the reason otherwise: while ``tactus serve`` loads its models (the socket opens
-  first), ``starting: [2/3] loading the text model (...)``, then the touch encoder's step.
+  first), ``starting: [2/3] loading the text model (...)``, then the touch encoder's step;
+  with ``--workers N``, until every worker is ready (``starting: worker 1 of 2 ...``).
   ``/health`` answers the same 503 until then (its configuration is not final).
 """
 
@@ -65,6 +66,12 @@ async def ready(state: StateDep) -> ReadyOut:
         raise ServiceUnavailable(f"starting: {state.starting}", retry_after=1)
     if not state.warm:
         raise ServiceUnavailable("starting: the text model is still loading", retry_after=1)
+    waiting = state.workers.not_ready() if state.workers is not None else []
+    if waiting:  # another worker of the group is loading (or being replaced)
+        names = ", ".join(map(str, waiting))
+        raise ServiceUnavailable(
+            f"starting: worker {names} of {state.workers.count} is not ready", retry_after=1
+        )
     why = await run_in_threadpool(service_problem, state)
     if why is not None:
         raise ServiceUnavailable(why)

@@ -7,9 +7,11 @@ Protocol (all server messages are JSON objects with a ``type``):
   (frames already calibrated; default false = raw sensor units), ``hz`` and ``t0`` (times
   for binary frames: frame i gets ``t0 + i / hz``; without ``hz`` the server clock), and
   ``token`` (or an ``Authorization: Bearer`` header) when the server has a token.
-* the server answers ``{"type": "ready", "window": K, "stride": S, ...}``.
+* the server answers ``{"type": "ready", "window": K, "stride": S, ...}`` (with
+  ``--workers N``, also ``"worker": i``, the process that holds the connection).
 * send frames one by one: text ``{"frame": [[...32] x 32], "t": 12.5}``, or binary ``.npy``
-  bytes of a (32, 32) frame, or of (N, 32, 32) frames.
+  bytes of a (32, 32) frame, or of (N, 32, 32) frames (parsed, timed and windowed as one
+  array).
 * every full window is stored (``t`` = first frame's t, ``t_end`` = last frame's t, source =
   this stream's id) and acknowledged after its commit:
   ``{"type": "stored", "id": "...", "seq": n, "t": ..., "t_end": ...}``.
@@ -163,6 +165,8 @@ async def touch_stream(
             "window": params.window,
             "stride": params.stride,
             "calibrated": params.calibrated,
+            # `tactus serve --workers N`: which worker process holds this glove
+            **({"worker": state.workers.index} if state.workers is not None else {}),
         }
     )
 
@@ -194,37 +198,39 @@ async def touch_stream(
             if message["type"] == "websocket.disconnect":
                 break
             try:
-                frames = _parse(message, frame_index, params, state.settings.max_ws_message_bytes)
+                frames, times = _parse(
+                    message, frame_index, params, state.settings.max_ws_message_bytes
+                )
             except TactusError as exc:
                 await send(
                     {"type": "error", "error": problem_for_exception(exc), "frame": frame_index}
                 )
                 frame_index += 1
                 continue
-            for frame, t in frames:
-                frame_index += 1
-                done = windower.push(frame, [t])
-                for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
-                    try:  # the sense's own checks (range, calibration, idle), before queueing
-                        queued = tenant.open_committer().submit(  # the one library write call
-                            session,
-                            "touch",
-                            [win],
-                            t=[float(t_first)],
-                            t_end=[float(t_last)],
-                            source=stream_id,
-                            options={"calibrated": params.calibrated},
-                            skip_idle=False,  # one window: an "idle" ack, below
-                        )
-                        fut = asyncio.wrap_future(queued)
-                    except IdleWindowError:  # no contact: never stored as a grasp
-                        span = {"t": float(t_first), "t_end": float(t_last)}
-                        await send({"type": "idle", "seq": seq, **span})
-                    except TactusError as exc:  # invalid window, or the write queue is full
-                        await send(_window_error(exc, seq, stream_id))
-                    else:
-                        await acks.put((seq, float(t_first), float(t_last), fut))
-                    seq += 1
+            # every frame of the message in one push (one numpy operation, not one per frame)
+            frame_index += len(frames)
+            done = windower.push(frames, times)
+            for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
+                try:  # the sense's own checks (range, calibration, idle), before queueing
+                    queued = tenant.open_committer().submit(  # the one library write call
+                        session,
+                        "touch",
+                        [win],
+                        t=[float(t_first)],
+                        t_end=[float(t_last)],
+                        source=stream_id,
+                        options={"calibrated": params.calibrated},
+                        skip_idle=False,  # one window: an "idle" ack, below
+                    )
+                    fut = asyncio.wrap_future(queued)
+                except IdleWindowError:  # no contact: never stored as a grasp
+                    span = {"t": float(t_first), "t_end": float(t_last)}
+                    await send({"type": "idle", "seq": seq, **span})
+                except TactusError as exc:  # invalid window, or the write queue is full
+                    await send(_window_error(exc, seq, stream_id))
+                else:
+                    await acks.put((seq, float(t_first), float(t_last), fut))
+                seq += 1
             if acker_task.done():
                 break
     except WebSocketDisconnect:
@@ -265,8 +271,9 @@ async def _try_send(send: Any, message: dict[str, Any]) -> None:
 
 def _parse(
     message: dict[str, Any], index: int, params: StreamParams, max_bytes: int
-) -> list[tuple[np.ndarray, float]]:
-    """One WebSocket message -> [(frame (32, 32) float32, t)]."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """One WebSocket message -> (frames (M, 32, 32), times (M,) float64): a binary ``.npy``
+    of M frames is parsed and timed as one array."""
     data = message.get("bytes")
     if data is not None:
         if len(data) > max_bytes:
@@ -278,11 +285,12 @@ def _parse(
             raise InvalidInputError(
                 f"binary frame {index} has shape {arr.shape}, expected (32, 32) or (N, 32, 32)"
             )
-        out = []
-        for j, frame in enumerate(arr):
-            t = params.t0 + (index + j) / params.hz if params.hz is not None else time.time()
-            out.append((frame, t))
-        return out
+        m = arr.shape[0]
+        if params.hz is not None:
+            times = params.t0 + (index + np.arange(m, dtype=np.float64)) / params.hz
+        else:
+            times = np.full(m, time.time())
+        return arr, times
     text = message.get("text")
     if text is None:
         raise InvalidInputError(f"message {index} is empty")
@@ -294,4 +302,4 @@ def _parse(
             f'message {index} must be a JSON object {{"frame": [[...32] x 32], "t": ...}}'
         )
     frame = as_frame(obj["frame"], f"frame {index}")
-    return [(frame, _frame_time(obj, index))]
+    return frame[None], np.array([_frame_time(obj, index)])

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -49,10 +51,28 @@ def serve(
     onnx: Annotated[
         str | None,
         typer.Option(
-            help="Folder written by `tactus export-onnx`: run MiniLM and the touch encoder on "
-            "ONNX Runtime, without torch (the onnx extra; env TACTUS_ONNX)."
+            help="Folder written by `tactus export-onnx` to serve from (default: a folder in "
+            "the user's cache, MiniLM exported there on the first start; env TACTUS_ONNX)."
         ),
     ] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            max=64,
+            help="Server processes on one port and one store (SO_REUSEPORT; each with its own "
+            "event loop, committer and models; worker 0 maintains; env TACTUS_WORKERS). "
+            "Default 1.",
+        ),
+    ] = None,
+    torch: Annotated[
+        bool,
+        typer.Option(
+            "--torch",
+            help="Run MiniLM and the touch encoder on torch instead of ONNX Runtime (slower "
+            "start, more memory; spaces other than MiniLM always do; env TACTUS_TORCH=1).",
+        ),
+    ] = False,
     no_maintain: Annotated[
         bool,
         typer.Option(
@@ -93,6 +113,7 @@ def serve(
         "space_dim": space_dim,
         "touch_checkpoint": touch_checkpoint,
         "onnx": onnx,
+        "workers": workers,
         "max_body_bytes": max_body_bytes,
         "window": window,
         "stride": stride,
@@ -104,17 +125,31 @@ def serve(
         overrides["touch"] = False
     if no_maintain:
         overrides["maintain"] = False
+    if torch:
+        overrides["torch"] = True
     where = data or "the memory"
     try:
         settings = Settings(**overrides)
         where = settings.data
         check_location(settings.data)
         check_checkpoint(settings.touch_checkpoint if settings.touch else None)
+        settings = default_onnx(settings)
+        if settings.workers > 1:  # forked before anything heavy is imported
+            from tactus_memory.cli.workers import serve_workers, worker_torch_threads
+
+            settings = worker_torch_threads(settings)
+            say = lambda line: typer.echo(line, err=True)  # noqa: E731
+            status = serve_workers(settings, settings.workers, say, (load_app, run_server), debug)
+            if status:
+                raise typer.Exit(status)
+            return
         if settings.torch_threads is None and not settings.onnx:
             from tactus_memory.service.app import serving_torch_threads
 
             settings = settings.model_copy(update={"torch_threads": serving_torch_threads()})
         application = load_app(settings, say=lambda line: typer.echo(line, err=True))
+    except typer.Exit:
+        raise
     except Exception as exc:  # noqa: BLE001  (startup: one line and exit 2, unless --debug)
         if debug:
             raise
@@ -147,6 +182,15 @@ def export_onnx(
     typer.echo(f"wrote {out}: serve with `tactus serve --onnx {out}`")
 
 
+def default_onnx(settings: Any) -> Any:
+    """``settings`` with ``onnx`` set to the default cache folder
+    (:mod:`tactus_memory.onnx_cache`) when the server runs on ONNX Runtime by default: no
+    folder named, no ``--torch``, and the MiniLM space (the default). The folder is filled,
+    if it has to be, while the server starts (``load_app``)."""
+    folder = None if settings.onnx else default_folder_of(settings)
+    return settings.model_copy(update={"onnx": str(folder)}) if folder else settings
+
+
 def page_url(settings: Any, port: int | None = None) -> str:
     """The browser page's URL (a wildcard bind address is reached through localhost)."""
     host = settings.host if settings.host not in ("0.0.0.0", "::", "") else "127.0.0.1"
@@ -154,15 +198,22 @@ def page_url(settings: Any, port: int | None = None) -> str:
     return f"http://{host}:{port or settings.port}/"
 
 
-def load_app(settings: Any, say: Callable[[str], None]) -> Any:
+def load_app(
+    settings: Any, say: Callable[[str], None], on_ready: Callable[[], None] | None = None
+) -> Any:
     """Open the store now (step 1: a damaged store or a bad setting stops the command before
     anything listens), and build the app whose lifespan loads the text model and the touch
-    encoder (steps 2 and 3, seconds each on a CPU) on a worker thread once the socket is
+    encoder (steps 2 and 3, seconds each on a CPU; on the first start of the default ONNX
+    server, step 2 exports MiniLM first) on a worker thread once the socket is
     open, saying what loads and how long each step took; ``/ready`` answers 503 naming the
     step until then."""
+    from tactus_memory.onnx_cache import is_ready, prepare
     from tactus_memory.service.app import create_app, open_store, register_default_senses
 
     steps = 3
+    folder = Path(settings.onnx) if settings.onnx else None
+    # the default folder, on the first start: exported (and checked) before MiniLM loads
+    export = folder is not None and not is_ready(folder) and folder == default_folder_of(settings)
 
     def step(i: int, what: str, fn: Callable[[], Any], state: Any = None) -> Any:
         say(f"[{i}/{steps}] {what} ...")
@@ -176,27 +227,53 @@ def load_app(settings: Any, say: Callable[[str], None]) -> Any:
     memory = step(1, f"opening the memory at {settings.data}", lambda: open_store(settings))
     name = getattr(memory.space, "name", settings.space)
 
+    def text_model() -> None:
+        if export:
+            prepare(folder, settings.touch_checkpoint if settings.touch else None, say)
+        memory.space.embed_texts(["warm up"], query=True)
+
     def finish(state: Any) -> str | None:
         text = f"loading the text model ({name})"
-        step(2, text, lambda: memory.space.embed_texts(["warm up"], query=True), state)
-        why = step(
-            3, "loading the touch encoder", lambda: register_default_senses(memory, settings), state
-        )
+        step(2, text, text_model, state)
+        touch = "loading the touch encoder"
+        why = step(3, touch, lambda: register_default_senses(memory, settings), state)
         if why:
             say(f"touch is off: {why}")
-        say("ready: GET /ready answers 200")
+        if on_ready is not None:
+            on_ready()  # a worker of several: /ready answers 200 once every one is
+            say("ready: GET /ready answers 200 once every worker is")
+        else:
+            say("ready: GET /ready answers 200")
         return why
 
     return create_app(settings, memory=memory, loader=finish)
 
 
-def run_server(application: Any, settings: Any) -> None:
-    """uvicorn (tokens redacted in its logs); once it listens, print the page's URL."""
+def default_folder_of(settings: Any) -> Path | None:
+    """The default ONNX folder ``settings`` would get (None where it gets none)."""
+    from tactus_memory.onnx_cache import default_folder
+
+    if settings.torch or settings.space_path or settings.space not in (None, "minilm", "minilm-l6"):
+        return None
+    return default_folder(settings.touch_checkpoint if settings.touch else None)
+
+
+def run_server(
+    application: Any, settings: Any, sockets: list[Any] | None = None, worker: Any = None
+) -> None:
+    """uvicorn (tokens redacted in its logs); once it listens, print the page's URL.
+    ``sockets``: listen there (a worker of ``--workers``, :mod:`tactus_memory.cli.workers`,
+    whose ``worker`` group says which one it is)."""
     import uvicorn
 
     from tactus_memory.service.logs import log_config
 
     state = getattr(getattr(application, "state", None), "tactus", None)
+    models = f"ONNX Runtime ({settings.onnx})" if settings.onnx else "torch"
+    maintenance = "on" if settings.maintain else "off (tactus maintain)"
+    if worker is not None:
+        maintenance = "on" if settings.maintain else "off (worker 0 maintains)"
+        maintenance += f"\n  worker:         {worker.index} of {worker.count}, pid {os.getpid()}"
     read_only = bool(getattr(state, "read_only", False))
 
     config = uvicorn.Config(
@@ -227,11 +304,12 @@ def run_server(application: Any, settings: Any) -> None:
                     f"  memory browser: {url}\n"
                     f"  API docs:       {url}docs\n"
                     f"  token:          {'required' if settings.token else 'off'}\n"
-                    f"  maintenance:    {'on' if settings.maintain else 'off (tactus maintain)'}\n"
+                    f"  maintenance:    {maintenance}\n"
+                    f"  models run on:  {models}\n"
                     + ("  READ-ONLY store: writes answer 503\n" if read_only else "")
                     + "  (models load now: GET /ready answers 200 once 'ready' is printed; "
                     "Ctrl+C stops it)",
                     err=True,
                 )
 
-    Server(config).run()
+    Server(config).run(sockets=sockets)

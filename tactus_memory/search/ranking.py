@@ -5,8 +5,11 @@ ANN (or exact flat) search in the store, calibrated scores, merged top k. ``Memo
 
 from __future__ import annotations
 
+import contextvars
 import math
+import threading
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -18,9 +21,25 @@ from tactus_memory.storage.store import Store
 from tactus_memory.storage.vectors import as_unit_rows
 from tactus_memory.storage.where import Where
 
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def _group_pool() -> ThreadPoolExecutor:
+    """The threads that ask a search's groups at once (shared by every Ranker)."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=8, thread_name_prefix="tactus-ann")
+        return _POOL
+
 
 class Ranker:
     """Ranked search over one store, with the registry's transforms and calibrations."""
+
+    #: ask the ANN queries of a search's groups (senses with different query vectors) at
+    #: once; False: one after the other (benchmarks/search_1m.py compares both)
+    parallel_groups: bool = True
 
     def __init__(self, store: Store, registry: SenseRegistry) -> None:
         self.store = store
@@ -62,8 +81,26 @@ class Ranker:
                 groups.append((qs, [name]))
         calib = {name: self.registry.calibration(name) for name in active}
         scored: list[tuple[float, float, dict[str, Any]]] = []
-        for vec, names in groups:
-            scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
+        if len(groups) > 1 and self.parallel_groups:
+            # the groups' ANN queries at once (LanceDB runs each on its own threads, without
+            # the interpreter lock): a search costs its slowest group, not their sum. Each
+            # group prunes its follow-ups on its own candidates only, which may ask more
+            # but never changes the merge.
+            # each job in a copy of this context: the session scope (``sessions_under``, a
+            # tenant's prefix) is a context variable and must hold in the pool's threads
+            pool = _group_pool()
+            search = self._search_group
+            jobs = [
+                pool.submit(
+                    contextvars.copy_context().run, search, vec[0], k, ns, base, counts, calib, []
+                )
+                for vec, ns in groups
+            ]
+            for job in jobs:
+                scored.extend(job.result())
+        else:
+            for vec, names in groups:
+                scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
         scored.sort(key=lambda x: -x[0])
         return [hit_from_row(row, score, cos) for score, cos, row in scored[:k]]
 

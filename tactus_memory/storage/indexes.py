@@ -11,7 +11,15 @@ import logging
 import time
 from typing import TYPE_CHECKING, Any
 
-from tactus_memory.storage.tables import IndexConfig, scalar_index_config, vector_index_config
+import numpy as np
+
+from tactus_memory.storage.tables import (
+    UNMEASURED_NPROBES,
+    IndexConfig,
+    scalar_index_config,
+    vector_index_config,
+)
+from tactus_memory.storage.vectors import as_unit_rows, vector_column
 
 log = logging.getLogger(__name__)
 
@@ -23,8 +31,10 @@ class StoreIndexes:
     _indexed: bool
     _scalar_indexed: bool
     _partitions: int | None
+    _probes: int | None
 
     items: Any  # the LanceDB table (Store.items)
+    _meta: Any  # the store's meta table (Store._meta), None before it exists
 
     if TYPE_CHECKING:  # Store's, used here
 
@@ -39,6 +49,98 @@ class StoreIndexes:
             info = json.loads(self.get_meta("index") or "{}")
             self._partitions = int(info.get("partitions", 1))
         return self._partitions
+
+    def probes(self) -> int:
+        """Partitions a search probes: ``IndexConfig.nprobes`` when set, else the fewest
+        that reached ``IndexConfig.target_recall`` on this index when it was built
+        (:meth:`measure_probes`, kept in the store's index record), else
+        ``UNMEASURED_NPROBES`` (an index built before they were measured)."""
+        if self.index.nprobes is not None:
+            return self.index.nprobes
+        if self._probes is None:
+            info = json.loads(self.get_meta("index") or "{}")
+            self._probes = int(info.get("nprobes") or UNMEASURED_NPROBES)
+        return self._probes
+
+    def measure_probes(self, k: int = 10) -> dict[str, Any]:
+        """Recall@k of the ANN index at a ladder of probes (each with the configured refine
+        factor), unfiltered and within each sense (``sense = X``, as a search asks per sense),
+        each query answered exactly by a flat scan; a hit counts when it is no farther than
+        the exact k-th (ties count). The hard case is a text query searching a touch sense:
+        its nearest touch rows lie in partitions far from the query (the nearest partitions
+        hold notes). So the queries are the store's text probe bank when a search has cached
+        it, else, within a sense, rows of the other senses (unfiltered: rows with random
+        direction added). Returns the fewest probes at which every part reaches
+        ``target_recall`` (else the best), the worst part's recall, and the ladder."""
+        cfg = self.index
+        parts = self.partitions()
+        dim = self.dim()
+        ds = self.items.to_lance()
+        rng = np.random.default_rng(0)
+        bank = self._probe_bank(dim)[: cfg.tune_queries]
+        senses = ds.to_table(columns=["sense"]).column("sense").to_numpy(zero_copy_only=False)
+        names, counts = np.unique(senses, return_counts=True)
+
+        def rows(pool: np.ndarray, noise: float) -> np.ndarray:
+            """``tune_queries`` rows of ``pool`` with ``noise`` times as much random
+            direction added (the cached text probe bank instead, when there is one)."""
+            if len(bank):
+                return bank
+            take = rng.choice(pool, size=min(cfg.tune_queries, len(pool)), replace=False)
+            vecs = as_unit_rows(vector_column(ds.take(sorted(take), columns=["vector"]), dim))
+            jitter = as_unit_rows(rng.standard_normal(vecs.shape).astype(np.float32))
+            return as_unit_rows(vecs + noise * jitter)
+
+        # unfiltered: rows moved away from themselves (cosine ~0.55 to their row); within a
+        # sense: the other senses' rows, a note standing for a text query
+        everything = np.arange(len(senses))
+        checks: list[tuple[str | None, np.ndarray]] = [(None, rows(everything, 1.5))]
+        for name, count in zip(names, counts, strict=True):
+            others = np.flatnonzero(senses != name)
+            if count >= k and len(others):
+                checks.append((str(name), rows(others, 0.0)))
+
+        def search(q: np.ndarray, probes: int | None, sense: str | None) -> np.ndarray:
+            s = self.items.search(q, vector_column_name="vector").distance_type("cosine")
+            if sense is not None:
+                s = s.where(f"sense = '{sense.replace(chr(39), chr(39) * 2)}'", prefilter=True)
+            if probes is None:
+                s = s.bypass_vector_index()
+            else:
+                s = s.nprobes(probes)
+                if cfg.refine_factor:
+                    s = s.refine_factor(cfg.refine_factor)
+                if cfg.ef:
+                    s = s.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
+            return np.asarray(s.select(["_distance"]).limit(k).to_arrow()["_distance"])
+
+        exact = [[search(q, None, sense)[-1] + 1e-6 for q in qs] for sense, qs in checks]
+        ladder: dict[int, float] = {}
+        steps = [p for p in (4, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256) if p < parts]
+        for p in [*steps, parts]:
+            worst = 1.0
+            for (sense, qs), kth in zip(checks, exact, strict=True):
+                hits = [search(q, p, sense) <= t for q, t in zip(qs, kth, strict=True)]
+                got = sum(int(h.sum()) for h in hits)
+                worst = min(worst, got / (k * len(qs)))
+            ladder[p] = round(worst, 4)
+            if ladder[p] >= cfg.target_recall:
+                break
+        best = next((p for p, r in ladder.items() if r >= cfg.target_recall), None)
+        if best is None:
+            best = max(ladder, key=lambda p: (ladder[p], -p))
+        return {"nprobes": best, "recall": ladder[best], "ladder": ladder}
+
+    def _probe_bank(self, dim: int) -> np.ndarray:
+        """The text probe bank a search cached in the store (``probes:<space>:<n>``, the
+        registry's calibration queries), or none."""
+        if self._meta is not None:
+            rows = self._meta.search().where("key LIKE 'probes:%'").limit(16).to_arrow()
+            for value in rows.column("value").to_pylist():
+                bank = np.asarray(json.loads(value or "[]"), dtype=np.float32)
+                if bank.ndim == 2 and bank.shape[1] == dim and len(bank):
+                    return as_unit_rows(bank, dim)
+        return np.zeros((0, dim), np.float32)
 
     def has_vector_index(self) -> bool:
         if not self._indexed:
@@ -82,6 +184,16 @@ class StoreIndexes:
         self.items.create_index("vector", config=vector_index_config(cfg, parts, self.dim()))
         self.build_scalar_indexes()
         self._indexed = True
-        self.set_meta("index", json.dumps({"rows": n, "type": cfg.index_type, "partitions": parts}))
         self._partitions = parts
-        log.info("built %s index on %d rows in %.1fs", cfg.index_type, n, time.perf_counter() - t0)
+        built = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        measured = self.measure_probes()
+        info = {"rows": n, "type": cfg.index_type, "partitions": parts, **measured}
+        info["ladder"] = {str(p): r for p, r in measured["ladder"].items()}
+        self.set_meta("index", json.dumps(info))
+        self._probes = measured["nprobes"]
+        log.info(
+            "built %s index on %d rows in %.1fs; %d of %d partitions probed reach recall@10 %.3f "
+            "(measured in %.1fs)", cfg.index_type, n, built, measured["nprobes"], parts,
+            measured["recall"], time.perf_counter() - t0,
+        )  # fmt: skip

@@ -131,6 +131,7 @@ class Store(StoreIndexes):
         self._indexed = False
         self._scalar_indexed = False
         self._partitions: int | None = None
+        self._probes: int | None = None
         #: expiry and thinning, and the erasure of deleted rows, run by maintenance
         #: (:mod:`tactus_memory.storage.retention`)
         self.retention = Retention(self, tenant)
@@ -356,7 +357,7 @@ class Store(StoreIndexes):
         if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
             q = q.bypass_vector_index()
         elif indexed:
-            nprobes = cfg.nprobes
+            nprobes = self.probes()
             if allowed and total and allowed < total:
                 per_part = cfg.rows_per_partition * allowed / total
                 nprobes = max(nprobes, math.ceil(cfg.min_candidates / max(per_part, 1e-9)))

@@ -119,6 +119,12 @@ def audit_schema() -> pa.Schema:
 
 
 # --------------------------------------------------------------------------- index config
+#: partitions probed on an index recorded without a measurement: 80 of a 1M table's 244
+#: reached recall@10 1.0 for text queries over realistic touch + note vectors (20: 0.90;
+#: benchmarks/search_1m.py, results/search_1m.json)
+UNMEASURED_NPROBES = 80
+
+
 @dataclass
 class IndexConfig:
     """Vector/scalar index policy. Defaults chosen by ``benchmarks/memory.py``
@@ -131,9 +137,14 @@ class IndexConfig:
     index_type: str = "IVF_SQ"
     #: rows per IVF partition (num_partitions = rows / this)
     rows_per_partition: int = 4096
-    #: partitions probed: 80 of a 1M table's 244 reach recall@10 1.0 for text queries over
-    #: realistic touch + note vectors (20: 0.90; benchmarks/search_1m.py, results/search_1m.json)
-    nprobes: int = 80
+    #: partitions probed; None (the default): the fewest that reached ``target_recall`` on
+    #: the index when it was built (recorded with it: StoreIndexes.probes), or
+    #: ``UNMEASURED_NPROBES`` for an index built before; a number pins it (benchmark sweeps)
+    nprobes: int | None = None
+    #: recall@10 an index's probes are chosen for, measured when it is built
+    target_recall: float = 0.98
+    #: queries (stored rows, jittered) that measurement asks, each also answered exactly
+    tune_queries: int = 24
     #: candidates re-scored with full vectors: SQ's error decides between near-equal touch
     #: windows (recall 0.83 without it, at every nprobes; search_1m.json)
     refine_factor: int | None = 2

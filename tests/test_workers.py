@@ -1,0 +1,153 @@
+"""``tactus serve --workers 2`` on real uvicorn processes (one port, one store): gloves land on
+both workers and each is acknowledged by its own committer; /ready waits for every worker;
+worker 0 alone maintains; ``kill -9`` of a worker while its glove streams loses nothing it
+acknowledged, and the worker is replaced. Frames go as binary ``.npy`` messages of several
+frames (parsed and windowed as one array)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import re
+import signal
+import time
+from contextlib import ExitStack
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from websockets.exceptions import ConnectionClosed
+
+from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
+from tactus_memory.memory import Memory
+
+pytestmark = pytest.mark.slow
+
+STARTUP_S = 300
+WINDOW = 8
+
+
+def npy(frames: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, frames)
+    return buf.getvalue()
+
+
+def frames(n: int, seed: int) -> np.ndarray:
+    """(n, 32, 32) int16 raw frames with a contact patch (never idle)."""
+    rng = np.random.default_rng(seed)
+    out = np.full((n, 32, 32), 512, np.int16)
+    out[:, 8:24, 6:20] += rng.integers(100, 300, (n, 16, 14)).astype(np.int16)
+    return out
+
+
+def worker_pids(log: Path) -> dict[int, int]:
+    """worker index -> pid, from the banners (the latest one per index)."""
+    found = re.findall(r"worker:\s+(\d+) of \d+, pid (\d+)", log.read_text())
+    return {int(i): int(pid) for i, pid in found}
+
+
+def connect(stack: ExitStack, port: int, session: str):  # noqa: ANN201  (a connection)
+    from websockets.sync.client import connect as ws_connect
+
+    url = f"ws://127.0.0.1:{port}/sessions/{session}/touch/stream?hz=30&window={WINDOW}"
+    ws = stack.enter_context(ws_connect(url, open_timeout=30))
+    ready = json.loads(ws.recv(timeout=30))
+    assert ready["type"] == "ready", ready
+    return ws, ready["worker"]
+
+
+def stream(ws, n_messages: int, seed: int, acked: list[str], kill=None) -> None:  # noqa: ANN001
+    """Send ``n_messages`` .npy messages of two windows each, collect the acks; ``kill``
+    runs once the first acks came back (the connection may then close)."""
+    for i in range(n_messages):
+        ws.send(npy(frames(2 * WINDOW, seed * 1000 + i)))
+    want = 2 * n_messages
+    try:
+        while len(acked) < want:
+            msg = json.loads(ws.recv(timeout=60))
+            assert msg["type"] == "stored", msg
+            acked.append(msg["id"])
+            if kill is not None and len(acked) == 3:
+                kill()
+    except (ConnectionClosed, TimeoutError):  # the killed worker's connection ends
+        if kill is None:
+            raise
+
+
+def ready_status(base: str) -> int | str | None:
+    """200, the 503's reason after 'starting: ', or None when the connection was reset."""
+    try:
+        r = httpx.get(base + "/ready", timeout=10)
+    except httpx.TransportError:
+        return None
+    return 200 if r.status_code == 200 else r.json()["detail"].removeprefix("starting: ")
+
+
+def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    log = tmp_path / "serve.log"
+    data = tmp_path / "mem"
+    proc = start_serve(port, data, log, "--workers", "2", env={"TACTUS_LOG_LEVEL": "warning"})
+    gloves = ExitStack()
+    try:
+        assert wait_ok(proc, base + "/ready", STARTUP_S, interval=0.2) is not None, log.read_text()
+        started = log.read_text()
+        assert "2 workers on port" in started
+        assert started.count("maintenance:    on") == 1, started  # worker 0's only
+        assert started.count("maintenance:    off (worker 0 maintains)") == 1, started
+        pids = worker_pids(log)
+        assert set(pids) == {0, 1} and len(set(pids.values())) == 2
+        for pid in pids.values():
+            maps = Path(f"/proc/{pid}/maps").read_text()
+            assert "onnxruntime" in maps and "libtorch" not in maps  # the light server, each
+
+        # gloves until each worker holds one (the kernel spreads connections: SO_REUSEPORT)
+        held: dict[int, object] = {}
+        for i in range(40):
+            ws, worker = connect(gloves, port, f"glove{i}")
+            held.setdefault(worker, ws)
+            if len(held) == 2:
+                break
+        assert set(held) == {0, 1}, "every connection went to one worker"
+        acked: dict[int, list[str]] = {0: [], 1: []}
+        stream(held[0], 2, 0, acked[0])
+        assert len(acked[0]) == 4
+
+        # kill -9 worker 1 while its glove streams: what it acknowledged is stored
+        def kill() -> None:
+            os.kill(pids[1], signal.SIGKILL)
+
+        stream(held[1], 12, 1, acked[1], kill=kill)
+        assert len(acked[1]) >= 3
+        deadline = time.monotonic() + STARTUP_S
+        while "replaced" not in log.read_text():  # the parent saw it die (it looks every 0.1 s)
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text()
+            time.sleep(0.1)
+        # the group is short of worker 1 until its replacement is ready: worker 0 says so,
+        # the replacement names its loading step (a connection the dead worker had queued
+        # is reset: asked again)
+        while (r := ready_status(base)) != 200:
+            assert r is None or r == "worker 1 of 2 is not ready" or r.startswith("["), r
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text()
+            time.sleep(0.1)
+        assert "worker 1 (pid" in log.read_text() and "replaced" in log.read_text()
+        new = worker_pids(log)
+        assert new[0] == pids[0] and new[1] != pids[1]
+        assert log.read_text().count("maintenance:    on") == 1  # still worker 0's only
+        ws, _ = connect(gloves, port, "after")  # the group serves on after the kill
+        after: list[str] = []
+        stream(ws, 1, 2, after)
+        assert len(after) == 2
+    finally:
+        with contextlib.suppress(Exception):  # the killed worker's glove is closed already
+            gloves.close()
+        stop_process(proc)
+    assert proc.returncode == 0, log.read_text()[-3000:]
+    mem = Memory.open(str(data))
+    stored = set(mem.store.scan(None, ["id"])["id"].to_pylist())
+    assert set(acked[0]) | set(acked[1]) | set(after) <= stored  # nothing acknowledged lost
