@@ -198,9 +198,12 @@ def run_mcp_http(memory: Any, settings: Settings, allow_writes: bool, say: Any, 
     the scope the tools need; each ``remember`` is audited."""
     import uvicorn
 
+    from tactus_memory.mcp_server.server import warm
     from tactus_memory.service.app import audit_log, key_store
     from tactus_memory.service.logs import log_config
 
+    say("tactus mcp: loading the models (the port answers once they are loaded)")
+    warm(memory)  # before the port answers: the first call is as fast as the next
     audit = audit_log(memory)
     server = build(memory, allow_writes=allow_writes, on_write=audit_hook(audit))
     need = "write" if allow_writes else "read"

@@ -14,6 +14,8 @@ from tactus_memory.search.matching import answering
 from tactus_memory.search.scoring import FINAL_ROWS
 from tests.fakes import HashingSpace
 
+pytestmark = pytest.mark.slow
+
 #: the mug picked up at 10 s; later notes that pass the bar for "picked up the mug" too
 NOTES = [
     ("picked up the mug", 10.0),

@@ -18,6 +18,8 @@ from tactus_memory.touch.training import stream_eval
 from tactus_memory.touch.training.data import load_stag
 from tests.touch_pair import Pair, train_pair
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory) -> Pair:

@@ -11,6 +11,8 @@ import httpx
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("onnxruntime", reason="the [onnx] extra is not installed")
 
 from benchmarks.serving import free_port, start_serve, stop_process, wait_ok  # noqa: E402

@@ -29,6 +29,8 @@ from tests.test_recordings import N_FRAMES, TOPICS, _messages
 from tests.test_service_helpers import make_memory
 from tests.touch_pair import Pair, train_pair
 
+pytestmark = pytest.mark.slow
+
 #: a bound on every test here (Ray starting on a busy 2-core machine included)
 TEST_SECONDS = 480
 COLUMNS = ["id", "session", "sense", "source", "t", "t_end", "meta", "text", "raw", "x", "y", "z",

@@ -24,6 +24,8 @@ from tactus_memory.settings import Settings
 from tests.servers import serve_app
 from tests.test_service_helpers import make_memory, window
 
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 MAX_EXAMPLES = 10
 PHASES = "examples,coverage,stateful"

@@ -20,6 +20,8 @@ from tactus_memory.touch.training.stream_eval import (
 )
 from tactus_memory.touch.training.train import holdout_recordings
 
+pytestmark = pytest.mark.slow
+
 HOLDOUT = "one-per-object@blindfolded"
 
 

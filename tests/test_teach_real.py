@@ -25,6 +25,8 @@ from tactus_memory.touch.training import stream_eval
 from tactus_memory.touch.training.data import load_stag
 from tests.test_service_uvicorn import Server
 
+pytestmark = pytest.mark.slow
+
 QUERY = "when was I holding the drill?"
 TOKEN = "t3ach"
 

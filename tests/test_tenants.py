@@ -62,6 +62,8 @@ def test_the_keys_and_audit_commands(tmp_path) -> None:
         assert res.exit_code == code, res.output
         return res.output
 
+    first = run("keys", "create", "--tenant", "default", "--scope", "admin")  # a store's first
+    admin_id = first.strip().splitlines()[-1].split("_")[1]
     out = run("keys", "create", "--tenant", "A", "--scope", "write", "--expires", "30")
     key = out.strip().splitlines()[-1]  # the key, alone on the last line
     key_id = key.split("_")[1]
@@ -78,7 +80,11 @@ def test_the_keys_and_audit_commands(tmp_path) -> None:
     assert "tenant" in run("keys", "create", "--tenant", "a/b", code=2)
     audit = run("audit", "--json").splitlines()
     routes = [json.loads(line)["route"] for line in audit]
-    assert routes == [f"cli: tactus keys create {key_id}", f"cli: tactus keys revoke {key_id}"]
+    assert routes == [
+        f"cli: tactus keys create {admin_id}",
+        f"cli: tactus keys create {key_id}",
+        f"cli: tactus keys revoke {key_id}",
+    ]
     assert key not in "".join(audit)
     assert run("audit", "--tenant", "B") == ""
     out = run("keys", "create", "--tenant", "A", "--sessions", "lab-", "--scope", "write")

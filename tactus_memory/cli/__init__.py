@@ -10,6 +10,7 @@ from __future__ import annotations
 from tactus_memory.cli import (  # noqa: F401  (imported for their registrations)
     ask_cmds,
     data_cmds,
+    demo_cmd,
     eval_cmds,
     keys_cmds,
     maintain_cmd,

@@ -27,6 +27,20 @@ app.add_typer(keys_app, name="keys")
 CLI_ROUTE = "cli: tactus keys {}"
 #: who the audit log names for a command run on the store's own machine
 CLI_KEY_ID = "operator"
+#: the one line that refuses a store's first key when it is not the default tenant's admin
+#: key: with no key a server is open; its first key makes every request need one, so it
+#: must be the key that keeps the default tenant's data reachable
+FIRST_KEY_RULE = (
+    "this store has no keys, so servers on it are open; its first key makes every request "
+    "need a key, so it must be an admin key of the default tenant: "
+    "tactus keys create --tenant {default} --scope admin"
+)
+#: the one line that refuses to revoke the last live admin key of the default tenant
+LAST_ADMIN = (
+    "key {key_id} is the last live admin key of the default tenant: without it only the "
+    "operator's --token reaches that tenant's data; create another admin key first, or "
+    "pass --last"
+)
 
 
 def _stores(data: str | None) -> tuple[object, object]:
@@ -59,8 +73,12 @@ def create(
     """Create a key; it is printed once, alone on the last line (only its hash is stored).
     The first key of a tenant brings the tenant into being."""
     from tactus_memory.errors import TactusError
+    from tactus_memory.storage.tenants import DEFAULT_TENANT
 
     keys, audit = _stores(data)
+    first = not keys.list()  # revoked and expired keys count: a keyed store stays keyed
+    if first and (tenant, scope, sessions) != (DEFAULT_TENANT, "admin", None):
+        fail(FIRST_KEY_RULE.format(default=DEFAULT_TENANT))
     try:
         key_id, key = keys.create(tenant, scope, expires, sessions=sessions)
     except TactusError as exc:
@@ -70,6 +88,8 @@ def create(
     until = None if expires is None else time.time() + expires * 86400.0
     only = "" if sessions is None else f", sessions {sessions}*"
     typer.echo(f"key {key_id} for tenant {tenant!r}, scope {scope}{only}, expires {_when(until)}")
+    if first:
+        typer.echo("servers on this store now need a key or the token for every request")
     typer.echo("the key (shown once; store it now):")
     typer.echo(key)
 
@@ -96,11 +116,33 @@ def list_keys(
 
 
 @keys_app.command("revoke")
-def revoke(key_id: str, data: ServiceData = None) -> None:
-    """Revoke a key: every server refuses it within the read consistency interval."""
+def revoke(
+    key_id: Annotated[
+        str, typer.Argument(help="The key's id, as `tactus keys list` prints it (or the key).")
+    ],
+    data: ServiceData = None,
+    last: Annotated[
+        bool,
+        typer.Option("--last", help="Revoke even the last live admin key of the default tenant."),
+    ] = False,
+) -> None:
+    """Revoke a key: every server refuses it within the read consistency interval. The store
+    stays keyed (revoking every key does not open it again)."""
     from tactus_memory.errors import TactusError
+    from tactus_memory.storage.keys import KEY_PREFIX
+    from tactus_memory.storage.tenants import DEFAULT_TENANT
 
+    if key_id.startswith(KEY_PREFIX):  # the key itself, pasted: its id is the part after tk_
+        key_id = key_id[len(KEY_PREFIX) :].partition("_")[0]
     keys, audit = _stores(data)
+    now = time.time()
+    admins = [
+        k.key_id
+        for k in keys.list()
+        if k.live(now) and (k.tenant, k.scope, k.sessions) == (DEFAULT_TENANT, "admin", None)
+    ]
+    if admins == [key_id] and not last:
+        fail(LAST_ADMIN.format(key_id=key_id))
     try:
         info = keys.revoke(key_id)
     except TactusError as exc:

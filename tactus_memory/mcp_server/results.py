@@ -54,6 +54,12 @@ class Found(BaseModel):
     t_end: float
     when: str | None = Field(None, description="Start as ISO 8601 UTC, when t is a unix time.")
     score: float | None = Field(None, description="Calibrated match score (higher is better).")
+    match: bool | None = Field(
+        None,
+        description="Whether the score clears its sense's match bar for this query (the rule "
+        "of last/first/count); ranked results only.",
+    )
+    bar: float | None = Field(None, description="The score this item's sense needed to match.")
     text: str | None = None
     source: str | None = Field(None, description="The stream it came from, if any.")
     meta: dict[str, Any] | None = None
@@ -184,6 +190,8 @@ def found(item: Any, touch: dict[str, TouchSummary]) -> Found:
         t_end=round(t_end, 3),
         when=when(t),
         score=None if score is None else round(float(score), 3),
+        match=None if score is None else bool(getattr(item, "match", False)),
+        bar=None if getattr(item, "bar", None) is None else round(float(item.bar), 3),
         text=item.text,
         source=item.source or None,
         meta=meta,

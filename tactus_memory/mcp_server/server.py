@@ -197,6 +197,12 @@ class MemoryTools:
         self.compactor = Compactor(memory.store)
         self.on_write = on_write
 
+    def _known(self, session: str | None) -> None:
+        """An unknown session is a tool error (``no session 'ID'``), as HTTP answers 404,
+        never an empty answer that reads like "it never happened"."""
+        if session is not None:
+            self.memory.session(session)
+
     @tool_errors
     def search(
         self,
@@ -211,6 +217,7 @@ class MemoryTools:
         """Find remembered things (touch grasps, notes, ...) that match a description, best
         first. Each hit says when (t, t_end), which sense, its score and its id; a touch hit
         is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones."""
+        self._known(session)
         scope = scope_of(session, senses, after, before)
         group = "window" if windows else "auto"
         hits = self.memory.search(query, k, group=group, scope=scope)
@@ -218,6 +225,7 @@ class MemoryTools:
 
     def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
         memory, query = self.memory, ask.query
+        self._known(ask.session)
         moments = memory.occurrences(
             query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
         ).moments
@@ -236,6 +244,7 @@ class MemoryTools:
     @grouped(ask=Question)
     def count(self, ask: Question) -> CountResult:
         """How many distinct times did this happen? Also answers yes/no (count > 0)."""
+        self._known(ask.session)
         occ = self.memory.occurrences(
             ask.query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
         )
@@ -253,6 +262,7 @@ class MemoryTools:
 
     def _around(self, side: str, ask: Any) -> CallToolResult:
         fn = self.memory.before if side == "before" else self.memory.after
+        self._known(ask.session)
         scope = scope_of(ask.session, ask.senses, None, None)
         ctx = fn(ask.anchor, ask.window, scope=scope, anchor_senses=ask.anchor_senses)
         if ctx is None:
@@ -359,6 +369,13 @@ class MemoryTools:
 READ_TOOLS = ("sessions", "search", "last", "first", "count", "before", "after", "timeline")
 #: the tools that write, offered only with ``allow_writes``
 WRITE_TOOLS = ("remember", "teach")
+
+
+def warm(memory: Memory) -> None:
+    """Load the models a tool call needs (the space's text encoder, the store's tables and
+    calibrations) now, so the first call is as fast as the next: ``tactus mcp --http`` calls
+    this before its port answers."""
+    memory.search("warm up", 1)
 
 
 def build_server(
