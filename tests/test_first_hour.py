@@ -14,7 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.search.matching import MATCH_Z, RELATIVE_KEEP
+from tactus_memory.search.matching import GRASP_MATCH_Z, MATCH_Z, RELATIVE_KEEP
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.test_service import assert_problem
@@ -67,7 +67,10 @@ def test_search_hits_carry_match_and_the_bar(client) -> None:
     assert {h["sense"] for h in hits} == {"text", "touch"}
     for h in hits:
         best = max(x["score"] for x in hits if x["sense"] == h["sense"])
-        bar = max(MATCH_Z.get(h["sense"], 3.0), RELATIVE_KEEP * best)
+        floor = MATCH_Z.get(h["sense"], 3.0)
+        if h["n"] is not None:  # a touch answer is a grasp: pooled scores have their own bar
+            floor = GRASP_MATCH_Z.get(h["sense"], floor)
+        bar = max(floor, RELATIVE_KEEP * best)
         assert h["bar"] == pytest.approx(bar)
         assert h["match"] is (h["score"] >= h["bar"])
     assert hits[0]["text"] == "put the mug on the shelf" and hits[0]["match"] is True
