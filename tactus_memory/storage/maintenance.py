@@ -50,6 +50,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field, field_validator
 
+from tactus_memory.storage import orphans
 from tactus_memory.storage.background import start_background
 from tactus_memory.storage.retention import THIN_COSINE, RetentionRule, never_is_none
 
@@ -112,6 +113,12 @@ class MaintenanceConfig(BaseModel):
         description="Rewrite every fragment holding deleted rows (not only past "
         "deletion_threshold), so deleted, expired and thinned data leave the store's files "
         "once cleanup removes the versions that still name them (after retain_seconds).",
+    )
+    orphan_grace_seconds: float = Field(
+        orphans.ORPHAN_GRACE_S,
+        ge=0.0,
+        description="Remove a data, deletion or index file no version references once it is "
+        "this old (a crashed writer's; younger ones may be a writer's mid-commit).",
     )
     # retention (tactus_memory.storage.retention; docs/operations/retention.md)
     retain_days: float | None = Field(
@@ -209,6 +216,7 @@ class TableReport:
     indices_refreshed: bool = False
     versions_removed: int = 0
     bytes_removed: int = 0
+    orphans_removed: int = 0  # unreferenced files of a crashed writer (storage/orphans.py)
     seconds: float = 0.0
 
 
@@ -249,6 +257,7 @@ class TableMaintainer:
         self._seen: deque[tuple[float, int]] = deque()
         self._history_read = False
         self._removed_below = 0
+        self._swept_at = -math.inf
         self._compact_lock = threading.Lock()
         self._cleanup_lock = threading.Lock()
         self._seen_lock = threading.Lock()
@@ -364,12 +373,20 @@ class TableMaintainer:
             with self._seen_lock:
                 while self._seen and self._seen[0][0] <= now - self.cfg.retain_seconds:
                     cut = max(cut, self._seen.popleft()[1])
-            if cut <= self._removed_below + 1:
-                return 0, 0
-            doomed = list(range(max(self._removed_below, 1), cut))
-            stats = ds.cleanup_old_versions(versions=doomed, error_if_tagged_old_versions=False)
-            self._removed_below = cut
-            out = int(stats.old_versions), int(stats.bytes_removed)
+            out = 0, 0
+            if cut > self._removed_below + 1:
+                doomed = list(range(max(self._removed_below, 1), cut))
+                stats = ds.cleanup_old_versions(versions=doomed, error_if_tagged_old_versions=False)
+                self._removed_below = cut
+                out = int(stats.old_versions), int(stats.bytes_removed)
+            if time.monotonic() - self._swept_at >= orphans.SWEEP_INTERVAL_S:
+                sweep = orphans.remove_orphans(
+                    self.uri, self.storage_options, self.cfg.orphan_grace_seconds
+                )
+                self._swept_at = time.monotonic()
+                out = out[0], out[1] + sweep.bytes_removed
+                if report is not None:
+                    report.orphans_removed += sweep.removed
             self.versions_removed_total += out[0]
             self.bytes_removed_total += out[1]
             if report is not None:
