@@ -28,9 +28,9 @@ OPERATOR = "operator-s3cret"
 #: these POST/PUT routes write, these routes need admin
 WRITES = {
     "add_text", "add_vectors", "add_image", "add_touch", "add_poses", "segment_episodes",
-    "set_clock", "touch_stream",
+    "set_clock", "touch_stream", "teach",
 }  # fmt: skip
-ADMIN = {"delete_session", "add_sense"}
+ADMIN = {"delete_session", "add_sense", "forget_label"}  # DELETE needs admin
 SCOPES = ("read", "write", "admin")
 #: the session-id prefix of tenant A's limited keys (``--sessions lab-``)
 LAB = "lab-"
