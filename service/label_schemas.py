@@ -5,7 +5,7 @@ from __future__ import annotations
 from pydantic import BaseModel, ConfigDict, Field
 
 from tactus_memory.limits import SENSE_NAME_PATTERN
-from tactus_memory.search.teaching import MAX_LABEL_CHARS
+from tactus_memory.search.teaching import LABEL_PATTERN, MAX_LABEL_CHARS
 from tactus_memory.service.schemas import Strict
 
 
@@ -17,7 +17,10 @@ class LabelIn(Strict):
     )
 
     label: str = Field(
-        min_length=1, max_length=MAX_LABEL_CHARS, description="What was held, in words."
+        min_length=1,
+        max_length=MAX_LABEL_CHARS,
+        pattern=LABEL_PATTERN,
+        description="What was held, in words.",
     )
     t: float | None = Field(
         None, description="Start of the span (seconds, the session clock); none: from the start."

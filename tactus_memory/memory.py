@@ -344,12 +344,13 @@ class Memory:
         grasps, one Hit each (``temporal.grasps.grasp_hits``); ``"window"`` (or None) one Hit per
         stored item; ``"grasp"`` one Grasp per grasp of every sense; ``"moment"`` Moments
         (:meth:`search_moments`). The query is embedded once."""
-        where, g, q = Scope.of(**scope), check_group(group), embed_query(self.space, query)
-        if g == "grasp":
-            return self.temporal.grasps(q, k, where, GraspRule(pool=pool))
-        if g == "moment":
+        where, g = Scope.of(**scope), check_group(group)
+        if g == "moment":  # embeds the query itself, once
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return self.search_moments(query, k, gap=gap, scope=where)
+        q = embed_query(self.space, query)
+        if g == "grasp":
+            return self.temporal.grasps(q, k, where, GraspRule(pool=pool))
         k, names = check_k(k), self.resolve_senses(where.senses)
         if g == "auto" and (hits := grasp_hits(self.temporal, q, k, where, names, pool)):
             return hits

@@ -71,7 +71,8 @@ def _span(stream) -> tuple[float, float]:
 
 
 def test_teaching_steers_queries_by_label_and_prototype(memory, minilm_space, encoder, streams):
-    before = memory.search(QUERY, k=5, senses=["touch"], session="day")
+    # per window (group="window"): each hit's cosine is its own window's, checked exactly
+    before = memory.search(QUERY, k=5, senses=["touch"], session="day", group="window")
     q = minilm_space.embed_texts([QUERY], query=True)
     plain = encoder.query_transform(q)[0]
     assert before[0].cosine == pytest.approx(
@@ -95,16 +96,16 @@ def test_teaching_steers_queries_by_label_and_prototype(memory, minilm_space, en
     target = centre(phrase / np.linalg.norm(phrase), encoder.query_centroid)
     steer = teaching.W_TEXT * target + teaching.W_PROTO * proto
     steer /= np.linalg.norm(steer)
-    after = memory.search(QUERY, k=5, senses=["touch"], session="day")
+    after = memory.search(QUERY, k=5, senses=["touch"], session="day", group="window")
     for h in after:
         v = memory.get_item(h.id, vector=True).vector
         assert h.cosine == pytest.approx(float(v @ steer), abs=1e-4)
     # the taught grasp itself is what the label finds first
-    top = memory.search(QUERY, k=1, senses=["touch"])[0]
+    top = memory.search(QUERY, k=1, senses=["touch"], group="window")[0]
     assert top.session == "lesson" and t0 <= top.t <= t1
     # a query nearest an untaught class is ranked as before
     mug = "a hand holding a mug"
-    hits = memory.search(mug, k=3, senses=["touch"])
+    hits = memory.search(mug, k=3, senses=["touch"], group="window")
     plain_mug = encoder.query_transform(minilm_space.embed_texts([mug], query=True))[0]
     for h in hits:
         v = memory.get_item(h.id, vector=True).vector

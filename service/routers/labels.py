@@ -44,6 +44,7 @@ async def teach(session: SessionId, body: LabelIn, memory: MemoryDep) -> TaughtO
     "/labels",
     summary="The objects taught to this memory",
     response_model=TaughtListOut,
+    responses=problem_responses(422),
 )
 def list_labels(
     memory: MemoryDep,

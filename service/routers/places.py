@@ -81,7 +81,7 @@ def _poses(ctype: str, raw: bytes, frame: str, source: str) -> PosesIn | tuple[n
         "The session's items the poses cover are placed (also those already stored)."
     ),
     response_model=PosesStoredOut,
-    responses=problem_responses(413, 415, 422),
+    responses=problem_responses(409, 413, 415, 422),
     openapi_extra={"requestBody": POSES_BODY},
 )
 async def add_poses(

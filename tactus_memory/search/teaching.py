@@ -30,6 +30,7 @@ version), so re-embedding moves it, and deleting a taught session removes its te
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 import uuid
@@ -56,16 +57,19 @@ MIN_LABEL_COS = 0.35
 #: meta-table key prefix of a teaching
 KEY_PREFIX = "taught/"
 MAX_LABEL_CHARS = 64
+#: a label: no control characters, and not blank (the HTTP schema carries the same pattern)
+LABEL_PATTERN = r"^[^\x00-\x1f\x7f-\x9f]*[^\s\x00-\x1f\x7f-\x9f][^\x00-\x1f\x7f-\x9f]*$"
 #: the phrase of a label taught to a sense that has no phrase templates of its own
 FALLBACK_PHRASE = "a hand holding {}"
 
 
 def validate_label(label: Any) -> str:
-    """A taught label: 1-64 printable characters, not blank; kept as given (stripped)."""
+    """A taught label: 1-64 characters, no control characters, not blank (LABEL_PATTERN);
+    kept as given (stripped)."""
     if not isinstance(label, str) or not label.strip():
         raise InvalidInputError(f"a taught label must be a non-empty string, got {label!r}")
     out = label.strip()
-    if len(out) > MAX_LABEL_CHARS or not out.isprintable():
+    if len(label) > MAX_LABEL_CHARS or not re.fullmatch(LABEL_PATTERN, label):
         raise InvalidInputError(
             f"a taught label must be 1-{MAX_LABEL_CHARS} printable characters, got {label!r}"
         )
