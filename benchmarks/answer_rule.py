@@ -44,8 +44,6 @@ def combo(k: tuple) -> str:
     return "|".join(str(x) for x in k)
 
 
-FOLD_OF = {"A": "one-per-object@blindfolded", "B": "last-per-object@blindfolded"}
-
 #: (note, t): the mug picked up at 10 s, then near misses that pass the bar later
 NOTES = [
     ("picked up the mug", 10.0),
@@ -69,10 +67,11 @@ def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
     from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.memory import Memory
     from tactus_memory.search.matching import answering
+    from tactus_memory.touch.training.protocol import FOLDS
     from tactus_memory.touch.training.stream_eval import SESSION, _store, build_stream, load_queries
     from tactus_memory.touch.training.train import holdout_recordings
 
-    stream = build_stream(data, holdout_recordings(data, FOLD_OF[fold_of(ckpt)]))
+    stream = build_stream(data, holdout_recordings(data, FOLDS[fold_of(ckpt)]))
     queries = load_queries()
     mem = Memory.open(str(memory_dir), background=False)
     try:

@@ -352,9 +352,10 @@ class Memory:
         if g == "grasp":
             return self.temporal.grasps(q, k, where, GraspRule(pool=pool))
         k, names = check_k(k), self.resolve_senses(where.senses)
-        if g == "auto" and (hits := grasp_hits(self.temporal, q, k, where, names, pool)):
-            return hits
-        return mark_matches(self.rank(q, k, names, where.where(), transform=True))
+        hits = grasp_hits(self.temporal, q, k, where, names, pool) if g == "auto" else None
+        if hits is None:  # no touch sense in scope, or group="window"
+            hits = mark_matches(self.rank(q, k, names, where.where(), transform=True))
+        return hits
 
     def search_vector(
         self,

@@ -154,7 +154,9 @@ def search(
     from tactus_memory.results import Hit
 
     one_source(source.data, source.url)
-    group = "window" if windows else "auto"
+    from tactus_memory.temporal.grasps import windows_group
+
+    group = windows_group(windows)
     if source.url:
         params = {"q": query, "k": k, "group": group, **dataclasses.asdict(scope)}
         answer = get_json(source.url, "/search", params, source.token, source.tenant)

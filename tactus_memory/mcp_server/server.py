@@ -51,6 +51,7 @@ from tactus_memory.memory import Memory
 from tactus_memory.search.matching import DEFAULT_MERGE_GAP, DEFAULT_WINDOW
 from tactus_memory.search.query import Scope
 from tactus_memory.signatures import grouped
+from tactus_memory.temporal.grasps import windows_group
 
 log = logging.getLogger(__name__)
 
@@ -144,7 +145,7 @@ class Question:
 
     @property
     def group(self) -> str:
-        return "window" if self.windows else "auto"
+        return windows_group(self.windows)
 
 
 def around_args(side: str) -> type:
@@ -219,7 +220,7 @@ class MemoryTools:
         is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones."""
         self._known(session)
         scope = scope_of(session, senses, after, before)
-        group = "window" if windows else "auto"
+        group = windows_group(windows)
         hits = self.memory.search(query, k, group=group, scope=scope)
         return compact(SearchResult(query=query, hits=self.compactor.items(hits)))  # type: ignore[return-value]
 

@@ -132,6 +132,12 @@ def as_hit(e: Evidence) -> Hit:
     return Hit(**fields)
 
 
+def windows_group(windows: bool) -> str:
+    """The group of a ``--windows`` / ``windows: true`` flag (CLI, MCP): ``"window"`` asks of
+    single windows, else the default (``"auto"``: touch asked of grasps)."""
+    return "window" if windows else DEFAULT_GROUP
+
+
 def grasp_hits(
     temporal: Any, q: np.ndarray, k: int, scope: Any, names: Sequence[str], pool: str = "mean"
 ) -> list[Hit] | None:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Sequence
-from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,6 +29,7 @@ import torch.nn.functional as F
 
 from tactus_memory.touch.checkpoint import Checkpoint, load_checkpoint
 from tactus_memory.touch.targets import Targets
+from tactus_memory.touch.training.precision import autocast
 from tactus_memory.touch.training.train import TrainConfig, TrainData, _resolve_device, fit
 
 log = logging.getLogger(__name__)
@@ -98,8 +98,7 @@ class TeacherLoss:
         """x: (B, K, 32, 32) -> (B, D) unit mean of the teachers' unit embeddings."""
         # on CUDA the teachers run under bf16 autocast like the student (their outputs are
         # normalised in float32 below); on CPU in float32
-        amp = torch.autocast("cuda", dtype=torch.bfloat16) if x.is_cuda else nullcontext()
-        with amp:
+        with autocast(x.device):
             zs = [m(x).float() for m in self.models]
         return F.normalize(torch.stack(zs).mean(dim=0), dim=-1)
 

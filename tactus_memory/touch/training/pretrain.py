@@ -26,7 +26,6 @@ import math
 import os
 import time
 from collections.abc import Iterable
-from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -43,6 +42,7 @@ from tactus_memory import __version__
 from tactus_memory.touch.checkpoint import load_resume, resume_path, save_resume
 from tactus_memory.touch.model import TactusConfig, Trunk, get_config
 from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.touch.training.precision import autocast
 
 log = logging.getLogger(__name__)
 
@@ -198,9 +198,7 @@ def pretrain(
             state_path, module=mae, opt=opt, gen=gen, device=device, key="mae"
         )
         log.info("resumed MAE pretraining at step %d", step)
-    amp = (
-        torch.autocast("cuda", dtype=torch.bfloat16) if device.startswith("cuda") else nullcontext()
-    )
+    amp = autocast(device)
     mae.train()
     t0, ema, ema_base = time.perf_counter(), None, None
     bar = tqdm(total=cfg.steps, initial=step, desc="mae", disable=not progress)

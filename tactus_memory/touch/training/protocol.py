@@ -68,8 +68,12 @@ class Recipe:
     half: bool = False  # float16 weights for fold runs (small files to carry back from a GPU)
     seeds: list[int] | None = None  # fold-run seeds of this recipe (default: the plan's)
 
-    def mae_key(self) -> str | None:
-        return f"mae-{self.model}-{self.mae_steps}x{self.mae_batch}" if self.mae_steps else None
+    def mae_job(self, fold: str) -> str | None:
+        """The key of the MAE job this recipe's runs of ``fold`` start from (None: no MAE);
+        recipes that pretrain alike share it."""
+        if not self.mae_steps:
+            return None
+        return f"mae/mae-{self.model}-{self.mae_steps}x{self.mae_batch}-{fold}"
 
 
 @dataclass
@@ -171,14 +175,12 @@ def build_jobs(plan: Plan, scale: dict[str, float] | None = None) -> list[Job]:
         folds = [("all", s) for s in plan.final.get(r.name, [])]
         folds += [(f, s) for f in plan.folds for s in (r.seeds or plan.seeds)]
         for fold, seed in folds:
-            mae = None
-            if r.mae_key():
-                mae = f"mae/{r.mae_key()}-{fold}"
-                if mae not in jobs:
-                    jobs[mae] = Job(
-                        key=mae, kind="mae", fold=fold, seed=0, model=r.model,
-                        steps=r.mae_steps, batch=r.mae_batch,
-                    )  # fmt: skip
+            mae = r.mae_job(fold)
+            if mae is not None and mae not in jobs:
+                jobs[mae] = Job(
+                    key=mae, kind="mae", fold=fold, seed=0, model=r.model,
+                    steps=r.mae_steps, batch=r.mae_batch,
+                )  # fmt: skip
             teachers = []
             if r.teacher:
                 t = plan.recipe(r.teacher)
@@ -202,9 +204,8 @@ def gpu_cost(plan: Plan, jobs: Iterable[Job]) -> tuple[float, float]:
     the fixed part (their own steps are not scaled); the scaled recipes' runs the scalable."""
     fixed = scalable = 0.0
     scaled = {r.name: r for r in plan.recipes if r.name in plan.scaled}
-    mae_keys = {r.mae_key() for r in scaled.values() if r.mae_key()}
     for j in jobs:
-        if j.kind == "mae" and any(j.key == f"mae/{k}-{j.fold}" for k in mae_keys):
+        if j.kind == "mae" and any(j.key == r.mae_job(j.fold) for r in scaled.values()):
             fixed += j.steps * j.batch / 512
         elif j.kind == "train" and j.recipe is not None:
             if j.recipe.name in scaled:
@@ -245,18 +246,15 @@ def probe_step_s(model: str, device: str, batch: int = 64, steps: int = 12) -> f
     import torch
 
     from tactus_memory.touch.model import create_model
+    from tactus_memory.touch.training.precision import autocast
 
     net = create_model(model, out_dim=384).to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=1e-4)
     x = torch.rand(batch, net.cfg.frames, 32, 32, device=device)
-    amp = torch.autocast("cuda", dtype=torch.bfloat16) if device.startswith("cuda") else None
     times = []
     for i in range(steps):
         t0 = time.perf_counter()
-        if amp is not None:
-            with amp:
-                z = net(x)
-        else:
+        with autocast(device):
             z = net(x)
         loss = z.float().pow(2).sum()
         opt.zero_grad()

@@ -21,7 +21,6 @@ import logging
 import os
 import time
 from collections.abc import Callable, Sequence
-from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ from tactus_memory.touch.model import TactusModel, batched_forward, create_model
 from tactus_memory.touch.targets import Targets, target_report
 from tactus_memory.touch.training.augment import AugmentConfig, augment
 from tactus_memory.touch.training.metrics import RECORDING_POOL, recording_windows, topk_accuracy
+from tactus_memory.touch.training.precision import autocast
 from tactus_memory.touch.training.pretrain import load_pretrained_trunk, lr_at
 from tactus_memory.touch.training.tuples import RESAMPLE_EVERY, TupleSampler, consecutive_windows
 
@@ -331,11 +331,7 @@ def fit(
     if world > 1:  # pragma: no cover - needs GPUs
         net = torch.nn.parallel.DistributedDataParallel(model)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    amp = (
-        torch.autocast("cuda", dtype=torch.bfloat16)
-        if device.startswith("cuda") and cfg.amp
-        else nullcontext()
-    )
+    amp = autocast(device, cfg.amp)
     tgt = torch.from_numpy(np.ascontiguousarray(targets.centred, np.float32)).to(device)
 
     sampler = data.train_sampler(cfg.k, cfg.sampling, cfg.seed)
