@@ -1,6 +1,7 @@
-"""Plug-in senses, installed as ``tactus_memory.adapters``: ``adapters.touch.TactusEncoder``
-(the touch sense; importing it imports torch). The senses that need no model of their own
-(text, image, precomputed vectors) live in :mod:`tactus_memory.senses`.
+"""The sense adapters, installed as ``tactus_memory.adapters``: one file per sense, each an
+implementation of the contract in :mod:`tactus_memory.sense` registered under its name
+(``text``, ``image``, ``vector``, ``touch``), plus ``decode`` for the ROS 2 messages they
+read from recordings. ``touch.TactusEncoder`` imports torch; the others need no model of their own.
 """
 
 from typing import Any

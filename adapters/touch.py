@@ -39,19 +39,19 @@ from typing import Any
 import numpy as np
 
 from tactus_memory import __version__
+from tactus_memory.adapters.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.errors import (
     DynamicRangeError,
     IdleWindowError,
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.plugins import register
-from tactus_memory.recordings.decode import ARRAYS, IMAGE, touch_frame
-from tactus_memory.senses import Sense, array_to_bytes, validate_sense_name
+from tactus_memory.registry import register
+from tactus_memory.sense import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
-from tactus_memory.storage.vectors import as_unit_rows
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.touch.windows import CONTACT_LEVEL, CONTACT_MIN_TAXELS, window_idle
+from tactus_memory.vectors import as_unit_rows
 
 
 class CalibratedWindow(np.ndarray):
@@ -90,12 +90,12 @@ class TactusEncoder(Sense):
         self.name = validate_sense_name(name)
         path = Path(checkpoint) if checkpoint is not None else default_checkpoint_path()
         self.ckpt = load_checkpoint(path, device=device, weights=onnx is None)
-        #: the torch model, or (``onnx``: a folder of tactus_memory.onnx_export) the ONNX
+        #: the torch model, or (``onnx``: a folder of tactus_memory.export.onnx) the ONNX
         #: Runtime session of this checkpoint's export; torch is then never imported
         self.model: Any = self.ckpt.model
         self.onnx = onnx is not None
         if onnx is not None:
-            from tactus_memory.onnx_models import OnnxTouch
+            from tactus_memory.spaces.onnx_runtime import OnnxTouch
 
             self.model = OnnxTouch(onnx, checkpoint_sha256=self.ckpt.sha256)
         self.device = device

@@ -45,6 +45,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tactus_memory.recordings.ingest import ingest_recording  # noqa: E402
 from tests import recording_files as rf  # noqa: E402
 
 SESSION = "shift"
@@ -222,7 +223,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
     work = Path(tempfile.mkdtemp(prefix="tactus-bench-agent-"))
     wall = time.perf_counter()
@@ -231,7 +232,7 @@ def main() -> None:
         with Memory.open(str(work / "memory"), background=False) as memory:
             memory.add_sense(TactusEncoder())
             topics = {"/notes": "text", "/glove/pressure": "touch"}
-            ingest = memory.ingest_recording(path, session=SESSION, topics=topics)
+            ingest = ingest_recording(memory, path, session=SESSION, topics=topics)
         qs = questions()
         rows = anyio.run(ask_all, work / "memory", qs)
     finally:

@@ -65,11 +65,11 @@ def fold_of(path: Path) -> str:
 
 def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.search.matching import answering
-    from tactus_memory.touch.training.protocol import FOLDS
-    from tactus_memory.touch.training.stream_eval import SESSION, _store, build_stream, load_queries
-    from tactus_memory.touch.training.train import holdout_recordings
+    from tactus_memory.training.protocol import FOLDS
+    from tactus_memory.training.stream_eval import SESSION, _store, build_stream, load_queries
+    from tactus_memory.training.train import holdout_recordings
 
     stream = build_stream(data, holdout_recordings(data, FOLDS[fold_of(ckpt)]))
     queries = load_queries()
@@ -136,7 +136,7 @@ def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
 
 
 def notes_rows(memory_dir: Path) -> dict:
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.search.matching import answering
 
     mem = Memory.open(str(memory_dir), background=False)
@@ -167,7 +167,7 @@ def main() -> None:
     ap.add_argument("--data", action="append", required=True)
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/answer_rule.json"))
     args = ap.parse_args()
-    from tactus_memory.touch.training.train import load_data
+    from tactus_memory.training.train import load_data
 
     data = load_data(args.data)
     t0 = time.time()

@@ -61,7 +61,7 @@ def windows(n: int, seed: int) -> np.ndarray:
 def _encode_for(seconds: float, batch: int, start: Any, out: Any) -> None:
     """A child: embed batches of raw windows for ``seconds`` once ``start`` is set."""
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.onnx_cache import default_folder
+    from tactus_memory.export.cache import default_folder
 
     enc = TactusEncoder(onnx=str(default_folder()))
     wins = windows(batch, 0)
@@ -235,7 +235,7 @@ def main() -> None:
     ap.add_argument("--open-gloves", type=int, default=32)
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
-    from tactus_memory.onnx_cache import default_folder, prepare
+    from tactus_memory.export.cache import default_folder, prepare
 
     prepare(default_folder(), None, print)  # a first start's one-off export, not measured
     result: dict[str, Any] = {**run_header("capacity"), "runs": []}

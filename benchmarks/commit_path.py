@@ -58,10 +58,10 @@ def pct(xs: list[float], scale: float = 1000.0) -> dict[str, float]:
 
 
 def one_run(args: argparse.Namespace) -> dict[str, Any]:
-    import tactus_memory.writes as writes
+    import tactus_memory.memory.writes as writes
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.group_commit import GroupCommitter
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.group_commit import GroupCommitter
+    from tactus_memory.memory.main import Memory
 
     memory = Memory.open(tempfile.mkdtemp(prefix="tactus-commit-path-"))
     memory.add_sense(TactusEncoder())

@@ -43,9 +43,10 @@ sys.path.insert(0, str(ROOT))
 
 # the 384-d stand-in space of memory.py: a fresh random unit vector per text (as before)
 from memory import DIM, BenchSpace  # noqa: E402
-from tactus_memory.memory import Memory  # noqa: E402
-from tactus_memory.senses import Sense, array_to_bytes  # noqa: E402
-from tactus_memory.storage.maintenance import MaintenanceConfig, dir_bytes, footprint  # noqa: E402
+from tactus_memory.memory.main import Memory  # noqa: E402
+from tactus_memory.policies import MaintenanceConfig  # noqa: E402
+from tactus_memory.sense import Sense, array_to_bytes  # noqa: E402
+from tactus_memory.storage.maintenance import dir_bytes, footprint  # noqa: E402
 
 WINDOW = (8, 32, 32)  # K frames x 32 x 32 taxels, int16 STAG units (a touch row's raw bytes)
 

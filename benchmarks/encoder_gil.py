@@ -7,7 +7,7 @@ torch thread for ``--seconds`` per case, ``--rounds`` times in turn:
   ~2,000 WebSocket frames/s does), so each torch call of the encoder waits for the
   interpreter lock when it returns;
 * ``process_beside_busy_thread``: the same busy thread, the batches embedded by
-  :class:`tactus_memory.encode_process.EncoderProcess` (a worker process, its own lock).
+  :class:`tactus_memory.memory.encode_process.EncoderProcess` (a worker process, its own lock).
 
 Reported per case: windows/s, and the CPU share of the embedding thread (its CPU seconds over
 wall seconds; low = waiting for the lock or for a core; in the process case it only waits),
@@ -42,7 +42,7 @@ def main() -> None:
     import torch
 
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.encode_process import EncoderProcess
+    from tactus_memory.memory.encode_process import EncoderProcess
 
     torch.set_num_threads(1)
     enc = TactusEncoder()

@@ -1,8 +1,8 @@
 """A light server: cold start to ``/ready`` and idle RSS of ``tactus serve`` (MiniLM + the
 shipped touch encoder), and what the two model runtimes cost on their own: torch
 (sentence-transformers + the Tactus checkpoint, what the server runs) against ONNX Runtime
-(both encoders exported by :mod:`tactus_memory.onnx_export`, run by
-:mod:`tactus_memory.onnx_models`).
+(both encoders exported by :mod:`tactus_memory.export.onnx`, run by
+:mod:`tactus_memory.spaces.onnx_runtime`).
 
 Each measurement is a fresh process (cold start; the OS file cache is warm after the first
 round, as on a robot that restarts its server). The variants run back to back in
@@ -84,7 +84,7 @@ def child(runtime: str, onnx_dir: str) -> None:
         TactusEncoder().embed(window, calibrated=True)
         mark("touch encoder loaded and run")
     else:
-        from tactus_memory.onnx_models import OnnxMiniLM, OnnxTouch
+        from tactus_memory.spaces.onnx_runtime import OnnxMiniLM, OnnxTouch
 
         mark("imports")
         OnnxMiniLM(onnx_dir).embed_texts(["warm up"])
@@ -141,7 +141,7 @@ def main() -> None:
         child(args.child, str(args.onnx_dir))
         return
     if not (args.onnx_dir / "touch.onnx").exists():
-        from tactus_memory.onnx_export import export_minilm, export_touch
+        from tactus_memory.export.onnx import export_minilm, export_touch
 
         export_minilm(args.onnx_dir)
         export_touch(args.onnx_dir)

@@ -39,8 +39,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactus_memory.memory import Memory  # noqa: E402
-from tactus_memory.senses import VectorSense  # noqa: E402
+from tactus_memory.adapters.vectors import VectorSense  # noqa: E402
+from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.spaces.base import Space  # noqa: E402
 from tactus_memory.storage.tables import IndexConfig  # noqa: E402
 

@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from memory import BenchSpace  # noqa: E402  (no embedding happens here: a stand-in space)
-from tactus_memory.memory import Memory  # noqa: E402
+from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.storage.maintenance import footprint  # noqa: E402
 
 MiB = 1024 * 1024

@@ -43,7 +43,7 @@ from benchmarks.memory import (  # noqa: E402
     pct,
 )
 from tactus_memory.storage.tables import IndexConfig  # noqa: E402
-from tactus_memory.storage.where import Where  # noqa: E402
+from tactus_memory.where import Where  # noqa: E402
 
 #: the warehouse the rows are placed in (metres)
 SIDE = 200.0

@@ -50,7 +50,7 @@ def _load() -> list[float]:
 
 def _open(path: Path) -> Any:
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
     mem = Memory.open(str(path), background=False)
     mem.add_sense(TactusEncoder())
@@ -85,8 +85,8 @@ def main() -> None:
     import ray
 
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.ray_jobs import LOCAL, connect, ingest_on_ray, reembed_on_ray
     from tactus_memory.recordings.ingest import ingest_recording
+    from tactus_memory.recordings.ray_jobs import LOCAL, connect, ingest_on_ray, reembed_on_ray
 
     work = Path(tempfile.mkdtemp(prefix="tactus-bench-ray-"))
     try:

@@ -117,7 +117,7 @@ def query_texts(n: int, seed: int) -> list[str]:
 def touch_windows(stag: Path, n: int, frames: int, seed: int = 0) -> np.ndarray:
     """n windows (n, K, 32, 32) int16 of K consecutive frames of one recording, from a STAG
     subset (real data)."""
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.training.data import load_stag
 
     data = load_stag(stag)
     rec = data.recording_id

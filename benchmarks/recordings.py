@@ -34,6 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tactus_memory.recordings.ingest import ingest_recording  # noqa: E402
 from tactus_memory.recordings.reader import open_recording  # noqa: E402
 from tests import recording_files as rf  # noqa: E402
 
@@ -64,7 +65,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     work = Path(tempfile.mkdtemp(prefix="tactus-bench-rec-"))
@@ -94,9 +95,9 @@ def main() -> None:
         encoder.embed(np.full((1, 8, 32, 32), 600, np.int16))
         load_before = os.getloadavg()
         t0_ingest = time.perf_counter()
-        s = memory.ingest_recording(path, session="bench", topics=TOPICS)
+        s = ingest_recording(memory, path, session="bench", topics=TOPICS)
         t_ingest = time.perf_counter() - t0_ingest
-        again = memory.ingest_recording(path, session="bench", topics=TOPICS)
+        again = ingest_recording(memory, path, session="bench", topics=TOPICS)
         load_after = os.getloadavg()
         rows = sum(s.rows.values())
         result = {

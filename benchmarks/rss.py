@@ -93,7 +93,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     if not args.torch:  # a first start's one-off: not what a (re)start costs
-        from tactus_memory.onnx_cache import default_folder, prepare
+        from tactus_memory.export.cache import default_folder, prepare
 
         prepare(default_folder(), None, print)
     rounds = []

@@ -96,7 +96,7 @@ def build_store(path: Path, rows: int, seed: int = 0) -> dict[str, Any]:
     """Bulk-load ``rows`` synthetic text-sense rows (384-d) and build the index."""
     import pyarrow as pa
 
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     space = MiniLMSpace()
@@ -196,8 +196,8 @@ def child_main(data: str, port: int, touch: str) -> None:
 
 
 def ProjectionTouch(dim: int) -> Any:  # noqa: N802  (a factory; keeps imports lazy)
-    from tactus_memory.senses import Sense
-    from tactus_memory.storage.vectors import as_unit_rows
+    from tactus_memory.sense import Sense
+    from tactus_memory.vectors import as_unit_rows
 
     class _Projection(Sense):
         name = "touch"
@@ -235,7 +235,7 @@ def search_latency(
     """
     import httpx
 
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     mem = Memory.open(str(path), space=MiniLMSpace(), background=False)

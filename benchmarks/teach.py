@@ -47,7 +47,7 @@ WEIGHTS = ((1.0, 0.5), (1.0, 1.0), (1.0, 2.0), (0.0, 1.0))
 def _stag_dir(arg: str | None) -> Path:
     if arg:
         return Path(arg)
-    from tactus_memory.datahome import data_home
+    from tactus_memory.datasets.home import data_home
 
     return data_home().stag
 
@@ -82,9 +82,9 @@ def main() -> None:
     args = ap.parse_args()
 
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.memory import Memory
-    from tactus_memory.touch.training import stream_eval
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.memory.main import Memory
+    from tactus_memory.training import stream_eval
+    from tactus_memory.training.data import load_stag
 
     data = load_stag(_stag_dir(args.stag) / "blindfolded_lite_train")
     per_obj: dict[int, list[int]] = {}

@@ -33,7 +33,7 @@ import httpx  # noqa: E402
 import psutil  # noqa: E402
 
 from benchmarks.memory import pct  # noqa: E402
-from tactus_memory.memory import Memory  # noqa: E402
+from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.service.app import create_app  # noqa: E402
 from tactus_memory.settings import Settings  # noqa: E402
 from tactus_memory.spaces.minilm import MiniLMSpace  # noqa: E402

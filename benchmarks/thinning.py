@@ -74,8 +74,8 @@ def touch_pairs(stag: Path) -> dict[str, np.ndarray]:
     from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.settings import Settings
     from tactus_memory.touch.profile import STAG_GLOVE
-    from tactus_memory.touch.training.stag_io import read_mat_fields
     from tactus_memory.touch.windows import cut_windows
+    from tactus_memory.training.stag_io import read_mat_fields
 
     cfg = Settings()
     enc = TactusEncoder()

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.touch.training.metrics import unit_rows
+from tactus_memory.training.metrics import unit_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 HOLDOUT = "one-per-object@blindfolded"
@@ -82,8 +82,8 @@ def main() -> None:
     from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.spaces.minilm import MiniLMSpace
     from tactus_memory.touch.targets import TEMPLATES, build_targets, centre
-    from tactus_memory.touch.training.stream_eval import build_stream, load_queries
-    from tactus_memory.touch.training.train import holdout_recordings, load_data
+    from tactus_memory.training.stream_eval import build_stream, load_queries
+    from tactus_memory.training.train import holdout_recordings, load_data
 
     stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
     data = load_data([stag / "weights_lite", stag / "blindfolded_lite_train"])

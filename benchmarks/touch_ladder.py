@@ -53,7 +53,7 @@ KEYS = ("r@1", "r@5", "mrr", "match_other_object_rate", "last_correct", "count_e
 
 
 def score_run(ckpt: Path, data: Any) -> dict[str, Any]:
-    from tactus_memory.touch.training.stream_eval import run_stream_eval
+    from tactus_memory.training.stream_eval import run_stream_eval
 
     meta = json.loads(ckpt.with_suffix(".json").read_text())
     held = meta.get("metrics", {}).get("heldout", {})
@@ -81,7 +81,7 @@ def main() -> None:
     ap.add_argument("runs", type=Path)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/touch_ladder.json")
     args = ap.parse_args()
-    from tactus_memory.touch.training.train import load_data
+    from tactus_memory.training.train import load_data
 
     stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
     data = load_data([stag / "weights_lite", stag / "blindfolded_lite_train"])

@@ -49,7 +49,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/touch_probe.json")
     args = ap.parse_args()
-    from tactus_memory.touch.training.train import holdout_recordings, load_data, prepare_data
+    from tactus_memory.training.train import holdout_recordings, load_data, prepare_data
 
     stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
     data = load_data([stag / "weights_lite", stag / "blindfolded_lite_train"])

@@ -2,7 +2,7 @@
 # The GPU recipe in one command (checkpoints README, "GPU recipe"): MAE for the r18 teacher and
 # the lite student, r18 teacher seeds side by side on one GPU, their ensemble distilled into
 # tactus-lite, and the protocol (2 folds x 3 seeds, paired against the shipped recipe) for
-# teacher, student and the lite recipes, all as one plan (tactus_memory/touch/training/plans/
+# teacher, student and the lite recipes, all as one plan (tactus_memory/training/plans/
 # gpu.json) run by the protocol runner with a deadline; then the results are packed into OUT.
 #
 #   STAG=path/to/stag bash scripts/gpu_recipe.sh OUT          # on the GPU machine
@@ -35,7 +35,7 @@ args=(--plan "${PLAN:-gpu}" --out "$WORK" --jobs "${JOBS:-20}" --device "${DEVIC
 [ -n "${FOLDS:-}" ] && args+=(--folds "$FOLDS")
 for r in ${ONLY:-}; do args+=(--only "$r"); done
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
-"$PY" -m tactus_memory.touch.training.protocol_run run "${args[@]}" 2>&1 | tee "$WORK/runner.log"
+"$PY" -m tactus_memory.training.protocol_run run "${args[@]}" 2>&1 | tee "$WORK/runner.log"
 rc=${PIPESTATUS[0]}
 
 # pack: JSON and logs, then the checkpoints that serving or the CPU stream metrics need

@@ -1,6 +1,6 @@
 """The app factory: ``create_app(settings=None, memory=None)``.
 
-``memory`` injects a ready :class:`~tactus_memory.memory.Memory` (tests pass one with a small
+``memory`` injects a ready :class:`~tactus_memory.memory.main.Memory` (tests pass one with a small
 space and a stand-in touch sense; its senses are then the caller's business). Without it the
 memory at ``settings.data`` is opened in ``settings.space`` (``space_path``/``space_dim``; by
 default the store's recorded space, see ``tactus_memory.spaces.resolve``); text is registered by the
@@ -26,7 +26,7 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.errors import UnknownTenantError
-from tactus_memory.plugins import create_sense
+from tactus_memory.registry import create_sense
 from tactus_memory.service.auth import Gate
 from tactus_memory.service.deps import ServiceState, authorize
 from tactus_memory.service.middleware import (
@@ -87,7 +87,7 @@ in natural language.
 
 def open_store(settings: Settings) -> Any:
     """The memory at ``settings.data`` in the configured space, no senses added yet."""
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
     memory = Memory.open(
         settings.data,
@@ -140,7 +140,7 @@ def open_memory(settings: Settings) -> tuple[Any, str | None]:
 
 def register_default_senses(memory: Any, settings: Settings) -> str | None:
     """The senses the store records, rebuilt from their records (``memory.restore_senses``),
-    then the defaults still missing, by registered name (:mod:`tactus_memory.plugins`): touch
+    then the defaults still missing, by registered name (:mod:`tactus_memory.registry`): touch
     (``settings.touch_checkpoint`` or the shipped checkpoint) and image (vision spaces); text
     comes with the memory. Returns why touch is unavailable, or None."""
     onnx = {"onnx": settings.onnx} if settings.onnx else {}

@@ -15,7 +15,6 @@ from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError, UnknownTenantError
-from tactus_memory.group_commit import GroupCommitter
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
@@ -28,18 +27,19 @@ from tactus_memory.limits import (
     SENSE_NAME_PATTERN,
     SOURCE_PATTERN,
 )
-from tactus_memory.memory import Memory
+from tactus_memory.memory.group_commit import GroupCommitter
+from tactus_memory.memory.main import Memory
 from tactus_memory.search.query import Scope
 from tactus_memory.service.auth import Gate, Principal, needed_scope
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.tenancy import Tenant, Tenants
-from tactus_memory.service.writes import WriteThreads
+from tactus_memory.service.write_threads import WriteThreads
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import allows
 from tactus_memory.storage.rows import WriteKwargs
 from tactus_memory.storage.tenants import DEFAULT_TENANT
-from tactus_memory.storage.where import (
+from tactus_memory.where import (
     SESSION_PREFIX,
     Near,
     check_near,
@@ -223,7 +223,7 @@ def get_memory(tenant: TenantDep) -> Memory:
     return tenant.memory
 
 
-#: the caller's tenant's ``tactus_memory.memory.Memory``
+#: the caller's tenant's ``tactus_memory.memory.main.Memory``
 MemoryDep = Annotated[Memory, Depends(get_memory)]
 
 

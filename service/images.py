@@ -65,7 +65,7 @@ def encode_png(image: Any, side: int | None = None) -> bytes:
     """(H, W, 3) uint8 -> PNG bytes, shrunk so its longest side is <= ``side`` when given."""
     from PIL import Image
 
-    from tactus_memory.senses import thumbnail
+    from tactus_memory.adapters.image import thumbnail
 
     arr = np.asarray(image)
     if side is not None:

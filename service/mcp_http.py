@@ -1,4 +1,4 @@
-"""``tactus mcp --http``: the MCP server (``tactus_memory.mcp_server``) over streamable HTTP,
+"""``tactus mcp --http``: the MCP server (``tactus_memory.mcp``) over streamable HTTP,
 behind the service's bearer token.
 
 The tools live in the library; this module only puts them on HTTP: the SDK's streamable-HTTP
@@ -179,7 +179,7 @@ def mcp_http_app(
 
 
 def audit_hook(audit: Any) -> Any:
-    """The ``on_write`` of :func:`~tactus_memory.mcp_server.server.build_server` that writes
+    """The ``on_write`` of :func:`~tactus_memory.mcp.server.build_server` that writes
     each ``remember`` to ``audit`` (an ``AuditLog``) under the caller the gate let in."""
 
     def on_write(request: Any, status: int, count: int) -> None:
@@ -198,7 +198,7 @@ def run_mcp_http(memory: Any, settings: Settings, allow_writes: bool, say: Any, 
     the scope the tools need; each ``remember`` is audited."""
     import uvicorn
 
-    from tactus_memory.mcp_server.server import warm
+    from tactus_memory.mcp.server import warm
     from tactus_memory.service.app import audit_log, key_store
     from tactus_memory.service.logs import log_config
 

@@ -9,7 +9,7 @@ from tactus_memory.limits import ID_PATTERN, MAX_ID_CHARS, SOURCE_PATTERN
 from tactus_memory.results import Place, Position, TimelineItem, TrajectoryOut
 from tactus_memory.service.schemas import Point, Quaternion, Strict
 from tactus_memory.storage.places import MAX_POSES
-from tactus_memory.storage.where import DEFAULT_FRAME
+from tactus_memory.where import DEFAULT_FRAME
 
 
 class PosesIn(Strict):

@@ -23,9 +23,9 @@ from tactus_memory.results import (
     Position,
 )
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
-from tactus_memory.storage.vectors import MAX_COMPONENT
-from tactus_memory.storage.where import DEFAULT_FRAME
 from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.vectors import MAX_COMPONENT
+from tactus_memory.where import DEFAULT_FRAME
 
 #: vectors (and ids) in one JSON write request, far below the library's limits.MAX_BATCH:
 #: 4,096 vectors of 384 floats are ~15 MB of JSON, about the default body limit
@@ -55,12 +55,12 @@ Meta = dict[str, Any]
 Value = Annotated[
     float, Field(json_schema_extra={"minimum": -MAX_FRAME_VALUE, "maximum": MAX_FRAME_VALUE})
 ]
-#: one vector component (tactus_memory/storage/vectors.py: MAX_COMPONENT)
+#: one vector component (tactus_memory/vectors.py: MAX_COMPONENT)
 Component = Annotated[
     float, Field(json_schema_extra={"minimum": -MAX_COMPONENT, "maximum": MAX_COMPONENT})
 ]
 #: a vector: at least one component of magnitude >= 1e-11 (an all-zero vector has no
-#: direction; tactus_memory/storage/vectors.py refuses norms below 1e-12)
+#: direction; tactus_memory/vectors.py refuses norms below 1e-12)
 NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
 #: (32,) one row of a frame (touch/profile.py: FRAME_SHAPE)
 Row = Annotated[list[Value], Field(json_schema_extra={"minItems": _COLS, "maxItems": _COLS})]

@@ -9,10 +9,10 @@ import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
-from tactus_memory.encode_process import EncoderProcess
 from tactus_memory.errors import StoreDamagedError, UnknownTenantError
-from tactus_memory.group_commit import GroupCommitter
-from tactus_memory.memory import Memory
+from tactus_memory.memory.encode_process import EncoderProcess
+from tactus_memory.memory.group_commit import GroupCommitter
+from tactus_memory.memory.main import Memory
 from tactus_memory.settings import Settings
 from tactus_memory.storage.connect import is_remote_uri
 from tactus_memory.storage.tenants import (

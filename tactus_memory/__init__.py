@@ -10,13 +10,13 @@ from typing import Any
 __version__ = "0.1.0"
 
 _LAZY = {
-    "Memory": "tactus_memory.memory",
-    "Client": "tactus_memory.client",
+    "Memory": "tactus_memory.memory.main",
+    "Client": "tactus_memory.client.main",
     "Hit": "tactus_memory.results",
-    "Sense": "tactus_memory.senses",
-    "TextSense": "tactus_memory.senses",
-    "ImageSense": "tactus_memory.senses",
-    "VectorSense": "tactus_memory.senses",
+    "Sense": "tactus_memory.sense",
+    "TextSense": "tactus_memory.adapters.text",
+    "ImageSense": "tactus_memory.adapters.image",
+    "VectorSense": "tactus_memory.adapters.vectors",
     "Space": "tactus_memory.spaces.base",
     "MiniLMSpace": "tactus_memory.spaces.minilm",
     "Qwen3VLSpace": "tactus_memory.spaces.qwen3vl",

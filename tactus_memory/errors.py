@@ -69,6 +69,11 @@ class DataFormatError(TactusError, ValueError):
     """A STAG file is missing fields or has inconsistent shapes."""
 
 
+class RecordingError(DataFormatError):
+    """A recording that cannot be read (corrupt, truncated, not MCAP / ROS 2 bag), or a
+    mapped topic whose messages cannot be turned into the mapped sense (HTTP 422)."""
+
+
 class DynamicRangeError(TactusError, ValueError):
     """Calibrated pressure uses too few intensity levels or looks already normalised."""
 

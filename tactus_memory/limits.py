@@ -47,3 +47,5 @@ NEAR_PATTERN = rf"^-?{_DECIMAL},-?{_DECIMAL},-?{_DECIMAL},{_DECIMAL}$"
 
 #: largest clock offset in seconds (about 317 years): keeps t_aligned = t + offset finite
 MAX_CLOCK_OFFSET = 1e10
+#: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
+DEFAULT_READ_CONSISTENCY_S = 1.0

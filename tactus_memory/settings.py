@@ -8,7 +8,7 @@ can be told, from three places, highest first:
 ``TACTUS_DATA=/srv/memory TACTUS_TOKEN=s3cret tactus serve`` equals
 ``tactus serve --data /srv/memory --token s3cret`` and a ``tactus.toml`` holding
 ``data = "/srv/memory"`` and ``token = "s3cret"`` passed as ``--config tactus.toml``.
-The maintenance policy's fields (:class:`~tactus_memory.storage.maintenance.MaintenanceConfig`) are
+The maintenance policy's fields (:class:`~tactus_memory.policies.MaintenanceConfig`) are
 fields here too (``TACTUS_RETAIN_SECONDS``, ...); :meth:`Settings.maintenance` gives them as
 the policy object the store takes.
 """
@@ -26,17 +26,14 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from tactus_memory.limits import MAX_WINDOW_FRAMES
-from tactus_memory.storage.maintenance import MaintenanceConfig
-from tactus_memory.storage.retention import never_is_none
+from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S, MAX_WINDOW_FRAMES
+from tactus_memory.policies import MaintenanceConfig, never_is_none
 
 #: the memory every command opens when given no location (``Memory.open()``, ``tactus serve``,
 #: ``tactus search``/``ingest``/..., ``make run``): ``./memory`` of the current folder, or
 #: ``$TACTUS_DATA`` (the ``data`` field) where the command reads the settings
 DEFAULT_MEMORY = "./memory"
-#: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
-DEFAULT_READ_CONSISTENCY_S = 1.0
-#: group commit defaults (tactus_memory.group_commit): 25 ms is under one 30 Hz frame period
+#: group commit defaults (tactus_memory.memory.group_commit): 25 ms is under one 30 Hz frame period
 #: (33 ms), so a glove's window never waits for more than about one frame; a 64-glove tick
 #: at 30 Hz carries ~6-60 windows; 1024 pending items are ~4 s of 64 gloves at 30 Hz
 DEFAULT_COMMIT_TICK_MS = 25.0

@@ -131,7 +131,7 @@ def _touch_sense(dim: int) -> tuple[Any, str]:
 def serve(data: str, port: int, token: str | None) -> None:
     import uvicorn
 
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.service.app import create_app
     from tactus_memory.settings import Settings
     from tactus_memory.spaces.minilm import MiniLMSpace
@@ -152,7 +152,7 @@ def stag_windows(stag_dir: Path, n: int, k: int = 8) -> list[tuple[np.ndarray, s
     when present), each from a different object, the firmest grasp of each (the mean of the
     30 strongest taxels): [(window int16, object name)]."""
     from tactus_memory.touch.profile import calibrate
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.training.data import load_stag
 
     subs = sorted(p for p in stag_dir.iterdir() if (p / "metadata.mat").exists())
     sub = next((p for p in subs if p.name.startswith("weights")), subs[0] if subs else None)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tactus_memory.datahome import CORE_SUBSET, data_home, how_to_get_stag
+from tactus_memory.datasets.home import CORE_SUBSET, data_home, how_to_get_stag
 from tests.fakes import HashingSpace
 
 #: set to 1 (CI does, in .ci/run) to make missing real STAG data a failure instead of a skip
@@ -39,7 +39,7 @@ def _no_real_data(what: Path) -> None:
 
 @pytest.fixture(scope="session")
 def stag_dir() -> Path:
-    """The real STAG folder (``tactus_memory.datahome.data_home().stag``) holding at least
+    """The real STAG folder (``tactus_memory.datasets.home.data_home().stag``) holding at least
     ``weights_lite``; skipped when absent (failed under TACTUS_REQUIRE_REAL_DATA=1)."""
     root = data_home().stag
     if not (root / CORE_SUBSET / "metadata.mat").is_file():

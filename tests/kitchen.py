@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
+from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.memory.main import Memory
 from tactus_memory.spaces.base import Space
 from tests.fakes import HashingSpace
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
+from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.memory.main import Memory
 from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from tactus_memory.memory import Memory
-from tactus_memory.storage.maintenance import MaintenanceConfig
+from tactus_memory.memory.main import Memory
+from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 

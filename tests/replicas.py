@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from tactus_memory.memory import Memory
-from tactus_memory.storage.maintenance import MaintenanceConfig
+from tactus_memory.memory.main import Memory
+from tactus_memory.policies import MaintenanceConfig
 from tests.fakes import HashingSpace
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.results import Moment
 from tactus_memory.search.matching import answering
 from tactus_memory.search.scoring import FINAL_ROWS

@@ -113,7 +113,7 @@ def test_the_walker_sees_a_cycle_when_there_is_one() -> None:
 def test_no_import_cycle_in_the_package() -> None:
     g = graph()
     assert len(g) > 60  # the walk found the package (tactus_memory, adapters, service)
-    assert "tactus_memory.temporal.operators" in g["tactus_memory.memory"]
+    assert "tactus_memory.temporal.operators" in g["tactus_memory.memory.main"]
     assert cycles(g) == []
 
 
@@ -125,38 +125,78 @@ def test_the_library_never_imports_the_service() -> None:
         assert not [d for d in deps if d.startswith("tactus_memory.service")], name
 
 
-#: the library's layer packages, bottom to top: each imports only its own layer, the layers
-#: below it and the base modules, never a layer above it or the memory facade on top
-LAYERS = ("tactus_memory.storage", "tactus_memory.search", "tactus_memory.temporal")
-#: modules every layer may import (errors, rules, result models, plug-in tables, senses, spaces)
-BASE = (
-    "tactus_memory.errors",
-    "tactus_memory.limits",
-    "tactus_memory.results",
-    "tactus_memory.plugins",
-    "tactus_memory.senses",
-    "tactus_memory.settings",
-    "tactus_memory.hashing",
-    "tactus_memory.spaces",
+#: The layer map, bottom to top (docs/architecture.md draws it). A module belongs to the layer
+#: whose entry names it most precisely (``tactus_memory.spaces.base`` is base, the rest of
+#: ``tactus_memory.spaces`` is models); it may import its own layer and the layers below, never
+#: one above. ``tactus_memory`` alone is the package's ``__init__``.
+LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (
+        "base",
+        (
+            "tactus_memory",
+            "tactus_memory.errors",
+            "tactus_memory.limits",
+            "tactus_memory.results",
+            "tactus_memory.settings",
+            "tactus_memory.registry",
+            "tactus_memory.hashing",
+            "tactus_memory.signatures",
+            "tactus_memory.sense",
+            "tactus_memory.vectors",
+            "tactus_memory.where",
+            "tactus_memory.spaces.base",
+        ),
+    ),
+    ("models", ("tactus_memory.spaces", "tactus_memory.touch", "tactus_memory.datasets")),
+    ("adapters", ("tactus_memory.adapters",)),
+    ("storage", ("tactus_memory.storage",)),
+    ("search", ("tactus_memory.search",)),
+    ("temporal", ("tactus_memory.temporal",)),
+    ("memory", ("tactus_memory.memory",)),
+    ("recordings", ("tactus_memory.recordings",)),
+    ("export", ("tactus_memory.export",)),
+    ("training", ("tactus_memory.training",)),
+    ("client", ("tactus_memory.client",)),
+    ("mcp", ("tactus_memory.mcp",)),
+    ("service", ("tactus_memory.service",)),
+    ("cli", ("tactus_memory.cli",)),
 )
+#: layers that may import only some of the layers below them (the remote client needs no
+#: store, search or model code: it speaks HTTP and shares the base's vocabulary)
+ONLY: dict[str, tuple[str, ...]] = {"client": ("base",)}
 
 
 def _under(name: str, pkg: str) -> bool:
     return name == pkg or name.startswith(pkg + ".")
 
 
+def layer_of(name: str) -> int | None:
+    """The index in LAYER_MAP of the layer ``name`` belongs to (its most precise entry)."""
+    best: tuple[int, int] | None = None  # (entry length, layer index)
+    for i, (_, entries) in enumerate(LAYER_MAP):
+        for e in entries:
+            found = (name == e) if e == "tactus_memory" else _under(name, e)
+            if found and (best is None or len(e) > best[0]):
+                best = (len(e), i)
+    return None if best is None else best[1]
+
+
 def layer_violations(g: dict[str, set[str]]) -> list[str]:
-    """``module -> import`` edges that leave a layer for anything but a lower layer or BASE."""
+    """``module -> import`` edges that go up the layer map (or, for a layer in ONLY, to a
+    layer it may not use)."""
     wrong = []
     for name, deps in sorted(g.items()):
-        mine = [i for i, pkg in enumerate(LAYERS) if _under(name, pkg)]
-        if not mine:
+        mine = layer_of(name)
+        if mine is None:
             continue
+        allowed = ONLY.get(LAYER_MAP[mine][0])
         for d in sorted(deps):
-            ok = any(_under(d, b) for b in BASE) or any(
-                _under(d, pkg) for pkg in LAYERS[: mine[0] + 1]
-            )
-            if not ok:
+            theirs = layer_of(d)
+            if theirs is None:
+                continue
+            if theirs > mine or (
+                allowed is not None and theirs != mine and LAYER_MAP[theirs][0] not in allowed
+            ):
                 wrong.append(f"{name} -> {d}")
     return wrong
 
@@ -164,20 +204,37 @@ def layer_violations(g: dict[str, set[str]]) -> list[str]:
 def test_the_layer_check_sees_an_upward_import() -> None:
     g = {
         "tactus_memory.storage.store": {"tactus_memory.search.query", "tactus_memory.errors"},
-        "tactus_memory.search.query": {"tactus_memory.storage.where", "tactus_memory.memory"},
+        "tactus_memory.search.query": {"tactus_memory.where", "tactus_memory.memory.main"},
         "tactus_memory.temporal.clocks": {"tactus_memory.search.query"},
+        "tactus_memory.spaces.base": {"tactus_memory.spaces.minilm"},
+        "tactus_memory.client.main": {"tactus_memory.search.query", "tactus_memory.results"},
     }
     assert layer_violations(g) == [
-        "tactus_memory.search.query -> tactus_memory.memory",
+        "tactus_memory.client.main -> tactus_memory.search.query",
+        "tactus_memory.search.query -> tactus_memory.memory.main",
+        "tactus_memory.spaces.base -> tactus_memory.spaces.minilm",
         "tactus_memory.storage.store -> tactus_memory.search.query",
     ]
 
 
+def test_every_module_has_a_layer() -> None:
+    assert [name for name in graph() if layer_of(name) is None] == []
+
+
 def test_layers_import_only_downwards() -> None:
     g = graph()
-    for pkg in LAYERS:
-        assert any(_under(name, pkg) for name in g), pkg  # the walk found the layer
+    for _, entries in LAYER_MAP:
+        for e in entries:
+            assert any(_under(name, e) for name in g), e  # the walk found every entry
     assert layer_violations(g) == []
+
+
+def test_storage_gets_its_configuration_passed_in() -> None:
+    """No ``Settings`` read inside storage: the memory (or the service) reads it once."""
+    g = graph()
+    assert [
+        n for n in g if _under(n, "tactus_memory.storage") and "tactus_memory.settings" in g[n]
+    ] == []
 
 
 def test_every_module_imports_in_a_fresh_interpreter() -> None:
@@ -244,9 +301,9 @@ NOT_SERVED = (
     "scipy.io",
     "matplotlib",
     "tactus_memory.cli",
-    "tactus_memory.stag_fetch",
-    "tactus_memory.touch.training",
-    # bulk work on Ray (tactus_memory/ray_jobs.py) loads only for --ray
+    "tactus_memory.datasets.stag",
+    "tactus_memory.training",
+    # bulk work on Ray (tactus_memory/recordings/ray_jobs.py) loads only for --ray
     "ray",
     "lance_ray",
 )

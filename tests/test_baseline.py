@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from tactus_memory.touch.training.baseline import (
+from tactus_memory.training.baseline import (
     BaselineConfig,
     BaselineScorer,
     StagCNN,
@@ -18,8 +18,8 @@ from tactus_memory.touch.training.baseline import (
     save_baseline,
     train_baseline,
 )
-from tactus_memory.touch.training.evaluate import EvalSet, evaluate_scorer
-from tactus_memory.touch.training.train import TrainData
+from tactus_memory.training.evaluate import EvalSet, evaluate_scorer
+from tactus_memory.training.train import TrainData
 
 torch.set_num_threads(1)
 

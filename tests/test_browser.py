@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from matplotlib import colormaps
 
-from tactus_memory.datahome import CORE_SUBSET, data_home
+from tactus_memory.datasets.home import CORE_SUBSET, data_home
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.profile import taxel_mask_from_spec
 from tactus_memory.touch.render import (

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 import tactus_memory.spaces as spaces
 from tactus_memory.cli import app
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.fakes import HashingSpace

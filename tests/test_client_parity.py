@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from pydantic import BaseModel
 
-from tactus_memory.client import Client
-from tactus_memory.client_errors import AuthenticationError, RemoteError
+from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.client.main import Client
+from tactus_memory.client.main.errors import AuthenticationError, RemoteError
 from tactus_memory.errors import (
     IdConflictError,
     InvalidIdError,
@@ -22,8 +23,7 @@ from tactus_memory.errors import (
     OverloadedError,
     UnknownSenseError,
 )
-from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
+from tactus_memory.memory.main import Memory
 from tests.test_service_helpers import window
 from tests.test_service_uvicorn import Server
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import httpx
 
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog

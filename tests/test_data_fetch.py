@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from tactus_memory.datahome import ENV_DATA, data_home
-from tactus_memory.stag_fetch import (
+from tactus_memory.datasets.home import ENV_DATA, data_home
+from tactus_memory.datasets.stag import (
     ENV_BASE_URL,
     ENV_SHA256,
     PINNED_SHA256,
@@ -31,7 +31,7 @@ from tactus_memory.stag_fetch import (
     import_stag,
     parse_pins,
 )
-from tactus_memory.touch.training.data import load_stag
+from tactus_memory.training.data import load_stag
 from tests.stag_synth import make_fields, write_subset
 
 SUBSETS = ("weights_lite", "blindfolded_lite")

@@ -38,7 +38,7 @@ def test_demo_without_stag_says_how_to_get_it_and_asks_the_notes(tmp_path) -> No
     assert all((a["match"] == "yes") == (float(a["score"]) >= float(a["bar"])) for a in got)
     assert lines[-1] == f"{len(NOTE_QUESTIONS)} of {len(NOTE_QUESTIONS)} right"
     assert f"session '{SESSION}': {len(NOTE_QUESTIONS)} text" in res.output
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
     kept = Memory.open(str(store), background=False)  # --data keeps the session
     assert kept.session(SESSION).counts == {"text": len(NOTE_QUESTIONS)}

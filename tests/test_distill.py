@@ -20,13 +20,13 @@ from typer.testing import CliRunner
 from tactus_memory.cli import app
 from tactus_memory.hashing import file_sha256
 from tactus_memory.touch.checkpoint import load_checkpoint, save_checkpoint
-from tactus_memory.touch.training.distill import (
+from tactus_memory.training.distill import (
     DistillConfig,
     TeacherLoss,
     TeacherMismatchError,
     distill,
 )
-from tactus_memory.touch.training.train import TrainConfig, embed_windows, fit
+from tactus_memory.training.train import TrainConfig, embed_windows, fit
 from tests.test_cli_training import HOLDOUT, _last_json, _run
 from tests.test_cli_training import data as data  # noqa: F401  (the module's STAG fixture)
 from tests.test_train import DIM, orthogonal_targets, synthetic

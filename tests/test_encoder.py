@@ -14,7 +14,7 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.senses import bytes_to_array
+from tactus_memory.sense import bytes_to_array
 from tactus_memory.touch.checkpoint import default_checkpoint_path, save_checkpoint
 from tactus_memory.touch.model import create_model
 from tactus_memory.touch.profile import STAG_GLOVE
@@ -148,7 +148,7 @@ def test_bind_rejects_other_space(enc, minilm_space) -> None:
 
 
 def test_memory_with_touch_sense(tmp_path, enc) -> None:
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
     mem = Memory.open(str(tmp_path / "m"), space=HashingSpace())
     mem.add_sense(enc)
@@ -183,8 +183,8 @@ def test_shipped_default_loads_offline(shipped) -> None:
 
 
 def test_shipped_default_in_a_minilm_memory(tmp_path, shipped, minilm_space, stag_dir) -> None:
-    from tactus_memory.memory import Memory
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.memory.main import Memory
+    from tactus_memory.training.data import load_stag
 
     d = load_stag(stag_dir / "weights_lite")
     mem = Memory.open(str(tmp_path / "m"), space=minilm_space)
@@ -206,7 +206,7 @@ def test_shipped_default_classifies_real_windows_above_chance(shipped, stag_subs
 
     These recordings were in the shipped model's training data; the held-out number is the
     validation run's (checkpoints/README.md). Chance is 1/27."""
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.training.data import load_stag
 
     d = load_stag(stag_subset("blindfolded_lite_train", "blindfolded_lite"))
     rng = np.random.default_rng(0)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tactus_memory.adapters.touch import TactusEncoder
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.tables import IndexConfig
@@ -149,7 +149,7 @@ DELETE_AND_EXIT = """
 import sys
 import numpy as np
 from tactus_memory.adapters.touch import TactusEncoder
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 
 memory = Memory.open(sys.argv[1])
 memory.add_sense(TactusEncoder())

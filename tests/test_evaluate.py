@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactus_memory.touch.training.evaluate import (
+from tactus_memory.training.evaluate import (
     EmbeddingScorer,
     EvalSet,
     evaluate_scorer,
     scope_mask,
 )
-from tactus_memory.touch.training.metrics import (
+from tactus_memory.training.metrics import (
     aggregate_runs,
     confusion_counts,
     ksweep_windows,
@@ -186,7 +186,7 @@ def test_mean_and_sample_std():
 
 
 def test_scope_no_split_file_is_scored_whole(tmp_path: Path):
-    from tactus_memory.touch.training.data import combine, load_stag
+    from tactus_memory.training.data import combine, load_stag
     from tests.stag_synth import make_fields, write_subset
 
     cls = load_stag(write_subset(tmp_path, "cls", make_fields("classification", [20, 20, 20])))
@@ -306,7 +306,7 @@ def test_cli_eval_end_to_end(tmp_path: Path):
 
 
 def test_ablation_rows_change_one_thing():
-    from tactus_memory.touch.training.ablate import ROWS
+    from tactus_memory.training.ablate import ROWS
 
     base = ROWS["recipe"]
     assert base == {"norm": "affine", "sampling": "cluster", "mae": True}
@@ -315,7 +315,7 @@ def test_ablation_rows_change_one_thing():
 
 
 def test_per_file_max_scaling_is_the_defect():
-    from tactus_memory.touch.training.ablate import per_file_max_scaled
+    from tactus_memory.training.ablate import per_file_max_scaled
 
     p = np.full((4, 32, 32), 510, np.int16)
     p[0, 0, 0], p[2, 0, 0] = 1000, 654  # file 0 saturates, file 1 (weights-like) does not
@@ -325,7 +325,7 @@ def test_per_file_max_scaling_is_the_defect():
 
 
 def test_ablation_runs_seeds_and_aggregates(tmp_path: Path):
-    from tactus_memory.touch.training.ablate import AblationConfig, format_table, run_ablation
+    from tactus_memory.training.ablate import AblationConfig, format_table, run_ablation
     from tests.fakes import HashingSpace
     from tests.stag_synth import make_fields, write_subset
 
@@ -349,7 +349,7 @@ def test_ablation_runs_seeds_and_aggregates(tmp_path: Path):
 
 
 def test_leakage_check_flags_trained_on_recordings():
-    from tactus_memory.touch.training.eval_runs import leakage_check
+    from tactus_memory.training.eval_runs import leakage_check
 
     es = _evalset([4, 4, 4], [0, 1, 2])
     es.fingerprint = "fp"

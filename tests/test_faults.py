@@ -20,11 +20,11 @@ import httpx
 import pytest
 from typer.testing import CliRunner
 
-from tactus_memory.group_commit import GroupCommitter
-from tactus_memory.memory import Memory
+from tactus_memory.memory.group_commit import GroupCommitter
+from tactus_memory.memory.main import Memory
+from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tactus_memory.storage.maintenance import MaintenanceConfig
 from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 from tests.servers import serve_app

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.results import Evidence, Grasp
-from tactus_memory.senses import VectorSense
 from tactus_memory.temporal.grasps import GRASP_READ_S, GraspRule, find_grasps, grasp_labels, pooled
 from tests.fakes import HashingSpace
 from tests.kitchen import kitchen_memory, near_caption

@@ -12,10 +12,10 @@ import pytest
 from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.results import Grasp
-from tactus_memory.touch.training import stream_eval
-from tactus_memory.touch.training.data import load_stag
+from tactus_memory.training import stream_eval
+from tactus_memory.training.data import load_stag
 from tests.touch_pair import Pair, train_pair
 
 pytestmark = pytest.mark.slow

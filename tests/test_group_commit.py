@@ -1,4 +1,5 @@
-"""Group commit (tactus_memory.group_commit): many writers, one embed per sense, one LanceDB commit.
+"""Group commit (tactus_memory.memory.group_commit): many writers, one embed per sense, one LanceDB
+commit.
 
 Real LanceDB files in tmp_path; the HashingSpace and a stand-in touch sense keep these fast
 (the real MiniLM + TactusEncoder + uvicorn path is tests/test_group_commit_real.py)."""
@@ -15,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError, OverloadedError
-from tactus_memory.group_commit import GroupCommitter
+from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.test_service_helpers import StandInTouch, make_memory, window

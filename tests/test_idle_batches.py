@@ -11,7 +11,7 @@ import pytest
 
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import IdleWindowError
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.servers import serve_app

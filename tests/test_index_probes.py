@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
+from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.memory.main import Memory
 from tactus_memory.storage.tables import UNMEASURED_NPROBES, IndexConfig
-from tactus_memory.storage.vectors import as_unit_rows
+from tactus_memory.vectors import as_unit_rows
 
 DIM = 384
 CFG = IndexConfig(threshold=6_000, scalar_threshold=3_000, rows_per_partition=128)

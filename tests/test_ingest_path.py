@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from tactus_memory.encode_process import EncoderProcess
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.group_commit import GroupCommitter
+from tactus_memory.memory.encode_process import EncoderProcess
+from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.service.app import create_app
 from tactus_memory.service.arrays import MAX_FRAME_VALUE, load_npy
 from tactus_memory.settings import DEFAULT_COMMIT_NICE, Settings
 from tactus_memory.storage.rows import PreparedWrite, check_batch
-from tactus_memory.storage.where import DEFAULT_FRAME
+from tactus_memory.where import DEFAULT_FRAME
 from tests.test_service_helpers import StandInTouch, make_memory, window
 
 linux_only = pytest.mark.skipif(sys.platform != "linux", reason="per-thread niceness is Linux's")
@@ -143,7 +143,7 @@ def test_server_with_encode_process_commits_writes(tmp_path) -> None:
 
 PARENT = """
 import sys, time
-from tactus_memory.encode_process import EncoderProcess
+from tactus_memory.memory.encode_process import EncoderProcess
 if __name__ == "__main__":
     ep = EncoderProcess(("touch",))
     while not ep.ready:

@@ -14,8 +14,8 @@ import httpx2
 from mcp import Client
 from mcp.client.streamable_http import streamable_http_client
 
-from tactus_memory.mcp_server.server import build_server
-from tactus_memory.memory import Memory
+from tactus_memory.mcp.server import build_server
+from tactus_memory.memory.main import Memory
 from tactus_memory.service.auth import Gate
 from tactus_memory.service.mcp_http import mcp_http_app
 from tactus_memory.settings import Settings

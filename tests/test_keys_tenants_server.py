@@ -350,7 +350,7 @@ def test_an_unknown_tenant_is_a_404_and_never_created(server) -> None:
 def test_the_client_acts_for_the_operators_tenant(server) -> None:
     """``Client(url, token, tenant=...)`` sends the operator's tenant header on every call
     and on the touch stream; an unknown tenant raises UnknownTenantError (404)."""
-    from tactus_memory.client import Client
+    from tactus_memory.client.main import Client
     from tactus_memory.errors import UnknownTenantError
 
     with Client(server["base"], OPERATOR, tenant="B") as b:

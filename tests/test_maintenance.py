@@ -13,12 +13,12 @@ import lance
 import numpy as np
 import pytest
 
-from tactus_memory.memory import Memory
-from tactus_memory.senses import Sense, array_to_bytes
+from tactus_memory.memory.main import Memory
+from tactus_memory.policies import MaintenanceConfig
+from tactus_memory.sense import Sense, array_to_bytes
 from tactus_memory.settings import Settings
 from tactus_memory.storage.maintenance import (
     FragmentInfo,
-    MaintenanceConfig,
     footprint,
     fragment_infos,
     plan_compaction,

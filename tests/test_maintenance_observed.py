@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.storage.tables import IndexConfig
 from tests.motion import MOTION_DIM, motion_memory
 

@@ -18,7 +18,7 @@ from mcp import Client, StdioServerParameters
 from mcp.client.streamable_http import streamable_http_client
 
 from benchmarks.serving import free_port, wait_ok
-from tactus_memory.mcp_server.server import READ_TOOLS, WRITE_TOOLS, build_server
+from tactus_memory.mcp.server import READ_TOOLS, WRITE_TOOLS, build_server
 from tests.servers import stop_process
 from tests.test_service_helpers import make_memory, window
 
@@ -146,7 +146,7 @@ def test_tools_in_process(tmp_path) -> None:
 @pytest.fixture(scope="module")
 def real_store(tmp_path_factory) -> Path:
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
     path = tmp_path_factory.mktemp("mcp") / "memory"
     with Memory.open(str(path)) as memory:

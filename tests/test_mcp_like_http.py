@@ -11,7 +11,7 @@ import anyio
 import pytest
 from mcp import Client
 
-from tactus_memory.mcp_server.server import build_server
+from tactus_memory.mcp.server import build_server
 from tests.test_mcp import fill
 from tests.test_service_helpers import make_memory
 

@@ -49,7 +49,7 @@ ACCEPT = {"Accept": "application/json, text/event-stream"}
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> dict[str, Any]:
     """Tenants default, A and B (a note each) and their keys."""
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     root = tmp_path_factory.mktemp("mcp-tenants") / "memory"
@@ -125,7 +125,7 @@ def nested(levels: int) -> dict[str, Any]:
 
 
 def test_tenant_server_without_token_is_closed_to_all_but_its_keys(store, tmp_path) -> None:
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     root, keys = store["root"], store["keys"]

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.errors import (
     DimensionMismatchError,
     InvalidIdError,
@@ -22,9 +23,9 @@ from tactus_memory.errors import (
     SpaceMismatchError,
     UnknownSenseError,
 )
-from tactus_memory.memory import Memory
-from tactus_memory.plugins import register
-from tactus_memory.senses import Sense, VectorSense
+from tactus_memory.memory.main import Memory
+from tactus_memory.registry import register
+from tactus_memory.sense import Sense
 from tactus_memory.spaces.base import Space
 from tests.fakes import HashingSpace
 from tests.motion import MOTION_DIM, motion_memory
@@ -271,7 +272,7 @@ def test_sigkill_after_add_keeps_row(tmp_path) -> None:
         "import sys, time\n"
         f"sys.path.insert(0, {str(ROOT)!r})\n"
         "from tests.fakes import HashingSpace\n"
-        "from tactus_memory.memory import Memory\n"
+        "from tactus_memory.memory.main import Memory\n"
         f"m = Memory.open({str(path)!r}, space=HashingSpace())\n"
         "m.add('s1', 'text', 'survives the crash', t=1.0, id='keep')\n"
         "print('added', flush=True)\n"

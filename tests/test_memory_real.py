@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.errors import (
     DimensionMismatchError,
     InvalidIdError,
@@ -12,8 +13,7 @@ from tactus_memory.errors import (
     SpaceMismatchError,
     UnknownSenseError,
 )
-from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
+from tactus_memory.memory.main import Memory
 from tests.fakes import HashingSpace
 
 pytestmark = pytest.mark.slow

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 
 pytestmark = pytest.mark.slow
 
@@ -36,7 +36,7 @@ OTHER_NOTES = [
 @pytest.fixture(scope="module")
 def store(tmp_path_factory, minilm_space, stag_dir):
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.training.data import load_stag
 
     enc = TactusEncoder()
     d = load_stag(stag_dir / "blindfolded_lite_train")

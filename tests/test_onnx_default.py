@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
-from tactus_memory import onnx_cache
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.cli.serve_cmd import default_folder_of
+from tactus_memory.export import cache as onnx_cache
 from tactus_memory.hashing import file_sha256
-from tactus_memory.onnx_models import TOUCH_ONNX, TOUCH_SOURCE, OnnxTouch
 from tactus_memory.settings import Settings
+from tactus_memory.spaces.onnx_runtime import TOUCH_ONNX, TOUCH_SOURCE, OnnxTouch
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 
 pytestmark = pytest.mark.slow

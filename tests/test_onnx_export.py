@@ -1,5 +1,6 @@
-"""The ONNX exports of both serving encoders (tactus_memory.onnx_export, run by
-tactus_memory.onnx_models on ONNX Runtime) give the torch models' vectors: the bundled MiniLM
+"""The ONNX exports of both serving encoders (tactus_memory.export.onnx, run by
+tactus_memory.spaces.onnx_runtime on ONNX Runtime) give the torch models' vectors: the bundled
+MiniLM
 through the model's own tokenizer, and the shipped touch encoder; `tactus serve --onnx` serves
 both without loading torch."""
 
@@ -18,9 +19,9 @@ pytest.importorskip("onnxruntime", reason="the [onnx] extra is not installed")
 from benchmarks.serving import free_port, start_serve, stop_process, wait_ok  # noqa: E402
 from tactus_memory.adapters.touch import TactusEncoder  # noqa: E402
 from tactus_memory.errors import InvalidInputError  # noqa: E402
-from tactus_memory.onnx_export import export_minilm, export_touch  # noqa: E402
-from tactus_memory.onnx_models import MINILM_MAX_TOKENS, OnnxMiniLM, OnnxTouch  # noqa: E402
+from tactus_memory.export.onnx import export_minilm, export_touch  # noqa: E402
 from tactus_memory.spaces.minilm import MiniLMSpace  # noqa: E402
+from tactus_memory.spaces.onnx_runtime import MINILM_MAX_TOKENS, OnnxMiniLM, OnnxTouch  # noqa: E402
 
 TEXTS = [
     "where did I put the red mug?",

@@ -17,8 +17,9 @@ import lance
 from typer.testing import CliRunner
 
 from tactus_memory.cli import app
-from tactus_memory.memory import Memory
-from tactus_memory.storage.orphans import ORPHAN_GRACE_S, referenced, remove_orphans
+from tactus_memory.memory.main import Memory
+from tactus_memory.policies import ORPHAN_GRACE_S
+from tactus_memory.storage.orphans import referenced, remove_orphans
 from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 

@@ -39,11 +39,11 @@ def test_wheel_maps_adapters_and_service_under_tactus_memory(tmp_path: Path) -> 
     assert "tactus_memory/recordings/ingest.py" in names
     # the data folders ship (issue 26: as packages of their own, so setuptools stays quiet)
     assert "tactus_memory/touch/checkpoints/tactus-lite-minilm.safetensors" in names
-    # its ONNX graph, which the default server runs (tactus_memory/onnx_cache.py)
+    # its ONNX graph, which the default server runs (tactus_memory/export/cache.py)
     assert "tactus_memory/touch/checkpoints/tactus-lite-minilm.onnx" in names
     assert "tactus_memory/touch/checkpoints/tactus-lite-minilm.onnx.json" in names
     assert "tactus_memory/touch/configs/tactus-lite.json" in names
-    assert "tactus_memory/touch/training/queries/stream_queries.json" in names
+    assert "tactus_memory/training/queries/stream_queries.json" in names
     assert "tactus_memory/service/static/app.js" in names
     log = built.stdout + built.stderr
     assert "building" in log.lower()  # the backend's output was captured

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from tactus_memory.adapters.touch import TactusEncoder
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.search.ranking import Ranker
-from tactus_memory.storage.where import sessions_under
+from tactus_memory.where import sessions_under
 
 
 @pytest.fixture

@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError
-from tactus_memory.memory import Memory
-from tactus_memory.spatial import Places
+from tactus_memory.memory.main import Memory
+from tactus_memory.memory.places import Places
 from tactus_memory.storage.places import POSE_TOLERANCE, Trajectory, check_poses
 from tactus_memory.storage.tables import items_schema, place_fields
 
@@ -321,7 +321,7 @@ def test_coordinates_are_bounded(mem) -> None:
 def test_near_on_an_indexed_store_matches_the_exact_answer(tmp_path, hashing_space) -> None:
     """With the ANN and x/y scalar indexes built, a place filter takes the prefiltered ANN
     path (its rows are scattered): the hits are the exact top k of the rows in the sphere."""
-    from tactus_memory.senses import VectorSense
+    from tactus_memory.adapters.vectors import VectorSense
     from tactus_memory.storage.tables import IndexConfig
 
     cfg = IndexConfig(threshold=400, scalar_threshold=400, rows_per_partition=100)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactus_memory.touch.training.protocol import (
+from tactus_memory.training.protocol import (
     FOLDS,
     Plan,
     Recipe,
@@ -23,8 +23,8 @@ from tactus_memory.touch.training.protocol import (
     shrink,
     without,
 )
-from tactus_memory.touch.training.protocol_report import interval, report
-from tactus_memory.touch.training.protocol_run import RunnerConfig, run_plan
+from tactus_memory.training.protocol_report import interval, report
+from tactus_memory.training.protocol_run import RunnerConfig, run_plan
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -124,7 +124,7 @@ def test_interval_and_paired_difference() -> None:
 
 
 def test_folds_hold_out_each_objects_other_recording(stag_subset) -> None:
-    from tactus_memory.touch.training.train import holdout_recordings, load_data
+    from tactus_memory.training.train import holdout_recordings, load_data
 
     d = load_data([stag_subset("weights_lite"), stag_subset("blindfolded_lite_train")])
     a = holdout_recordings(d, FOLDS["A"])

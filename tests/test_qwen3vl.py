@@ -18,8 +18,9 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
+from tactus_memory.adapters.image import ImageSense  # noqa: E402
+from tactus_memory.adapters.text import TextSense  # noqa: E402
 from tactus_memory.errors import CapabilityError, InvalidInputError  # noqa: E402
-from tactus_memory.senses import ImageSense, TextSense  # noqa: E402
 from tactus_memory.spaces import get_space  # noqa: E402
 from tactus_memory.spaces.qwen3vl import (  # noqa: E402
     DOCUMENT_INSTRUCTION,

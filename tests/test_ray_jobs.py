@@ -21,9 +21,9 @@ from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.memory import Memory
-from tactus_memory.ray_jobs import LOCAL, connect, ingest_on_ray
+from tactus_memory.memory.main import Memory
 from tactus_memory.recordings.ingest import ingest_recording
+from tactus_memory.recordings.ray_jobs import LOCAL, connect, ingest_on_ray
 from tests import recording_files as rf
 from tests.test_recordings import N_FRAMES, TOPICS, _messages
 from tests.test_service_helpers import make_memory

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactus_memory.errors import UnknownSenseError
+from tactus_memory.errors import RecordingError, UnknownSenseError
+from tactus_memory.recordings.export import export_rerun
 from tactus_memory.recordings.ingest import ingest_recording, list_topics, topic_source
-from tactus_memory.recordings.reader import RecordingError
 from tactus_memory.touch.windows import cut_windows
 from tests import recording_files as rf
 from tests.fakes import HashingSpace
@@ -177,7 +177,7 @@ def test_export_rerun_reads_back(tmp_path) -> None:
     path = rf.write_mcap(tmp_path / "run.mcap", _messages())
     mem = make_memory(tmp_path / "mem")
     ingest_recording(mem, path, session="run1", topics=TOPICS)
-    out = mem.export_rerun("run1", tmp_path / "out" / "run1.rrd", query="picked up the red mug")
+    out = export_rerun(mem, "run1", tmp_path / "out" / "run1.rrd", query="picked up the red mug")
     assert out.entities["touch/glove.pressure"] == N_FRAMES // 8
     assert out.entities["text/notes"] == 3
     assert out.moments >= 1
@@ -203,7 +203,7 @@ def test_export_skips_times_rerun_cannot_hold(tmp_path) -> None:
     mem = make_memory(tmp_path / "mem")
     mem.add("far", "text", "a note from the far future", t=1e300)
     mem.add("far", "text", "a note from now", t=3.0)
-    out = mem.export_rerun("far", tmp_path / "far.rrd")
+    out = export_rerun(mem, "far", tmp_path / "far.rrd")
     assert out.entities == {"text/text": 1}
     assert list(out.skipped.values()) == [1] and "Rerun" in next(iter(out.skipped))
 
@@ -222,8 +222,8 @@ class VisionHashingSpace(HashingSpace):
 
 
 def test_images_stored_with_a_vision_space(tmp_path) -> None:
-    from tactus_memory.memory import Memory
-    from tactus_memory.senses import ImageSense
+    from tactus_memory.adapters.image import ImageSense
+    from tactus_memory.memory.main import Memory
 
     mem = Memory.open(str(tmp_path / "mem"), space=VisionHashingSpace())
     mem.add_sense(ImageSense(mem.space))
@@ -306,7 +306,7 @@ def test_exported_heat_map_is_the_page_renderer(tmp_path) -> None:
     ingest_recording(mem, path, session="run1", topics={"/glove/pressure": "touch"})
     first = mem.timeline("run1")[0]
     want = window_rgba(mem.get_item(first.id).raw, scale=EXPORT_SCALE)  # (H, W, 4) uint8
-    out = mem.export_rerun("run1", tmp_path / "run1.rrd")
+    out = export_rerun(mem, "run1", tmp_path / "run1.rrd")
     rows = []
     for c in RrdReader(out.path).stream().to_chunks():
         if c.entity_path == "/touch/glove.pressure":

@@ -11,8 +11,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from tactus_memory.memory import Memory
-from tactus_memory.recordings.reader import RecordingError
+from tactus_memory.errors import RecordingError
+from tactus_memory.memory.main import Memory
+from tactus_memory.recordings.export import export_rerun
+from tactus_memory.recordings.ingest import ingest_recording
 from tests import recording_files as rf
 
 pytestmark = pytest.mark.slow
@@ -53,7 +55,7 @@ def test_real_mcap_odometry_places_notes_and_touch(tmp_path, memory) -> None:
     glove = rf.glove("/glove/pressure", frames, start_ns=START + 4 * rf.NS)
     path = rf.write_mcap(tmp_path / "run.mcap", [*_odom(), *_notes(), *glove])
     topics = {"/notes": "text", "/glove/pressure": "touch", "/odom": "pose"}
-    s = memory.ingest_recording(path, session="run1", topics=topics)
+    s = ingest_recording(memory, path, session="run1", topics=topics)
     assert s.poses == {"/odom": SECONDS * HZ + 1}
     assert s.rows["text"] == 2 and s.rows.get("touch", 0) >= 1
     traj = memory.trajectory("run1")
@@ -70,11 +72,11 @@ def test_real_mcap_odometry_places_notes_and_touch(tmp_path, memory) -> None:
     near_shelf = memory.at((SPEED * 9.0, 1.0, 0.0), 0.3)
     assert [it.text for it in near_shelf] == ["put the coffee mug on the shelf"]
     # a second ingest adds no poses and no items
-    again = memory.ingest_recording(path, session="run1", topics=topics)
+    again = ingest_recording(memory, path, session="run1", topics=topics)
     assert again.poses == {"/odom": 0} and again.rows == {}
     assert len(memory.trajectory("run1")[0].t) == SECONDS * HZ + 1
     # Rerun: the trajectory, the robot on the timeline, the placed items and hits
-    out = memory.export_rerun("run1", tmp_path / "run1.rrd", query="the coffee mug")
+    out = export_rerun(memory, "run1", tmp_path / "run1.rrd", query="the coffee mug")
     assert out.entities["places/robot/odom"] == SECONDS * HZ + 1
     assert out.entities["places/items"] == len(memory.timeline("run1"))
     assert out.entities.get("places/hits", 0) >= 1
@@ -91,7 +93,7 @@ def test_real_bag_pose_stamped_and_tf_pair(tmp_path, memory) -> None:
                                          ("odom", "base_link", (99.0, 99.0, 99.0))]))  # fmt: skip
     notes = [rf.note("/notes", START + 2 * rf.NS, "opened the fridge door")]
     path = rf.write_bag(tmp_path / "bag", [*tf_msgs, *notes], storage="sqlite3")
-    s = memory.ingest_recording(path, session="tf1", topics={"/notes": "text", "/tf": "pose"})
+    s = ingest_recording(memory, path, session="tf1", topics={"/notes": "text", "/tf": "pose"})
     assert s.poses == {"/tf": 41}
     item = memory.timeline("tf1")[0]
     assert (item.frame, item.position) == ("map", pytest.approx((0.0, 5.0, 0.0)))
@@ -99,11 +101,11 @@ def test_real_bag_pose_stamped_and_tf_pair(tmp_path, memory) -> None:
     stamped = [rf.pose_stamped("/goal_pose", START + i * rf.NS, (i, -i, 0.5), (0, 0, 0, 1))
                for i in range(5)]  # fmt: skip
     bag2 = rf.write_bag(tmp_path / "bag2", [*stamped, *notes], storage="mcap")
-    memory.ingest_recording(bag2, session="ps1", topics={"/notes": "text", "/goal_pose": "pose"})
+    ingest_recording(memory, bag2, session="ps1", topics={"/notes": "text", "/goal_pose": "pose"})
     assert memory.timeline("ps1")[0].position == pytest.approx((2.0, -2.0, 0.5))
 
     with pytest.raises(RecordingError, match="cannot become poses"):
-        memory.ingest_recording(bag2, session="bad", topics={"/notes": "pose"})
+        ingest_recording(memory, bag2, session="bad", topics={"/notes": "pose"})
     assert memory.trajectory("bad") == []
 
 

@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
+from tactus_memory.recordings.export import export_rerun
+from tactus_memory.recordings.ingest import ingest_recording
 from tactus_memory.touch.windows import cut_windows
 from tests import recording_files as rf
 
@@ -32,7 +34,7 @@ TOPICS = {"/notes": "text", "/glove/pressure": "touch"}
 @pytest.fixture(scope="module")
 def glove_frames(stag_dir: Path) -> np.ndarray:
     """(192, 32, 32) int16 raw: 96 frames of the mug recording, then 96 of the tape."""
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.training.data import load_stag
 
     data = load_stag(stag_dir / "weights_lite" / "metadata.mat")
     parts = []
@@ -74,7 +76,7 @@ def test_real_glove_recording_in_plain_language(
     else:
         path = rf.write_bag(tmp_path / "glove_bag", msgs, storage="sqlite3")
     mem = real_memory
-    s = mem.ingest_recording(path, session="kitchen", topics=TOPICS)
+    s = ingest_recording(mem, path, session="kitchen", topics=TOPICS)
     # the stream windowing's cut; its idle windows (no contact) are skipped, not embedded
     want = cut_windows(glove_frames, np.arange(len(glove_frames)) / 30, window=8, stride=8)
     n_idle = int(want.idle.sum())
@@ -97,12 +99,12 @@ def test_real_glove_recording_in_plain_language(
     assert tape.t >= PER_OBJECT / 30  # ... and the tape's in the tape's part
     # twice: nothing added
     n = len(mem)
-    again = mem.ingest_recording(path, session="kitchen", topics=TOPICS)
+    again = ingest_recording(mem, path, session="kitchen", topics=TOPICS)
     assert again.rows == {} and again.existing == 2 + n_windows and len(mem) == n
     # out to Rerun, moments of the query annotated
     from rerun.chunk import RrdReader
 
-    out = mem.export_rerun("kitchen", tmp_path / "kitchen.rrd", query="holding a mug")
+    out = export_rerun(mem, "kitchen", tmp_path / "kitchen.rrd", query="holding a mug")
     assert out.entities["touch/glove.pressure"] == n_windows and out.moments >= 1
     paths = {c.entity_path for c in RrdReader(out.path).stream().to_chunks()}
     assert {"/touch/glove.pressure", "/text/notes", "/moments/query"} <= paths

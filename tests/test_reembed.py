@@ -17,11 +17,11 @@ from typer.testing import CliRunner
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import IdleWindowError, SenseConflictError
 from tactus_memory.hashing import file_sha256
-from tactus_memory.memory import Memory
-from tactus_memory.reembed import STAGING_PREFIX
+from tactus_memory.memory.main import Memory
+from tactus_memory.memory.reembed import STAGING_PREFIX
 from tactus_memory.storage.store import Store
-from tactus_memory.touch.training.data import load_stag
-from tactus_memory.touch.training.stream_eval import build_stream
+from tactus_memory.training.data import load_stag
+from tactus_memory.training.stream_eval import build_stream
 from tests.touch_pair import Pair, train_pair
 
 N_PER_SESSION = 20

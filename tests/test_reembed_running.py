@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import SenseSwappedError
 from tactus_memory.hashing import file_sha256
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.touch.checkpoint import default_checkpoint_path, load_checkpoint

@@ -16,12 +16,12 @@ import lance
 import numpy as np
 import pytest
 
+from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.memory import Memory
-from tactus_memory.senses import VectorSense
+from tactus_memory.memory.main import Memory
+from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.settings import Settings
 from tactus_memory.storage.connect import read_consistency_interval, storage_options_for
-from tactus_memory.storage.maintenance import MaintenanceConfig
 from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 from tests.replicas import STALENESS, open_replica, start_writer, wait_for

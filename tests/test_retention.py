@@ -12,17 +12,12 @@ import pytest
 from pydantic import ValidationError
 from typer.testing import CliRunner
 
+from tactus_memory.adapters.text import TextSense
 from tactus_memory.cli import app as cli
-from tactus_memory.memory import Memory
-from tactus_memory.senses import TextSense
+from tactus_memory.memory.main import Memory
+from tactus_memory.policies import THIN_COSINE, RetentionRule
 from tactus_memory.settings import Settings
-from tactus_memory.storage.retention import (
-    DAY_S,
-    THIN_COSINE,
-    RetentionRule,
-    resolve,
-    thin_run_drops,
-)
+from tactus_memory.storage.retention import DAY_S, resolve, thin_run_drops
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -167,8 +162,8 @@ def test_thinning_a_real_glove_recording(tmp_path, minilm_space, stag_dir) -> No
     each dropped window lies inside a run (its nearest kept window before it is within the
     bar of it and of the nearest kept one after), and the ends of the session are kept."""
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.touch.training.stag_io import read_mat_fields
     from tactus_memory.touch.windows import cut_windows
+    from tactus_memory.training.stag_io import read_mat_fields
 
     fields = read_mat_fields(stag_dir / "weights_lite" / "metadata.mat")
     rec = np.asarray(fields["recordingId"]).reshape(-1)

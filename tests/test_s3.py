@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 from benchmarks.s3local import moto_s3
+from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.errors import NotFoundError
-from tactus_memory.senses import VectorSense
 from tests.replicas import STALENESS, open_replica, start_writer, wait_for
 from tests.test_service_uvicorn import Server
 

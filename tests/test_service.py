@@ -761,8 +761,8 @@ def test_the_service_rebuilds_the_senses_its_store_records(tmp_path):
     """A reopened store's senses come back live from their records (the plug-in registry),
     not only the ones the service knows by name: a "motion" VectorSense added in Python takes
     vectors over HTTP after a restart."""
-    from tactus_memory.memory import Memory
-    from tactus_memory.senses import VectorSense
+    from tactus_memory.adapters.vectors import VectorSense
+    from tactus_memory.memory.main import Memory
 
     path = str(tmp_path / "mem")
     with Memory.open(path, background=False) as mem:

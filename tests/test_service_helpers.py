@@ -9,12 +9,12 @@ from typing import Any
 
 import numpy as np
 
+from tactus_memory.adapters.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.errors import IdleWindowError, InvalidInputError
-from tactus_memory.recordings.decode import ARRAYS, IMAGE, touch_frame
-from tactus_memory.senses import Sense, array_to_bytes
-from tactus_memory.storage.vectors import as_unit_rows
+from tactus_memory.sense import Sense, array_to_bytes
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import calibrated_frames, window_idle
+from tactus_memory.vectors import as_unit_rows
 
 
 class StandInTouch(Sense):
@@ -57,7 +57,7 @@ class StandInTouch(Sense):
 
 
 def make_memory(path: Path, *, touch: bool = True, dim: int = 64) -> Any:
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tests.fakes import HashingSpace
 
     memory = Memory.open(str(path), space=HashingSpace(dim=dim))

@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.fakes import HashingSpace
@@ -173,8 +173,8 @@ def test_search_group_moment_over_http(tmp_path) -> None:
     import numpy as np
     from fastapi.testclient import TestClient
 
-    from tactus_memory.memory import Memory
-    from tactus_memory.senses import VectorSense
+    from tactus_memory.adapters.vectors import VectorSense
+    from tactus_memory.memory.main import Memory
     from tactus_memory.service.app import create_app
 
     space = HashingSpace()

@@ -40,7 +40,7 @@ def checkpoint(tmp_path_factory) -> Path:
 @pytest.fixture
 def client(tmp_path, checkpoint):
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tests.fakes import HashingSpace
 
     memory = Memory.open(str(tmp_path / "mem"), space=HashingSpace(dim=DIM))

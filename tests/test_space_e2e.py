@@ -27,13 +27,13 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
+from tactus_memory.adapters.image import THUMBNAIL_SIDE, ImageSense  # noqa: E402
 from tactus_memory.errors import (  # noqa: E402
     SenseConflictError,
     SpaceConfigError,
     SpaceMismatchError,
 )
-from tactus_memory.memory import Memory  # noqa: E402
-from tactus_memory.senses import THUMBNAIL_SIDE, ImageSense  # noqa: E402
+from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.spaces.fingerprint import model_fingerprint  # noqa: E402
 from tactus_memory.spaces.qwen3vl import Qwen3VLSpace  # noqa: E402
 from tests.qwen_tiny import perturbed_copy, png_bytes  # noqa: E402

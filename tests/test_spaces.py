@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tactus_memory.adapters.image import ImageSense
+from tactus_memory.adapters.text import TextSense
 from tactus_memory.errors import CapabilityError, InvalidInputError
-from tactus_memory.plugins import known
-from tactus_memory.senses import ImageSense, TextSense
+from tactus_memory.registry import known
 from tactus_memory.spaces import get_space
 from tactus_memory.spaces.minilm import MiniLMSpace, default_model_path
 

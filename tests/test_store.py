@@ -11,7 +11,7 @@ from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatc
 from tactus_memory.storage.connect import normalise_uri
 from tactus_memory.storage.store import Store
 from tactus_memory.storage.tables import items_schema, place_fields
-from tactus_memory.storage.where import Where, finite_float, validate_id
+from tactus_memory.where import Where, finite_float, validate_id
 
 HOSTILE = [
     "s1' OR 1=1 --",

@@ -1,4 +1,4 @@
-"""Stream evaluation (tactus_memory.touch.training.stream_eval): real STAG recordings, real MiniLM,
+"""Stream evaluation (tactus_memory.training.stream_eval): real STAG recordings, real MiniLM,
 real LanceDB memory, the shipped checkpoint; plus the CLI's ``--stream``."""
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ from typer.testing import CliRunner
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.targets import class_phrases
-from tactus_memory.touch.training.data import combine, load_stag
-from tactus_memory.touch.training.stream_eval import (
+from tactus_memory.training.data import combine, load_stag
+from tactus_memory.training.stream_eval import (
     build_stream,
     load_queries,
     run_stream_eval,
     template_collisions,
 )
-from tactus_memory.touch.training.train import holdout_recordings
+from tactus_memory.training.train import holdout_recordings
 
 pytestmark = pytest.mark.slow
 

@@ -15,14 +15,14 @@ from mcp import Client as McpClient
 from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
-from tactus_memory.client import Client
+from tactus_memory.client.main import Client
 from tactus_memory.errors import InvalidInputError, NotFoundError, UnknownSenseError
-from tactus_memory.mcp_server.server import build_server
-from tactus_memory.memory import Memory
+from tactus_memory.mcp.server import build_server
+from tactus_memory.memory.main import Memory
 from tactus_memory.search import teaching
 from tactus_memory.touch.targets import centre, class_phrases
-from tactus_memory.touch.training import stream_eval
-from tactus_memory.touch.training.data import load_stag
+from tactus_memory.training import stream_eval
+from tactus_memory.training.data import load_stag
 from tests.test_service_uvicorn import Server
 
 pytestmark = pytest.mark.slow

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError, NotFoundError
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.results import Evidence, Moment
 from tactus_memory.search.matching import (
     MATCH_Z,

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactus_memory.memory import Memory
+from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.memory.main import Memory
 from tactus_memory.search.matching import MATCH_Z
-from tactus_memory.senses import VectorSense
 from tests.kitchen import IDLE, MUG_GRASPS, SCREW_GRASP, S, kitchen_notes, near_caption
 
 pytestmark = pytest.mark.slow
@@ -129,7 +129,7 @@ IDLE_REAL = [0.0, 20.0, 30.0, 50.0, 80.0, 95.0]
 def _stag_grasps(stag_dir, k: int) -> dict[str, list[list[np.ndarray]]]:
     """Real raw STAG windows (weights subset, never copied here): for each of the first valid
     grasps of an object, its first and its last k valid frames (two windows of one grasp)."""
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.training.data import load_stag
 
     d = load_stag(stag_dir / "weights_lite" / "metadata.mat")
     grasp = d.extra["graspIndex"]

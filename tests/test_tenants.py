@@ -7,7 +7,7 @@ import json
 import pytest
 
 from tactus_memory.errors import InvalidIdError, NotFoundError
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_uri
 from tests.fakes import HashingSpace
 
@@ -176,7 +176,7 @@ def test_guessing_a_keys_secret_is_throttled_per_key_id(tmp_path) -> None:
 def test_sessions_under_a_prefix_limit_every_read_of_a_memory(tmp_path) -> None:
     """``where.sessions_under``: what a key made with ``--sessions PREFIX`` sees (the server
     sets it per request): sessions, items, searches, counts, rows per sense and deletes."""
-    from tactus_memory.storage.where import sessions_under
+    from tactus_memory.where import sessions_under
 
     mem = _open(tmp_path, "A")
     mem.add("lab-1", "text", "a red mug on the shelf", t=1.0, id="in1")

@@ -24,7 +24,7 @@ from tactus_memory.touch.profile import (
     taxel_mask_from_data,
     taxel_mask_from_spec,
 )
-from tactus_memory.touch.training.data import StagData, UnknownSplitError, combine, load_stag
+from tactus_memory.training.data import StagData, UnknownSplitError, combine, load_stag
 from tests.stag_synth import OBJECTS, make_fields, spec_mask, write_subset, write_v5, write_v73
 
 PER_FRAME = ("pressure", "object_id", "recording_id", "batch_id", "split_id", "frame", "ts")

@@ -26,7 +26,7 @@ HELDOUT_MIN, HELDOUT_TOP3_MIN = 0.15, 0.30
 @pytest.fixture(scope="module")
 def heldout_summary(stag_dir: Path, minilm_space, tmp_path_factory) -> dict[str, Any]:
     from tactus_memory.touch.targets import build_targets
-    from tactus_memory.touch.training.train import (
+    from tactus_memory.training.train import (
         TrainConfig,
         fit,
         holdout_recordings,

@@ -13,8 +13,8 @@ from tactus_memory.hashing import file_sha256
 from tactus_memory.touch.checkpoint import load_checkpoint, save_checkpoint
 from tactus_memory.touch.model import create_model
 from tactus_memory.touch.targets import Targets, centre
-from tactus_memory.touch.training.augment import AugmentConfig, augment
-from tactus_memory.touch.training.pretrain import (
+from tactus_memory.training.augment import AugmentConfig, augment
+from tactus_memory.training.pretrain import (
     MAE,
     MASK_RATIO,
     MIN_PATCH_STD,
@@ -29,7 +29,7 @@ from tactus_memory.touch.training.pretrain import (
     random_mask,
     unpatchify,
 )
-from tactus_memory.touch.training.train import TrainConfig, TrainData, fit, holdout_recordings
+from tactus_memory.training.train import TrainConfig, TrainData, fit, holdout_recordings
 
 N_CLS, DIM = 4, 16
 
@@ -139,7 +139,7 @@ def test_pretrain_excludes_recordings_and_saves_trunk(tmp_path) -> None:
         d.calibrated, d.recording_id, held, tmp_path / "mae.safetensors", cfg, progress=False
     )
     assert s["frames"] == len(pool) and s["excluded_recordings"] == held
-    from tactus_memory.touch.training.pretrain import load_pretrained_trunk
+    from tactus_memory.training.pretrain import load_pretrained_trunk
 
     m = create_model("tactus-tiny", 8)
     meta = load_pretrained_trunk(m.trunk, tmp_path / "mae.safetensors", m.cfg)
@@ -153,7 +153,7 @@ def test_pretrain_warns_when_loss_sits_at_mean_prediction(tmp_path, caplog) -> N
     d = synthetic(rec_per_class=1, frames_per_rec=4)
     cfg = PretrainConfig(model="tactus-tiny", steps=101, batch=2, lr=0.0, warmup=1, save_every=1000)
     torch.manual_seed(0)
-    with caplog.at_level(logging.WARNING, logger="tactus_memory.touch.training.pretrain"):
+    with caplog.at_level(logging.WARNING, logger="tactus_memory.training.pretrain"):
         s = pretrain(
             d.calibrated, d.recording_id, [], tmp_path / "m.safetensors", cfg, progress=False
         )

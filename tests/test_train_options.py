@@ -8,14 +8,14 @@ import pytest
 import torch
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.training.augment import (
+from tactus_memory.training.augment import (
     AUGMENT_PRESETS,
     AugmentConfig,
     augment,
     augment_preset,
 )
-from tactus_memory.touch.training.train import TrainConfig, draw_weights, fit
-from tactus_memory.touch.training.tuples import consecutive_windows
+from tactus_memory.training.train import TrainConfig, draw_weights, fit
+from tactus_memory.training.tuples import consecutive_windows
 from tests.test_train import DIM, orthogonal_targets, synthetic
 
 

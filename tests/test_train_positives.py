@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactus_memory.touch.training.train import holdout_recordings, load_data, prepare_data
 from tactus_memory.touch.windows import CONTACT_MIN_TAXELS, contact_taxels
+from tactus_memory.training.train import holdout_recordings, load_data, prepare_data
 
 
 def test_contact_positives_on_real_stag(stag_dir) -> None:

@@ -92,7 +92,7 @@ def test_data_that_is_a_regular_file_is_one_line_exit_2(tmp_path):
 
 
 def _make_store(path: Path) -> None:
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.spaces.minilm import MiniLMSpace
 
     mem = Memory.open(str(path), space=MiniLMSpace())

@@ -9,8 +9,8 @@ import pytest
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.profile import calibrate
-from tactus_memory.touch.training.data import load_stag
-from tactus_memory.touch.training.tuples import RESAMPLE_EVERY, TupleSampler, cluster_labels
+from tactus_memory.training.data import load_stag
+from tactus_memory.training.tuples import RESAMPLE_EVERY, TupleSampler, cluster_labels
 
 K = 8
 

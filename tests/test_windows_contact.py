@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.training.data import combine, load_stag
 from tactus_memory.touch.windows import (
     CONTACT_MIN_TAXELS,
     WindowStream,
     contact_taxels,
     cut_windows,
 )
+from tactus_memory.training.data import combine, load_stag
 
 REST = 512  # raw resting reading of the STAG glove
 

@@ -22,7 +22,7 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 
 from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
-from tactus_memory.memory import Memory
+from tactus_memory.memory.main import Memory
 
 pytestmark = pytest.mark.slow
 

@@ -14,10 +14,10 @@ from typing import Annotated, Any
 from fastapi import APIRouter, File, Form, Query, Response, UploadFile
 from starlette.concurrency import run_in_threadpool
 
+from tactus_memory.adapters.image import THUMBNAIL_SIDE
 from tactus_memory.errors import CapabilityError, InvalidInputError
 from tactus_memory.limits import ID_PATTERN, MAX_ID_CHARS, MAX_K
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
-from tactus_memory.senses import THUMBNAIL_SIDE
 from tactus_memory.service.deps import ItemIdPath, MemoryDep
 from tactus_memory.service.images import decode_image, encode_png, is_image_array
 from tactus_memory.service.problems import problem_responses

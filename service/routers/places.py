@@ -1,4 +1,4 @@
-"""Places (``tactus_memory.spatial``): a session's poses in, ``/where`` and ``/at`` out.
+"""Places (``tactus_memory.memory.places``): a session's poses in, ``/where`` and ``/at`` out.
 
 Every search and temporal route also takes ``near=x,y,z,r`` and ``frame=`` (``deps.ScopeDep``).
 """
@@ -28,7 +28,7 @@ from tactus_memory.service.place_schemas import (
 )
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.routers.temporal import MatchDep
-from tactus_memory.storage.where import DEFAULT_FRAME
+from tactus_memory.where import DEFAULT_FRAME
 
 router = APIRouter(tags=["places"])
 

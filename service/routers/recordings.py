@@ -16,6 +16,7 @@ from typing import Annotated
 from fastapi import APIRouter, BackgroundTasks, Query
 from fastapi.responses import FileResponse
 
+from tactus_memory.recordings.export import export_rerun
 from tactus_memory.service.deps import MemoryDep, SessionId
 from tactus_memory.service.problems import ServiceUnavailable, problem_responses
 
@@ -57,7 +58,7 @@ def export_rrd(
     folder = Path(tempfile.mkdtemp(prefix="tactus-rrd-"))
     try:
         out = folder / f"{session}.rrd"
-        memory.export_rerun(session, out, query=q)
+        export_rerun(memory, session, out, query=q)
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
         raise

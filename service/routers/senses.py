@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from tactus_memory.senses import VectorSense
+from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.service.deps import MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SenseIn, SenseOut, SensesOut

@@ -26,7 +26,8 @@ Protocol (all server messages are JSON objects with a ``type``):
   ``{"type": "idle", "seq": n, "t": ..., "t_end": ...}``.
 
 Each window is validated on arrival and handed to the service's group committer
-(``tactus_memory.group_commit``): the windows of every glove and the HTTP writes that arrive within
+(``tactus_memory.memory.group_commit``): the windows of every glove and the HTTP writes that arrive
+within
 one tick are embedded in one encoder call and stored in one commit. An ack task per
 connection sends the ``stored`` messages in order, each after its commit; at most
 ``QUEUE_WINDOWS`` windows per connection wait for their commit, beyond that the receive loop

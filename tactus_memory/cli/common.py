@@ -42,7 +42,8 @@ MemoryData = Annotated[
     ),
 ]
 #: ``--ray`` / ``--ray-address`` of the bulk commands (ingest, reembed): Ray Data jobs
-#: (:mod:`tactus_memory.ray_jobs`); ``--ray`` alone joins $RAY_ADDRESS, else starts Ray here
+#: (:mod:`tactus_memory.recordings.ray_jobs`); ``--ray`` alone joins $RAY_ADDRESS, else starts Ray
+#: here
 UseRay = Annotated[
     bool,
     typer.Option(
@@ -72,7 +73,7 @@ def ray_cluster(ray: bool, address: str | None) -> str | None:
     """The Ray cluster of ``--ray``/``--ray-address`` (None: no Ray)."""
     if not ray and address is None:
         return None
-    from tactus_memory.ray_jobs import default_address
+    from tactus_memory.recordings.ray_jobs import default_address
 
     return default_address(address)
 
@@ -194,7 +195,7 @@ LearningRate = Annotated[float, typer.Option("--lr")]
 CheckpointOut = Annotated[Path, typer.Option("--out", help="checkpoint to write (.safetensors)")]
 Resume = Annotated[bool, typer.Option("--resume", help="continue from OUT.resume.pt")]
 #: the recordings ``tactus pretrain`` and ``tactus train`` keep out (the grammar of
-#: :func:`tactus_memory.touch.training.train.holdout_recordings`)
+#: :func:`tactus_memory.training.train.holdout_recordings`)
 TrainHoldout = Annotated[
     str,
     typer.Option(

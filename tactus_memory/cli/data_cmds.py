@@ -23,7 +23,7 @@ def inspect_summary(path: Path, profile_name: str = "stag-glove") -> dict[str, A
 
     from tactus_memory.errors import DynamicRangeError
     from tactus_memory.touch.profile import check_dynamic_range, dynamic_range_report, get_profile
-    from tactus_memory.touch.training.data import load_stag
+    from tactus_memory.training.data import load_stag
 
     profile = get_profile(profile_name)
     data = load_stag(path)
@@ -107,7 +107,7 @@ def path_cmd(
 ) -> None:
     """Where the data folder is (TACTUS_DATA_HOME, the user data folder, or ../shared beside a
     checkout) and which STAG subsets it holds."""
-    from tactus_memory.datahome import data_home, how_to_get_stag
+    from tactus_memory.datasets.home import data_home, how_to_get_stag
 
     home = data_home()
     subsets = home.stag_subsets()
@@ -148,7 +148,7 @@ def fetch_cmd(
 ) -> None:
     """Get the STAG lite subsets (weights_lite, blindfolded_lite) into the data folder,
     sha256-checked against pinned sums; an interrupted download resumes on the next run."""
-    from tactus_memory.stag_fetch import (
+    from tactus_memory.datasets.stag import (
         FetchError,
         StagSource,
         fetch_stag,

@@ -62,8 +62,8 @@ class Question:
 def touch_session(stag: Path, memory: Any, start: float) -> list[Question]:
     """Store the held-out recordings of TOUCH_QUESTIONS' objects from ``start`` (s); the touch
     questions, each knowing its recording's span."""
-    from tactus_memory.touch.training.stream_eval import build_stream
-    from tactus_memory.touch.training.train import holdout_recordings, load_data
+    from tactus_memory.training.stream_eval import build_stream
+    from tactus_memory.training.train import holdout_recordings, load_data
 
     data = load_data([stag / SUBSET])
     by_object = {
@@ -115,9 +115,9 @@ def demo(
 ) -> None:
     """Touch answering questions: a short glove session from held-out STAG recordings and a
     few notes, then five questions whose right answers are known (hit, score, match, right)."""
-    from tactus_memory.datahome import data_home
-    from tactus_memory.memory import Memory
-    from tactus_memory.plugins import create_sense
+    from tactus_memory.datasets.home import data_home
+    from tactus_memory.memory.main import Memory
+    from tactus_memory.registry import create_sense
 
     stag = Path(stag_from).expanduser() if stag_from else data_home().stag
     have_stag = (stag / SUBSET / "metadata.mat").is_file()

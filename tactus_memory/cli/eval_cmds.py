@@ -45,14 +45,14 @@ def _write_outputs(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(payload, indent=1) + "\n")
     if report is not None:
-        from tactus_memory.touch.training.report import write_report
+        from tactus_memory.training.report import write_report
 
         others = [json.loads(Path(p).read_text()) for p in compare]
         files = write_report(report, payload, first, es.calibrated, others)
         typer.echo(
             f"report: {', '.join(str(f) for f in files[:4])}" + (" …" if len(files) > 4 else "")
         )
-    from tactus_memory.touch.training.metrics import SCALAR_METRICS
+    from tactus_memory.training.metrics import SCALAR_METRICS
 
     summary = {k: payload.get(k) for k in ("split", "n_tuples", "n_recordings", *SCALAR_METRICS)}
     if "aggregate" in payload:
@@ -118,7 +118,7 @@ def eval_cmd(
         raise typer.BadParameter(f"--grasp-pool takes mean, top or max; got {bad}")
     set_threads(threads)
     from tactus_memory.errors import SpaceConfigError
-    from tactus_memory.touch.training.eval_runs import load_eval_data, run_eval
+    from tactus_memory.training.eval_runs import load_eval_data, run_eval
 
     given = space is not None or space_path is not None or space_dim is not None
     scope = {"split": split, "holdout": holdout, "votes": votes, "seed": seed}
@@ -136,7 +136,7 @@ def eval_cmd(
     except SpaceConfigError as exc:
         fail(str(exc))
     if stream:
-        from tactus_memory.touch.training.stream_eval import run_stream_eval, stream_markdown
+        from tactus_memory.training.stream_eval import run_stream_eval, stream_markdown
 
         sdata = loaded[0]
         groups = (None, group) if group else (None,)
@@ -190,8 +190,8 @@ def baseline_train_cmd(
     model selection). With --holdout, the held-out recordings are scored afterwards."""
     logging.basicConfig(level=logging.WARNING)
     set_threads(threads)
-    from tactus_memory.touch.training.baseline import BaselineConfig
-    from tactus_memory.touch.training.eval_runs import train_baseline_run
+    from tactus_memory.training.baseline import BaselineConfig
+    from tactus_memory.training.eval_runs import train_baseline_run
 
     cfg = BaselineConfig(
         epochs=epochs, batch=batch, lr=lr, seed=seed, sampling=sampling, max_steps=max_steps, k=k
@@ -226,7 +226,7 @@ def baseline_eval_cmd(
     (voting and recording level average class probabilities)."""
     logging.basicConfig(level=logging.WARNING)
     set_threads(threads)
-    from tactus_memory.touch.training.eval_runs import run_eval
+    from tactus_memory.training.eval_runs import run_eval
 
     payload, first, es = run_eval(
         checkpoint, data, split=split, holdout=holdout, votes=votes, seed=seed, warn=_warn
@@ -263,7 +263,7 @@ def ablate_cmd(
     logging.basicConfig(level=logging.WARNING)
     set_threads(threads)
     from tactus_memory.cli.space_opts import resolve_or_exit
-    from tactus_memory.touch.training.ablate import AblationConfig, format_table, run_ablation
+    from tactus_memory.training.ablate import AblationConfig, format_table, run_ablation
 
     sp = resolve_or_exit(space, space_path, space_dim)
 

@@ -51,7 +51,7 @@ def mcp(
     behind the same bearer token as `tactus serve`.
     """
     try:
-        from tactus_memory.mcp_server.server import build_server
+        from tactus_memory.mcp.server import build_server
     except ImportError as exc:
         fail(f"the MCP server needs the mcp extra: pip install 'tactus-memory[mcp]' ({exc})")
     settings = None

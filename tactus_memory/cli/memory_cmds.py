@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from pydantic import BaseModel
     from rich.console import OverflowMethod
 
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
 #: decimals of the times and scores printed in tables (JSON keeps every digit)
 TIME_DECIMALS = 2
@@ -62,7 +62,7 @@ def _open(
     """``tenant``'s memory in the store at ``data``, in its recorded space (the space options
     find its model); ``open_kw`` go to :meth:`Memory.open` (e.g. ``maintenance=``). A tenant
     that does not exist is an error (a typo never makes a tenant)."""
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
     from tactus_memory.storage.keys import KeyStore
     from tactus_memory.storage.tenants import tenant_exists
 
@@ -246,7 +246,7 @@ def reembed(
         if address is None:
             report = memory.reembed(sense, enc, batch=batch)
         else:
-            from tactus_memory.ray_jobs import reembed_on_ray
+            from tactus_memory.recordings.ray_jobs import reembed_on_ray
 
             report = reembed_on_ray(memory, sense, enc, address=address, workers=ray_workers,
                                     batch=batch)  # fmt: skip
@@ -277,7 +277,7 @@ def teach(
     one_source(source.data, source.url)
     try:
         if source.url:
-            from tactus_memory.client import Client
+            from tactus_memory.client.main import Client
 
             with Client(source.url, token=source.token, tenant=source.tenant) as client:
                 got = client.teach(label, session=session, after=after, before=before, sense=sense)

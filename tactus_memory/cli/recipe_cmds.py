@@ -35,9 +35,9 @@ def run_cmd(
     deadline_s: float = typer.Option(0.0, "--deadline-s", help="stop after this many seconds"),
 ) -> None:
     """Run every job of the plan not done yet, then write report.json / report.md."""
-    from tactus_memory.touch.training.protocol import Plan
-    from tactus_memory.touch.training.protocol_report import report_markdown
-    from tactus_memory.touch.training.protocol_run import RunnerConfig, run_command
+    from tactus_memory.training.protocol import Plan
+    from tactus_memory.training.protocol_report import report_markdown
+    from tactus_memory.training.protocol_run import RunnerConfig, run_command
 
     try:
         p = Plan.load(plan)
@@ -61,7 +61,7 @@ def report_cmd(
     baseline: str = typer.Option("shipped", "--baseline", help="the recipe paired against"),
 ) -> None:
     """Mean, 95 % interval and paired difference per recipe, from the finished runs."""
-    from tactus_memory.touch.training.protocol_report import report_markdown, write_report
+    from tactus_memory.training.protocol_report import report_markdown, write_report
 
     if not out.is_dir():
         raise typer.BadParameter(f"--out {out}: no such folder")
@@ -75,7 +75,7 @@ def stream_cmd(
     recipe: list[str] = typer.Option([], "--recipe", help="only this recipe's runs"),
 ) -> None:
     """Stream metrics (grasp-grouped R@1/R@5 in a real memory) of finished fold runs."""
-    from tactus_memory.touch.training.protocol_report import add_stream_metrics
+    from tactus_memory.training.protocol_report import add_stream_metrics
 
     n = add_stream_metrics(out, [str(d) for d in data], recipe)
     typer.echo(f"stream metrics written for {n} runs")

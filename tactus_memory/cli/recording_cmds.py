@@ -28,16 +28,17 @@ from tactus_memory.cli.common import (
 )
 from tactus_memory.cli.memory_cmds import _data_dir, _open, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
+from tactus_memory.recordings.export import export_rerun
 
 if TYPE_CHECKING:
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
 export_app = typer.Typer(help="Export a session to a viewer's format.", no_args_is_help=True)
 app.add_typer(export_app, name="export")
 
 
 def _memory_for(data: str | None, senses: set[str]) -> Memory:
-    from tactus_memory.memory import Memory
+    from tactus_memory.memory.main import Memory
 
     memory = Memory.open(_data_dir(data))
     if "touch" in senses and "touch" not in memory.senses:
@@ -49,7 +50,7 @@ def _memory_for(data: str | None, senses: set[str]) -> Memory:
         and "image" not in memory.senses
         and getattr(memory.space, "has_vision", False)
     ):
-        from tactus_memory.senses import ImageSense
+        from tactus_memory.adapters.image import ImageSense
 
         memory.add_sense(ImageSense(memory.space))
     return memory
@@ -118,7 +119,7 @@ def ingest(
         if address is None:
             summary = ingest_recording(memory, files, progress=not as_json, **kw)
         else:
-            from tactus_memory.ray_jobs import ingest_on_ray
+            from tactus_memory.recordings.ray_jobs import ingest_on_ray
 
             summary = ingest_on_ray(memory, files, address=address, workers=ray_workers, **kw)
     except (TactusError, ImportError) as exc:
@@ -153,7 +154,7 @@ def export_rerun_cmd(
 
     memory = _open(data)  # exits when there is no memory there
     try:
-        summary = memory.export_rerun(session, out, query=query)
+        summary = export_rerun(memory, session, out, query=query)
     except (TactusError, ImportError) as exc:
         fail(str(exc))  # exits
     if as_json:

@@ -175,7 +175,7 @@ def export_onnx(
 ) -> None:
     """Export MiniLM and the touch encoder to ONNX for `tactus serve --onnx OUT` (needs torch
     and the onnx extra here; the server then needs ONNX Runtime only)."""
-    from tactus_memory.onnx_export import export_minilm, export_touch
+    from tactus_memory.export.onnx import export_minilm, export_touch
 
     export_minilm(out)
     export_touch(out, touch_checkpoint)
@@ -184,7 +184,7 @@ def export_onnx(
 
 def default_onnx(settings: Any) -> Any:
     """``settings`` with ``onnx`` set to the default cache folder
-    (:mod:`tactus_memory.onnx_cache`) when the server runs on ONNX Runtime by default: no
+    (:mod:`tactus_memory.export.cache`) when the server runs on ONNX Runtime by default: no
     folder named, no ``--torch``, and the MiniLM space (the default). The folder is filled,
     if it has to be, while the server starts (``load_app``)."""
     folder = None if settings.onnx else default_folder_of(settings)
@@ -207,7 +207,7 @@ def load_app(
     server, step 2 exports MiniLM first) on a worker thread once the socket is
     open, saying what loads and how long each step took; ``/ready`` answers 503 naming the
     step until then."""
-    from tactus_memory.onnx_cache import is_ready, prepare
+    from tactus_memory.export.cache import is_ready, prepare
     from tactus_memory.service.app import create_app, open_store, register_default_senses
 
     steps = 3
@@ -251,7 +251,7 @@ def load_app(
 
 def default_folder_of(settings: Any) -> Path | None:
     """The default ONNX folder ``settings`` would get (None where it gets none)."""
-    from tactus_memory.onnx_cache import default_folder
+    from tactus_memory.export.cache import default_folder
 
     if settings.torch or settings.space_path or settings.space not in (None, "minilm", "minilm-l6"):
         return None

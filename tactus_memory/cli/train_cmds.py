@@ -58,8 +58,8 @@ def pretrain_cmd(
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
     from tactus_memory.touch.profile import STAG_GLOVE
-    from tactus_memory.touch.training.pretrain import PretrainConfig, pretrain, recipe_warmup
-    from tactus_memory.touch.training.train import _resolve_device, holdout_recordings, load_data
+    from tactus_memory.training.pretrain import PretrainConfig, pretrain, recipe_warmup
+    from tactus_memory.training.train import _resolve_device, holdout_recordings, load_data
 
     d = load_data(data)
     d.check_dynamic_range(STAG_GLOVE)  # per source file; raises DynamicRangeError
@@ -116,8 +116,8 @@ def training_run(r: Recipe) -> tuple[Any, Any, Any, int]:
     """The data, targets and TrainConfig of ``tactus train`` / ``tactus distill`` from their
     shared options. Returns (TrainData, Targets, TrainConfig, the space's dim)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    from tactus_memory.touch.training.augment import AUGMENT_PRESETS, augment_preset
-    from tactus_memory.touch.training.train import BALANCE, POSITIVES
+    from tactus_memory.training.augment import AUGMENT_PRESETS, augment_preset
+    from tactus_memory.training.train import BALANCE, POSITIVES
 
     # refuse a typo before the data is read and the targets embedded
     for flag, value, choices in (
@@ -130,8 +130,8 @@ def training_run(r: Recipe) -> tuple[Any, Any, Any, int]:
     set_threads(r.threads)
     sp = resolve_or_exit(r.space, r.space_path, r.space_dim)
     from tactus_memory.touch.targets import build_targets, target_report
-    from tactus_memory.touch.training.pretrain import recipe_warmup
-    from tactus_memory.touch.training.train import (
+    from tactus_memory.training.pretrain import recipe_warmup
+    from tactus_memory.training.train import (
         TrainConfig,
         holdout_recordings,
         load_data,
@@ -158,7 +158,7 @@ def train_cmd(*, recipe: Recipe) -> None:
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
     space's name, dim and model fingerprint, so it only registers in a memory of that space."""
     td, targets, cfg, dim = training_run(recipe)
-    from tactus_memory.touch.training.train import fit
+    from tactus_memory.training.train import fit
 
     r = recipe
     summary = fit(
@@ -187,7 +187,7 @@ def distill_cmd(
     """Train a (fast) student as `tactus train` does, plus a loss pulling its embeddings
     towards the teachers' (mean of their unit embeddings of the same augmented windows).
     Teachers must be in the student's space and calibration; their sha256 are recorded."""
-    from tactus_memory.touch.training.distill import DistillConfig, TeacherMismatchError, distill
+    from tactus_memory.training.distill import DistillConfig, TeacherMismatchError, distill
 
     try:
         dcfg = DistillConfig(cosine_weight=cosine_weight, relational_weight=relational_weight)

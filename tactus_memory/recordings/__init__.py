@@ -6,7 +6,7 @@
                      topics={"/notes": "text", "/glove/pressure": "touch"})
     export_rerun(memory, "run1", "run1.rrd", query="holding a mug")
 
-Also ``memory.ingest_recording(...)`` / ``memory.export_rerun(...)`` and the commands
+Also ``ingest_recording(memory, ...)`` / ``export_rerun(memory, ...)`` and the commands
 ``tactus ingest`` / ``tactus export rerun``. The readers (``mcap``, ``mcap-ros2-support``,
 ``rosbags``) and ``rerun-sdk`` are the optional extra ``recordings``, imported on use.
 """

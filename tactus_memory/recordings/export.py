@@ -29,10 +29,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel
 
-from tactus_memory.senses import bytes_to_array
-from tactus_memory.storage.where import Where, validate_id
+from tactus_memory.sense import bytes_to_array
+from tactus_memory.where import Where, validate_id
 
-#: a :class:`tactus_memory.memory.Memory`. Not imported, not even for type checking:
+#: a :class:`tactus_memory.memory.main.Memory`. Not imported, not even for type checking:
 #: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.
 Memory = Any
 

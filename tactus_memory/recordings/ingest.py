@@ -33,9 +33,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-import tactus_memory.recordings.decode as decode
-from tactus_memory.errors import IdleWindowError, TactusError, UnknownSenseError
-from tactus_memory.plugins import lookup
+import tactus_memory.adapters.decode as decode
+from tactus_memory.errors import IdleWindowError, RecordingError, TactusError, UnknownSenseError
 from tactus_memory.recordings.poses import (
     DEFAULT_TF,
     POSE,
@@ -46,12 +45,13 @@ from tactus_memory.recordings.poses import (
     read_poses,
     tf_ns,
 )
-from tactus_memory.recordings.reader import Recording, RecordingError, TopicInfo, open_recording
+from tactus_memory.recordings.reader import Recording, TopicInfo, open_recording
+from tactus_memory.registry import lookup
 from tactus_memory.storage.rows import options_for
-from tactus_memory.storage.where import Where, validate_id
 from tactus_memory.touch.windows import WindowStream
+from tactus_memory.where import Where, validate_id
 
-#: a :class:`tactus_memory.memory.Memory`. Not imported, not even for type checking:
+#: a :class:`tactus_memory.memory.main.Memory`. Not imported, not even for type checking:
 #: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.
 Memory = Any
 
@@ -186,7 +186,8 @@ def accept(sense: Any, item: Any, keep_idle: bool, tally: Tally) -> Any | None:
 @dataclass(frozen=True)
 class DecodeSpec:
     """How the messages of a recording become items (picklable: the Ray path,
-    :mod:`tactus_memory.ray_jobs`, decodes on workers with the same spec, so the ids match)."""
+    :mod:`tactus_memory.recordings.ray_jobs`, decodes on workers with the same spec, so the ids
+    match)."""
 
     session: str
     plan: dict[str, _Topic]
@@ -248,7 +249,8 @@ class DecodeSpec:
 
 class IngestJob:
     """One ingest: the plan (checked before anything is written), the session clock, the
-    poses; then the items, written here (:meth:`run`) or by Ray (:mod:`tactus_memory.ray_jobs`)."""
+    poses; then the items, written here (:meth:`run`) or by Ray
+    (:mod:`tactus_memory.recordings.ray_jobs`)."""
 
     def __init__(
         self,
@@ -483,7 +485,7 @@ def plan_ingest(
 def ingest_recording(memory: Memory, paths: Any, **kw: Any) -> IngestSummary:
     """Ingest MCAP files / ROS 2 bag folders into ``kw["session"]`` in this process (see the
     module doc; the keywords are :func:`plan_ingest`'s; on Ray:
-    :func:`tactus_memory.ray_jobs.ingest_on_ray`)."""
+    :func:`tactus_memory.recordings.ray_jobs.ingest_on_ray`)."""
     return plan_ingest(memory, paths, **kw).run()
 
 

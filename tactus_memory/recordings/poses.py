@@ -24,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.recordings.reader import Recording, RecordingError
-from tactus_memory.storage.where import DEFAULT_FRAME, validate_frame
+from tactus_memory.errors import RecordingError
+from tactus_memory.recordings.reader import Recording
+from tactus_memory.where import DEFAULT_FRAME, validate_frame
 
 #: the pseudo-sense a topic maps to when it carries the session's trajectory
 POSE = "pose"

@@ -18,14 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tactus_memory.errors import DataFormatError
+from tactus_memory.errors import RecordingError
 
 HASH_CHUNK = 1 << 20  # bytes read at a time for the file digest
-
-
-class RecordingError(DataFormatError):
-    """A recording that cannot be read (corrupt, truncated, not MCAP / ROS 2 bag), or a
-    mapped topic whose messages cannot be turned into the mapped sense (HTTP 422)."""
 
 
 @dataclass(frozen=True)

@@ -69,8 +69,8 @@ from typing import Any
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.results import Evidence, Hit, Moment
 from tactus_memory.search.query import Scope, ScopeKwargs, split_scope
-from tactus_memory.senses import validate_sense_name
-from tactus_memory.storage.where import finite_float
+from tactus_memory.sense import validate_sense_name
+from tactus_memory.where import finite_float
 
 # --------------------------------------------------------------------------- constants
 #: per-sense match threshold on the calibrated score (z vs the probe null); see the module

@@ -14,8 +14,8 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS
-from tactus_memory.storage.vectors import as_unit_rows
-from tactus_memory.storage.where import Near, Where, finite_float
+from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import Near, Where, finite_float
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space

@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.results import Hit, hit_from_row
-from tactus_memory.search.registry import SenseRegistry
 from tactus_memory.search.scoring import Calibration
+from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.vectors import as_unit_rows
-from tactus_memory.storage.where import Where
+from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import Where
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()

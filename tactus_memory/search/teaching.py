@@ -40,10 +40,10 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
-from tactus_memory.search.registry import SenseRegistry
+from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.where import Where, session_visible, validate_id
+from tactus_memory.where import Where, session_visible, validate_id
 
 #: weight of the label's text target in the taught ranking (chosen with the benchmark,
 #: ``benchmarks/teach.py``; the docs' "Objects you teach" reports the grid)

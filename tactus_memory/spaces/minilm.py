@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.plugins import register
+from tactus_memory.registry import register
 from tactus_memory.spaces.base import Space, check_texts
-from tactus_memory.storage.vectors import as_unit_rows
+from tactus_memory.vectors import as_unit_rows
 
 MINILM_NAME = "minilm-l6"
 MINILM_DIM = 384
@@ -45,8 +45,8 @@ class MiniLMSpace(Space):
 
     path: a local sentence-transformers folder of the same model (default: the bundled one).
     cache_size: how many query embeddings the LRU cache keeps (0 disables it).
-    onnx: a folder written by :func:`tactus_memory.onnx_export.export_minilm`: the same model
-    on ONNX Runtime (:class:`tactus_memory.onnx_models.OnnxMiniLM`), torch never imported.
+    onnx: a folder written by :func:`tactus_memory.export.onnx.export_minilm`: the same model
+    on ONNX Runtime (:class:`tactus_memory.spaces.onnx_runtime.OnnxMiniLM`), torch never imported.
     """
 
     name = MINILM_NAME
@@ -77,7 +77,8 @@ class MiniLMSpace(Space):
         self.cache_misses = 0
 
     def __getstate__(self) -> dict[str, Any]:
-        """Pickled as its settings (Ray workers, :mod:`tactus_memory.ray_jobs`): the model
+        """Pickled as its settings (Ray workers, :mod:`tactus_memory.recordings.ray_jobs`): the
+        model
         loads lazily where it is unpickled, from the same local folder."""
         keys = ("path", "device", "batch_size", "cache_size", "onnx")
         return {k: getattr(self, k) for k in keys}
@@ -103,7 +104,7 @@ class MiniLMSpace(Space):
             return model
         with self._load_lock:
             if self._model is None and self.onnx is not None:
-                from tactus_memory.onnx_models import OnnxMiniLM
+                from tactus_memory.spaces.onnx_runtime import OnnxMiniLM
 
                 self._model = OnnxMiniLM(self.onnx)
             if self._model is None:

@@ -40,9 +40,9 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import CapabilityError, InvalidInputError
-from tactus_memory.plugins import register
+from tactus_memory.registry import register
 from tactus_memory.spaces.base import Space, check_texts
-from tactus_memory.storage.vectors import as_unit_rows
+from tactus_memory.vectors import as_unit_rows
 
 QWEN3VL_NAME = "qwen3-vl-embedding-2b"
 QWEN3VL_FULL_DIM = 2048

@@ -20,7 +20,7 @@ import os
 from datetime import timedelta
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.settings import Settings
+from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S
 
 #: AWS environment variable -> LanceDB storage option (first variable set wins)
 S3_ENV: dict[str, tuple[str, ...]] = {
@@ -33,11 +33,11 @@ S3_ENV: dict[str, tuple[str, ...]] = {
 }
 
 
-def read_consistency_interval(value: float | timedelta | None | str = "env") -> timedelta | None:
-    """The interval to connect with: a timedelta/seconds as given, None for never, or (the
-    default ``"env"``) ``TACTUS_READ_CONSISTENCY`` / 1 s."""
-    if isinstance(value, str) and value == "env":
-        value = Settings().read_consistency
+def read_consistency_interval(
+    value: float | timedelta | None = DEFAULT_READ_CONSISTENCY_S,
+) -> timedelta | None:
+    """The interval to connect with: a timedelta/seconds as given, None for never. Storage
+    reads no settings: the memory or the service passes what the operator configured."""
     if value is None or isinstance(value, timedelta):
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:

@@ -19,7 +19,7 @@ from tactus_memory.storage.tables import (
     scalar_index_config,
     vector_index_config,
 )
-from tactus_memory.storage.vectors import as_unit_rows, vector_column
+from tactus_memory.vectors import as_unit_rows, vector_column
 
 log = logging.getLogger(__name__)
 

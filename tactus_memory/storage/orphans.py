@@ -29,13 +29,10 @@ import shutil
 import time
 from dataclasses import dataclass
 
+from tactus_memory.policies import ORPHAN_GRACE_S
+
 log = logging.getLogger(__name__)
 
-#: Seconds an unreferenced file is kept before it counts as a crashed writer's: longer than
-#: any write transaction could take (the largest compaction merges at most
-#: ``max_merge_share`` of a table; an ANN index build on a large table on 2 cores takes
-#: minutes to tens of minutes), with a wide margin. Erasure after a crash waits this long.
-ORPHAN_GRACE_S = 6 * 3600.0
 
 #: least seconds between two sweeps of one table (each reads every kept manifest); the first
 #: cleanup of a process always sweeps, so a maintainer restarted after a crash does at once

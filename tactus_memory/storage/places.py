@@ -21,7 +21,7 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_COORDINATE
-from tactus_memory.storage.where import DEFAULT_FRAME, check_position
+from tactus_memory.where import DEFAULT_FRAME, check_position
 
 #: an item is placed only when a pose lies within this many seconds of the middle of its
 #: span (odometry runs at 10-100 Hz, so a live trajectory always has one; a gap longer than
@@ -150,7 +150,7 @@ class Trajectory:
 
 
 def frame_order(frames: Sequence[str]) -> list[str]:
-    """The order frames are tried in: :data:`~tactus_memory.storage.where.DEFAULT_FRAME` first, then
+    """The order frames are tried in: :data:`~tactus_memory.where.DEFAULT_FRAME` first, then
     by name."""
     return sorted(set(frames), key=lambda f: (f != DEFAULT_FRAME, f))
 

@@ -2,7 +2,7 @@
 
 Stores created before places existed get the place columns (all null) when they are opened:
 one metadata-only LanceDB commit (``add_columns``), so old items are simply unplaced until
-poses arrive (then :meth:`tactus_memory.spatial.Places.place_items` backfills them). Where
+poses arrive (then :meth:`tactus_memory.memory.places.Places.place_items` backfills them). Where
 the store cannot be written, it is read as it is (``Store.present``): every item unplaced.
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 from tactus_memory.storage.places import Placement, Trajectory
 from tactus_memory.storage.store import POSES, Store
 from tactus_memory.storage.tables import place_fields, poses_schema
-from tactus_memory.storage.where import Where
+from tactus_memory.where import Where
 
 if TYPE_CHECKING:
     import pyarrow as pa

@@ -1,7 +1,7 @@
 """Retention: expiry (``retain_days``) and stale-duplicate thinning, run by maintenance.
 
 The policy lives in the maintenance policy, so in the one settings object
-(:class:`~tactus_memory.storage.maintenance.MaintenanceConfig` fields ``retain_days``,
+(:class:`~tactus_memory.policies.MaintenanceConfig` fields ``retain_days``,
 ``thin_after_days``, ``thin_cosine``, ``retention_interval`` and the rule list
 ``retention``; ``TACTUS_<FIELD>`` or the TOML file, docs/operations/retention.md). A
 :class:`RetentionRule` narrows it to a tenant, a session (an id, or a prefix ending in ``*``)
@@ -35,19 +35,17 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from tactus_memory.limits import ID_RE
-from tactus_memory.senses import validate_sense_name
-from tactus_memory.storage.where import Where, _sql_float, validate_id
+from tactus_memory.policies import RetentionRule
+from tactus_memory.where import Where, _sql_float
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
 
 class RetentionSettings(Protocol):
-    """The retention fields of :class:`tactus_memory.storage.maintenance.MaintenanceConfig`
-    (which imports this module, so it is named by its shape here)."""
+    """The retention fields of :class:`tactus_memory.policies.MaintenanceConfig`: all that
+    retention reads of the policy."""
 
     retain_days: float | None
     thin_after_days: float | None
@@ -76,12 +74,6 @@ class RetentionStore(Protocol):
 log = logging.getLogger(__name__)
 
 DAY_S = 86_400.0
-#: the cosine bar of thinning, measured on STAG (weights_lite + blindfolded_lite_train,
-#: the shipped checkpoint, the service's windows): 60 % of adjacent windows of a hand held
-#: still reach it, 0.9 % of a hand moving and 0.04 % of pairs of grasps of different objects;
-#: MiniLM: every exact text repeat, 1 in 4 reworded repeats, no pair of different events
-#: (benchmarks/thinning.py, benchmarks/results/thinning.json)
-THIN_COSINE = 0.985
 #: the meta key of the last thinning pass's wall-clock time (rows aged past the bar since
 #: then are the ones the next pass looks at)
 THINNED_AT = "retention:thinned_at"
@@ -89,72 +81,6 @@ THINNED_AT = "retention:thinned_at"
 _CHUNK = 256
 #: the policy fields a rule may set
 POLICY_FIELDS = ("retain_days", "thin_after_days", "thin_cosine")
-
-
-#: what a setting may say for "no limit" (TOML has no null)
-NEVER = frozenset({"none", "never", "forever", "off", ""})
-
-
-def never_is_none(value: Any) -> Any:
-    """``none``/``never``/``forever``/``off`` (any case) or an empty string -> None."""
-    return None if isinstance(value, str) and value.strip().lower() in NEVER else value
-
-
-class RetentionRule(BaseModel):
-    """Retention for part of the store: every key given must match (tenant name, session id
-    or ``prefix*``, sense name); the policy fields it sets override the store-wide ones
-    (``retain_days: null`` keeps forever)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    tenant: str | None = Field(None, description="Tenant name (a store opened for it).")
-    session: str | None = Field(None, description="Session id, or a prefix ending in '*'.")
-    sense: str | None = Field(None, description="Sense name.")
-    retain_days: float | None = Field(None, gt=0.0, description="Expire after this many days.")
-    thin_after_days: float | None = Field(
-        None, ge=0.0, description="Thin stale duplicates older than this many days."
-    )
-    thin_cosine: float | None = Field(None, gt=0.0, le=1.0, description="Thinning's bar.")
-
-    _no_limit = field_validator("retain_days", "thin_after_days", mode="before")(
-        classmethod(lambda cls, v: never_is_none(v))
-    )
-
-    @field_validator("tenant")
-    @classmethod
-    def _tenant(cls, value: str | None) -> str | None:
-        return None if value is None else validate_id(value, "tenant")
-
-    @field_validator("session")
-    @classmethod
-    def _session(cls, value: str | None) -> str | None:
-        if value is None:
-            return None
-        body = value[:-1] if value.endswith("*") else value
-        if value != "*" and not ID_RE.match(body):
-            raise ValueError(f"session must be a session id or a prefix ending in '*': {value!r}")
-        return value
-
-    @field_validator("sense")
-    @classmethod
-    def _sense(cls, value: str | None) -> str | None:
-        return None if value is None else validate_sense_name(value)
-
-    def matches(self, tenant: str | None, session: str, sense: str) -> bool:
-        if self.tenant is not None and self.tenant != tenant:
-            return False
-        if self.sense is not None and self.sense != sense:
-            return False
-        if self.session is None:
-            return True
-        if self.session.endswith("*"):
-            return session.startswith(self.session[:-1])
-        return session == self.session
-
-    def specificity(self) -> int:
-        exact = self.session is not None and not self.session.endswith("*")
-        prefix = self.session is not None and not exact
-        return 8 * exact + 4 * prefix + 2 * (self.sense is not None) + (self.tenant is not None)
 
 
 @dataclass(frozen=True)

@@ -16,11 +16,11 @@ import numpy as np
 from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
 from tactus_memory.results import SessionSummary, Stored
-from tactus_memory.senses import Sense
+from tactus_memory.sense import Sense
 from tactus_memory.storage.places import Placement, given_placement
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.vectors import as_unit_rows
-from tactus_memory.storage.where import DEFAULT_FRAME, finite_float, validate_frame, validate_id
+from tactus_memory.vectors import as_unit_rows
+from tactus_memory.where import DEFAULT_FRAME, finite_float, validate_frame, validate_id
 
 if TYPE_CHECKING:
     import pyarrow as pa

@@ -13,7 +13,7 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
 ``meta``   key/value strings: the space (name, dim) the store was created with, cached probe
            embeddings, index bookkeeping.
 
-Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.storage.where.Where` from
+Filters: every SQL ``WHERE`` fragment is built by :class:`~tactus_memory.where.Where` from
 validated values (ids and sense names by regex, finite numbers; literals quote-escaped).
 Every read of the items (scan, count, vector search) and every delete ANDs the session prefix
 of its context (``where.SESSION_PREFIX``: a key limited to sessions) into its filter.
@@ -41,17 +41,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
-from tactus_memory.settings import Settings
+from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.storage import maintenance as maint
 from tactus_memory.storage.background import start_background
-from tactus_memory.storage.connect import normalise_uri, storage_options_for
+from tactus_memory.storage.connect import (
+    DEFAULT_READ_CONSISTENCY_S,
+    normalise_uri,
+    storage_options_for,
+)
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
 from tactus_memory.storage.integrity import IntegrityWatch, check_store
-from tactus_memory.storage.maintenance import Maintainer, MaintenanceConfig, TableReport
+from tactus_memory.storage.maintenance import Maintainer, TableReport
 from tactus_memory.storage.retention import Erasure, Retention
 from tactus_memory.storage.tables import IndexConfig, items_schema, meta_schema, senses_schema
-from tactus_memory.storage.where import Where, _sql_str, sessions_under, within_sessions
+from tactus_memory.where import Where, _sql_str, sessions_under, within_sessions
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa
@@ -86,21 +90,22 @@ class Store(StoreIndexes):
         uri: str,
         *,
         storage_options: dict[str, str] | None = None,
-        read_consistency_interval: timedelta | float | str | None = "env",
+        read_consistency_interval: timedelta | float | None = DEFAULT_READ_CONSISTENCY_S,
         index: IndexConfig | None = None,
         maintenance: MaintenanceConfig | None = None,
         tenant: str | None = None,
     ) -> None:
         """``read_consistency_interval``: how stale reads may be against other processes'
-        commits (``"env"``: ``TACTUS_READ_CONSISTENCY``, 1 s; None: never re-read);
+        commits (seconds, default 1 s; None: never re-read);
         ``storage_options``: object-store options (``connect.storage_options_for``);
-        ``maintenance``: the policy, and whether this process runs it (default from env);
+        ``maintenance``: the policy, and whether this process runs it (default: the policy's
+        defaults; the memory passes the configured one, storage reads no settings);
         ``tenant``: whose store this is, for the retention rules naming a tenant."""
         import lancedb
 
         self.uri = normalise_uri(uri)
         self.index = index or IndexConfig()
-        self.maintenance = maintenance or Settings().maintenance()
+        self.maintenance = maintenance or MaintenanceConfig()
         self.storage_options = storage_options_for(self.uri, storage_options)
         self.read_consistency = consistency_from(read_consistency_interval)
         self.db = lancedb.connect(

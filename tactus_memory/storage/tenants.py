@@ -19,7 +19,7 @@ from collections.abc import Iterable
 
 from tactus_memory.limits import ID_RE
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
-from tactus_memory.storage.where import validate_id
+from tactus_memory.where import validate_id
 
 #: the tenant of a store without keys, of the operator's ``--token``, and of
 #: ``Memory.open(path)`` without ``tenant=``

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel
 
-from tactus_memory.storage.vectors import vector_column
+from tactus_memory.vectors import vector_column
 
 #: a new episode when consecutive items' cosine drops below this (an abrupt change)
 EPISODE_MIN_COS = 0.7
@@ -60,7 +60,7 @@ class Episode(BaseModel):
 def check_rule(min_cos: float, mean_cos: float, max_gap: float) -> None:
     """Raise ValueError-compatible InvalidInputError on thresholds outside their range."""
     from tactus_memory.errors import InvalidInputError
-    from tactus_memory.storage.where import finite_float
+    from tactus_memory.where import finite_float
 
     for name, value in (("min_cos", min_cos), ("mean_cos", mean_cos)):
         if not -1.0 <= finite_float(value, name) <= 1.0:

@@ -47,8 +47,8 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.results import Evidence, Grasp, Hit
-from tactus_memory.storage.vectors import vector_column
-from tactus_memory.storage.where import Where, finite_float
+from tactus_memory.vectors import vector_column
+from tactus_memory.where import Where, finite_float
 
 if TYPE_CHECKING:
     from tactus_memory.search.ranking import Ranker

@@ -62,11 +62,9 @@ from tactus_memory.search.matching import (
 )
 from tactus_memory.search.query import Scope, check_k, embed_query
 from tactus_memory.search.ranking import Ranker
-from tactus_memory.search.registry import SenseRegistry
+from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import HIT_COLUMNS, Store
-from tactus_memory.storage.vectors import vector_column
-from tactus_memory.storage.where import Near, Where, validate_id
 from tactus_memory.temporal.clocks import Clocks, Offsets, pad
 from tactus_memory.temporal.episodes import (
     EPISODE_MAX_GAP,
@@ -85,6 +83,8 @@ from tactus_memory.temporal.grasps import (
     grasp_rule,
     pool_grasps,
 )
+from tactus_memory.vectors import vector_column
+from tactus_memory.where import Near, Where, validate_id
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None

@@ -15,7 +15,7 @@ copy is authoritative. The file's sha256 is the provenance handle (``file_sha256
 
 torch is imported only by what needs it (saving, rebuilding the model, resume state):
 ``load_checkpoint(path, weights=False)`` reads the metadata and targets without it, for a
-server that runs the encoder on ONNX Runtime (:mod:`tactus_memory.onnx_models`).
+server that runs the encoder on ONNX Runtime (:mod:`tactus_memory.spaces.onnx_runtime`).
 """
 
 from __future__ import annotations

@@ -1,0 +1,1 @@
+"""tactus_memory.client.main."""

@@ -1,0 +1,398 @@
+"""The memory as MCP tools (the official ``mcp`` SDK, v2): :func:`build_server`.
+
+```python
+server = build_server(Memory.open("./memory"))          # read-only tools
+server.run()                                            # stdio, for an agent that starts it
+```
+
+Tools: ``search``, ``last``, ``first``, ``count``, ``before``, ``after``, ``timeline``,
+``sessions``, and ``remember`` (store a note) only with ``allow_writes=True``. Arguments are
+typed and documented (the JSON schema an agent sees); results are the compact models of
+:mod:`tactus_memory.mcp.hits` (text content: one line of JSON; structured content:
+the same object). A library error (unknown session, bad time range, ...) is a tool error
+carrying the library's message; the server keeps serving.
+
+The scope arguments (``session``, ``senses``, ``after``, ``before``) are one set of
+``Annotated`` aliases shared by every tool and turned into one :class:`~tactus_memory.search.query.
+Scope` by :func:`scope_of`; a place filter (``near``: a named place or x, y and a radius, once
+the memory knows places) is one more alias there and one more ``Scope`` field, and a
+``where`` tool sits beside ``last``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, make_dataclass
+from typing import Annotated, Any, TypeVar
+
+from mcp.server.mcpserver import Context, MCPServer
+from mcp.server.mcpserver.exceptions import ToolError
+from mcp.types import CallToolResult, TextContent, ToolAnnotations
+from pydantic import BaseModel, Field, Strict
+
+import tactus_memory
+from tactus_memory.errors import TactusError
+from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS, MAX_TEXT_CHARS
+from tactus_memory.mcp.hits import (
+    Compactor,
+    ContextResult,
+    CountResult,
+    OccurrenceResult,
+    Remembered,
+    SearchResult,
+    SessionsResult,
+    Taught,
+    TimelineResult,
+)
+from tactus_memory.memory.main import Memory
+from tactus_memory.search.matching import DEFAULT_MERGE_GAP, DEFAULT_WINDOW
+from tactus_memory.search.query import Scope
+from tactus_memory.signatures import grouped
+from tactus_memory.temporal.grasps import windows_group
+
+log = logging.getLogger(__name__)
+
+#: most hits a tool returns at once (an agent reads them all; the library allows MAX_K)
+MAX_TOOL_K = 50
+#: most timeline items a tool returns at once
+MAX_TOOL_ITEMS = 500
+
+INSTRUCTIONS = (
+    "A robot's memory of what it touched, heard and was told, searchable in words. Times are "
+    "seconds on each session's clock (`when` gives wall-clock time where known). Ask `sessions` "
+    "first to learn the session ids and time spans; `search` finds items (touch windows carry a "
+    "contact summary); `last`/`first`/`count` answer when and how often something happened; "
+    "`before`/`after` list what happened around a moment; `timeline` reads a session in order."
+)
+
+# ----------------------------------------------------------------- arguments
+#: a number argument: strict, so a JSON ``true`` is refused rather than read as 1.0 (as the
+#: HTTP API and the library refuse booleans as numbers)
+Number = Annotated[float, Strict()]
+
+QueryArg = Annotated[
+    str,
+    Field(
+        min_length=1,
+        max_length=MAX_TEXT_CHARS,
+        description="What to look for, in words (e.g. 'holding a warm mug').",
+    ),
+]
+KArg = Annotated[int, Field(ge=1, le=MAX_TOOL_K, description="How many results.")]
+SessionArg = Annotated[
+    str | None,
+    Field(
+        pattern=ID_PATTERN,
+        max_length=MAX_ID_CHARS,
+        description="Only this session (default: every session). " + ID_DESCRIPTION,
+    ),
+]
+SensesArg = Annotated[
+    list[str] | None,
+    Field(description="Only these senses, e.g. ['touch'] or ['text'] (default: every sense)."),
+]
+AnchorSensesArg = Annotated[
+    list[str] | None, Field(description="Search the anchor only in these senses.")
+]
+AfterArg = Annotated[
+    Number | None, Field(description="Only items still going on at or after this time (s).")
+]
+BeforeArg = Annotated[Number | None, Field(description="Only items started at or before (s).")]
+MergeGapArg = Annotated[
+    Number, Field(ge=0.0, le=1e9, description="Matches this close (s) count as one occurrence.")
+]
+WindowsArg = Annotated[
+    bool,
+    Field(
+        description="Touch as single windows. By default a touch answer is a grasp (the "
+        "contiguous windows of one hold, scored together)."
+    ),
+]
+
+#: what a server that audits writes is told after each ``remember``: the request context
+#: of the call (the HTTP request, on HTTP), the status (201 stored, 422 refused) and the
+#: number of items stored
+WriteHook = Callable[[Any, int, int], None]
+
+R = TypeVar("R")
+
+
+def scope_of(
+    session: str | None, senses: list[str] | None, after: float | None, before: float | None
+) -> Scope:
+    """The scope arguments of a tool -> the library's one :class:`Scope`."""
+    return Scope(session=session, senses=senses, after=after, before=before)
+
+
+@dataclass(frozen=True)
+class Question:
+    """The arguments of ``last``, ``first`` and ``count``, one group
+    (:func:`tactus_memory.signatures.grouped`)."""
+
+    query: QueryArg
+    session: SessionArg = None
+    senses: SensesArg = None
+    after: AfterArg = None
+    before: BeforeArg = None
+    merge_gap: MergeGapArg = DEFAULT_MERGE_GAP
+    windows: WindowsArg = False
+
+    def scope(self) -> Scope:
+        return scope_of(self.session, self.senses, self.after, self.before)
+
+    @property
+    def group(self) -> str:
+        return windows_group(self.windows)
+
+
+def around_args(side: str) -> type:
+    """The arguments of the ``before`` or ``after`` tool (``side``), one group: the anchor,
+    the window on that side of it, and where to look."""
+    window = Field(gt=0, le=1e6, description=f"Seconds {side} it.")
+    return make_dataclass(
+        f"{side.title()}Args",
+        [
+            (
+                "anchor",
+                Annotated[QueryArg, Field(description=f"The moment to look {side}, in words.")],
+            ),
+            ("window", Annotated[Number, window], field(default=DEFAULT_WINDOW)),
+            ("session", SessionArg, field(default=None)),
+            ("senses", SensesArg, field(default=None)),
+            ("anchor_senses", AnchorSensesArg, field(default=None)),
+        ],
+        frozen=True,
+    )
+
+
+def compact(result: BaseModel) -> CallToolResult:
+    """One line of JSON as text (what a model reads) and the same object as structured
+    content (what a program reads); empty fields are left out."""
+    body = result.model_dump(mode="json", exclude_none=True)
+    text = result.model_dump_json(exclude_none=True)
+    return CallToolResult(content=[TextContent(type="text", text=text)], structured_content=body)
+
+
+def tool_errors(fn: Callable[..., R]) -> Callable[..., R]:
+    """The library's typed errors become tool errors with its message (anything else is the
+    SDK's unexpected-error path: logged with its traceback, the server keeps serving)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> R:
+        try:
+            return fn(*args, **kwargs)
+        except TactusError as exc:
+            raise ToolError(str(exc)) from exc
+
+    return wrapper
+
+
+class MemoryTools:
+    """The tools over one memory (each a method; :func:`build_server` registers them)."""
+
+    def __init__(self, memory: Memory, on_write: WriteHook | None = None) -> None:
+        self.memory = memory
+        self.compactor = Compactor(memory.store)
+        self.on_write = on_write
+
+    def _known(self, session: str | None) -> None:
+        """An unknown session is a tool error (``no session 'ID'``), as HTTP answers 404,
+        never an empty answer that reads like "it never happened"."""
+        if session is not None:
+            self.memory.session(session)
+
+    @tool_errors
+    def search(
+        self,
+        query: QueryArg,
+        k: KArg = 5,
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        windows: WindowsArg = False,
+    ) -> SearchResult:
+        """Find remembered things (touch grasps, notes, ...) that match a description, best
+        first. Each hit says when (t, t_end), which sense, its score and its id; a touch hit
+        is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones."""
+        self._known(session)
+        scope = scope_of(session, senses, after, before)
+        group = windows_group(windows)
+        hits = self.memory.search(query, k, group=group, scope=scope)
+        return compact(SearchResult(query=query, hits=self.compactor.items(hits)))  # type: ignore[return-value]
+
+    def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
+        memory, query = self.memory, ask.query
+        self._known(ask.session)
+        moments = memory.occurrences(
+            query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
+        ).moments
+        if not moments:
+            return OccurrenceResult(query=query, found=False)
+        (moment,) = self.compactor.moments([moments[which]])
+        return OccurrenceResult(query=query, found=True, moment=moment)
+
+    @tool_errors
+    @grouped(ask=Question)
+    def last(self, ask: Question) -> OccurrenceResult:
+        """When did this last happen? The most recent occurrence (found: false if never)."""
+        return compact(self._occurrence(-1, ask))  # type: ignore[return-value]
+
+    @tool_errors
+    @grouped(ask=Question)
+    def count(self, ask: Question) -> CountResult:
+        """How many distinct times did this happen? Also answers yes/no (count > 0)."""
+        self._known(ask.session)
+        occ = self.memory.occurrences(
+            ask.query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
+        )
+        moments = self.compactor.moments(occ.moments)
+        result = CountResult(
+            query=ask.query, count=occ.count, capped=occ.capped, occurrences=moments
+        )
+        return compact(result)  # type: ignore[return-value]
+
+    @tool_errors
+    @grouped(ask=Question)
+    def first(self, ask: Question) -> OccurrenceResult:
+        """When did this first happen? The earliest occurrence (found: false if never)."""
+        return compact(self._occurrence(0, ask))  # type: ignore[return-value]
+
+    def _around(self, side: str, ask: Any) -> CallToolResult:
+        fn = self.memory.before if side == "before" else self.memory.after
+        self._known(ask.session)
+        scope = scope_of(ask.session, ask.senses, None, None)
+        ctx = fn(ask.anchor, ask.window, scope=scope, anchor_senses=ask.anchor_senses)
+        if ctx is None:
+            return compact(ContextResult(side=side, window=ask.window, items=[]))
+        items = self.compactor.items([ctx.anchor, *ctx.items])
+        result = ContextResult(side=side, window=ask.window, anchor=items[0], items=items[1:])
+        return compact(result)
+
+    @tool_errors
+    @grouped(ask=around_args("before"))
+    def before(self, ask: Any) -> ContextResult:
+        """What happened just before something? The anchor's best match, then the items of its
+        session that start in the `window` seconds before it."""
+        return self._around("before", ask)  # type: ignore[return-value]
+
+    @tool_errors
+    @grouped(ask=around_args("after"))
+    def after(self, ask: Any) -> ContextResult:
+        """What happened just after something? The anchor's best match, then the items of its
+        session that start in the `window` seconds after it ends."""
+        return self._around("after", ask)  # type: ignore[return-value]
+
+    @tool_errors
+    def timeline(
+        self,
+        session: Annotated[
+            str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Session id.")
+        ],
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        limit: Annotated[
+            int, Field(ge=1, le=MAX_TOOL_ITEMS, description="Most items returned.")
+        ] = 50,
+    ) -> TimelineResult:
+        """A session's items in time order (narrow with after/before for long sessions)."""
+        items = self.memory.timeline(session, senses, after, before, limit=limit)
+        result = TimelineResult(session=session, items=self.compactor.items(items))
+        return compact(result)  # type: ignore[return-value]
+
+    @tool_errors
+    def sessions(self) -> SessionsResult:
+        """Every session: its id, item counts per sense, and its time span (t_min, t_max)."""
+        return compact(SessionsResult(sessions=self.memory.sessions()))  # type: ignore[return-value]
+
+    @tool_errors
+    def remember(
+        self,
+        session: Annotated[
+            str,
+            Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Session id."),
+        ],
+        text: Annotated[
+            str, Field(min_length=1, max_length=MAX_TEXT_CHARS, description="The note.")
+        ],
+        t: Annotated[Number | None, Field(description="When (s); default: now (unix).")] = None,
+        meta: Annotated[
+            dict[str, Any] | None, Field(description="Free JSON stored with the note.")
+        ] = None,
+        ctx: Context | None = None,
+    ) -> Remembered:
+        """Store a note in the memory (e.g. what the robot was told or decided)."""
+        t = time.time() if t is None else t
+        try:
+            item_id = self.memory.add(session, "text", text, t=t, meta=meta)
+        except TactusError:
+            self._written(ctx, 422, 0)
+            raise
+        self._written(ctx, 201, 1)
+        return compact(Remembered(id=item_id, session=session, t=t))  # type: ignore[return-value]
+
+    def _written(self, ctx: Context | None, status: int, count: int) -> None:
+        """Tell the write hook (the audit log of ``tactus mcp --http``) about one write."""
+        if self.on_write is not None:
+            request = None
+            if ctx is not None:
+                try:
+                    request = ctx.request_context.request
+                except ValueError:  # no request (called outside a session)
+                    request = None
+            self.on_write(request, status, count)
+
+    @tool_errors
+    def teach(
+        self,
+        session: Annotated[
+            str,
+            Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS, description="Session id."),
+        ],
+        label: Annotated[
+            str, Field(min_length=1, max_length=64, description="What was held, e.g. 'drill'.")
+        ],
+        after: Annotated[float | None, Field(description="Span start (s).")] = None,
+        before: Annotated[float | None, Field(description="Span end (s).")] = None,
+    ) -> Taught:
+        """Teach an object: the touch windows of the session between after and before were a
+        grasp of `label`. Afterwards `search` and `last` find that object by its name."""
+        got = self.memory.teach(label, session=session, after=after, before=before)
+        out = Taught(**{k: v for k, v in got.to_dict().items() if k in Taught.model_fields})
+        return compact(out)  # type: ignore[return-value]
+
+
+#: the read-only tools, in the order an agent sees them
+READ_TOOLS = ("sessions", "search", "last", "first", "count", "before", "after", "timeline")
+#: the tools that write, offered only with ``allow_writes``
+WRITE_TOOLS = ("remember", "teach")
+
+
+def warm(memory: Memory) -> None:
+    """Load the models a tool call needs (the space's text encoder, the store's tables and
+    calibrations) now, so the first call is as fast as the next: ``tactus mcp --http`` calls
+    this before its port answers."""
+    memory.search("warm up", 1)
+
+
+def build_server(
+    memory: Memory, *, allow_writes: bool = False, on_write: WriteHook | None = None
+) -> MCPServer:
+    """An MCP server whose tools read (and with ``allow_writes``, add notes to) ``memory``;
+    ``on_write`` is told of every ``remember`` (:data:`WriteHook`: the audit log)."""
+    server = MCPServer(
+        "tactus-memory", instructions=INSTRUCTIONS, version=tactus_memory.__version__
+    )
+    tools = MemoryTools(memory, on_write)
+    read_only = ToolAnnotations(read_only_hint=True, open_world_hint=False)
+    for name in READ_TOOLS:
+        server.add_tool(getattr(tools, name), name=name, annotations=read_only)
+    if allow_writes:
+        writes = ToolAnnotations(read_only_hint=False, destructive_hint=False)
+        for name in WRITE_TOOLS:
+            server.add_tool(getattr(tools, name), name=name, annotations=writes)
+    return server

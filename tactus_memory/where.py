@@ -1,0 +1,253 @@
+"""Validated store filters: the id / source / number validators and :class:`Where`, the
+one builder of SQL ``WHERE`` fragments (every value passes a validator first; string
+literals are also quote-escaped; no user string reaches LanceDB any other way)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.errors import InvalidIdError, InvalidInputError
+from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_COORDINATE
+from tactus_memory.sense import validate_sense_name
+
+
+# --------------------------------------------------------------------------- validation
+def validate_id(value: Any, what: str = "id") -> str:
+    """Session ids, item ids and source ids: 1-128 chars of ``[A-Za-z0-9._:-]``."""
+    if not isinstance(value, str) or not ID_RE.fullmatch(value):
+        shown = (
+            repr(value)
+            if not isinstance(value, str) or len(value) <= 60
+            else repr(value[:60]) + "..."
+        )
+        raise InvalidIdError(f"invalid {what} {shown}: use {ID_DESCRIPTION.removesuffix('.')}")
+    return value
+
+
+def validate_source(value: Any) -> str:
+    """A source (stream) id is an id or the empty string."""
+    if value == "":
+        return ""
+    return validate_id(value, "source id")
+
+
+def finite_float(value: Any, what: str) -> float:
+    """A finite float (bools and non-numbers rejected)."""
+    if isinstance(value, bool):
+        raise InvalidInputError(f"{what} must be a number, got {value!r}")
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{what} must be a number, got {value!r}") from None
+    if not math.isfinite(out):
+        raise InvalidInputError(f"{what} must be finite, got {value!r}")
+    return out
+
+
+#: the frame positions are in unless one is named (REP 105's world-fixed frame)
+DEFAULT_FRAME = "map"
+#: a place filter: ``((x, y, z), radius)``, metres in the items' frame
+Near = tuple[tuple[float, float, float], float]
+
+
+def check_position(value: Any, what: str = "position") -> tuple[float, float, float]:
+    """Three finite numbers ``(x, y, z)``."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 3:
+        raise InvalidInputError(f"{what} must be three numbers (x, y, z), got {value!r}")
+    x, y, z = (finite_float(v, f"{what} coordinate") for v in value)
+    if max(abs(x), abs(y), abs(z)) > MAX_COORDINATE:
+        raise InvalidInputError(f"{what} is beyond +-{MAX_COORDINATE:g} m: {value!r}")
+    return x, y, z
+
+
+def check_near(near: Any) -> Near:
+    """``((x, y, z), radius)`` with finite coordinates and a finite radius > 0."""
+    if isinstance(near, (str, bytes)) or not hasattr(near, "__len__") or len(near) != 2:
+        raise InvalidInputError(f"near must be ((x, y, z), radius), got {near!r}")
+    center = check_position(near[0], "near centre")
+    radius = finite_float(near[1], "near radius")
+    if not 0 < radius <= MAX_COORDINATE:
+        raise InvalidInputError(
+            f"near radius must be > 0 and <= {MAX_COORDINATE:g}, got {radius!r}"
+        )
+    return center, radius
+
+
+def validate_frame(value: Any) -> str:
+    """A frame name (``map``, ``odom``, ...): an id, one leading ``/`` dropped (ROS 1 style)."""
+    if isinstance(value, str) and value.startswith("/"):
+        value = value[1:]
+    return validate_id(value, "frame")
+
+
+def _sql_str(value: str) -> str:
+    return "'" + value.replace("'", "''") + "'"
+
+
+def _sql_float(value: float) -> str:
+    # ``repr`` gives the shortest round-tripping form; DataFusion parses 1e+20 and -0.0 too.
+    return repr(float(value))
+
+
+def _session_id(value: Any) -> str:
+    return validate_id(value, "session id")
+
+
+def _item_id(value: Any) -> str:
+    return validate_id(value, "item id")
+
+
+@dataclass
+class Where:
+    """A conjunction of validated conditions, rendered to one LanceDB SQL filter.
+
+    Build with the methods (each validates its input) and render with :meth:`sql`.
+    Temporal operators reuse this: ``Where().session("s1").overlaps(10, 20).sql()``.
+    """
+
+    parts: list[str] = field(default_factory=list)
+    #: conditions checked only on the rows ``parts`` let through (a place filter's sphere,
+    #: after its indexed box); :meth:`count_sql` leaves them out to estimate cheaply
+    refine: list[str] = field(default_factory=list)
+    #: the rows that pass are scattered over the table (a place filter): reading each one's
+    #: vector for an exact scan costs more than the ANN index's prefiltered search
+    scattered: bool = False
+
+    def copy(self) -> Where:
+        return Where(list(self.parts), list(self.refine), self.scattered)
+
+    def _eq(self, column: str, value: str | None, check: Callable[[Any], str]) -> Where:
+        if value is not None:
+            self.parts.append(f"{column} = {_sql_str(check(value))}")
+        return self
+
+    def _in(self, column: str, values: Iterable[str] | None, check: Callable[[Any], str]) -> Where:
+        if values is not None:
+            vals = [_sql_str(check(v)) for v in values]
+            self.parts.append(f"{column} IN ({', '.join(vals)})" if vals else "false")
+        return self
+
+    def session(self, session: str | None) -> Where:
+        return self._eq("session", session, _session_id)
+
+    def sessions(self, sessions: Iterable[str] | None) -> Where:
+        return self._in("session", sessions, _session_id)
+
+    def session_prefix(self, prefix: str | None) -> Where:
+        """Sessions whose id starts with ``prefix`` (itself an id)."""
+        if prefix is not None:
+            self.parts.append(f"starts_with(session, {_sql_str(validate_session_prefix(prefix))})")
+        return self
+
+    def sense(self, sense: str | None) -> Where:
+        return self._eq("sense", sense, validate_sense_name)
+
+    def senses(self, senses: Iterable[str] | None) -> Where:
+        return self._in("sense", senses, validate_sense_name)
+
+    def ids(self, ids: Iterable[str] | None) -> Where:
+        return self._in("id", ids, _item_id)
+
+    def source(self, source: str | None) -> Where:
+        return self._eq("source", source, validate_source)
+
+    def episode(self, episode: int | None) -> Where:
+        if episode is not None:
+            if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)):
+                raise InvalidInputError(f"episode must be an int, got {episode!r}")
+            self.parts.append(f"episode = {int(episode)}")
+        return self
+
+    def overlaps(self, after: float | None = None, before: float | None = None) -> Where:
+        """Items whose interval ``[t, t_end]`` overlaps ``[after, before]`` (ends inclusive).
+
+        ``after`` alone: items still going on at or after ``after`` (``t_end >= after``);
+        ``before`` alone: items that started at or before ``before`` (``t <= before``).
+        """
+        if after is not None:
+            self.parts.append(f"t_end >= {_sql_float(finite_float(after, 'after'))}")
+        if before is not None:
+            self.parts.append(f"t <= {_sql_float(finite_float(before, 'before'))}")
+        if after is not None and before is not None and float(after) > float(before):
+            raise InvalidInputError(f"after ({after}) is later than before ({before})")
+        return self
+
+    def t_range(self, start: float | None = None, end: float | None = None) -> Where:
+        """Items that *start* in ``[start, end)`` (for ordering-style temporal queries)."""
+        if start is not None:
+            self.parts.append(f"t >= {_sql_float(finite_float(start, 'start'))}")
+        if end is not None:
+            self.parts.append(f"t < {_sql_float(finite_float(end, 'end'))}")
+        return self
+
+    def frame(self, frame: str | None) -> Where:
+        return self._eq("frame", frame, validate_frame)
+
+    def near(self, near: Near | None) -> Where:
+        """Items placed within ``radius`` of ``(x, y, z)`` (unplaced items never match). The
+        x/y bounding box comes first so the x and y scalar indexes answer it; the sphere test
+        (z included: robots mostly share one floor, so a z index would select almost every
+        row) then runs on the rows in the box only (benchmarks/places.py)."""
+        if near is not None:
+            (x, y, z), r = check_near(near)
+            for col, c in (("x", x), ("y", y)):
+                lo, hi = _sql_float(c - r), _sql_float(c + r)
+                self.parts.append(f"{col} >= {lo} AND {col} <= {hi}")
+            terms = [f"({col} - {_sql_float(c)}) * ({col} - {_sql_float(c)})" for col, c in (
+                ("x", x), ("y", y), ("z", z))]  # fmt: skip
+            self.refine.append(f"{' + '.join(terms)} <= {_sql_float(r * r)}")
+            self.scattered = True
+        return self
+
+    def sql(self) -> str | None:
+        every = [*self.parts, *self.refine]
+        return " AND ".join(f"({p})" for p in every) if every else None
+
+    def count_sql(self) -> str | None:
+        """The filter without its refine conditions: a superset of :meth:`sql`'s rows that
+        the scalar indexes alone answer (to size a search, not to return rows)."""
+        return " AND ".join(f"({p})" for p in self.parts) if self.parts else None
+
+
+# --------------------------------------------------------------------------- session walls
+#: the session-id prefix every read of the items in this context is limited to (a key made
+#: with ``tactus keys create --sessions PREFIX``; the service's gate sets it per request);
+#: None: every session. :func:`within_sessions` ANDs it into each filter the store runs.
+SESSION_PREFIX: ContextVar[str | None] = ContextVar("tactus_session_prefix", default=None)
+
+
+def validate_session_prefix(value: Any) -> str:
+    """A session-id prefix: itself an id (1-128 chars of ``[A-Za-z0-9._:-]``)."""
+    return validate_id(value, "session prefix")
+
+
+def session_visible(session: str) -> bool:
+    """Whether ``session`` lies under this context's :data:`SESSION_PREFIX`."""
+    prefix = SESSION_PREFIX.get()
+    return prefix is None or session.startswith(prefix)
+
+
+def within_sessions(where: str | None) -> str | None:
+    """``where`` AND the session prefix of this context (``where`` itself when none)."""
+    term = Where().session_prefix(SESSION_PREFIX.get()).sql()
+    if term is None:
+        return where
+    return term if not where else f"({where}) AND {term}"
+
+
+@contextmanager
+def sessions_under(prefix: str | None) -> Iterator[None]:
+    """Limit the store reads inside the block to sessions starting with ``prefix`` (None:
+    every session, e.g. for a tenant-wide statistic read while a request's prefix is set)."""
+    token = SESSION_PREFIX.set(None if prefix is None else validate_session_prefix(prefix))
+    try:
+        yield
+    finally:
+        SESSION_PREFIX.reset(token)
