@@ -18,7 +18,7 @@ from typing import Any
 
 import schemathesis
 
-#: the server's wording for each cross-field rule (tactus_memory/memory/main/main.py, store.py,
+#: the server's wording for each cross-field rule (tactus_memory/memory/main.py, store.py,
 #: service/routers/touch.py, items.py)
 CROSS_FIELD = re.compile(
     r"t_end \(.*\) is before t \("

@@ -13,8 +13,8 @@ import pytest
 from pydantic import BaseModel
 
 from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.client.errors import AuthenticationError, RemoteError
 from tactus_memory.client.main import Client
-from tactus_memory.client.main.errors import AuthenticationError, RemoteError
 from tactus_memory.errors import (
     IdConflictError,
     InvalidIdError,

@@ -17,7 +17,7 @@ what the service offers (tests/test_client_parity.py runs one scenario against b
 ``httpx.Client`` keeps the connections open; a 503 or 429 with ``Retry-After`` is retried
 after that many seconds (at most ``retries`` times, each wait at most ``max_retry_wait``);
 a problem answer raises the library's own exception named by its type
-(:func:`~tactus_memory.client.main.errors.problem_error`).
+(:func:`~tactus_memory.client.errors.problem_error`).
 
 Differences, because HTTP offers no more: text ``add_many`` is one request per note (not one
 commit); writes take no ``source`` (a touch stream sets its own); touch frames are raw sensor
@@ -38,10 +38,10 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.adapters.vectors import VectorSense
-from tactus_memory.client.main.errors import problem_error
-from tactus_memory.client.main.params import match_params, npy, scope_params
-from tactus_memory.client.main.stream import TouchStream
-from tactus_memory.client.main.teach import TeachingCalls
+from tactus_memory.client.errors import problem_error
+from tactus_memory.client.params import match_params, npy, scope_params
+from tactus_memory.client.stream import TouchStream
+from tactus_memory.client.teach import TeachingCalls
 from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
 from tactus_memory.results import (
     ClockOffset,
@@ -291,7 +291,7 @@ class Client(TeachingCalls):
 
     def stream_touch(self, session: str, **params: Any) -> TouchStream:
         """A live glove: ``with client.stream_touch("s1", hz=30) as s: s.send(frame)``
-        (see :class:`~tactus_memory.client.main.stream.TouchStream` for ``params``)."""
+        (see :class:`~tactus_memory.client.stream.TouchStream` for ``params``)."""
         ws = "ws" + self.url[4:] if self.url.startswith("http") else self.url
         url = f"{ws}/sessions/{session}/touch/stream"
         return TouchStream(url, self.headers, **params)

@@ -28,7 +28,7 @@ import numpy as np
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from tactus_memory.client.main.errors import problem_error
+from tactus_memory.client.errors import problem_error
 from tactus_memory.errors import InvalidInputError
 
 
