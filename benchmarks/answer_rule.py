@@ -65,8 +65,8 @@ def fold_of(path: Path) -> str:
 
 def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
     from tactus_memory.adapters.touch import TactusEncoder
+    from tactus_memory.matching import answering
     from tactus_memory.memory.main import Memory
-    from tactus_memory.search.matching import answering
     from tactus_memory.training.protocol import FOLDS
     from tactus_memory.training.stream_eval import SESSION, _store, build_stream, load_queries
     from tactus_memory.training.train import holdout_recordings
@@ -136,8 +136,8 @@ def touch_rows(ckpt: Path, data, memory_dir: Path) -> dict:
 
 
 def notes_rows(memory_dir: Path) -> dict:
+    from tactus_memory.matching import answering
     from tactus_memory.memory.main import Memory
-    from tactus_memory.search.matching import answering
 
     mem = Memory.open(str(memory_dir), background=False)
     try:

@@ -40,7 +40,7 @@ from places import plan
 from serving import free_port, start_serve, stop_process, wait_ok
 from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.memory.main import Memory
-from tactus_memory.search.query import Scope
+from tactus_memory.query import Scope
 from tactus_memory.storage.tables import IndexConfig
 
 ROOT = Path(__file__).resolve().parents[1]

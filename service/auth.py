@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 from starlette.requests import HTTPConnection
 
+from tactus_memory.identity import DEFAULT_TENANT, TENANT_HEADER, validate_tenant
 from tactus_memory.settings import Settings
 from tactus_memory.storage.keys import KeyStore
-from tactus_memory.storage.tenants import DEFAULT_TENANT, TENANT_HEADER, validate_tenant
 
 #: key ids of the principals that are not keys
 OPERATOR, ANONYMOUS = "operator", "anonymous"

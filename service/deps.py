@@ -14,7 +14,9 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 from typing_extensions import Unpack
 
+from tactus_memory.batches import WriteKwargs
 from tactus_memory.errors import InvalidInputError, NotFoundError, UnknownTenantError
+from tactus_memory.identity import DEFAULT_TENANT
 
 # the library's rules, checked at the edge (one home: tactus_memory.limits)
 from tactus_memory.limits import (
@@ -29,7 +31,7 @@ from tactus_memory.limits import (
 )
 from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.memory.main import Memory
-from tactus_memory.search.query import Scope
+from tactus_memory.query import Scope
 from tactus_memory.service.auth import Gate, Principal, needed_scope
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.tenancy import Tenant, Tenants
@@ -37,8 +39,6 @@ from tactus_memory.service.write_threads import WriteThreads
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import allows
-from tactus_memory.storage.rows import WriteKwargs
-from tactus_memory.storage.tenants import DEFAULT_TENANT
 from tactus_memory.where import (
     SESSION_PREFIX,
     Near,
@@ -337,7 +337,7 @@ def stream_scope(
 def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = None) -> Scope:
     """``sense`` (repeated), ``session``, ``source``, ``after``, ``before``, ``near``,
     ``frame`` -> one
-    :class:`~tactus_memory.search.query.Scope`, what every search and temporal route passes down."""
+    :class:`~tactus_memory.query.Scope`, what every search and temporal route passes down."""
     return replace(base, session=session)
 
 

@@ -23,10 +23,10 @@ from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from tactus_memory.errors import TactusError
+from tactus_memory.identity import TENANT_HEADER
 from tactus_memory.service.auth import bearer
 from tactus_memory.service.deps import OPEN_PATHS, OPEN_PREFIXES
 from tactus_memory.service.problems import PROBLEM_JSON, problem_body
-from tactus_memory.storage.tenants import TENANT_HEADER
 
 
 async def send_problem(

@@ -6,14 +6,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from tactus_memory.limits import MAX_CLOCK_OFFSET, MAX_ID_CHARS, SOURCE_PATTERN
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
-from tactus_memory.results import ClockOffset, Evidence, Moment, TimelineItem
+from tactus_memory.results import ClockOffset, Episode, Evidence, Moment, TimelineItem
 from tactus_memory.service.schemas import Strict
-from tactus_memory.temporal.episodes import (
-    EPISODE_MAX_GAP,
-    EPISODE_MEAN_COS,
-    EPISODE_MIN_COS,
-    Episode,
-)
+from tactus_memory.temporal.episodes import EPISODE_MAX_GAP, EPISODE_MEAN_COS, EPISODE_MIN_COS
 
 
 class MomentOut(BaseModel):

@@ -10,17 +10,13 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from tactus_memory.errors import StoreDamagedError, UnknownTenantError
+from tactus_memory.identity import DEFAULT_TENANT, validate_tenant
 from tactus_memory.memory.encode_process import EncoderProcess
 from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.memory.main import Memory
 from tactus_memory.settings import Settings
 from tactus_memory.storage.connect import is_remote_uri
-from tactus_memory.storage.tenants import (
-    DEFAULT_TENANT,
-    TENANTS_DIR,
-    tenant_exists,
-    validate_tenant,
-)
+from tactus_memory.storage.tenants import TENANTS_DIR, tenant_exists
 
 
 @dataclass

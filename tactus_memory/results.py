@@ -36,7 +36,7 @@ class Hit(Span):
     match: bool = Field(
         False,
         description="The hit clears its sense's match bar for this query (score >= bar): the "
-        "rule of last/first/count (tactus_memory.search.matching).",
+        "rule of last/first/count (tactus_memory.matching).",
     )
     bar: float | None = Field(
         None,
@@ -219,7 +219,7 @@ class Occurrences(BaseModel):
     passed: int | None = Field(
         None,
         description="Occurrences past the match bar; the `count` answering ones score >= "
-        "`answer` x the best of them (tactus_memory.search.matching).",
+        "`answer` x the best of them (tactus_memory.matching).",
     )
     answer: float | None = Field(
         None, description="The answer ratio asked for (null: the per-sense defaults)."
@@ -271,3 +271,19 @@ class TrajectoryOut(BaseModel):
     t: list[float]
     position: list[list[float]]
     orientation: list[list[float]] | None = None
+
+
+class Episode(BaseModel):
+    """One coherent stretch of one stream: ``t``/``t_end`` as stored, ``t_aligned`` /
+    ``t_end_aligned`` on the session clock (plus the stream's clock offset)."""
+
+    session: str
+    sense: str
+    source: str = ""
+    episode: int
+    t: float
+    t_end: float
+    t_aligned: float
+    t_end_aligned: float
+    n: int
+    representative: str

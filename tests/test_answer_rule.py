@@ -8,9 +8,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.matching import answering
 from tactus_memory.memory.main import Memory
 from tactus_memory.results import Moment
-from tactus_memory.search.matching import answering
 from tactus_memory.search.scoring import FINAL_ROWS
 from tests.fakes import HashingSpace
 

@@ -14,7 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.search.matching import GRASP_MATCH_Z, MATCH_Z, RELATIVE_KEEP
+from tactus_memory.matching import GRASP_MATCH_Z, MATCH_Z, RELATIVE_KEEP
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.test_service import assert_problem

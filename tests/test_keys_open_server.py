@@ -12,8 +12,8 @@ import httpx
 from typer.testing import CliRunner
 
 from tactus_memory.cli import app
+from tactus_memory.identity import DEFAULT_TENANT
 from tactus_memory.storage.keys import KeyStore
-from tactus_memory.storage.tenants import DEFAULT_TENANT
 from tests.servers import serve_app
 from tests.test_service_helpers import make_memory
 

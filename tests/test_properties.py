@@ -22,9 +22,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.matching import group_moments
 from tactus_memory.memory.main import Memory
 from tactus_memory.results import Evidence
-from tactus_memory.search.matching import group_moments
 from tactus_memory.storage.tables import IndexConfig
 from tactus_memory.temporal.episodes import segment
 from tactus_memory.where import Where

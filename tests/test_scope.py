@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from tactus_memory.adapters.touch import CalibratedWindow, TactusEncoder
 from tactus_memory.errors import DynamicRangeError, InvalidInputError
 from tactus_memory.memory.main import Memory
-from tactus_memory.search.query import Scope, embed_query
+from tactus_memory.query import Scope, embed_query
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.touch.profile import STAG_GLOVE

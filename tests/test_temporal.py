@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError, NotFoundError
-from tactus_memory.memory.main import Memory
-from tactus_memory.results import Evidence, Moment
-from tactus_memory.search.matching import (
+from tactus_memory.matching import (
     MATCH_Z,
     Match,
     group_moments,
     match_flags,
     resolve_thresholds,
 )
-from tactus_memory.search.query import Scope
+from tactus_memory.memory.main import Memory
+from tactus_memory.query import Scope
+from tactus_memory.results import Evidence, Moment
 from tactus_memory.temporal.episodes import representative, segment
 from tactus_memory.temporal.operators import Temporal
 from tests.fakes import HashingSpace

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.matching import MATCH_Z
 from tactus_memory.memory.main import Memory
-from tactus_memory.search.matching import MATCH_Z
 from tests.kitchen import IDLE, MUG_GRASPS, SCREW_GRASP, S, kitchen_notes, near_caption
 
 pytestmark = pytest.mark.slow

@@ -7,8 +7,9 @@ import json
 import pytest
 
 from tactus_memory.errors import InvalidIdError, NotFoundError
+from tactus_memory.identity import DEFAULT_TENANT
 from tactus_memory.memory.main import Memory
-from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_uri
+from tactus_memory.storage.tenants import tenant_uri
 from tests.fakes import HashingSpace
 
 

@@ -16,7 +16,7 @@ from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import ID_PATTERN, MAX_COORDINATE, MAX_ID_CHARS, MAX_K, SOURCE_PATTERN
-from tactus_memory.search.matching import DEFAULT_MOMENT_GAP
+from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.service.arrays import NPY_TYPES, loads_strict, read_npy
 from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId
 from tactus_memory.service.place_schemas import (

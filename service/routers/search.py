@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Query, Response
 
 from tactus_memory.limits import MAX_K
-from tactus_memory.search.query import Scope
+from tactus_memory.query import Scope
 from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, ScopeDep
 from tactus_memory.service.problems import problem_responses

@@ -2,7 +2,7 @@
 per-stream clock offsets (``tactus_memory.temporal.operators``).
 
 "A match" is a calibrated score over a per-sense threshold and close to the best of its sense
-(see ``tactus_memory.search.matching``); ``threshold`` here sets one bar for every sense searched.
+(see ``tactus_memory.matching``); ``threshold`` here sets one bar for every sense searched.
 Every route takes the one scope dependency (``deps.ScopeDep``) and the match bar
 (``MatchDep``), and hands both to the library as they are.
 """
@@ -16,14 +16,14 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Depends, Query
 
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS, SENSE_NAME_PATTERN
-from tactus_memory.results import Occurrences, Side
-from tactus_memory.search.matching import (
+from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
     RELATIVE_KEEP,
     Match,
 )
+from tactus_memory.results import Occurrences, Side
 from tactus_memory.service.deps import (
     GraspPool,
     MemoryDep,
@@ -84,7 +84,7 @@ Answer = Annotated[
 def match_bar(
     threshold: Threshold = None, relative: Relative = RELATIVE_KEEP, answer: Answer = None
 ) -> Match:
-    """The match bar's query parameters -> :class:`~tactus_memory.search.matching.Match`."""
+    """The match bar's query parameters -> :class:`~tactus_memory.matching.Match`."""
     return Match(threshold=threshold, relative=relative, answer=answer)
 
 

@@ -4,7 +4,7 @@ The same options as ``tactus search`` (``--sense``, ``--session``, ``--after``, 
 ``--json``, ``--data`` or ``--url``): locally through ``Memory.last`` / ``first`` /
 ``occurrences`` / ``timeline``, or over HTTP through ``/last``, ``/first``, ``/count`` and
 ``/sessions/{id}/timeline`` of a running server. A match is a hit that clears its sense's bar
-(:mod:`tactus_memory.search.matching`); matches within ``merge_gap`` seconds are one occurrence.
+(:mod:`tactus_memory.matching`); matches within ``merge_gap`` seconds are one occurrence.
 """
 
 from __future__ import annotations
@@ -157,8 +157,7 @@ def timeline(
 
     A read: episodes not yet stored are computed for the answer, not written."""
     from tactus_memory.errors import TactusError
-    from tactus_memory.results import TimelineItem
-    from tactus_memory.temporal.episodes import Episode
+    from tactus_memory.results import Episode, TimelineItem
 
     one_source(source.data, source.url)
     if source.url:

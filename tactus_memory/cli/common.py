@@ -13,8 +13,8 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
+from tactus_memory.identity import DEFAULT_TENANT
 from tactus_memory.limits import MAX_WINDOW_FRAMES
-from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 #: ``--data``, shared by every command that reads STAG files (required)
 StagFiles = Annotated[

@@ -73,7 +73,7 @@ def create(
     """Create a key; it is printed once, alone on the last line (only its hash is stored).
     The first key of a tenant brings the tenant into being."""
     from tactus_memory.errors import TactusError
-    from tactus_memory.storage.tenants import DEFAULT_TENANT
+    from tactus_memory.identity import DEFAULT_TENANT
 
     keys, audit = _stores(data)
     first = not keys.list()  # revoked and expired keys count: a keyed store stays keyed
@@ -129,8 +129,8 @@ def revoke(
     """Revoke a key: every server refuses it within the read consistency interval. The store
     stays keyed (revoking every key does not open it again)."""
     from tactus_memory.errors import TactusError
+    from tactus_memory.identity import DEFAULT_TENANT
     from tactus_memory.storage.keys import KEY_PREFIX
-    from tactus_memory.storage.tenants import DEFAULT_TENANT
 
     if key_id.startswith(KEY_PREFIX):  # the key itself, pasted: its id is the part after tk_
         key_id = key_id[len(KEY_PREFIX) :].partition("_")[0]

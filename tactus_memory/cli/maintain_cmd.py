@@ -59,11 +59,12 @@ def maintain(
     store is never maintained (``--check`` says what is wrong).
     """
     from tactus_memory.errors import TactusError
+    from tactus_memory.identity import DEFAULT_TENANT
     from tactus_memory.settings import Settings
     from tactus_memory.storage.audit import tidy
     from tactus_memory.storage.keys import KeyStore
     from tactus_memory.storage.store import Store
-    from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_names, tenant_uri
+    from tactus_memory.storage.tenants import tenant_names, tenant_uri
 
     location = _data_dir(data)
     given = {"maintain": True}

@@ -10,7 +10,7 @@ from tactus_memory.cli.app import app
 from tactus_memory.cli.common import MemoryData, Tenant
 from tactus_memory.cli.memory_cmds import _open
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
-from tactus_memory.storage.tenants import DEFAULT_TENANT
+from tactus_memory.identity import DEFAULT_TENANT
 
 #: ``--http`` without ``--port``: beside `tactus serve`'s 8000
 MCP_DEFAULT_PORT = 8001

@@ -31,8 +31,8 @@ from tactus_memory.cli.common import (
 )
 from tactus_memory.cli.remote import get_json
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
+from tactus_memory.identity import DEFAULT_TENANT
 from tactus_memory.signatures import grouped
-from tactus_memory.storage.tenants import DEFAULT_TENANT
 
 if TYPE_CHECKING:
     from pydantic import BaseModel

@@ -14,7 +14,7 @@ from typing import Any
 from urllib.parse import quote
 
 from tactus_memory.cli.space_opts import fail
-from tactus_memory.storage.tenants import DEFAULT_TENANT, auth_headers
+from tactus_memory.identity import DEFAULT_TENANT, auth_headers
 
 #: seconds one request may take (a search answers in milliseconds once the server is ready)
 TIMEOUT_S = 60.0

@@ -37,15 +37,28 @@ import httpx
 import numpy as np
 from typing_extensions import Unpack
 
-from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.batches import WriteKwargs, check_ids, check_times, meta_json, per_item
 from tactus_memory.client.errors import problem_error
 from tactus_memory.client.params import match_params, npy, scope_params
 from tactus_memory.client.stream import TouchStream
 from tactus_memory.client.teach import TeachingCalls
 from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
+from tactus_memory.identity import auth_headers, validate_tenant
+from tactus_memory.matching import (
+    DEFAULT_MERGE_GAP,
+    DEFAULT_MOMENT_GAP,
+    DEFAULT_WINDOW,
+    AroundKwargs,
+    MatchKwargs,
+    OccurrenceKwargs,
+    grasp_params,
+    split_match,
+)
+from tactus_memory.query import Scope, ScopeKwargs
 from tactus_memory.results import (
     ClockOffset,
     Context,
+    Episode,
     Grasp,
     Hit,
     Moment,
@@ -54,19 +67,7 @@ from tactus_memory.results import (
     SessionSummary,
     TimelineItem,
 )
-from tactus_memory.search.matching import (
-    DEFAULT_MERGE_GAP,
-    DEFAULT_MOMENT_GAP,
-    DEFAULT_WINDOW,
-    MatchKwargs,
-    split_match,
-)
-from tactus_memory.search.query import Scope, ScopeKwargs
-from tactus_memory.storage.rows import WriteKwargs, check_batch, per_item
-from tactus_memory.storage.tenants import auth_headers, validate_tenant
-from tactus_memory.temporal.episodes import Episode
-from tactus_memory.temporal.grasps import grasp_params
-from tactus_memory.temporal.operators import AroundKwargs, OccurrenceKwargs
+from tactus_memory.sense import Sense
 from tactus_memory.where import Near
 
 #: retry answers: overload (503, the write queue) and rate limits (429)
@@ -211,16 +212,19 @@ class Client(TeachingCalls):
             )
         items = list(items)
         n = len(items)
-        batch = check_batch(n, kw.get("t"), kw.get("t_end"), kw.get("meta"), kw.get("ids"))
+        # the checks the memory's write path makes, before anything is sent
+        times, ends, _ = check_times(n, kw.get("t"), kw.get("t_end"))
         metas = per_item(kw.get("meta"), n, "meta")
+        for m in metas:
+            meta_json(m)
+        ids = None if kw.get("ids") is None else check_ids(n, kw.get("ids"))
         # batch bodies take a meta per item or none at all (an absent meta is stored as {})
         batch_meta = None if all(m is None for m in metas) else [m or {} for m in metas]
-        ids = batch.ids if batch.upsert else None
         base = f"/sessions/{session}"
         if sense == "text":
             out = []
             for i, text in enumerate(items):
-                body = {"text": text, "t": batch.t[i], "t_end": batch.t_end[i], "meta": metas[i]}
+                body = {"text": text, "t": times[i], "t_end": ends[i], "meta": metas[i]}
                 if ids is not None:
                     body["id"] = ids[i]
                 out += self.request("POST", base + "/text", json=body).json()["ids"]
@@ -228,7 +232,7 @@ class Client(TeachingCalls):
         if sense == "image":  # multipart, one request per image: encoded bytes or a PIL image
             out = []
             for i, image in enumerate(items):
-                form = {"t": str(batch.t[i]), "t_end": str(batch.t_end[i])}
+                form = {"t": str(times[i]), "t_end": str(ends[i])}
                 if metas[i] is not None:
                     form["meta"] = json.dumps(metas[i])
                 if ids is not None:
@@ -240,7 +244,7 @@ class Client(TeachingCalls):
         if sense == "touch":
             calibrated = bool((kw.get("options") or {}).get("calibrated", False))
             if ids is None and all(m is None for m in metas):  # binary: any batch, exact
-                params = {"t": batch.t, "t_end": batch.t_end, "calibrated": calibrated}
+                params = {"t": times, "t_end": ends, "calibrated": calibrated}
                 arr = np.stack([np.asarray(w) for w in items]) if items else np.zeros((0,))
                 r = self.request(
                     "POST",
@@ -252,8 +256,8 @@ class Client(TeachingCalls):
                 return r.json()["ids"]
             body = {
                 "windows": [np.asarray(w).tolist() for w in items],
-                "t": batch.t,
-                "t_end": batch.t_end,
+                "t": times,
+                "t_end": ends,
                 "meta": batch_meta,
                 "ids": ids,
                 "calibrated": calibrated,
@@ -262,18 +266,17 @@ class Client(TeachingCalls):
         body = {
             "sense": sense,
             "vectors": [np.asarray(v, dtype=float).tolist() for v in items],
-            "t": batch.t,
-            "t_end": batch.t_end,
+            "t": times,
+            "t_end": ends,
             "meta": batch_meta,
             "ids": ids,
         }
         return self.request("POST", base + "/vectors", json=body).json()["ids"]
 
-    def add_sense(self, sense: VectorSense) -> None:
+    def add_sense(self, sense: Sense) -> None:
         """Register a :class:`~tactus_memory.adapters.vectors.VectorSense` (precomputed vectors):
-        the
-        one kind of sense the service registers over HTTP (``POST /senses``)."""
-        if not isinstance(sense, VectorSense):
+        the one kind of sense the service registers over HTTP (``POST /senses``)."""
+        if getattr(sense, "modality", None) != "vector":
             raise InvalidInputError(
                 f"over HTTP only a VectorSense can be registered, not {type(sense).__name__}"
             )

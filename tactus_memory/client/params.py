@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.search.matching import Match
-from tactus_memory.search.query import Scope
+from tactus_memory.matching import Match
+from tactus_memory.query import Scope
 from tactus_memory.where import check_near
 
 

@@ -13,7 +13,7 @@ the same object). A library error (unknown session, bad time range, ...) is a to
 carrying the library's message; the server keeps serving.
 
 The scope arguments (``session``, ``senses``, ``after``, ``before``) are one set of
-``Annotated`` aliases shared by every tool and turned into one :class:`~tactus_memory.search.query.
+``Annotated`` aliases shared by every tool and turned into one :class:`~tactus_memory.query.
 Scope` by :func:`scope_of`; a place filter (``near``: a named place or x, y and a radius, once
 the memory knows places) is one more alias there and one more ``Scope`` field, and a
 ``where`` tool sits beside ``last``.
@@ -36,6 +36,7 @@ from pydantic import BaseModel, Field, Strict
 import tactus_memory
 from tactus_memory.errors import TactusError
 from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS, MAX_TEXT_CHARS
+from tactus_memory.matching import DEFAULT_MERGE_GAP, DEFAULT_WINDOW
 from tactus_memory.mcp.hits import (
     Compactor,
     ContextResult,
@@ -48,8 +49,7 @@ from tactus_memory.mcp.hits import (
     TimelineResult,
 )
 from tactus_memory.memory.main import Memory
-from tactus_memory.search.matching import DEFAULT_MERGE_GAP, DEFAULT_WINDOW
-from tactus_memory.search.query import Scope
+from tactus_memory.query import Scope
 from tactus_memory.signatures import grouped
 from tactus_memory.temporal.grasps import windows_group
 

@@ -41,6 +41,7 @@ from typing import Any
 
 from typing_extensions import Unpack
 
+from tactus_memory.batches import WriteKwargs
 from tactus_memory.errors import OverloadedError
 from tactus_memory.memory.encode_process import EncoderProcess
 from tactus_memory.memory.main import Memory
@@ -49,7 +50,7 @@ from tactus_memory.settings import (
     DEFAULT_COMMIT_MAX_PENDING,
     DEFAULT_COMMIT_TICK_MS,
 )
-from tactus_memory.storage.rows import PreparedWrite, WriteKwargs
+from tactus_memory.storage.rows import PreparedWrite
 
 log = logging.getLogger(__name__)
 

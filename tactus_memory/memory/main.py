@@ -25,7 +25,7 @@ without its live object: its query transform is rebuilt from the stored centroid
 
 Where the parts live: results in :mod:`tactus_memory.results`, the sense registry in
 :mod:`tactus_memory.search.senses`, the ranked search in :mod:`tactus_memory.search.ranking`,
-``Scope`` in :mod:`tactus_memory.search.query`, ``memory.count``/``last``/... (the methods of
+``Scope`` in :mod:`tactus_memory.query`, ``memory.count``/``last``/... (the methods of
 ``memory.temporal``) in :mod:`tactus_memory.temporal.operators`, the places
 (``memory.where``/``at``/...) in :mod:`tactus_memory.memory.places`.
 
@@ -47,10 +47,14 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.adapters.text import TextSense
+from tactus_memory.batches import WriteKwargs
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.identity import DEFAULT_TENANT
+from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
 from tactus_memory.memory.places import Places
 from tactus_memory.memory.writes import WritePath
 from tactus_memory.policies import MaintenanceConfig
+from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.results import (
     Grasp,
     Hit,
@@ -61,8 +65,6 @@ from tactus_memory.results import (
     Stored,
     item_from_row,
 )
-from tactus_memory.search.matching import DEFAULT_MOMENT_GAP, mark_matches
-from tactus_memory.search.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.scoring import Calibration
 from tactus_memory.search.senses import SenseRegistry
@@ -71,14 +73,10 @@ from tactus_memory.sense import Sense, bytes_to_array, validate_sense_name
 from tactus_memory.settings import DEFAULT_MEMORY, Settings
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.maintenance import Background
-from tactus_memory.storage.rows import (
-    WriteKwargs,
-    options_for,
-    summarise,
-)
+from tactus_memory.storage.rows import options_for, summarise
 from tactus_memory.storage.store import HIT_COLUMNS, Store
 from tactus_memory.storage.tables import IndexConfig
-from tactus_memory.storage.tenants import DEFAULT_TENANT, tenant_uri
+from tactus_memory.storage.tenants import tenant_uri
 from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, check_group, grasp_hits
 from tactus_memory.temporal.operators import Temporal
 from tactus_memory.vectors import as_unit_rows

@@ -14,7 +14,7 @@ arrive, or call ``memory.place_items(session)`` after changing one.
 ``memory.where(q, ...)``: the places where moments matching ``q`` happened, best first.
 ``memory.at((x, y, z), radius, ...)``: what happened near a place, in time order. Every
 search and temporal question also takes ``near=((x, y, z), radius)`` and ``frame=`` through
-its :class:`~tactus_memory.search.query.Scope`.
+its :class:`~tactus_memory.query.Scope`.
 """
 
 from __future__ import annotations
@@ -29,9 +29,9 @@ from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, PoseConflictError
 from tactus_memory.limits import MAX_K
+from tactus_memory.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
+from tactus_memory.query import Scope, embed_query
 from tactus_memory.results import Place, TimelineItem, TrajectoryOut, row_fields
-from tactus_memory.search.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
-from tactus_memory.search.query import Scope, embed_query
 from tactus_memory.storage.places import POSE_TOLERANCE, Placement, check_poses, place_many
 from tactus_memory.storage.posestore import PoseStore
 from tactus_memory.storage.store import HIT_COLUMNS

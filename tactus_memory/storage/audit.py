@@ -17,9 +17,9 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
+from tactus_memory.identity import validate_tenant
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.tables import audit_schema
-from tactus_memory.storage.tenants import validate_tenant
 from tactus_memory.where import _sql_float, _sql_str, finite_float
 
 if TYPE_CHECKING:

@@ -3,98 +3,24 @@ Arrow table one commit writes, session summaries."""
 
 from __future__ import annotations
 
-import json
 import math
-import time
-import uuid
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, TypedDict
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactus_memory.batches import check_ids, check_times, meta_json, per_item
 from tactus_memory.errors import IdConflictError, InvalidInputError
-from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
 from tactus_memory.results import SessionSummary, Stored
 from tactus_memory.sense import Sense
 from tactus_memory.storage.places import Placement, given_placement
 from tactus_memory.storage.store import Store
 from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import DEFAULT_FRAME, finite_float, validate_frame, validate_id
+from tactus_memory.where import DEFAULT_FRAME, validate_frame
 
 if TYPE_CHECKING:
     import pyarrow as pa
-
-
-class BatchKwargs(TypedDict, total=False):
-    """The keywords of one write batch (``Memory.add_many``, ``GroupCommitter.submit``)."""
-
-    t: Sequence[float | None] | float | None
-    t_end: Sequence[float | None] | float | None
-    meta: Sequence[dict[str, Any] | None] | dict[str, Any] | None
-    ids: Sequence[str] | None
-    source: str
-    position: Any
-    frame: str
-
-
-class WriteKwargs(BatchKwargs, total=False):
-    """:class:`BatchKwargs` plus the sense's ``validate`` options (``Memory.add_many``)."""
-
-    options: Mapping[str, Any] | None
-    #: skip the items the sense finds idle (their indices in ``Stored.skipped``); False
-    #: raises ``IdleWindowError`` (``Memory.add``, one window: there is nothing else to store)
-    skip_idle: bool
-
-
-def nesting_depth(value: Any, limit: int) -> int:
-    """How deep dicts and lists nest in ``value`` (a scalar 0, ``{}`` 1), counted without
-    recursion and given up past ``limit`` (returns ``limit + 1``): a hostile value deep
-    enough to overflow a recursive walk is answered at once."""
-    deepest, todo = 0, [(value, 1)]
-    while todo:
-        node, depth = todo.pop()
-        if isinstance(node, dict):
-            children = node.values()
-        elif isinstance(node, (list, tuple)):
-            children = node
-        else:
-            continue
-        deepest = max(deepest, depth)
-        if deepest > limit:
-            return limit + 1
-        todo.extend((child, depth + 1) for child in children)
-    return deepest
-
-
-def meta_json(meta: Any) -> str:
-    if meta is None:
-        return "{}"
-    if not isinstance(meta, dict) or not all(isinstance(key, str) for key in meta):
-        raise InvalidInputError("meta must be a dict with string keys")
-    if nesting_depth(meta, MAX_META_DEPTH) > MAX_META_DEPTH:
-        raise InvalidInputError(f"meta nests deeper than {MAX_META_DEPTH} levels")
-    try:
-        out = json.dumps(meta, allow_nan=False, sort_keys=True, ensure_ascii=False)
-        size = len(out.encode())
-    except UnicodeEncodeError:
-        raise InvalidInputError(
-            "meta contains a lone surrogate (e.g. '\\udfff'), which is not valid Unicode"
-        ) from None
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"meta is not JSON-serialisable: {exc}") from None
-    if size > MAX_META_BYTES:
-        raise InvalidInputError(f"meta is larger than {MAX_META_BYTES} bytes as JSON")
-    return out
-
-
-def per_item(value: Any, n: int, what: str) -> list[Any]:
-    """A list of n values, or a scalar/None broadcast to n."""
-    if isinstance(value, (list, tuple, np.ndarray)):
-        if len(value) != n:
-            raise InvalidInputError(f"{what} has {len(value)} entries for {n} items")
-        return list(value)
-    return [value] * n
 
 
 def options_for(sense: Sense, options: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -143,27 +69,10 @@ def check_batch(
     """The per-item values of an ``add_many`` call, checked (``t`` defaults to now, ``t_end``
     to ``t``; ids, when given, make the write an upsert; ``position``: one ``(x, y, z)`` for
     every item or one per item (None: place it from the session's poses), in ``frame``)."""
-    if n > MAX_BATCH:
-        raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
-    now = time.time()
-    ts = [now if x is None else finite_float(x, "t") for x in per_item(t, n, "t")]
-    ends = [
-        ts[i] if x is None else finite_float(x, "t_end")
-        for i, x in enumerate(per_item(t_end, n, "t_end"))
-    ]
-    for a, b in zip(ts, ends, strict=True):
-        if b < a:
-            raise InvalidInputError(f"t_end ({b}) is before t ({a})")
+    ts, ends, now = check_times(n, t, t_end)
     metas = [meta_json(m) for m in per_item(meta, n, "meta")]
+    id_list = check_ids(n, ids)
     upsert = ids is not None
-    if ids is not None:
-        if isinstance(ids, str) or len(ids) != n:
-            raise InvalidInputError(f"ids must be a list of {n} ids")
-        id_list = [validate_id(i, "item id") for i in ids]
-        if len(set(id_list)) != n:
-            raise InvalidInputError("ids contain duplicates")
-    else:
-        id_list = [uuid.uuid4().hex for _ in range(n)]
     place = given_placement(n, position, validate_frame(frame))
     return Batch(ts, ends, metas, id_list, upsert, now, place)
 

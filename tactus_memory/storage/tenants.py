@@ -17,31 +17,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from tactus_memory.identity import DEFAULT_TENANT, validate_tenant
 from tactus_memory.limits import ID_RE
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
-from tactus_memory.where import validate_id
 
-#: the tenant of a store without keys, of the operator's ``--token``, and of
-#: ``Memory.open(path)`` without ``tenant=``
-DEFAULT_TENANT = "default"
 #: where the non-default tenants' databases live, under the store's root
 TENANTS_DIR = "tenants"
-#: the HTTP header with which the operator's token (not a key) names its tenant
-TENANT_HEADER = "x-tactus-tenant"
-
-
-def validate_tenant(value: object) -> str:
-    """A tenant name: 1-128 characters of ``[A-Za-z0-9._:-]`` (InvalidIdError otherwise)."""
-    return validate_id(value, "tenant")
-
-
-def auth_headers(token: str | None, tenant: str | None = None) -> dict[str, str]:
-    """The headers a client sends: the bearer ``token`` (none without one) and, for the
-    operator's token acting for a tenant, that ``tenant`` (None: no tenant header)."""
-    headers = {"Authorization": f"Bearer {token}"} if token else {}
-    if tenant is not None:
-        headers[TENANT_HEADER] = validate_tenant(tenant)
-    return headers
 
 
 def tenant_uri(root: str, tenant: str = DEFAULT_TENANT) -> str:

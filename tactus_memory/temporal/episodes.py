@@ -27,7 +27,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel
 
 from tactus_memory.vectors import vector_column
 
@@ -39,22 +38,6 @@ EPISODE_MEAN_COS = 0.6
 EPISODE_MAX_GAP = 5.0
 #: an episode rule: (min_cos, mean_cos, max_gap)
 EpisodeRule = tuple[float, float, float]
-
-
-class Episode(BaseModel):
-    """One coherent stretch of one stream: ``t``/``t_end`` as stored, ``t_aligned`` /
-    ``t_end_aligned`` on the session clock (plus the stream's clock offset)."""
-
-    session: str
-    sense: str
-    source: str = ""
-    episode: int
-    t: float
-    t_end: float
-    t_aligned: float
-    t_end_aligned: float
-    n: int
-    representative: str
 
 
 def check_rule(min_cos: float, mean_cos: float, max_gap: float) -> None:

@@ -150,12 +150,6 @@ def grasp_hits(
     return [as_hit(e) for e in temporal.grasps(q, k, scope, rule)]
 
 
-def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:
-    """The grasp keywords (``group``, ``pool``) popped from ``kw``, as the service's query
-    parameters (the remote Client's questions)."""
-    return {k: kw.pop(k) for k in ("group", "pool") if kw.get(k) is not None}
-
-
 def grasp_labels(
     t: np.ndarray, t_end: np.ndarray, vectors: np.ndarray, rule: GraspRule = GraspRule()
 ) -> np.ndarray:

@@ -4,9 +4,9 @@ moments (hits of every sense grouped in time), episodes and per-stream clock off
 :class:`Temporal` is built from the parts it needs: the store (rows, episodes), the sense
 registry (which senses a scope covers), the ranker (the one ranked search path,
 :class:`~tactus_memory.search.ranking.Ranker`), the space (query embedding) and the write lock.
-The query is embedded once (:func:`~tactus_memory.search.query.embed_query`), each sense is searched
+The query is embedded once (:func:`~tactus_memory.query.embed_query`), each sense is searched
 with its query transform and scored by its calibrated z-score, then time logic runs in
-Python. What "a match" is and how matches group: :mod:`tactus_memory.search.matching`; clock
+Python. What "a match" is and how matches group: :mod:`tactus_memory.matching`; clock
 offsets: :mod:`tactus_memory.temporal.clocks`.
 
 Every question takes the scope as keywords (``session``, ``senses``, ``source``, ``after``,
@@ -29,18 +29,7 @@ from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import MAX_K
-from tactus_memory.results import (
-    ClockOffset,
-    Context,
-    Evidence,
-    Grasp,
-    Moment,
-    Occurrences,
-    Side,
-    TimelineItem,
-    row_fields,
-)
-from tactus_memory.search.matching import (
+from tactus_memory.matching import (
     DEFAULT_MERGE_GAP,
     DEFAULT_MOMENT_GAP,
     DEFAULT_WINDOW,
@@ -50,8 +39,10 @@ from tactus_memory.search.matching import (
     MOMENT_POOL_FACTOR,
     MOMENT_POOL_MIN,
     TIMELINE_MAX,
+    AroundKwargs,
     Match,
     MatchKwargs,
+    OccurrenceKwargs,
     answering,
     check_relative,
     check_seconds,
@@ -60,7 +51,19 @@ from tactus_memory.search.matching import (
     sense_bar,
     split_match,
 )
-from tactus_memory.search.query import Scope, check_k, embed_query
+from tactus_memory.query import Scope, check_k, embed_query
+from tactus_memory.results import (
+    ClockOffset,
+    Context,
+    Episode,
+    Evidence,
+    Grasp,
+    Moment,
+    Occurrences,
+    Side,
+    TimelineItem,
+    row_fields,
+)
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.spaces.base import Space
@@ -70,7 +73,6 @@ from tactus_memory.temporal.episodes import (
     EPISODE_MAX_GAP,
     EPISODE_MEAN_COS,
     EPISODE_MIN_COS,
-    Episode,
     EpisodeRule,
     check_rule,
     number_episodes,
@@ -88,23 +90,6 @@ from tactus_memory.where import Near, Where, validate_id
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None
-
-
-class OccurrenceKwargs(MatchKwargs, total=False):
-    """``count``/``last``/``first`` keywords: the scope, the match bar, ``merge_gap``,
-    ``per_stream``, and ``group="grasp"`` with its ``pool`` (grasps.POOLS)."""
-
-    merge_gap: float
-    per_stream: bool
-    group: str | None
-    pool: str
-
-
-class AroundKwargs(MatchKwargs, total=False):
-    """``before``/``after`` keywords: the scope and match bar, and where the anchor is
-    searched (``anchor_senses``; default: every sense with rows)."""
-
-    anchor_senses: Sequence[str] | None
 
 
 def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
@@ -183,7 +168,7 @@ class Temporal:
         return out, capped
 
     def matches(self, query: str, **kw: Unpack[MatchKwargs]) -> list[Evidence]:
-        """Every item matching ``query`` (see :mod:`tactus_memory.search.matching`), in aligned time
+        """Every item matching ``query`` (see :mod:`tactus_memory.matching`), in aligned time
         order."""
         return self._matches(query, *split_match(kw))
 

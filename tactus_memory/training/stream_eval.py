@@ -406,8 +406,8 @@ def evaluate_stream(
     makes the leakage check decidable: ``leakage.status`` is ``overlap`` when the checkpoint
     was trained on these files without holding out the scored recordings."""
     from tactus_memory.adapters.touch import TactusEncoder
+    from tactus_memory.matching import MATCH_Z
     from tactus_memory.memory.main import Memory
-    from tactus_memory.search.matching import MATCH_Z
 
     bad = template_collisions(queries)
     if bad:

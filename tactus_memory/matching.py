@@ -67,8 +67,8 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.results import Evidence, Hit, Moment
-from tactus_memory.search.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.sense import validate_sense_name
 from tactus_memory.where import finite_float
 
@@ -282,3 +282,26 @@ def make_moment(hits: Sequence[Evidence]) -> Moment:
         position=None if where is None else where.position,
         frame=None if where is None else where.frame,
     )
+
+
+class OccurrenceKwargs(MatchKwargs, total=False):
+    """``count``/``last``/``first`` keywords: the scope, the match bar, ``merge_gap``,
+    ``per_stream``, and ``group="grasp"`` with its ``pool`` (grasps.POOLS)."""
+
+    merge_gap: float
+    per_stream: bool
+    group: str | None
+    pool: str
+
+
+class AroundKwargs(MatchKwargs, total=False):
+    """``before``/``after`` keywords: the scope and match bar, and where the anchor is
+    searched (``anchor_senses``; default: every sense with rows)."""
+
+    anchor_senses: Sequence[str] | None
+
+
+def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:
+    """The grasp keywords (``group``, ``pool``) popped from ``kw``, as the service's query
+    parameters (the remote Client's questions)."""
+    return {k: kw.pop(k) for k in ("group", "pool") if kw.get(k) is not None}
