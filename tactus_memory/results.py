@@ -4,6 +4,7 @@ service serves them as they are)."""
 from __future__ import annotations
 
 import json
+from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -287,3 +288,26 @@ class Episode(BaseModel):
     t_end_aligned: float
     n: int
     representative: str
+
+
+def label_key(label: str) -> str:
+    """Labels compare case-insensitively, spaces and underscores alike ("Screw driver")."""
+    return " ".join(label.lower().replace("_", " ").split())
+
+
+@dataclass(frozen=True)
+class Teaching:
+    """One taught span: ``session``'s ``sense`` windows overlapping ``[t, t_end]`` held
+    ``label``; ``windows`` is how many there were when it was taught."""
+
+    id: str
+    label: str
+    session: str
+    sense: str
+    t: float
+    t_end: float
+    windows: int
+    created: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)

@@ -9,7 +9,7 @@ from typing import Any
 import httpx
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.search.teaching import Teaching, label_key
+from tactus_memory.results import Teaching, label_key
 
 __all__ = ["Teaching", "TeachingCalls"]
 

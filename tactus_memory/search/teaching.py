@@ -34,12 +34,12 @@ import re
 import threading
 import time
 import uuid
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.results import Teaching, label_key
 from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
@@ -74,29 +74,6 @@ def validate_label(label: Any) -> str:
             f"a taught label must be 1-{MAX_LABEL_CHARS} printable characters, got {label!r}"
         )
     return out
-
-
-def label_key(label: str) -> str:
-    """Labels compare case-insensitively, spaces and underscores alike ("Screw driver")."""
-    return " ".join(label.lower().replace("_", " ").split())
-
-
-@dataclass(frozen=True)
-class Teaching:
-    """One taught span: ``session``'s ``sense`` windows overlapping ``[t, t_end]`` held
-    ``label``; ``windows`` is how many there were when it was taught."""
-
-    id: str
-    label: str
-    session: str
-    sense: str
-    t: float
-    t_end: float
-    windows: int
-    created: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 class Teachings:

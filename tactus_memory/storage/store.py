@@ -41,14 +41,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
+from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S
 from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.storage import maintenance as maint
 from tactus_memory.storage.background import start_background
-from tactus_memory.storage.connect import (
-    DEFAULT_READ_CONSISTENCY_S,
-    normalise_uri,
-    storage_options_for,
-)
+from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
 from tactus_memory.storage.integrity import IntegrityWatch, check_store
