@@ -245,7 +245,7 @@ def _ns(**kw):
 
 
 def test_decode_touch_encodings() -> None:
-    from tactus_memory.recordings import decode
+    from tactus_memory.adapters import decode
 
     frame = np.arange(1024, dtype=np.uint16).reshape(32, 32) + 500
     padded = np.zeros((32, 40), ">u2")  # big-endian rows padded to a 80-byte step
@@ -279,7 +279,7 @@ def test_decode_camera_images() -> None:
 
     from PIL import Image
 
-    from tactus_memory.recordings import decode
+    from tactus_memory.adapters import decode
 
     px = np.zeros((2, 3, 3), np.uint8)
     px[..., 2] = 255  # blue in RGB
