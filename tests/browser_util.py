@@ -211,3 +211,14 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def shot(page, tmp_path: Path, name: str) -> Path:
+    path = tmp_path / f"{name}.png"
+    page.screenshot(path=str(path), full_page=False)
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    shutil.copy(path, SCREENSHOTS / path.name)
+    return path
+
+
+SCREENSHOTS = ROOT / "runs" / "screenshots"

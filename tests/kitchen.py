@@ -56,3 +56,39 @@ def near_caption(space: Space, caption: str, n: int, seed: int, noise: float) ->
         v = base + noise * g / np.linalg.norm(g)
         out.append((v / np.linalg.norm(v)).astype(np.float32))
     return out
+
+
+NOTES = kitchen_notes(delay=2.5)
+
+
+def fill_kitchen(mem: Memory, session: str = S, *, notes_clock: float = 0.0) -> dict[str, list]:
+    """The ground-truth session; returns the ids per kind. Notes are written at
+    ``t + notes_clock`` (a second clock)."""
+    space = mem.space
+    ids: dict[str, list] = {"mug": [], "screwdriver": [], "empty": [], "notes": []}
+    for i, t0 in enumerate(MUG_GRASPS):
+        ids["mug"] += mem.add_many(
+            session, "touch", touch_vectors(space, "mug", 2, seed=i), t=[t0, t0 + 1],
+            t_end=[t0 + 1, t0 + 2],
+        )  # fmt: skip
+    ids["screwdriver"] = mem.add_many(
+        session, "touch", touch_vectors(space, "screwdriver", 2, seed=10),
+        t=[SCREW_GRASP, SCREW_GRASP + 1], t_end=[SCREW_GRASP + 1, SCREW_GRASP + 2],
+    )  # fmt: skip
+    ids["empty"] = mem.add_many(
+        session, "touch", touch_vectors(space, "empty", len(IDLE), seed=20), t=IDLE,
+        t_end=[t + 1 for t in IDLE],
+    )  # fmt: skip
+    ids["notes"] = mem.add_many(
+        session, "text", [n for n, _ in NOTES], t=[t + notes_clock for _, t in NOTES]
+    )
+    return ids
+
+
+def touch_vectors(space: HashingSpace, kind: str, n: int, seed: int) -> list[np.ndarray]:
+    """n unit vectors near the caption of ``kind`` (noise of norm 0.1, seeded)."""
+    return near_caption(space, FEEL[kind], n, seed, noise=0.1)
+
+
+#: what each stand-in touch window "feels like": its vector is this caption's embedding + noise
+FEEL = {"mug": "mug ceramic handle", "screwdriver": "screwdriver grip", "empty": "empty open hand"}

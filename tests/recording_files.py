@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from tests import recording_files as rf
+
 STRING = "std_msgs/msg/String"
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -237,3 +239,24 @@ def synthetic_grasp(n: int, seed: int = 0) -> np.ndarray:
         blob = 300 * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / 30.0)
         frames[i] = (512 + blob + rng.normal(0, 2, (32, 32))).clip(500, 1000).astype(np.int16)
     return frames
+
+
+N_FRAMES = 100  # 3.3 s at 30 Hz -> 12 windows of 8, 4 frames left over
+
+
+def _messages(frames: np.ndarray | None = None) -> list[rf.Msg]:
+    frames = rf.synthetic_grasp(N_FRAMES) if frames is None else frames
+    msgs = rf.glove("/glove/pressure", frames, start_ns=START + rf.NS // 2)
+    msgs += [rf.note("/notes", START + (i + 1) * rf.NS, t) for i, t in enumerate(NOTES)]
+    msgs += [rf.vector3("/imu", START + k * rf.NS // 10) for k in range(5)]
+    msgs += [rf.rgb8("/camera", START + rf.NS, np.full((6, 8, 3), 90, np.uint8))]
+    return msgs
+
+
+TOPICS = {"/notes": "text", "/glove/pressure": "touch"}
+
+
+NOTES = ["picked up the red mug", "put the mug on the shelf", "opened the fridge"]
+
+
+START = 1_700_000_000 * rf.NS  # unix 1.7e9 s

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
-from benchmarks.serving import free_port, stop_process, wait_ok
+from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
 
 __all__ = ["serve_app", "stop_process", "wait_healthy"]
 
@@ -64,3 +66,28 @@ def serve_app(app: Any, startup_s: float = 180, probe: str = "/live") -> Iterato
     finally:
         server.should_exit = True
         thread.join(30)
+
+
+STARTUP_S = 180
+
+
+class Server:
+    """``tactus serve`` on a free port (``env`` added to the environment)."""
+
+    def __init__(
+        self, data: Path | str, log: Path, *extra: str, env: Mapping[str, str] | None = None
+    ) -> None:
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.log = log
+        full_env = {"OMP_NUM_THREADS": "1", **(env or {})}
+        self.proc = start_serve(self.port, data, log, *extra, env=full_env)
+        wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.kill)
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        stop_process(self.proc)

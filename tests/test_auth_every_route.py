@@ -3,59 +3,22 @@ route added later, or one whose router forgets the dependency, fails here."""
 
 from __future__ import annotations
 
-import re
-
 import pytest
 from fastapi.testclient import TestClient
-from starlette.routing import BaseRoute, Route, WebSocketRoute
+from starlette.routing import Route, WebSocketRoute
 
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.test_service import assert_problem
-from tests.test_service_helpers import make_memory
+from tests.routes import OPEN, _concrete, _is_open, flat_routes
+from tests.test_service_helpers import assert_problem, make_memory
 
 TOKEN = "s3cret"
-#: the documented open routes (README "Trust"): /live, /health, /ready, the static page, plus
-#: FastAPI's own schema/doc pages (no data: they describe the routes, not the memory)
-OPEN = {
-    "/live",
-    "/health",
-    "/ready",
-    "/",
-    "/openapi.json",
-    "/docs",
-    "/docs/oauth2-redirect",
-    "/redoc",
-}
-OPEN_PREFIXES = ("/static",)
 BAD = ({}, {"Authorization": "Bearer nope"}, {"Authorization": f"Basic {TOKEN}"})
 
 
 @pytest.fixture
 def app(tmp_path):
     return create_app(Settings(token=TOKEN), memory=make_memory(tmp_path / "mem"))
-
-
-def flat_routes(app) -> list[BaseRoute]:
-    """``app.routes`` with included routers expanded (FastAPI >= 0.16x keeps an included
-    router as one lazy entry that expands to its effective, prefixed routes)."""
-    out: list[BaseRoute] = []
-    for route in app.routes:
-        expand = getattr(route, "effective_route_contexts", None)
-        if expand is None:
-            out.append(route)
-            continue
-        for ctx in expand():
-            out.append(ctx.starlette_route or ctx.original_route)
-    return out
-
-
-def _concrete(path: str) -> str:
-    return re.sub(r"\{[^}]+\}", "s1", path)  # every path parameter: a valid id
-
-
-def _is_open(path: str) -> bool:
-    return path in OPEN or path.startswith(OPEN_PREFIXES)
 
 
 def test_every_http_route_needs_the_token(app) -> None:

@@ -13,7 +13,6 @@ import json
 import re
 import shutil
 import time
-from pathlib import Path
 
 import httpx
 import numpy as np
@@ -41,16 +40,17 @@ from tactus_memory.touch.render import (
 )
 from tests.browser_util import (
     ROOT,
+    SCREENSHOTS,
     Server,
     add_notes,
     launch,
     npy_bytes,
+    shot,
     stag_windows,
     sync_playwright,
     synthetic_windows,
 )
 
-SCREENSHOTS = ROOT / "runs" / "screenshots"
 STATIC = ROOT / "service" / "static"
 TIMEOUT_MS = 60_000
 
@@ -226,14 +226,6 @@ def page(browser_context, served):
     foreign = [u for u in requests if not u.startswith((own, "data:", "blob:"))]
     assert not foreign, f"the page asked another origin: {foreign}"
     page.close()
-
-
-def shot(page, tmp_path: Path, name: str) -> Path:
-    path = tmp_path / f"{name}.png"
-    page.screenshot(path=str(path), full_page=False)
-    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
-    shutil.copy(path, SCREENSHOTS / path.name)
-    return path
 
 
 def wait_heatmaps_loaded(page, selector: str) -> None:

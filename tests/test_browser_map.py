@@ -10,8 +10,7 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.browser_util import Server, add_notes, launch, sync_playwright
-from tests.test_browser import shot
+from tests.browser_util import Server, add_notes, launch, shot, sync_playwright
 
 pytestmark = pytest.mark.slow
 

@@ -8,49 +8,12 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
 
 import pytest
 from typer.testing import CliRunner
 
 from tactus_memory.cli import app
-from tests.stag_synth import make_fields, write_subset
-
-HOLDOUT = "one-per-object@blindfolded"
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory) -> list[str]:
-    root = tmp_path_factory.mktemp("stag")
-    # recording r holds object r % 27: 30 recordings give every object one, three two
-    blind = write_subset(root, "blindfolded", make_fields("blindfolded", [10] * 30, seed=1))
-    weights = write_subset(root, "weights", make_fields("weights", [10] * 6, seed=2))
-    return ["--data", str(blind), "--data", str(weights)]
-
-
-def _run(args: list[str]) -> str:
-    r = CliRunner().invoke(app, args)
-    assert r.exit_code == 0, (r.output, r.exception)
-    return r.output
-
-
-def _last_json(output: str) -> dict[str, Any]:
-    """The last top-level JSON object the command printed (``json.dumps(indent=2)``; progress
-    bars on the same stream may precede it without a line break)."""
-    dec = json.JSONDecoder()
-    found: list[dict[str, Any]] = []
-    end = 0
-    pos = output.find("{\n")
-    while pos != -1:
-        if pos >= end:  # not inside the previous object
-            try:
-                obj, end = dec.raw_decode(output, pos)
-                found.append(obj)
-            except json.JSONDecodeError:
-                pass
-        pos = output.find("{\n", pos + 1)
-    assert found, output[-2000:]
-    return found[-1]
+from tests.training import HOLDOUT, _last_json, _run
 
 
 @pytest.fixture(scope="module")

@@ -24,8 +24,8 @@ from tactus_memory.errors import (
     UnknownSenseError,
 )
 from tactus_memory.memory.main import Memory
+from tests.servers import Server
 from tests.test_service_helpers import window
-from tests.test_service_uvicorn import Server
 
 NOTES = ["picked up the red mug", "put the mug on the shelf", "wiped the table with a sponge"]
 TOKEN = "par1ty"

@@ -27,9 +27,8 @@ from tactus_memory.training.distill import (
     distill,
 )
 from tactus_memory.training.train import TrainConfig, embed_windows, fit
-from tests.test_cli_training import HOLDOUT, _last_json, _run
-from tests.test_cli_training import data as data  # noqa: F401  (the module's STAG fixture)
-from tests.test_train import DIM, orthogonal_targets, synthetic
+from tests.training import DIM, HOLDOUT, _last_json, _run, orthogonal_targets, synthetic
+from tests.training import data as data  # noqa: F401  (the module's STAG fixture)
 
 
 def _cfg(steps: int) -> TrainConfig:

@@ -28,8 +28,7 @@ from tactus_memory.settings import Settings
 from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 from tests.servers import serve_app
-from tests.test_group_commit import GatedTouch
-from tests.test_service_helpers import make_memory, window
+from tests.test_service_helpers import GatedTouch, make_memory, window
 
 TOKEN = "t0k"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -17,8 +17,7 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.matching import GRASP_MATCH_Z, MATCH_Z, RELATIVE_KEEP
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.test_service import assert_problem
-from tests.test_service_helpers import make_memory, window
+from tests.test_service_helpers import assert_problem, make_memory, window
 
 
 @pytest.fixture

@@ -19,7 +19,7 @@ from tactus_memory.errors import InvalidInputError, OverloadedError
 from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.test_service_helpers import StandInTouch, make_memory, window
+from tests.test_service_helpers import GatedTouch, StandInTouch, make_memory, window
 
 POISON = -7.0  # a window whose first value is this makes PoisonTouch.embed fail
 
@@ -41,20 +41,6 @@ class PoisonTouch(StandInTouch):
         self.calls.append(len(batch))
         if any(float(w[0, 0, 0]) == POISON for w in batch):
             raise InvalidInputError("poisoned window")
-        return super().embed(batch)
-
-
-class GatedTouch(StandInTouch):
-    """Embedding blocks until ``gate`` is set (``entered`` says a commit is under way)."""
-
-    def __init__(self, dim: int) -> None:
-        super().__init__(dim)
-        self.gate = threading.Event()
-        self.entered = threading.Event()
-
-    def embed(self, batch: Sequence[np.ndarray]) -> np.ndarray:
-        self.entered.set()
-        assert self.gate.wait(30), "test gate never opened"
         return super().embed(batch)
 
 

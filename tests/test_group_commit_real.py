@@ -14,8 +14,8 @@ import httpx
 import pytest
 
 from tactus_memory.storage.store import Store
+from tests.servers import Server
 from tests.test_service_helpers import npy_bytes, window
-from tests.test_service_uvicorn import Server
 from tests.threads import ThreadErrors
 
 pytestmark = pytest.mark.slow

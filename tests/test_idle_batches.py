@@ -6,7 +6,6 @@ posted alone is still refused (422 idle-window, ``Memory.add``: IdleWindowError)
 from __future__ import annotations
 
 import httpx
-import numpy as np
 import pytest
 
 from tactus_memory.adapters.touch import TactusEncoder
@@ -15,19 +14,7 @@ from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.servers import serve_app
-from tests.test_service_helpers import npy_bytes
-
-REST = 512  # a raw resting reading: no taxel in contact
-
-
-def windows(n: int, idle: set[int]) -> np.ndarray:
-    """(n, 2, 32, 32) raw windows, each pressing a different patch; those in ``idle`` rest."""
-    out = np.full((n, 2, 32, 32), REST, np.int16)
-    for i in range(n):
-        if i not in idle:
-            r, c = divmod(i % 49, 7)
-            out[i, :, 4 * r : 4 * r + 4, 4 * c : 4 * c + 4] = 600 + i % 40
-    return out
+from tests.test_service_helpers import npy_bytes, windows
 
 
 @pytest.fixture(scope="module")

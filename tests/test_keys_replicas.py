@@ -14,8 +14,8 @@ from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.keys import KeyStore
 from tests.replicas import STALENESS, open_replica, wait_for
+from tests.s3 import WAIT_S, aws_env, s3_endpoint, uri  # noqa: F401  (fixtures)
 from tests.servers import serve_app
-from tests.test_s3 import WAIT_S, aws_env, s3_endpoint, uri  # noqa: F401  (fixtures)
 
 
 def test_a_key_made_elsewhere_works_and_is_revoked_on_every_replica(uri: str) -> None:  # noqa: F811

@@ -17,11 +17,10 @@ from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
+from tests.places import POSES
+from tests.routes import _concrete, _is_open, flat_routes
 from tests.servers import serve_app
-from tests.test_auth_every_route import _concrete, _is_open, flat_routes
-from tests.test_service import touch_json
-from tests.test_service_helpers import make_memory, npy_bytes, window
-from tests.test_service_places import POSES
+from tests.test_service_helpers import make_memory, npy_bytes, touch_json, window
 
 OPERATOR = "operator-s3cret"
 #: what each route needs, written out here (not read from the service): reads by default,

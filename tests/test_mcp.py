@@ -19,14 +19,10 @@ from mcp.client.streamable_http import streamable_http_client
 
 from benchmarks.serving import free_port, wait_ok
 from tactus_memory.mcp.server import READ_TOOLS, WRITE_TOOLS, build_server
+from tests.mcp import fill
 from tests.servers import stop_process
-from tests.test_service_helpers import make_memory, window
+from tests.test_service_helpers import make_memory
 
-NOTES = [
-    (1.0, "picked up the red mug"),
-    (10.0, "put the mug on the shelf"),
-    (20.0, "wiped the table"),
-]
 #: a call of every read tool, with what its answer must hold
 CALLS: dict[str, dict[str, Any]] = {
     "sessions": {},
@@ -49,12 +45,6 @@ BAD = [
     ("last", {}, "query"),
     ("remember", {"session": "kitchen", "text": "x"}, "remember"),  # not offered: read-only
 ]
-
-
-def fill(memory: Any) -> None:
-    for t, note in NOTES:
-        memory.add("kitchen", "text", note, t=t)
-    memory.add("kitchen", "touch", window(seed=1), t=2.0, t_end=2.3)
 
 
 def check_answers(results: dict[str, Any]) -> None:

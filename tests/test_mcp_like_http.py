@@ -12,7 +12,7 @@ import pytest
 from mcp import Client
 
 from tactus_memory.mcp.server import build_server
-from tests.test_mcp import fill
+from tests.mcp import fill
 from tests.test_service_helpers import make_memory
 
 #: every tool that takes a session, called on one that does not exist

@@ -9,13 +9,14 @@ tensors.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
-torch = pytest.importorskip("torch")
+from tests.qwen_tiny import HIDDEN, build_tiny_qwen3vl
+
 pytest.importorskip("transformers")
 
 from tactus_memory.adapters.image import ImageSense  # noqa: E402
@@ -33,108 +34,6 @@ from tactus_memory.spaces.qwen3vl import (  # noqa: E402
     normalize_instruction,
     truncate_and_normalize,
 )
-
-SPECIAL_TOKENS = [
-    "<|endoftext|>",
-    "<|im_start|>",
-    "<|im_end|>",
-    "<|vision_start|>",
-    "<|vision_end|>",
-    "<|image_pad|>",
-    "<|video_pad|>",
-]
-HIDDEN = 128
-CORPUS = [
-    "holding a mug",
-    "grasping a coffee mug",
-    "the weather is rainy",
-    "a soft sponge and a hard metal cup",
-    DOCUMENT_INSTRUCTION,
-    QUERY_INSTRUCTION,
-    "system user assistant NULL",
-]
-
-
-def build_tiny_qwen3vl(folder: Path) -> Path:
-    """Save a tiny random Qwen3-VL (2 text + 2 vision layers, hidden 128) with an offline
-    tokenizer and image processor to ``folder``."""
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    from tokenizers import Tokenizer, decoders, models, pre_tokenizers, trainers
-    from transformers import (
-        PreTrainedTokenizerFast,
-        Qwen3VLConfig,
-        Qwen3VLForConditionalGeneration,
-    )
-
-    bpe = Tokenizer(models.BPE())
-    bpe.pre_tokenizer = pre_tokenizers.ByteLevel(add_prefix_space=False)
-    bpe.decoder = decoders.ByteLevel()
-    trainer = trainers.BpeTrainer(
-        vocab_size=400,
-        special_tokens=SPECIAL_TOKENS,
-        initial_alphabet=pre_tokenizers.ByteLevel.alphabet(),
-        show_progress=False,
-    )
-    bpe.train_from_iterator(CORPUS, trainer=trainer)
-    tokenizer = PreTrainedTokenizerFast(
-        tokenizer_object=bpe,
-        pad_token="<|endoftext|>",
-        eos_token="<|im_end|>",
-        additional_special_tokens=SPECIAL_TOKENS[1:],
-    )
-    ids = {t: bpe.token_to_id(t) for t in SPECIAL_TOKENS}
-    config = Qwen3VLConfig(
-        text_config={
-            "vocab_size": bpe.get_vocab_size(),
-            "hidden_size": HIDDEN,
-            "intermediate_size": 256,
-            "num_hidden_layers": 2,
-            "num_attention_heads": 4,
-            "num_key_value_heads": 2,
-            "head_dim": 32,
-            "max_position_embeddings": 1024,
-            "pad_token_id": ids["<|endoftext|>"],
-            "rope_parameters": {
-                "rope_type": "default",
-                "rope_theta": 10000.0,
-                "mrope_section": [8, 4, 4],
-                "mrope_interleaved": True,
-            },
-        },
-        vision_config={
-            "depth": 2,
-            "hidden_size": 32,
-            "intermediate_size": 64,
-            "num_heads": 4,
-            "patch_size": 16,
-            "spatial_merge_size": 2,
-            "temporal_patch_size": 2,
-            "out_hidden_size": HIDDEN,
-            "num_position_embeddings": 64,
-            "deepstack_visual_indexes": [0],
-        },
-        image_token_id=ids["<|image_pad|>"],
-        video_token_id=ids["<|video_pad|>"],
-        vision_start_token_id=ids["<|vision_start|>"],
-        vision_end_token_id=ids["<|vision_end|>"],
-    )
-    torch.manual_seed(0)
-    model = Qwen3VLForConditionalGeneration(config).eval()
-    model.save_pretrained(folder)
-    tokenizer.save_pretrained(folder)
-    # the released model's preprocessor_config.json, with a small pixel band
-    preprocessor = {
-        "size": {"longest_edge": 128 * 128, "shortest_edge": 64 * 64},
-        "patch_size": 16,
-        "temporal_patch_size": 2,
-        "merge_size": 2,
-        "image_mean": [0.5, 0.5, 0.5],
-        "image_std": [0.5, 0.5, 0.5],
-        "processor_class": "Qwen3VLProcessor",
-        "image_processor_type": "Qwen2VLImageProcessorFast",
-    }
-    (folder / "preprocessor_config.json").write_text(json.dumps(preprocessor))
-    return folder
 
 
 @pytest.fixture(scope="module")

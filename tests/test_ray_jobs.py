@@ -25,7 +25,7 @@ from tactus_memory.memory.main import Memory
 from tactus_memory.recordings.ingest import ingest_recording
 from tactus_memory.recordings.ray_jobs import LOCAL, connect, ingest_on_ray
 from tests import recording_files as rf
-from tests.test_recordings import N_FRAMES, TOPICS, _messages
+from tests.recording_files import N_FRAMES, TOPICS, _messages
 from tests.test_service_helpers import make_memory
 from tests.touch_pair import Pair, train_pair
 

@@ -16,23 +16,8 @@ from tactus_memory.recordings.ingest import ingest_recording, list_topics, topic
 from tactus_memory.touch.windows import cut_windows
 from tests import recording_files as rf
 from tests.fakes import HashingSpace
+from tests.recording_files import N_FRAMES, NOTES, START, TOPICS, _messages
 from tests.test_service_helpers import make_memory
-
-START = 1_700_000_000 * rf.NS  # unix 1.7e9 s
-NOTES = ["picked up the red mug", "put the mug on the shelf", "opened the fridge"]
-N_FRAMES = 100  # 3.3 s at 30 Hz -> 12 windows of 8, 4 frames left over
-
-
-def _messages(frames: np.ndarray | None = None) -> list[rf.Msg]:
-    frames = rf.synthetic_grasp(N_FRAMES) if frames is None else frames
-    msgs = rf.glove("/glove/pressure", frames, start_ns=START + rf.NS // 2)
-    msgs += [rf.note("/notes", START + (i + 1) * rf.NS, t) for i, t in enumerate(NOTES)]
-    msgs += [rf.vector3("/imu", START + k * rf.NS // 10) for k in range(5)]
-    msgs += [rf.rgb8("/camera", START + rf.NS, np.full((6, 8, 3), 90, np.uint8))]
-    return msgs
-
-
-TOPICS = {"/notes": "text", "/glove/pressure": "touch"}
 
 
 @pytest.fixture(params=["mcap", "bag-sqlite3", "bag-mcap"])

@@ -114,7 +114,7 @@ def test_real_cli_and_http_export(tmp_path, glove_frames, minilm_space) -> None:
     from rerun.chunk import RrdReader
 
     from tactus_memory.cli.app import app
-    from tests.test_service_uvicorn import Server
+    from tests.servers import Server
 
     path = rf.write_bag(tmp_path / "bag", _messages(glove_frames), storage="mcap")
     data = tmp_path / "mem"

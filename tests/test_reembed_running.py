@@ -25,7 +25,7 @@ from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.touch.checkpoint import default_checkpoint_path, load_checkpoint
 from tests.servers import serve_app
-from tests.test_idle_batches import windows
+from tests.test_service_helpers import windows
 
 
 @pytest.fixture(scope="module")

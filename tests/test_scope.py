@@ -85,7 +85,7 @@ def test_http_search_filters_by_source(tmp_path) -> None:
 
 @pytest.mark.slow
 def test_real_server_search_filters_by_source(tmp_path) -> None:
-    from tests.test_service_uvicorn import Server
+    from tests.servers import Server
 
     data = tmp_path / "memory"
     with Memory.open(str(data)) as m:  # the real MiniLM space, a real LanceDB store

@@ -14,10 +14,8 @@ from starlette.websockets import WebSocketDisconnect
 from tactus_memory.errors import IdleWindowError, InvalidInputError
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.test_service_helpers import make_memory, npy_bytes, window
+from tests.test_service_helpers import assert_problem, make_memory, npy_bytes, touch_json, window
 from tests.threads import run_threads
-
-PROBLEM = "application/problem+json"
 
 
 @pytest.fixture
@@ -29,21 +27,6 @@ def memory(tmp_path):
 def client(memory):
     with TestClient(create_app(Settings(max_body_bytes=2 * 1024 * 1024), memory=memory)) as c:
         yield c
-
-
-def assert_problem(r: Any, status: int, *words: str) -> dict[str, Any]:
-    assert r.status_code == status, r.text
-    assert r.headers["content-type"].startswith(PROBLEM), r.headers
-    body = r.json()
-    assert body["status"] == status
-    assert {"type", "title", "status", "detail"} <= body.keys()
-    for word in words:
-        assert word.lower() in body["detail"].lower(), body["detail"]
-    return body
-
-
-def touch_json(seed: int = 0, t: float = 1.0, **kw: Any) -> dict[str, Any]:
-    return {"frames": window(seed=seed).tolist(), "t": t, **kw}
 
 
 # ----------------------------------------------------------------------------- writes & reads

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -75,3 +76,48 @@ def npy_bytes(arr: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.save(buf, arr, allow_pickle=False)
     return buf.getvalue()
+
+
+def assert_problem(r: Any, status: int, *words: str) -> dict[str, Any]:
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith(PROBLEM), r.headers
+    body = r.json()
+    assert body["status"] == status
+    assert {"type", "title", "status", "detail"} <= body.keys()
+    for word in words:
+        assert word.lower() in body["detail"].lower(), body["detail"]
+    return body
+
+
+def touch_json(seed: int = 0, t: float = 1.0, **kw: Any) -> dict[str, Any]:
+    return {"frames": window(seed=seed).tolist(), "t": t, **kw}
+
+
+def windows(n: int, idle: set[int]) -> np.ndarray:
+    """(n, 2, 32, 32) raw windows, each pressing a different patch; those in ``idle`` rest."""
+    out = np.full((n, 2, 32, 32), REST, np.int16)
+    for i in range(n):
+        if i not in idle:
+            r, c = divmod(i % 49, 7)
+            out[i, :, 4 * r : 4 * r + 4, 4 * c : 4 * c + 4] = 600 + i % 40
+    return out
+
+
+class GatedTouch(StandInTouch):
+    """Embedding blocks until ``gate`` is set (``entered`` says a commit is under way)."""
+
+    def __init__(self, dim: int) -> None:
+        super().__init__(dim)
+        self.gate = threading.Event()
+        self.entered = threading.Event()
+
+    def embed(self, batch: Sequence[np.ndarray]) -> np.ndarray:
+        self.entered.set()
+        assert self.gate.wait(30), "test gate never opened"
+        return super().embed(batch)
+
+
+PROBLEM = "application/problem+json"
+
+
+REST = 512  # a raw resting reading: no taxel in contact

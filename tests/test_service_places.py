@@ -10,11 +10,9 @@ from fastapi.testclient import TestClient
 
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.test_service import assert_problem
-from tests.test_service_helpers import make_memory, npy_bytes
+from tests.places import POSES, T
+from tests.test_service_helpers import assert_problem, make_memory, npy_bytes
 
-T = np.round(np.arange(0.0, 20.0 + 1e-9, 0.1), 6)
-POSES = np.column_stack([T, T, np.zeros_like(T), np.zeros_like(T)])  # (N, 4) [t, x, y, z]
 NOTES = [("picked up the red drill", 2.0), ("put the mug on the shelf", 10.0)]
 
 
@@ -134,7 +132,7 @@ def test_bad_frame_is_a_422(client) -> None:
 def test_real_server_poses_where_and_at(tmp_path) -> None:
     import httpx
 
-    from tests.test_service_uvicorn import Server
+    from tests.servers import Server
 
     server = Server(tmp_path / "memory", tmp_path / "server.log")
     try:

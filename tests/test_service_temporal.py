@@ -12,8 +12,7 @@ from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.fakes import HashingSpace
-from tests.kitchen import kitchen_memory
-from tests.test_temporal import IDLE, MUG_GRASPS, NOTES, S, fill_kitchen
+from tests.kitchen import IDLE, MUG_GRASPS, NOTES, S, fill_kitchen, kitchen_memory
 
 PROBLEM = "application/problem+json"
 

@@ -11,8 +11,7 @@ from fastapi.testclient import TestClient
 
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.test_service import assert_problem
-from tests.test_service_helpers import npy_bytes, window
+from tests.test_service_helpers import assert_problem, npy_bytes, window
 
 DIM = 64
 FRAMES = 4

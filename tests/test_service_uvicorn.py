@@ -7,41 +7,14 @@ from __future__ import annotations
 import json
 import signal
 import threading
-from collections.abc import Mapping
-from pathlib import Path
 
 import httpx
 import pytest
 
-from benchmarks.serving import free_port, start_serve
-from tests.servers import stop_process, wait_healthy
+from tests.servers import Server
 from tests.test_service_helpers import window
 
 pytestmark = pytest.mark.slow
-
-STARTUP_S = 180
-
-
-class Server:
-    """``tactus serve`` on a free port (``env`` added to the environment)."""
-
-    def __init__(
-        self, data: Path | str, log: Path, *extra: str, env: Mapping[str, str] | None = None
-    ) -> None:
-        self.port = free_port()
-        self.base = f"http://127.0.0.1:{self.port}"
-        self.log = log
-        full_env = {"OMP_NUM_THREADS": "1", **(env or {})}
-        self.proc = start_serve(self.port, data, log, *extra, env=full_env)
-        wait_healthy(self.proc, self.base, STARTUP_S, lambda: log.read_text()[-3000:], self.kill)
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGKILL)
-            self.proc.wait(10)
-
-    def stop(self) -> None:
-        stop_process(self.proc)
 
 
 @pytest.fixture

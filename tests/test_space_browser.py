@@ -12,8 +12,10 @@ pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
 from tests.browser_util import launch, sync_playwright  # noqa: E402
-from tests.qwen_tiny import png_bytes  # noqa: E402
-from tests.test_qwen3vl import build_tiny_qwen3vl  # noqa: E402
+from tests.qwen_tiny import (
+    build_tiny_qwen3vl,  # noqa: E402
+    png_bytes,  # noqa: E402
+)
 
 pytestmark = pytest.mark.slow
 
@@ -32,7 +34,7 @@ def _thumb_loaded(page, selector: str) -> int:
 
 
 def test_page_shows_image_thumbnails_and_searches_by_image(tmp_path: Path) -> None:
-    from tests.test_service_uvicorn import Server
+    from tests.servers import Server
 
     model = build_tiny_qwen3vl(tmp_path / "qwen")
     args = ("--space", "qwen3vl", "--space-path", str(model), "--no-touch")

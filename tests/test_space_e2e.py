@@ -36,8 +36,7 @@ from tactus_memory.errors import (  # noqa: E402
 from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.spaces.fingerprint import model_fingerprint  # noqa: E402
 from tactus_memory.spaces.qwen3vl import Qwen3VLSpace  # noqa: E402
-from tests.qwen_tiny import perturbed_copy, png_bytes  # noqa: E402
-from tests.test_qwen3vl import HIDDEN, build_tiny_qwen3vl  # noqa: E402
+from tests.qwen_tiny import HIDDEN, build_tiny_qwen3vl, perturbed_copy, png_bytes  # noqa: E402  # noqa: E402
 
 QWEN = "qwen3-vl-embedding-2b"
 SPACE_ENV = ("TACTUS_SPACE", "TACTUS_SPACE_PATH", "TACTUS_SPACE_DIM")
@@ -403,7 +402,7 @@ def test_served_store_is_reopened_by_a_second_server(
 ) -> None:
     import httpx
 
-    from tests.test_service_uvicorn import Server
+    from tests.servers import Server
 
     data = tmp_path / "memory"
     space = ["--space-path", str(tiny_qwen), "--touch-checkpoint", str(qwen_ckpt)]

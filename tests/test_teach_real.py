@@ -23,7 +23,7 @@ from tactus_memory.search import teaching
 from tactus_memory.touch.targets import centre, class_phrases
 from tactus_memory.training import stream_eval
 from tactus_memory.training.data import load_stag
-from tests.test_service_uvicorn import Server
+from tests.servers import Server
 
 pytestmark = pytest.mark.slow
 

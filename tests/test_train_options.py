@@ -16,7 +16,7 @@ from tactus_memory.training.augment import (
 )
 from tactus_memory.training.train import TrainConfig, draw_weights, fit
 from tactus_memory.training.tuples import consecutive_windows
-from tests.test_train import DIM, orthogonal_targets, synthetic
+from tests.training import DIM, orthogonal_targets, synthetic
 
 
 def test_consecutive_windows_stay_in_the_anchor_recording() -> None:

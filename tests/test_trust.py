@@ -13,8 +13,7 @@ from tactus_memory.errors import IdConflictError
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests import test_service
-from tests.test_service import assert_problem
-from tests.test_service_helpers import window
+from tests.test_service_helpers import assert_problem, window
 from tests.threads import run_threads
 
 # test_service's fixtures: a memory in tmp_path, a TestClient over it
