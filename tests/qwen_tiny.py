@@ -55,6 +55,8 @@ HIDDEN = 128
 def build_tiny_qwen3vl(folder: Path) -> Path:
     """Save a tiny random Qwen3-VL (2 text + 2 vision layers, hidden 128) with an offline
     tokenizer and image processor to ``folder``."""
+    import torch
+
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     from tokenizers import Tokenizer, decoders, models, pre_tokenizers, trainers
     from transformers import (
