@@ -10,7 +10,7 @@ and index files the latest version references), versions kept, fragments, rows.
 Policies (``--policy``):
   legacy  what the store did before issue 11: LanceDB ``optimize(cleanup_older_than=1 h)``
           every 64 appends (compacts every fragment under 1M rows, i.e. the whole table)
-  tiered  ``tactus_memory.storage.maintenance`` (size-tiered compaction, incremental index refresh,
+  tiered  ``tactus_memory.storage.compaction`` (size-tiered compaction, incremental index refresh,
           versions removed once superseded ``retain_seconds`` ago)
 
 The embedder is a stand-in (random unit vectors): disk use depends on row sizes and commit
@@ -46,7 +46,7 @@ from memory import DIM, BenchSpace  # noqa: E402
 from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.policies import MaintenanceConfig  # noqa: E402
 from tactus_memory.sense import Sense, array_to_bytes  # noqa: E402
-from tactus_memory.storage.maintenance import dir_bytes, footprint  # noqa: E402
+from tactus_memory.storage.disk import dir_bytes, footprint  # noqa: E402
 
 WINDOW = (8, 32, 32)  # K frames x 32 x 32 taxels, int16 STAG units (a touch row's raw bytes)
 

@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 from memory import BenchSpace  # noqa: E402  (no embedding happens here: a stand-in space)
 from tactus_memory.memory.main import Memory  # noqa: E402
-from tactus_memory.storage.maintenance import footprint  # noqa: E402
+from tactus_memory.storage.disk import footprint  # noqa: E402
 
 MiB = 1024 * 1024
 

@@ -1,7 +1,7 @@
 """The operator's policies for a store: maintenance (compaction, cleanup, orphan removal) and
 retention (expiry, thinning). Fields only: :class:`tactus_memory.settings.Settings` reads
 them from the environment or the settings file, and storage applies them
-(:mod:`tactus_memory.storage.maintenance`, :mod:`tactus_memory.storage.retention`), so both
+(:mod:`tactus_memory.storage.compaction`, :mod:`tactus_memory.storage.retention`), so both
 import them from here rather than from each other.
 """
 

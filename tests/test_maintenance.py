@@ -17,13 +17,8 @@ from tactus_memory.memory.main import Memory
 from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.sense import Sense, array_to_bytes
 from tactus_memory.settings import Settings
-from tactus_memory.storage.maintenance import (
-    FragmentInfo,
-    footprint,
-    fragment_infos,
-    plan_compaction,
-    tier_of,
-)
+from tactus_memory.storage.compaction import FragmentInfo, fragment_infos, plan_compaction, tier_of
+from tactus_memory.storage.disk import footprint
 from tactus_memory.storage.tables import IndexConfig
 from tests.fakes import HashingSpace
 

@@ -2,7 +2,7 @@
 
 Several ``tactus serve --no-maintain`` replicas (and scripts) may write to one store; exactly
 one process compacts it, refreshes its indexes and removes old versions
-(:mod:`tactus_memory.storage.maintenance`), so replicas never compact against each other. The
+(:mod:`tactus_memory.storage.compaction`), so replicas never compact against each other. The
 maintainer needs no embedding model: it opens the store's tables only.
 """
 

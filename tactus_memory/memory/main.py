@@ -72,8 +72,8 @@ from tactus_memory.search.teaching import Teachings
 from tactus_memory.sense import Sense, bytes_to_array, validate_sense_name
 from tactus_memory.settings import DEFAULT_MEMORY, Settings
 from tactus_memory.spaces.base import Space
-from tactus_memory.storage.maintenance import Background
 from tactus_memory.storage.rows import options_for, summarise
+from tactus_memory.storage.scheduler import Background
 from tactus_memory.storage.store import HIT_COLUMNS, Store
 from tactus_memory.storage.tables import IndexConfig
 from tactus_memory.storage.tenants import tenant_uri
@@ -169,7 +169,7 @@ class Memory:
         Several processes may open one store: each sees the others' commits within
         ``read_consistency_interval`` (default ``TACTUS_READ_CONSISTENCY`` or 1 s), and only
         the one whose ``maintenance.maintain`` is true compacts and cleans up
-        (:mod:`tactus_memory.storage.maintenance`, :mod:`tactus_memory.storage.connect`).
+        (:mod:`tactus_memory.storage.compaction`, :mod:`tactus_memory.storage.connect`).
 
         ``tenant``: whose memory in the store this is (:mod:`tactus_memory.storage.tenants`):
         every read and write of the returned memory sees that tenant's sessions and ids only.

@@ -19,7 +19,7 @@ matching rule sets keeps the store-wide value.
   touch and text (``benchmarks/thinning.py``, ``benchmarks/results/thinning.json``).
 
 Both are plain deletes; compaction then rewrites the fragments that held them and version
-cleanup removes the old files (``erase_deleted``, :mod:`tactus_memory.storage.maintenance`),
+cleanup removes the old files (``erase_deleted``, :mod:`tactus_memory.storage.compaction`),
 so expired and thinned data leave the store's files like a deleted session does.
 """
 

@@ -20,7 +20,7 @@ of its context (``where.SESSION_PREFIX``: a key limited to sessions) into its fi
 
 Indexes: :class:`IndexConfig` (scalar indexes from 10k rows, an IVF_SQ cosine index from 20k,
 retrained after 4x growth or 8 deltas; selective filters scan flat). Compaction, index
-refresh and version retention follow :mod:`tactus_memory.storage.maintenance`, run by the process
+refresh and version retention follow :mod:`tactus_memory.storage.compaction`, run by the process
 that owns maintenance, after ``compact_every`` commits of any one table (items, senses, meta:
 each counted on its own). Every write first passes the integrity check
 (:mod:`tactus_memory.storage.integrity`). Connections re-read the latest version every
@@ -43,15 +43,14 @@ import numpy as np
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
 from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S
 from tactus_memory.policies import MaintenanceConfig
-from tactus_memory.storage import maintenance as maint
-from tactus_memory.storage.background import start_background
+from tactus_memory.storage.compaction import Maintainer, TableReport, fragment_infos
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
 from tactus_memory.storage.integrity import IntegrityWatch, check_store
-from tactus_memory.storage.maintenance import Maintainer, TableReport
 from tactus_memory.storage.retention import Erasure, Retention
 from tactus_memory.storage.tables import IndexConfig, items_schema, meta_schema, senses_schema
+from tactus_memory.storage.threads import start_background
 from tactus_memory.where import Where, _sql_str, sessions_under, within_sessions
 
 if TYPE_CHECKING:  # heavy imports stay lazy
@@ -414,7 +413,7 @@ class Store(StoreIndexes):
 
     def maintain(self, *, force: bool = False, wait: bool | None = None) -> bool:
         """Build/retrain indexes past the threshold, then run the maintenance policy
-        (:mod:`tactus_memory.storage.maintenance`) on every table; True when something ran. Only the
+        (:mod:`tactus_memory.storage.compaction`) on every table; True when something ran. Only the
         owner of maintenance runs it unless ``force``; never on a damaged store. Writes may go
         on meanwhile. Version cleanup runs in its own thread at most every
         ``cleanup_interval`` seconds; ``wait`` (default: ``force``) runs it now and waits.
@@ -448,7 +447,7 @@ class Store(StoreIndexes):
             maintainer = self.maintainer()
             reports = maintainer.run(cleanup=False)
             if self._items is not None and self.maintenance.erase_deleted:  # else never erased
-                left = sum(f.deleted for f in maint.fragment_infos(self.items.to_lance()))
+                left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
                 self.erasure.note_compacted(deletes, left)
             for tbl in (self._items, self._senses, self._meta):
                 if tbl is not None:  # our handles must not stay on versions cleanup removes

@@ -158,7 +158,7 @@ class IndexConfig:
     #: retrain the ANN index when incremental updates have split it into more segments
     max_deltas: int = 8
     #: run maintenance (size-tiered compaction, incremental index update, version cleanup:
-    #: :mod:`tactus_memory.storage.maintenance`) after this many appends by this process
+    #: :mod:`tactus_memory.storage.compaction`) after this many appends by this process
     compact_every: int = 64
     #: scalar index type per column (x, y: a ``near=`` filter's box is answered from the
     #: indexes, not a scan; z is not indexed, see Where.near; benchmarks/places.py)

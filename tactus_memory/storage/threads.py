@@ -1,4 +1,5 @@
-"""Background threads for store maintenance that an exiting interpreter waits for.
+"""Background threads for store maintenance that an exiting interpreter waits for (the
+compaction, cleanup and retention threads of :mod:`tactus_memory.storage.scheduler`).
 
 Compaction, erasure and version cleanup run in daemon threads off the write path. A daemon
 thread still inside Lance's native code while Python finalises aborts the process (SIGABRT),

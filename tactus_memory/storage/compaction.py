@@ -1,4 +1,4 @@
-"""Maintenance for an always-on store: bounded disk while ingest runs.
+"""Compaction, index refresh and version cleanup of one table: bounded disk while ingest runs.
 
 Three jobs, run by one process per store (the *maintainer*: ``tactus maintain``, or a
 ``tactus serve`` without ``--no-maintain``), each on every table of the store:
@@ -41,7 +41,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import os
 import threading
 import time
 from collections import deque
@@ -50,9 +49,9 @@ from typing import Any
 
 from tactus_memory.policies import MaintenanceConfig, MiB
 from tactus_memory.storage import orphans
-from tactus_memory.storage.background import start_background
 
 log = logging.getLogger(__name__)
+
 
 #: Lance rewrites a fragment whose deleted share is above this (erase_deleted: any deletion)
 ERASE_BAR = 1e-9
@@ -331,80 +330,3 @@ class Maintainer:
         by_name = {r.table: r for r in reports or []}
         for t in self.tables.values():
             t.cleanup(by_name.get(t.name))
-
-
-# --------------------------------------------------------------------------- background
-class Background:
-    """Runs a memory's store maintenance off the write path: :meth:`schedule` after each
-    commit starts one background pass when the store says one is due (compaction, cleanup, an
-    index build once ``rows()`` passes the threshold); never in a process that does not own
-    maintenance (``MaintenanceConfig.maintain`` false: ``tactus maintain`` does it)."""
-
-    def __init__(self, store: Any, rows: Any, *, background: bool = True) -> None:
-        self.store = store
-        self.rows = rows  # () -> int: the live row count (for the index threshold)
-        self.background = background
-        self._thread: threading.Thread | None = None
-
-    def schedule(self) -> None:
-        if not self.store.maintenance.maintain:
-            return  # another process maintains this store (`tactus maintain`)
-        if not (self.store.needs_maintenance() or self.store.index_due(self.rows())):
-            return
-        if not self.background:
-            self.store.maintain(force=True)
-            return
-        if self._thread is not None and self._thread.is_alive():
-            return
-        self._thread = start_background(self._quietly, "tactus-maintenance")
-
-    def _quietly(self) -> None:
-        try:
-            self.store.maintain()
-        except Exception:  # noqa: BLE001  (a background thread must not die loudly; retried)
-            log.exception("background maintenance failed; it will be retried")
-
-    def wait(self, timeout: float | None = None) -> None:
-        if self._thread is not None:
-            self._thread.join(timeout)
-
-
-# --------------------------------------------------------------------------- measuring
-@dataclass
-class Footprint:
-    """Disk use of one local table: everything on disk vs what the latest version needs."""
-
-    disk_bytes: int
-    live_bytes: int
-    versions: int
-    fragments: int
-    rows: int
-
-    @property
-    def ratio(self) -> float:
-        return self.disk_bytes / self.live_bytes if self.live_bytes else math.inf
-
-
-def dir_bytes(path: str) -> int:
-    total = 0
-    for root, _dirs, files in os.walk(path):
-        for name in files:
-            with contextlib.suppress(OSError):  # removed while walking (cleanup ran)
-                total += os.path.getsize(os.path.join(root, name))
-    return total
-
-
-def footprint(table_path: str) -> Footprint:
-    """Footprint of a local Lance table directory. Live bytes: the data files, deletion
-    files and index files the latest version references (manifests not counted)."""
-    import lance
-
-    ds = lance.dataset(table_path)
-    frags = fragment_infos(ds)
-    live = sum(f.bytes for f in frags)
-    live += sum(int(ix.total_size_bytes or 0) for ix in ds.describe_indices())
-    versions_dir = os.path.join(table_path, "_versions")
-    n_versions = len(os.listdir(versions_dir)) if os.path.isdir(versions_dir) else 0
-    return Footprint(
-        dir_bytes(table_path), live, n_versions, len(frags), sum(f.rows - f.deleted for f in frags)
-    )
