@@ -2,7 +2,8 @@
 
     nice python benchmarks/agent_questions.py [--out benchmarks/results/agent_questions.json]
 
-A scripted 4-minute kitchen shift is written as a real MCAP recording (tests/recording_files.py:
+A scripted 4-minute kitchen shift is written as a real MCAP recording
+(tests/helpers/recording_files.py:
 narration as ``std_msgs/String`` on ``/notes``, the glove as 30 Hz ``mono16`` frames on
 ``/glove/pressure``: a pressed blob while a thing is handled, the resting pedestal between),
 ingested into a fresh real store (real MiniLM, the shipped TactusEncoder; idle windows are not
@@ -46,7 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tactus_memory.recordings.ingest import ingest_recording  # noqa: E402
-from tests import recording_files as rf  # noqa: E402
+from tests.helpers import recording_files as rf  # noqa: E402
 
 SESSION = "shift"
 HZ = 30.0

@@ -3,7 +3,7 @@
     nice python benchmarks/recordings.py [--minutes 10] [--hz 30] [--format mcap|bag]
                                          [--out benchmarks/results/recordings.json]
 
-Writes a real recording (tests/recording_files.py: synthetic raw glove frames as ``mono16``
+Writes a real recording (tests/helpers/recording_files.py: synthetic raw glove frames as ``mono16``
 Images on ``/glove/pressure``, a ``std_msgs/String`` note every 10 s on ``/notes``, and an
 unmapped ``/imu`` topic at 30 Hz), then ingests it into a fresh real store with the real
 MiniLM space and the shipped TactusEncoder (K = 8, stride 8), and times:
@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from tactus_memory.recordings.ingest import ingest_recording  # noqa: E402
 from tactus_memory.recordings.reader import open_recording  # noqa: E402
-from tests import recording_files as rf  # noqa: E402
+from tests.helpers import recording_files as rf  # noqa: E402
 
 NOTE_EVERY_S = 10.0
 TOPICS = {"/notes": "text", "/glove/pressure": "touch"}

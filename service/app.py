@@ -205,7 +205,7 @@ def operation_id(route: APIRoute) -> str:
     """An operation's id is its route's name, which says what it does (``search``,
     ``add_touch``, ``last``), so a client generated from ``/openapi.json`` has methods of
     those names (FastAPI's default, ``search_search_get``, repeats the path and the method).
-    Route names are unique across the app (tests/test_openapi_names.py checks it)."""
+    Route names are unique across the app (tests/service/test_openapi_names.py checks it)."""
     return route.name
 
 

@@ -74,7 +74,7 @@ from tactus_memory.where import finite_float
 
 # --------------------------------------------------------------------------- constants
 #: per-sense match threshold on the calibrated score (z vs the probe null); see the module
-#: docstring and tests/test_temporal_real.py for the measured separation behind each value
+#: docstring and tests/temporal/test_temporal_real.py for the measured separation behind each value
 MATCH_Z: dict[str, float] = {"text": 3.0, "touch": 3.0}
 #: the bar on a grasp's pooled score (touch answered by grasps, the default) where it differs
 #: from MATCH_Z: pooling averages a grasp's transition windows in, so the right object's
@@ -90,8 +90,9 @@ RELATIVE_KEEP = 0.4
 #: count/last/first answer from the occurrences above the first score step down to less than
 #: ANSWER_KEEP[sense] x the score above it, per sense (see "Which occurrences answer"; 0 for
 #: senses not listed: every occurrence past the bar answers). Text: the note that says it
-#: (7.9) against later near misses (5.5, 4.3, 4.2; tests/test_answer_rule.py). Touch: three
-#: real mug grasps score 7.3, 6.7 and 3.4 (tests/test_temporal_real.py), so no ratio tells a
+#: (7.9) against later near misses (5.5, 4.3, 4.2; tests/search/test_answer_rule.py). Touch: three
+#: real mug grasps score 7.3, 6.7 and 3.4 (tests/temporal/test_temporal_real.py), so no ratio tells
+#: a
 #: weak repeat from a near miss; touch relies on the bar alone.
 ANSWER_KEEP: dict[str, float] = {"text": 0.75}
 #: candidates pulled per sense before thresholding (the cap on count over long sessions)

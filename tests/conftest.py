@@ -5,11 +5,15 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from tactus_memory.datasets.home import CORE_SUBSET, data_home, how_to_get_stag
-from tests.fakes import HashingSpace
+from tests.helpers.fakes import HashingSpace
+
+if TYPE_CHECKING:
+    from tactus_memory.adapters.touch import TactusEncoder
 
 #: set to 1 (CI does, in .ci/run) to make missing real STAG data a failure instead of a skip
 REQUIRE_REAL_DATA = "TACTUS_REQUIRE_REAL_DATA"
@@ -74,3 +78,31 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
             f"{REQUIRE_REAL_DATA}=1 makes this a failure",
             yellow=True,
         )
+
+
+@pytest.fixture(scope="module")
+def enc(tmp_path_factory) -> TactusEncoder:
+    """The tiny-checkpoint touch encoder (random weights, the glove's calibration) several
+    test modules share."""
+    import torch
+
+    from tactus_memory.adapters.touch import TactusEncoder
+    from tactus_memory.touch.checkpoint import save_checkpoint
+    from tactus_memory.touch.model import create_model
+    from tactus_memory.touch.profile import STAG_GLOVE
+    from tactus_memory.touch.targets import build_targets
+    from tests.helpers.stag_synth import OBJECTS
+
+    space = HashingSpace()
+    torch.manual_seed(0)
+    model = create_model("tactus-tiny", out_dim=space.dim)
+    path = tmp_path_factory.mktemp("ck") / "tiny.safetensors"
+    save_checkpoint(
+        path,
+        model,
+        build_targets(space, OBJECTS),
+        space_dim=space.dim,
+        calibration=STAG_GLOVE.to_dict(),
+        seed=0,
+    )
+    return TactusEncoder.from_pretrained(path)

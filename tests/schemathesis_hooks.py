@@ -42,7 +42,7 @@ def filter_failure(context: Any, failure: Any, case: Any, response: Any) -> bool
     a session's clock: PUT /sessions/{id}/clock may set a clock before the session has items
     (a stream is aligned before it records), so a PUT after the DELETE re-creates it, which
     the use-after-free check does not count as a re-creation. DELETE itself removes the
-    offsets (tests/test_trust.py::test_deleting_a_session_removes_its_clock_offsets)."""
+    offsets (tests/service/test_trust.py::test_deleting_a_session_removes_its_clock_offsets)."""
     if getattr(failure, "code", "") == "ST301" and case.path == "/sessions/{session}/clock":
         return False
     if response is None or response.status_code != 422:

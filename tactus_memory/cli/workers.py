@@ -87,7 +87,7 @@ Server = tuple[Callable[..., Any], Callable[..., None]]
 
 def _worker(
     settings: Any, group: Workers, say: Callable[[str], None], debug: bool, server: Server
-) -> None:  # pragma: no cover  (runs in the forked child; tests/test_workers.py drives it)
+) -> None:  # pragma: no cover  (runs in the forked child; tests/service/test_workers.py drives it)
     """A forked worker: a whole server on the group's port; never returns."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_DFL)

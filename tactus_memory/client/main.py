@@ -13,7 +13,7 @@ with Client("http://robot-1:8000", token="s3cret") as memory:      # like Memory
 ```
 
 Same method names, arguments and result types as :class:`~tactus_memory.memory.main.Memory` for
-what the service offers (tests/test_client_parity.py runs one scenario against both). One
+what the service offers (tests/client/test_client_parity.py runs one scenario against both). One
 ``httpx.Client`` keeps the connections open; a 503 or 429 with ``Retry-After`` is retried
 after that many seconds (at most ``retries`` times, each wait at most ``max_retry_wait``);
 a problem answer raises the library's own exception named by its type

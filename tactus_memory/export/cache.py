@@ -3,7 +3,7 @@ on ONNX Runtime (:mod:`tactus_memory.spaces.onnx_runtime`), torch never imported
 
 * The touch encoder: the shipped checkpoint's graph ships with the package
   (``touch/checkpoints/tactus-lite-minilm.onnx``, checked against torch by
-  ``tests/test_onnx_default.py``) and is copied in; another checkpoint is exported.
+  ``tests/spaces/test_onnx_default.py``) and is copied in; another checkpoint is exported.
 * MiniLM: exported once, on the first start, in a child process (torch is loaded there, never
   in the server), and checked against torch before the folder is used.
 

@@ -8,7 +8,7 @@
   ``frames (B, K, 32, 32) float32, calibrated -> (B, D) float32``.
 
 Run them with :mod:`tactus_memory.spaces.onnx_runtime` (ONNX Runtime only, no torch). The graphs are
-checked against the torch models by ``tests/test_onnx_export.py``; start time and memory of
+checked against the torch models by ``tests/spaces/test_onnx_export.py``; start time and memory of
 both runtimes are compared in ``benchmarks/light_server.py``.
 """
 

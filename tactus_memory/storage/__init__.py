@@ -3,4 +3,4 @@
 (``vectors``), poses and their placing (``places``, ``posestore``) and the rows a write becomes
 (``rows``). It may import the package's base modules (``errors``, ``limits``, ``results``,
 ``settings``, ``senses``, ``plugins``, ``hashing``) and nothing of ``search``, ``temporal`` or
-the modules above them (tests/test_architecture.py checks it)."""
+the modules above them (tests/project/test_architecture.py checks it)."""

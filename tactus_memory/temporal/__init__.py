@@ -2,4 +2,4 @@
 ``timeline`` and moments (``operators.Temporal``), grasps (``grasps``), episodes
 (``episodes``) and clock offsets (``clocks``). It may import ``search``, ``storage``,
 ``spaces`` and the base modules, never the memory facade above it (``memory``, ``writes``,
-``spatial``; tests/test_architecture.py checks it)."""
+``spatial``; tests/project/test_architecture.py checks it)."""

@@ -1,0 +1,243 @@
+"""One scenario, two memories: ``Memory`` in process and ``Client`` against ``tactus serve`` on
+a real uvicorn (real MiniLM, the shipped touch encoder, real LanceDB stores). Every answer,
+and every error type, must be the same, so the two APIs cannot drift."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from pydantic import BaseModel
+
+from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.client.errors import AuthenticationError, RemoteError
+from tactus_memory.client.main import Client
+from tactus_memory.errors import (
+    IdConflictError,
+    InvalidIdError,
+    InvalidInputError,
+    NotFoundError,
+    OverloadedError,
+    UnknownSenseError,
+)
+from tactus_memory.memory.main import Memory
+from tests.helpers.servers import Server
+from tests.helpers.service import window
+
+NOTES = ["picked up the red mug", "put the mug on the shelf", "wiped the table with a sponge"]
+TOKEN = "par1ty"
+
+
+@pytest.fixture(scope="module")
+def local(tmp_path_factory) -> Iterator[Memory]:
+    from tactus_memory.adapters.touch import TactusEncoder
+
+    with Memory.open(str(tmp_path_factory.mktemp("local") / "memory")) as memory:
+        memory.add_sense(TactusEncoder())
+        yield memory
+
+
+@pytest.fixture(scope="module")
+def remote(tmp_path_factory) -> Iterator[Client]:
+    root = tmp_path_factory.mktemp("remote")
+    server = Server(root / "memory", root / "server.log", "--token", TOKEN)
+    try:
+        with Client(server.base, token=TOKEN, timeout=120) as client:
+            yield client
+    finally:
+        server.stop()
+
+
+def normalise(value: Any, names: dict[str, str]) -> Any:
+    """Models -> dicts, generated ids -> 'sense@t', floats rounded, stream ids dropped."""
+    if isinstance(value, BaseModel):
+        value = value.model_dump()
+    if isinstance(value, dict):
+        return {k: normalise(v, names) for k, v in value.items() if k not in ("created",)}
+    if isinstance(value, (list, tuple)):
+        return [normalise(v, names) for v in value]
+    if isinstance(value, float):
+        return round(value, 3)
+    if isinstance(value, str):
+        return names.get(value, value)
+    return value
+
+
+def scenario(mem: Any) -> dict[str, Any]:
+    """Writes, then every question; returns each answer (normalised) and each error's type."""
+    out: dict[str, Any] = {}
+    out["add"] = mem.add("kitchen", "text", NOTES[0], t=1.0, id="n1", meta={"by": "op"})
+    out["add_many"] = mem.add_many("kitchen", "text", NOTES[1:], t=[10.0, 20.0], ids=["n2", "n3"])
+    touch = mem.add_many(
+        "kitchen", "touch", [window(seed=i) for i in range(3)], t=[2.0, 11.0, 21.0]
+    )
+    out["touch_ids"] = len(touch)
+    mem.add_many("hall", "touch", [window(seed=7)], t=[5.0], meta=[{"glove": "left"}])
+    mem.add_sense(VectorSense("motion", 384, encoder="imu-tcn", version="1.2"))
+    motion = np.random.default_rng(3).standard_normal((2, 384))
+    out["motion"] = mem.add_many("kitchen", "motion", motion, t=[3.0, 4.0], ids=["m1", "m2"])
+    names = {i.id: f"{i.sense}@{i.t}" for s in ("kitchen", "hall") for i in mem.timeline(s)}
+
+    def ask(key: str, fn: Callable[[], Any]) -> None:
+        try:
+            out[key] = normalise(fn(), names)
+        except Exception as exc:  # noqa: BLE001  (the error's type is the answer)
+            out[key] = f"raised {type(exc).__name__}"
+
+    ask("search", lambda: mem.search("put the mug on the shelf", k=4))
+    ask("search_text", lambda: mem.search("mug", k=2, senses=["text"], after=5.0))
+    ask("search_group", lambda: mem.search("the red mug", k=2, group="moment"))
+    ask("search_moments", lambda: mem.search_moments("wiped the table", k=2, session="kitchen"))
+    # issue 22: grasps (the three kitchen touch windows are 9 s apart: three grasps)
+    ask("search_grasp", lambda: mem.search("holding a mug", k=2, senses=["touch"], group="grasp"))
+    ask("grasp_max", lambda: mem.search("a mug", k=1, group="grasp", pool="max", senses=["touch"]))
+    ask("last_grasp", lambda: mem.last("holding a mug", senses=["touch"], group="grasp"))
+    ask("count_grasp", lambda: mem.count("holding a mug", senses=["touch"], group="grasp"))
+    ask("moments_grasp", lambda: mem.search_moments("a mug", k=1, group="grasp", pool="top"))
+    ask("e_group", lambda: mem.count("holding a mug", group="moment"))
+    ask("search_like", lambda: mem.search_like("touch", window(seed=1), k=2))
+    ask("search_like_text", lambda: mem.search_like("text", "a sponge", k=1))
+    ask("search_like_vector", lambda: mem.search_like("motion", vector=motion[1], k=1))
+    ask("last", lambda: mem.last("the mug", senses=["text"]))
+    ask("first", lambda: mem.first("the mug", senses=["text"], session="kitchen"))
+    ask("none", lambda: mem.last("the mug", senses=["text"], after=100.0))
+    ask("count", lambda: mem.count("mug", senses=["text"], merge_gap=1.0))
+    ask("occurrences", lambda: mem.occurrences("table", session="kitchen", threshold=1.0))
+    ask("before", lambda: mem.before("wiped the table", 15.0, senses=["text"]))
+    ask("after", lambda: mem.after("picked up the red mug", 5.0, anchor_senses=["text"]))
+    ask("timeline", lambda: mem.timeline("kitchen", ["touch"], after=1.5, limit=2))
+    ask("sessions", mem.sessions)
+    ask("session", lambda: mem.session("hall"))
+    ask("session_ids", mem.session_ids)
+    ask("senses", lambda: [(s.name, s.rows, s.live) for s in mem.sense_info()])
+    mem.set_clock_offset("hall", "touch", 0.5)
+    ask("clock", lambda: mem.clock_offsets("hall"))
+    ask("hall_timeline", lambda: mem.timeline("hall"))
+    ask("segment", lambda: mem.segment_episodes("kitchen"))
+    ask("episodes", lambda: len(mem.episodes("kitchen")))
+    # errors: the same library exception on both sides
+    ask("e_session", lambda: mem.timeline("nowhere"))
+    ask("e_k", lambda: mem.search("x", k=0))
+    ask("e_range", lambda: mem.search("x", after=5.0, before=1.0))
+    ask("e_sense", lambda: mem.search("x", senses=["smell"]))
+    ask("e_conflict", lambda: mem.add("hall", "text", "other", t=1.0, id="n1"))
+    ask("e_bad_id", lambda: mem.add("kitchen", "text", "x", t=1.0, id="../x"))
+    ask("e_shape", lambda: mem.add("kitchen", "touch", np.zeros((8, 32, 31)) + 600, t=1.0))
+    ask("e_nan", lambda: mem.add("kitchen", "touch", np.full((8, 32, 32), np.nan), t=1.0))
+    ask("e_t_end", lambda: mem.add("kitchen", "text", "x", t=5.0, t_end=1.0))
+    ask("e_dim", lambda: mem.add("kitchen", "motion", np.ones(3), t=1.0))
+    ask("e_sense_dup", lambda: mem.add_sense(VectorSense("motion", 384, encoder="other")))
+    ask("delete", lambda: mem.delete_session("hall"))
+    ask("deleted", mem.session_ids)
+    ask("e_delete", lambda: mem.delete_session("hall"))
+    return out
+
+
+@pytest.mark.slow
+def test_memory_and_client_answer_alike(local, remote) -> None:
+    want = scenario(local)
+    got = scenario(remote)
+    assert want["search"][0]["text"] == NOTES[1]  # the scenario asks real questions
+    assert want["e_session"] == "raised NotFoundError" and want["e_k"] == "raised InvalidInputError"
+    assert want["e_conflict"] == "raised IdConflictError"
+    assert want["none"] is None and want["delete"] == 1
+    assert want["search_like_vector"][0]["id"] == "motion@4.0"  # m2, named by sense@t
+    assert [g["n"] for g in want["search_grasp"]] == [1, 1]  # windows 9 s apart: one each
+    assert want["grasp_max"][0]["score"] == want["grasp_max"][0]["window_score"]
+    assert want["e_group"] == "raised InvalidInputError"
+    for key in want:
+        assert got[key] == want[key], key
+
+
+@pytest.mark.slow
+def test_stream_touch_and_auth_on_the_real_server(remote) -> None:
+    with remote.stream_touch("glove", hz=30.0, t0=100.0, window=4, stride=4) as glove:
+        for i in range(9):  # 2 full windows, 1 frame left over (not stored)
+            glove.send(window(k=1, seed=i)[0])
+        glove.send(np.zeros((32, 31)))  # a bad frame: an error message, the stream goes on
+    assert len(glove.ids) == 2 and glove.windows_expected == 2
+    assert [e["frame"] for e in glove.errors] == [9]
+    items = remote.timeline("glove")
+    assert [i.id for i in items] == glove.ids
+    assert items[0].t == pytest.approx(100.0) and items[0].source == glove.stream_id
+    with pytest.raises(AuthenticationError) as caught:
+        Client(remote.url, token="wrong").sessions()
+    assert caught.value.status == 401 and "bearer token" in caught.value.problem["detail"]
+    with pytest.raises(RemoteError), Client(remote.url, token="wrong") as bad:
+        bad.stream_touch("glove").__enter__()
+
+
+# ----------------------------------------------------------------------------- retries
+def answers(*responses: httpx.Response) -> tuple[httpx.MockTransport, list[httpx.Request]]:
+    seen: list[httpx.Request] = []
+    queue = list(responses)
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        seen.append(request)
+        return queue.pop(0)
+
+    return httpx.MockTransport(handler), seen
+
+
+def problem(status: int, slug: str, retry: str | None = None) -> httpx.Response:
+    body = {"type": f"urn:tactus-memory:problem:{slug}", "title": "t", "status": status}
+    headers = {} if retry is None else {"Retry-After": retry}
+    return httpx.Response(status, json={**body, "detail": "queue full"}, headers=headers)
+
+
+def test_retries_honour_retry_after_and_are_bounded() -> None:
+    ok = httpx.Response(200, json={"sessions": []})
+    waits: list[float] = []
+    transport, seen = answers(problem(503, "overloaded", "2"), problem(429, "http-429", "1"), ok)
+    with Client("http://memory", transport=transport, sleep=waits.append) as c:
+        assert c.sessions() == []
+    assert waits == [2.0, 1.0] and len(seen) == 3
+    # always overloaded: gives up after `retries` retries with the library's OverloadedError
+    waits.clear()
+    transport, seen = answers(*[problem(503, "overloaded", "1") for _ in range(3)])
+    client = Client("http://m", transport=transport, retries=2, sleep=waits.append)
+    with client as c, pytest.raises(OverloadedError) as caught:
+        c.sessions()
+    assert len(seen) == 3 and waits == [1.0, 1.0] and caught.value.retry_after == 1.0
+    # a wait longer than max_retry_wait, or a 503 without Retry-After: no retry
+    for response in (problem(503, "overloaded", "120"), problem(503, "read-only")):
+        transport, seen = answers(response)
+        client = Client("http://m", transport=transport, sleep=waits.append)
+        with client as c, pytest.raises((OverloadedError, RemoteError)):
+            c.sessions()
+        assert len(seen) == 1
+
+
+def test_problem_types_map_to_the_library_errors() -> None:
+    for status, slug, cls in [
+        (404, "not-found", NotFoundError),
+        (404, "unknown-sense", UnknownSenseError),
+        (422, "invalid-id", InvalidIdError),
+        (409, "id-conflict", IdConflictError),
+        (413, "http-413", RemoteError),
+    ]:
+        transport, _ = answers(problem(status, slug))
+        with Client("http://m", transport=transport) as c, pytest.raises(cls):
+            c.sessions()
+    with Client("http://m", transport=answers()[0]) as c, pytest.raises(InvalidInputError):
+        c.add("s", "text", "x", source="cam")  # checked before any request
+
+
+def test_place_filter_goes_over_http() -> None:
+    """``near``/``frame`` reach the service as ``near=x,y,z,r`` and ``frame`` (search and
+    timeline), and a bad ``near`` is the library's error before any request."""
+    hits = httpx.Response(200, json={"hits": []})
+    timeline = httpx.Response(200, json={"items": []})
+    transport, seen = answers(hits, timeline)
+    with Client("http://memory", transport=transport) as c:
+        assert c.search("mug", near=((1.0, 2.0, 3.0), 0.5), frame="map") == []
+        assert c.timeline("s1", near=((0.0, 0.0, 0.0), 2.0)) == []
+        with pytest.raises(InvalidInputError, match="near radius"):
+            c.search("mug", near=((1.0, 2.0, 3.0), -1.0))
+    assert seen[0].url.params["near"] == "1.0,2.0,3.0,0.5"
+    assert seen[0].url.params["frame"] == "map"
+    assert seen[1].url.params["near"] == "0.0,0.0,0.0,2.0"
+    assert len(seen) == 2

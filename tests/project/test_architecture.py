@@ -1,0 +1,333 @@
+"""The package's shape: every module imports in a fresh interpreter, the import graph has no
+cycle (every import counts: module level, inside functions, and type-checking only), the
+library never imports the service, and no source file grows past MAX_LINES."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+#: installed name -> source folder (pyproject's package-dir)
+PACKAGES = {
+    "tactus_memory": ROOT / "tactus_memory",
+    "tactus_memory.adapters": ROOT / "adapters",
+    "tactus_memory.service": ROOT / "service",
+}
+#: the size a source file should stay under (issue 10: "no source file over ~500 lines")
+MAX_LINES = 500
+
+
+def modules() -> dict[str, Path]:
+    """Every module of the package, by its installed dotted name."""
+    out: dict[str, Path] = {}
+    for pkg, folder in PACKAGES.items():
+        for path in sorted(folder.rglob("*.py")):
+            rel = path.relative_to(folder).with_suffix("")
+            parts = [p for p in rel.parts if p != "__init__"]
+            name = ".".join([pkg, *parts])
+            out[name] = path
+    return out
+
+
+def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
+    """The package modules ``name`` imports (absolute and relative, anywhere in the file)."""
+    is_pkg = path.name == "__init__.py"
+    tree = ast.parse(path.read_text(), str(path))
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = name.split(".") if is_pkg else name.split(".")[:-1]
+                anchor = anchor[: len(anchor) - (node.level - 1)]
+                base = ".".join([*anchor, base] if base else anchor)
+            targets = [f"{base}.{a.name}" for a in node.names] + [base]
+        for t in targets:
+            # the longest known module the target names (``pkg.mod.Name`` -> ``pkg.mod``)
+            parts = t.split(".")
+            for i in range(len(parts), 0, -1):
+                cand = ".".join(parts[:i])
+                if cand in known:
+                    if cand != name:
+                        found.add(cand)
+                    break
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    mods = modules()
+    known = set(mods)
+    return {name: imports_of(name, path, known) for name, path in mods.items()}
+
+
+def cycles(g: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = [0]
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(g[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    sys.setrecursionlimit(10_000)
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_walker_sees_a_cycle_when_there_is_one() -> None:
+    g = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert cycles(g) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycle_in_the_package() -> None:
+    g = graph()
+    assert len(g) > 60  # the walk found the package (tactus_memory, adapters, service)
+    assert "tactus_memory.temporal.operators" in g["tactus_memory.memory.main"]
+    assert cycles(g) == []
+
+
+def test_the_library_never_imports_the_service() -> None:
+    g = graph()
+    for name, deps in g.items():
+        if name.startswith("tactus_memory.service") or name.startswith("tactus_memory.cli"):
+            continue  # the CLI is the application layer (``tactus serve``)
+        assert not [d for d in deps if d.startswith("tactus_memory.service")], name
+
+
+#: The layer map, bottom to top (docs/architecture.md draws it). A module belongs to the layer
+#: whose entry names it most precisely (``tactus_memory.spaces.base`` is base, the rest of
+#: ``tactus_memory.spaces`` is models); it may import its own layer and the layers below, never
+#: one above. ``tactus_memory`` alone is the package's ``__init__``.
+LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (
+        "base",
+        (
+            "tactus_memory",
+            "tactus_memory.errors",
+            "tactus_memory.limits",
+            "tactus_memory.results",
+            "tactus_memory.settings",
+            "tactus_memory.registry",
+            "tactus_memory.hashing",
+            "tactus_memory.signatures",
+            "tactus_memory.sense",
+            "tactus_memory.vectors",
+            "tactus_memory.where",
+            "tactus_memory.spaces.base",
+            "tactus_memory.policies",
+            "tactus_memory.identity",
+            "tactus_memory.batches",
+            "tactus_memory.query",
+            "tactus_memory.matching",
+        ),
+    ),
+    ("models", ("tactus_memory.spaces", "tactus_memory.touch", "tactus_memory.datasets")),
+    ("adapters", ("tactus_memory.adapters",)),
+    ("storage", ("tactus_memory.storage",)),
+    ("search", ("tactus_memory.search",)),
+    ("temporal", ("tactus_memory.temporal",)),
+    ("memory", ("tactus_memory.memory",)),
+    ("recordings", ("tactus_memory.recordings",)),
+    ("export", ("tactus_memory.export",)),
+    ("training", ("tactus_memory.training",)),
+    ("client", ("tactus_memory.client",)),
+    ("mcp", ("tactus_memory.mcp",)),
+    ("service", ("tactus_memory.service",)),
+    ("cli", ("tactus_memory.cli",)),
+)
+#: layers that may import only some of the layers below them (the remote client needs no
+#: store, search or model code: it speaks HTTP and shares the base's vocabulary)
+ONLY: dict[str, tuple[str, ...]] = {"client": ("base",)}
+
+
+def _under(name: str, pkg: str) -> bool:
+    return name == pkg or name.startswith(pkg + ".")
+
+
+def layer_of(name: str) -> int | None:
+    """The index in LAYER_MAP of the layer ``name`` belongs to (its most precise entry)."""
+    best: tuple[int, int] | None = None  # (entry length, layer index)
+    for i, (_, entries) in enumerate(LAYER_MAP):
+        for e in entries:
+            found = (name == e) if e == "tactus_memory" else _under(name, e)
+            if found and (best is None or len(e) > best[0]):
+                best = (len(e), i)
+    return None if best is None else best[1]
+
+
+def layer_violations(g: dict[str, set[str]]) -> list[str]:
+    """``module -> import`` edges that go up the layer map (or, for a layer in ONLY, to a
+    layer it may not use)."""
+    wrong = []
+    for name, deps in sorted(g.items()):
+        mine = layer_of(name)
+        if mine is None:
+            continue
+        allowed = ONLY.get(LAYER_MAP[mine][0])
+        for d in sorted(deps):
+            theirs = layer_of(d)
+            if theirs is None:
+                continue
+            if theirs > mine or (
+                allowed is not None and theirs != mine and LAYER_MAP[theirs][0] not in allowed
+            ):
+                wrong.append(f"{name} -> {d}")
+    return wrong
+
+
+def test_the_layer_check_sees_an_upward_import() -> None:
+    g = {
+        "tactus_memory.storage.store": {"tactus_memory.search.ranking", "tactus_memory.errors"},
+        "tactus_memory.search.ranking": {"tactus_memory.where", "tactus_memory.memory.main"},
+        "tactus_memory.temporal.clocks": {"tactus_memory.search.ranking"},
+        "tactus_memory.spaces.base": {"tactus_memory.spaces.minilm"},
+        "tactus_memory.client.main": {"tactus_memory.temporal.grasps", "tactus_memory.results"},
+    }
+    assert layer_violations(g) == [
+        "tactus_memory.client.main -> tactus_memory.temporal.grasps",
+        "tactus_memory.search.ranking -> tactus_memory.memory.main",
+        "tactus_memory.spaces.base -> tactus_memory.spaces.minilm",
+        "tactus_memory.storage.store -> tactus_memory.search.ranking",
+    ]
+
+
+def test_every_module_has_a_layer() -> None:
+    assert [name for name in graph() if layer_of(name) is None] == []
+
+
+def test_layers_import_only_downwards() -> None:
+    g = graph()
+    for _, entries in LAYER_MAP:
+        for e in entries:
+            assert any(_under(name, e) for name in g), e  # the walk found every entry
+    assert layer_violations(g) == []
+
+
+def test_storage_gets_its_configuration_passed_in() -> None:
+    """No ``Settings`` read inside storage: the memory (or the service) reads it once."""
+    g = graph()
+    assert [
+        n for n in g if _under(n, "tactus_memory.storage") and "tactus_memory.settings" in g[n]
+    ] == []
+
+
+def test_every_module_imports_in_a_fresh_interpreter() -> None:
+    names = sorted(modules())
+    code = (
+        "import importlib, sys\n"
+        f"for name in {names!r}:\n"
+        "    importlib.import_module(name)\n"
+        "print(len(sys.modules))\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+
+
+def test_no_source_file_is_over_max_lines() -> None:
+    long = {
+        str(path.relative_to(ROOT)): n
+        for path in modules().values()
+        if (n := len(path.read_text().splitlines())) > MAX_LINES
+    }
+    assert long == {}
+
+
+def defined_names(path: Path) -> set[str]:
+    """Names a module defines itself at top level (def, class, assignment), not imports."""
+    out: set[str] = set()
+    for node in ast.parse(path.read_text(), str(path)).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            out.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+    return out
+
+
+def test_every_name_is_imported_from_the_module_that_owns_it() -> None:
+    """No re-export shims: ``from M import N`` (library, service, tests, benchmarks) names
+    the module M that defines N (or N is a submodule of M)."""
+    mods = modules()
+    owned = {name: defined_names(path) for name, path in mods.items()}
+    files = [*mods.values(), *sorted((ROOT / "tests").rglob("*.py"))]
+    files += sorted((ROOT / "benchmarks").glob("*.py"))
+    wrong = []
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(node, ast.ImportFrom) or node.level or node.module not in mods:
+                continue
+            for alias in node.names:
+                if (
+                    alias.name not in owned[node.module]
+                    and f"{node.module}.{alias.name}" not in mods
+                ):
+                    wrong.append(
+                        f"{path.relative_to(ROOT)}:{node.lineno} {node.module}.{alias.name}"
+                    )
+    assert wrong == []
+
+
+#: what serving must never load: training, evaluation, the STAG .mat reader, plotting, Ray
+NOT_SERVED = (
+    "h5py",
+    "scipy.io",
+    "matplotlib",
+    "tactus_memory.cli",
+    "tactus_memory.datasets.stag",
+    "tactus_memory.training",
+    # bulk work on Ray (tactus_memory/recordings/ray_jobs.py) loads only for --ray
+    "ray",
+    "lance_ray",
+)
+
+
+def test_serving_loads_nothing_of_training_plotting_or_mat_reading(tmp_path: Path) -> None:
+    """The app, built on a real store with the shipped touch encoder, in a fresh interpreter:
+    no training, evaluation, plotting or ``.mat`` reading module is in ``sys.modules``."""
+    code = (
+        "import sys\n"
+        "from tactus_memory.service.app import create_app\n"
+        "from tactus_memory.settings import Settings\n"
+        f"app = create_app(Settings(data={str(tmp_path / 'm')!r}))\n"
+        "assert 'touch' in app.state.tactus.memory.senses, app.state.tactus.touch_unavailable\n"
+        f"bad = sorted(m for m in sys.modules if m.startswith({NOT_SERVED!r}))\n"
+        "print(bad)\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout.strip().splitlines()[-1] == "[]"

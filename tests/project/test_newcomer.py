@@ -1,0 +1,328 @@
+"""A newcomer's first hour, as CI runs it: a fresh copy of the checkout, an empty ``HOME``,
+``make run``, then every ``bash`` and ``python`` block of the README's tour, of the docs'
+Getting-started page and of the guides in ``PAGES``, in order and as written (``--8<--``
+includes of ``examples/`` resolved as the docs build does), then the page. Real uvicorn on
+127.0.0.1, real MiniLM, the shipped touch encoder.
+
+* The copy holds the checkout's files (tracked and new, not ignored ones: no store, no
+  runs), so ``./memory`` starts empty as on a fresh clone. The checkout's own ``.venv`` is
+  linked in and ``make`` is told it is built (``-o .venv/.base``): nothing is installed.
+* The block that is ``make run`` starts the server (``PORT=<free port>``); the docs'
+  ``localhost:8000`` / ``127.0.0.1:8000`` are rewritten to that port, nothing else.
+  ``tactus`` is on PATH as after ``source .venv/bin/activate`` (a block of its own).
+* ``curl`` fails on an HTTP error (``--fail-with-body``): a snippet answered 404 fails here.
+* A block followed by a ``prints`` block (```text) must print those lines in that order;
+  ``...`` stands for anything. Every block must exit 0.
+* Anything a snippet needs (a recording, poses, arrays) is made by an earlier snippet or
+  by a script in ``examples/``.
+* The page: a search in a real Chromium shows hits with their match bar.
+
+Also here: ``tactus serve`` opens its socket at once (``/live`` 200, ``/ready`` 503 naming
+the step while the touch encoder loads), observed on a real server whose loading waits on a
+gate file, so nothing depends on timing.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+
+from benchmarks.serving import free_port, wait_ok
+from tests.helpers.servers import stop_process
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
+#: the pages whose every bash/python block runs, in this order, after the README's tour
+PAGES = [
+    "docs/getting-started.md",
+    "docs/guides/questions.md",
+    "docs/guides/places.md",
+    "docs/guides/agents.md",
+]
+VENV = Path(sys.prefix)
+STARTUP_S = 180
+BLOCK_S = 300
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```\n", re.M | re.S)
+INCLUDE = re.compile(r'^--8<-- "([^"]+)"\n', re.M)
+MAKE_RUN = re.compile(r"^make run(\s+#.*)?\n$")
+CURL_FAILS = 'curl() { command curl --fail-with-body -sS "$@"; }\n'
+
+
+@dataclass
+class Block:
+    page: str
+    section: str
+    lang: str
+    code: str
+    prints: list[str] | None = None
+
+
+def page_blocks(page: str, text: str, *, only: str | None = None) -> list[Block]:
+    """The bash/python blocks of a page, in order (``only``: of the "## " sections whose
+    title starts so), each with the ```text block that follows it (after at most a line such
+    as "prints"); ``--8<--`` includes are replaced by the file they name."""
+    text = INCLUDE.sub(lambda m: (ROOT / m.group(1)).read_text(), text)
+    blocks: list[Block] = []
+    for section in re.split(r"^## ", text, flags=re.M):
+        title = section.splitlines()[0] if section else ""
+        if only is not None and not title.startswith(only):
+            continue
+        last_end = None
+        for m in FENCE.finditer(section):
+            lang, code = m.group(1), m.group(2)
+            between = section[last_end : m.start()] if last_end is not None else None
+            if lang == "text" and blocks and between is not None and between.count("\n") <= 3:
+                blocks[-1].prints = [ln for ln in code.splitlines() if ln.strip()]
+            elif lang in ("bash", "python"):
+                blocks.append(Block(page, title, lang, code))
+            last_end = m.end()
+    return blocks
+
+
+def all_blocks() -> list[Block]:
+    blocks = page_blocks("README.md", README.read_text(), only="A 5-minute tour")
+    for page in PAGES:
+        blocks += page_blocks(page, (ROOT / page).read_text())
+    return blocks
+
+
+def lines_in_order(expected: list[str], output: str) -> None:
+    """Each expected line (``...``: anything) matches a line of ``output``, in order."""
+    got = output.splitlines()
+    i = 0
+    for want in expected:
+        pattern = re.compile(".*".join(re.escape(p) for p in want.split("...")))
+        while i < len(got) and not pattern.fullmatch(got[i].rstrip()):
+            i += 1
+        assert i < len(got), f"the docs say it prints {want!r}; it printed:\n{output}"
+        i += 1
+
+
+def fresh_copy(dest: Path) -> None:
+    """The checkout's files as a fresh clone has them (tracked + new, not ignored)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=ROOT,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    for name in filter(None, listed.split("\0")):
+        src = ROOT / name
+        if src.is_file():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / name)
+    (dest / ".venv").symlink_to(VENV, target_is_directory=True)
+
+
+def shell_env(port: int, home: Path | None = None) -> dict[str, str]:
+    """As after ``source .venv/bin/activate``: the venv's bin first on PATH (and an empty
+    ``HOME`` of its own when given: nothing of the developer's user folder is used)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("TACTUS_", "XDG_"))}
+    env["PATH"] = f"{VENV / 'bin'}{os.pathsep}{env.get('PATH', '')}"
+    env["VIRTUAL_ENV"] = str(VENV)
+    env["OMP_NUM_THREADS"] = "1"
+    if home is not None:
+        home.mkdir(exist_ok=True)
+        env["HOME"] = str(home)
+    return env
+
+
+def run_block(block: Block, cwd: Path, port: int, env: dict[str, str]) -> str:
+    code = re.sub(r"(localhost|127\.0\.0\.1):8000", rf"\1:{port}", block.code)
+    if block.lang == "bash":
+        cmd = ["bash", "-e", "-o", "pipefail", "-c", CURL_FAILS + code]
+    else:
+        cmd = [str(VENV / "bin" / "python"), "-c", code]
+    done = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=BLOCK_S)
+    out = done.stdout + done.stderr
+    where = f"{block.page} ({block.section!r})"
+    assert done.returncode == 0, f"block of {where} failed:\n{code}\n---\n{out}"
+    if block.prints:
+        lines_in_order(block.prints, done.stdout)
+    return out
+
+
+def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
+    clone = tmp_path / "tactus-memory"
+    fresh_copy(clone)
+    assert not (clone / "memory").exists()
+    blocks = all_blocks()
+    starts = [b for b in blocks if MAKE_RUN.match(b.code)]
+    assert len(starts) == 1 and starts[0].page == PAGES[0], [b.code for b in starts]
+    assert [b for b in blocks if b.page == "README.md"], "no tour in the README"
+    assert {b.page for b in blocks} == {"README.md", *PAGES}  # every page has snippets
+    assert any("websockets.connect" in b.code for b in blocks), "no glove client"
+    assert any("make_recording.py" in b.code for b in blocks), "no recording"
+    port = free_port()
+    log = tmp_path / "make-run.log"
+    home = tmp_path / "home"
+    env = shell_env(port, home)
+    make = ["make", "run", f"PORT={port}", "-o", ".venv/.base"]  # the block, on a free port
+    with log.open("ab") as fh:
+        server = subprocess.Popen(
+            make, cwd=clone, env=env, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True
+        )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        if wait_ok(server, base + "/ready", STARTUP_S, interval=0.2) is None:
+            pytest.fail(f"`make run` did not get ready in {STARTUP_S} s:\n{log.read_text()}")
+        started = log.read_text()
+        assert "pip" not in started.lower(), started  # nothing was installed
+        assert f"memory browser: {base}/" in started and "ready: GET /ready" in started
+        # the light server: ONNX Runtime from the user's cache (MiniLM exported there on this
+        # first start, the touch graph shipped), torch never loaded by the server
+        onnx = home / ".cache" / "tactus" / "onnx"
+        assert f"models run on:  ONNX Runtime ({onnx}/" in started, started
+        assert "exporting MiniLM to ONNX once" in started, started
+        (served,) = serving_processes(server.pid)
+        maps = Path(f"/proc/{served}/maps").read_text()
+        assert "onnxruntime" in maps and "libtorch" not in maps
+        # the README's tour comes after `make run`: run the pages' blocks in that order
+        order = [b for b in blocks if b.page != "README.md"]
+        i = order.index(starts[0]) + 1
+        order = [*order[:i], *[b for b in blocks if b.page == "README.md"], *order[i:]]
+        outputs: dict[str, list[str]] = {}
+        timings: list[tuple[float, str]] = []
+        for block in order:
+            if block is starts[0]:
+                continue  # the server above
+            t0 = time.monotonic()
+            out = run_block(block, clone, port, env)
+            outputs.setdefault(block.section, []).append(out)
+            timings.append((round(time.monotonic() - t0, 1), block.code.splitlines()[0]))
+        print("snippets, seconds each:", timings)
+        http = "\n".join(outputs["Quickstart: touch and notes over HTTP"])
+        assert http.count('"count":1') == 3, http  # the note, the JSON window, the .npy one
+        assert '"match":' in http and '"bar":' in http
+        shell = "\n".join(outputs["Quickstart: the shell"])
+        assert "1 occurrence of" in shell and "<bool>" not in shell
+        assert re.search(r"\b\d+ sessions?\b", shell), shell
+        assert '"deleted":' in shell  # the delete example
+        # the recording went into the store the server serves
+        assert (clone / "run1-served.rrd").stat().st_size > 1000
+        assert (clone / "run1.rrd").stat().st_size > 1000
+        sessions = {s["id"] for s in httpx.get(base + "/sessions").json()["sessions"]}
+        assert {"run1", "tour", "kitchen", "walk", "yard", "desk"} <= sessions, sessions
+        assert not {"s1", "s2"} & sessions, sessions  # both deleted
+        where = httpx.get(base + "/where", params={"q": "picked up the drill", "session": "yard"})
+        assert where.json()["places"][0]["position"][0] == pytest.approx(6.0, abs=0.1), where.text
+        page_search(base, tmp_path)
+    finally:
+        stop_process(server)
+    assert (clone / "memory").is_dir()  # the one default store, in the checkout
+
+
+def serving_processes(session: int) -> list[int]:
+    """The ``tactus serve`` processes of the session ``make run`` leads."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            cmdline = (stat.parent / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue  # gone meanwhile
+        if int(fields[3]) == session and b"serve" in cmdline and b"make" not in cmdline[0]:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def page_search(base: str, tmp_path: Path) -> None:
+    """The page, as the newcomer opens it: a search lists hits, each with its match bar."""
+    from tests.helpers.browser import launch, sync_playwright
+
+    with sync_playwright() as pw:
+        context = launch(pw, tmp_path / "chromium-profile")
+        try:
+            page = context.new_page()
+            page.set_default_timeout(60_000)
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(base + "/")
+            page.wait_for_selector("body[data-ready=true]")
+            page.uncheck("#f-group")
+            page.fill("#q", "holding a mug")
+            page.keyboard.press("Enter")
+            page.wait_for_selector("#results > li.hit")
+            bars = page.eval_on_selector_all("#results .bar", "els => els.map(e => e.textContent)")
+            hits = page.eval_on_selector_all("#results > li.hit", "els => els.length")
+            assert bars and len(bars) == hits, (bars, hits)
+            assert "clear the match bar" in page.text_content("#search-status")
+            assert not errors, errors
+        finally:
+            context.close()
+
+
+def test_serve_opens_its_socket_at_once_and_says_what_loads(tmp_path: Path) -> None:
+    """``tactus serve`` (real uvicorn, real MiniLM): while the touch encoder loads, /live is
+    200, /ready and /health are 503 naming the step, a search is 503 + Retry-After; then
+    ready. The loading waits on a gate file here, so the window is observed, not raced."""
+    gate = tmp_path / "gate"
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    hook = (
+        "import os, time\n"
+        "import tactus_memory.service.app as app\n"
+        "load = app.register_default_senses\n"
+        "def gated(*a, **k):\n"
+        f"    end = time.monotonic() + {STARTUP_S}\n"
+        f"    while not os.path.exists({str(gate)!r}) and time.monotonic() < end:\n"
+        "        time.sleep(0.05)\n"
+        "    return load(*a, **k)\n"
+        "app.register_default_senses = gated\n"
+        "from tactus_memory.cli import main\n"
+        "main()\n"
+    )
+    cmd = [sys.executable, "-c", hook, "serve", "--port", str(port), "--data", str(tmp_path / "m")]
+    log = tmp_path / "serve.log"
+    with log.open("ab") as fh:
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=shell_env(port))
+    try:
+        assert wait_ok(proc, base + "/live", STARTUP_S, interval=0.1) is not None, log.read_text()
+        deadline = time.monotonic() + STARTUP_S
+        while "[3/3] loading the touch encoder ..." not in log.read_text():
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text()
+            time.sleep(0.1)
+        r = httpx.get(base + "/ready")
+        assert r.status_code == 503 and r.headers["retry-after"] == "1"
+        assert "starting: [3/3] loading the touch encoder" in r.json()["detail"]
+        assert httpx.get(base + "/health").status_code == 503
+        r = httpx.get(base + "/search", params={"q": "a mug"})
+        assert (
+            r.status_code == 503 and "starting" in r.json()["detail"] and "retry-after" in r.headers
+        )
+        assert httpx.get(base + "/").status_code == 200  # the page loads and waits
+        gate.touch()
+        assert wait_ok(proc, base + "/ready", STARTUP_S, interval=0.1) is not None, log.read_text()
+        assert httpx.get(base + "/health").json()["touch"] is True
+        window = np.full((8, 32, 32), 512, np.int16)
+        window[:, 10:22, 8:20] = 640
+        r = httpx.post(f"{base}/sessions/s/touch", json={"frames": window.tolist(), "t": 1.0})
+        assert r.status_code == 201, r.text
+    finally:
+        stop_process(proc)
+
+
+def test_a_checkpoint_that_fails_to_load_after_the_socket_opened_exits_2(tmp_path: Path) -> None:
+    """The touch encoder loads after the socket opens; a named checkpoint that cannot load
+    still stops the command with its one-line reason and exit status 2."""
+    bad = tmp_path / "broken.safetensors"
+    bad.write_bytes(b"not a checkpoint")
+    cmd = [sys.executable, "-c", "from tactus_memory.cli import main; main()", "serve"]
+    cmd += ["--port", str(free_port()), "--data", str(tmp_path / "m")]
+    cmd += ["--touch-checkpoint", str(bad)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=STARTUP_S, env=shell_env(0))
+    assert done.returncode == 2, done.stderr[-2000:]
+    last = [ln for ln in done.stderr.splitlines() if ln.startswith("tactus serve:")]
+    assert len(last) == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]

@@ -1,0 +1,126 @@
+"""One Scope value along every search path; sense options flowing through the memory; the
+``source`` filter on /search (TestClient and a real uvicorn)."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from tactus_memory.adapters.touch import CalibratedWindow, TactusEncoder
+from tactus_memory.errors import DynamicRangeError, InvalidInputError
+from tactus_memory.memory.main import Memory
+from tactus_memory.query import Scope, embed_query
+from tactus_memory.service.app import create_app
+from tactus_memory.settings import Settings
+from tactus_memory.touch.profile import STAG_GLOVE
+from tactus_memory.where import Where
+from tests.helpers.fakes import HashingSpace
+from tests.helpers.service import make_memory
+
+
+@pytest.fixture
+def mem(tmp_path) -> Memory:
+    m = Memory.open(str(tmp_path / "m"), space=HashingSpace())
+    m.add("a", "text", "red ball on the table", t=1.0, source="cam-1")
+    m.add("a", "text", "red ball on the floor", t=2.0, source="cam-2")
+    m.add("b", "text", "red ball in the box", t=10.0)
+    return m
+
+
+def test_scope_of_applies_keywords_and_rejects_misspelt_ones() -> None:
+    base = Scope(session="a", senses=["text"])
+    assert Scope.of(base, after=1.0) == Scope(session="a", senses=["text"], after=1.0)
+    assert Scope.of(base, session=None) is base  # None keywords leave the scope as it is
+    with pytest.raises(TypeError, match="sesion"):
+        Scope.of(sesion="a")
+
+
+def test_scope_where_is_the_store_filter_and_checks_order() -> None:
+    scope = Scope(session="a", source="cam-1", after=1.0, before=5.0)
+    expected = Where().session("a").overlaps(1.0, 5.0).source("cam-1").sql()
+    assert scope.where().sql() == expected
+    assert "t_end >= 0.5" in scope.where(pad=0.5).sql()
+    with pytest.raises(InvalidInputError, match="later than"):
+        Scope(after=5.0, before=1.0).where(pad=10.0)  # checked before padding
+
+
+def test_search_takes_a_scope_or_the_same_keywords(mem) -> None:
+    by_kw = mem.search("red ball", session="a", source="cam-2")
+    by_scope = mem.search("red ball", scope=Scope(session="a", source="cam-2"))
+    assert [h.id for h in by_kw] == [h.id for h in by_scope]
+    assert [h.source for h in by_kw] == ["cam-2"]
+    # keywords refine a given scope
+    assert mem.search("red ball", scope=Scope(session="a"), source="cam-1")[0].source == "cam-1"
+    with pytest.raises(TypeError, match="sesion"):
+        mem.search("red ball", sesion="a")
+    assert mem.count("red ball", scope=Scope(session="b"), threshold=0.0) == 1
+
+
+def test_group_moment_embeds_the_query_once(mem) -> None:
+    space = mem.space
+    mem.search("warm up", session="a")  # the calibration probes are embedded once, first
+    before = space.calls
+    moments = mem.search("red ball", group="moment", session="a")
+    assert space.calls - before == 1
+    assert {m.session for m in moments} == {"a"}
+    q = embed_query(space, "red ball")
+    assert q.shape == (1, space.dim)
+
+
+def test_http_search_filters_by_source(tmp_path) -> None:
+    memory = make_memory(tmp_path / "svc")
+    memory.add("a", "text", "red ball", t=1.0, source="cam-1")
+    memory.add("a", "text", "red ball", t=2.0, source="cam-2")
+    with TestClient(create_app(Settings(), memory=memory)) as c:
+        hits = c.get("/search", params={"q": "red ball", "source": "cam-2"}).json()["hits"]
+        assert [h["source"] for h in hits] == ["cam-2"]
+        r = c.get("/search", params={"q": "red ball", "source": "bad id!"})
+        assert r.status_code == 422 and "source" in r.json()["detail"]
+
+
+@pytest.mark.slow
+def test_real_server_search_filters_by_source(tmp_path) -> None:
+    from tests.helpers.servers import Server
+
+    data = tmp_path / "memory"
+    with Memory.open(str(data)) as m:  # the real MiniLM space, a real LanceDB store
+        m.add("k", "text", "the mug was hot", t=1.0, source="cam-1")
+        m.add("k", "text", "the mug was hot", t=2.0, source="cam-2")
+    server = Server(data, tmp_path / "server.log")
+    try:
+        with httpx.Client(base_url=server.base, timeout=60) as c:
+            hits = c.get("/search", params={"q": "hot mug", "source": "cam-1"}).json()["hits"]
+            assert [(h["source"], h["t"]) for h in hits] == [("cam-1", 1.0)]
+            every = c.get("/search", params={"q": "hot mug"}).json()["hits"]
+            assert {h["source"] for h in every} == {"cam-1", "cam-2"}
+    finally:
+        server.stop()
+
+
+def test_touch_options_flow_through_the_memory_and_validate_once(tmp_path, enc, monkeypatch):
+    mem = Memory.open(str(tmp_path / "t"), space=HashingSpace())
+    mem.add_sense(enc)
+    rng = np.random.default_rng(0)
+    raw = rng.integers(505, 700, size=(8, 32, 32)).astype(np.float32)
+    cal = STAG_GLOVE.calibrate(raw)
+    with pytest.raises(DynamicRangeError, match="calibrated=True"):
+        mem.add("s", "touch", cal, options={"calibrated": False})
+    calls: list[object] = []
+    real = TactusEncoder.validate
+
+    def counting(self, item, **kw):
+        calls.append(kw)
+        return real(self, item, **kw)
+
+    monkeypatch.setattr(TactusEncoder, "validate", counting)
+    a = mem.add("s", "touch", cal, t=1.0, options={"calibrated": True})
+    assert calls == [{"calibrated": True}]  # once: embed trusts the validated window
+    b = mem.add("s", "touch", raw, t=2.0, options={"calibrated": False})
+    assert len(calls) == 2
+    assert np.allclose(mem.get_item(a).raw, mem.get_item(b).raw, atol=1e-2)
+    item = mem.validate_item("touch", raw, {"calibrated": False, "unknown": 1})
+    assert isinstance(item, CalibratedWindow)
+    assert enc.validate(item) is item  # a validated window comes back as it is
+    mem.add("s", "text", "a note", options={"calibrated": True})  # not a text option
