@@ -46,8 +46,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tactus_memory.recordings import samples as rf  # noqa: E402
 from tactus_memory.recordings.ingest import ingest_recording  # noqa: E402
-from tests.helpers import recording_files as rf  # noqa: E402
 
 SESSION = "shift"
 HZ = 30.0

@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.recordings import TOPICS, make_messages  # noqa: E402
-from tests.helpers import recording_files as rf  # noqa: E402
+from tactus_memory.recordings import samples as rf  # noqa: E402
 
 #: Ray worker counts measured (the machine has 2 cores)
 WORKERS = (1, 2)

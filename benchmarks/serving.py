@@ -9,9 +9,12 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import httpx
 
@@ -87,3 +90,35 @@ def kill_process(proc: subprocess.Popen | None, wait_s: float = 30) -> None:
     if proc is not None and proc.poll() is None:
         proc.send_signal(signal.SIGKILL)
         proc.wait(wait_s)
+
+
+@contextmanager
+def serve_app(app: Any, startup_s: float = 180, probe: str = "/live") -> Iterator[str]:
+    """A real uvicorn server for ``app`` on a free port of 127.0.0.1, in a thread of this
+    process (so a test can inject failures into the memory it serves); yields its base URL
+    once ``probe`` answers 200, and stops it (lifespan shutdown included) on exit.
+    ``startup_s`` is a liveness bound only: a loaded machine starts slowly."""
+    import uvicorn
+
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + startup_s
+    while True:
+        try:
+            if httpx.get(base + probe, timeout=2).status_code == 200:
+                break
+        except httpx.TransportError:
+            pass
+        if time.monotonic() > deadline or not thread.is_alive():
+            server.should_exit = True
+            thread.join(15)
+            raise RuntimeError(f"uvicorn at {base} did not answer {probe} within {startup_s} s")
+        time.sleep(0.05)
+    try:
+        yield base
+    finally:
+        server.should_exit = True
+        thread.join(30)

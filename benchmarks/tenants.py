@@ -33,12 +33,12 @@ import httpx  # noqa: E402
 import psutil  # noqa: E402
 
 from benchmarks.memory import pct  # noqa: E402
+from benchmarks.serving import serve_app  # noqa: E402
 from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.service.app import create_app  # noqa: E402
 from tactus_memory.settings import Settings  # noqa: E402
 from tactus_memory.spaces.minilm import MiniLMSpace  # noqa: E402
 from tactus_memory.storage.keys import KeyStore  # noqa: E402
-from tests.helpers.servers import serve_app  # noqa: E402
 
 
 def _ms(xs: list[float]) -> dict[str, float]:

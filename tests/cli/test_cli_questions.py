@@ -15,13 +15,13 @@ import pytest
 from typer.testing import CliRunner
 
 import tactus_memory.spaces as spaces
+from benchmarks.serving import serve_app
 from tactus_memory.cli import app
 from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tests.helpers.fakes import HashingSpace
 from tests.helpers.kitchen import MUG_GRASPS, S, kitchen_notes
-from tests.helpers.servers import serve_app
 
 DIM = 64
 

@@ -14,6 +14,7 @@ import httpx2
 from mcp import Client
 from mcp.client.streamable_http import streamable_http_client
 
+from benchmarks.serving import serve_app
 from tactus_memory.mcp.server import build_server
 from tactus_memory.memory.main import Memory
 from tactus_memory.service.auth import Gate
@@ -21,7 +22,6 @@ from tactus_memory.service.mcp_http import mcp_http_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.keys import KeyStore
 from tests.helpers.fakes import HashingSpace
-from tests.helpers.servers import serve_app
 
 LIST = {"jsonrpc": "2.0", "id": 1, "method": "tools/list"}
 

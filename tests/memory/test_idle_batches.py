@@ -8,12 +8,12 @@ from __future__ import annotations
 import httpx
 import pytest
 
+from benchmarks.serving import serve_app
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import IdleWindowError
 from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.helpers.servers import serve_app
 from tests.helpers.service import npy_bytes, windows
 
 

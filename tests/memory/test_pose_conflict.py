@@ -8,10 +8,10 @@ from __future__ import annotations
 import httpx
 import pytest
 
+from benchmarks.serving import serve_app
 from tactus_memory.errors import PoseConflictError
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.helpers.servers import serve_app
 from tests.helpers.service import make_memory
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from benchmarks.serving import serve_app
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import SenseSwappedError
 from tactus_memory.hashing import file_sha256
@@ -24,7 +25,6 @@ from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.touch.checkpoint import default_checkpoint_path, load_checkpoint
-from tests.helpers.servers import serve_app
 from tests.helpers.service import windows
 
 

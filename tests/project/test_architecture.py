@@ -331,3 +331,45 @@ def test_serving_loads_nothing_of_training_plotting_or_mat_reading(tmp_path: Pat
     )
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Every module ``path`` names in an import (``from a import b`` gives ``a`` and ``a.b``)."""
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            out.add(node.module)
+            out.update(f"{node.module}.{a.name}" for a in node.names)
+    return out
+
+
+def test_no_test_module_imports_another() -> None:
+    """Shared pieces live in tests/helpers/ (and fixtures in conftest.py), never in a test."""
+    wrong = [
+        f"{path.relative_to(ROOT)} -> {name}"
+        for path in sorted((ROOT / "tests").rglob("*.py"))
+        for name in sorted(_imported_modules(path))
+        if name.startswith("tests.") and name.rsplit(".", 1)[-1].startswith("test_")
+    ]
+    assert wrong == []
+
+
+def test_benchmarks_import_the_package_not_the_tests() -> None:
+    wrong = [
+        f"{path.relative_to(ROOT)} -> {name}"
+        for path in sorted((ROOT / "benchmarks").rglob("*.py"))
+        for name in sorted(_imported_modules(path))
+        if name == "tests" or name.startswith("tests.")
+    ]
+    assert wrong == []
+
+
+def test_tests_mirror_the_package() -> None:
+    """A test module sits in the folder of the layer it tests (tests/storage/, ...), helpers
+    in tests/helpers/: none lies loose at the top of tests/."""
+    loose = [p.name for p in (ROOT / "tests").glob("test_*.py")]
+    assert loose == []
+    folders = {p.name for p in (ROOT / "tests").iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert {"helpers", "storage", "search", "temporal", "memory", "service"} <= folders

@@ -22,9 +22,9 @@ from typer.testing import CliRunner
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.memory.main import Memory
+from tactus_memory.recordings import samples as rf
 from tactus_memory.recordings.ingest import ingest_recording
 from tactus_memory.recordings.ray_jobs import LOCAL, connect, ingest_on_ray
-from tests.helpers import recording_files as rf
 from tests.helpers.recording_files import N_FRAMES, TOPICS, _messages
 from tests.helpers.service import make_memory
 from tests.helpers.touch_pair import Pair, train_pair

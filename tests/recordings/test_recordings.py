@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from tactus_memory.errors import RecordingError, UnknownSenseError
+from tactus_memory.recordings import samples as rf
 from tactus_memory.recordings.export import export_rerun
 from tactus_memory.recordings.ingest import ingest_recording, list_topics, topic_source
 from tactus_memory.touch.windows import cut_windows
-from tests.helpers import recording_files as rf
 from tests.helpers.fakes import HashingSpace
 from tests.helpers.recording_files import N_FRAMES, NOTES, START, TOPICS, _messages
 from tests.helpers.service import make_memory

@@ -13,9 +13,9 @@ from typer.testing import CliRunner
 
 from tactus_memory.errors import RecordingError
 from tactus_memory.memory.main import Memory
+from tactus_memory.recordings import samples as rf
 from tactus_memory.recordings.export import export_rerun
 from tactus_memory.recordings.ingest import ingest_recording
-from tests.helpers import recording_files as rf
 
 pytestmark = pytest.mark.slow
 

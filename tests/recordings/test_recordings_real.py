@@ -18,10 +18,10 @@ import pytest
 from typer.testing import CliRunner
 
 from tactus_memory.memory.main import Memory
+from tactus_memory.recordings import samples as rf
 from tactus_memory.recordings.export import export_rerun
 from tactus_memory.recordings.ingest import ingest_recording
 from tactus_memory.touch.windows import cut_windows
-from tests.helpers import recording_files as rf
 
 pytestmark = pytest.mark.slow
 

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import httpx
 
+from benchmarks.serving import serve_app
 from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
 from tests.helpers.fakes import HashingSpace
-from tests.helpers.servers import serve_app
 
 
 def _memory(path: Path) -> Memory:

@@ -20,6 +20,7 @@ import httpx
 import pytest
 from typer.testing import CliRunner
 
+from benchmarks.serving import serve_app
 from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.memory.main import Memory
 from tactus_memory.policies import MaintenanceConfig
@@ -27,7 +28,6 @@ from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.tables import IndexConfig
 from tests.helpers.fakes import HashingSpace
-from tests.helpers.servers import serve_app
 from tests.helpers.service import GatedTouch, make_memory, window
 
 TOKEN = "t0k"

@@ -11,12 +11,12 @@ import threading
 import httpx
 import pytest
 
+from benchmarks.serving import serve_app
 from tactus_memory.errors import ThrottledError
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage import keys as keys_module
 from tactus_memory.storage.keys import FAILED_CHECKS_PER_S, KeyStore
-from tests.helpers.servers import serve_app
 from tests.helpers.service import make_memory
 
 

@@ -11,10 +11,10 @@ import time
 import httpx
 from typer.testing import CliRunner
 
+from benchmarks.serving import serve_app
 from tactus_memory.cli import app
 from tactus_memory.identity import DEFAULT_TENANT
 from tactus_memory.storage.keys import KeyStore
-from tests.helpers.servers import serve_app
 from tests.helpers.service import make_memory
 
 

@@ -13,13 +13,13 @@ import httpx
 import pytest
 from starlette.routing import Route
 
+from benchmarks.serving import serve_app
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
 from tests.helpers.places import POSES
 from tests.helpers.routes import _concrete, _is_open, flat_routes
-from tests.helpers.servers import serve_app
 from tests.helpers.service import make_memory, npy_bytes, touch_json, window
 
 OPERATOR = "operator-s3cret"

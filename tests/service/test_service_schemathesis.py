@@ -19,9 +19,9 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from benchmarks.serving import serve_app
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.helpers.servers import serve_app
 from tests.helpers.service import make_memory, window
 
 pytestmark = pytest.mark.slow

@@ -13,12 +13,12 @@ import httpx
 import numpy as np
 import pytest
 
+from benchmarks.serving import serve_app
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.tables import IndexConfig
-from tests.helpers.servers import serve_app
 
 #: small enough that the scalar indexes (id, session, ...) and the ANN index exist, so
 #: their files are searched too

@@ -11,12 +11,12 @@ from contextlib import ExitStack
 
 import httpx
 
+from benchmarks.serving import serve_app
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.keys import KeyStore
 from tests.helpers.replicas import STALENESS, open_replica, wait_for
 from tests.helpers.s3 import WAIT_S
-from tests.helpers.servers import serve_app
 
 
 def test_a_key_made_elsewhere_works_and_is_revoked_on_every_replica(uri: str) -> None:  # noqa: F811
