@@ -62,7 +62,7 @@ class Sense(ABC):
     #: keyword options ``validate`` takes (``Memory.add(..., options=...)`` passes these on;
     #: e.g. the touch sense's ``calibrated``); options a sense does not declare are not its own
     validate_options: frozenset[str] = frozenset()
-    #: what ``tactus_memory.plugins.register`` files it under
+    #: what ``tactus_memory.registry.register`` files it under
     plugin_kind = "sense"
     #: ROS 2 message types a recording topic of this sense may carry (``from_message``)
     message_types: tuple[str, ...] = ()

@@ -16,7 +16,7 @@ from typing import Annotated
 from fastapi import APIRouter, BackgroundTasks, Query
 from fastapi.responses import FileResponse
 
-from tactus_memory.recordings.export import export_rerun
+from tactus_memory.recordings.rerun import export_rerun
 from tactus_memory.service.deps import MemoryDep, SessionId
 from tactus_memory.service.problems import ServiceUnavailable, problem_responses
 

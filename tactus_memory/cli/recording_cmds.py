@@ -28,7 +28,7 @@ from tactus_memory.cli.common import (
 )
 from tactus_memory.cli.memory_cmds import _data_dir, _open, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
-from tactus_memory.recordings.export import export_rerun
+from tactus_memory.recordings.rerun import export_rerun
 
 if TYPE_CHECKING:
     from tactus_memory.memory.main import Memory

@@ -1,6 +1,6 @@
 """Recordings in, recordings out: ROS 2 bags and MCAP files into a memory, sessions to Rerun.
 
-    from tactus_memory.recordings.export import export_rerun
+    from tactus_memory.recordings.rerun import export_rerun
     from tactus_memory.recordings.ingest import ingest_recording
     ingest_recording(memory, "run1.mcap", session="run1",
                      topics={"/notes": "text", "/glove/pressure": "touch"})

@@ -373,3 +373,70 @@ def test_tests_mirror_the_package() -> None:
     assert loose == []
     folders = {p.name for p in (ROOT / "tests").iterdir() if p.is_dir() and p.name != "__pycache__"}
     assert {"helpers", "storage", "search", "temporal", "memory", "service"} <= folders
+
+
+# ------------------------------------------------------------------ the docs' architecture page
+PAGE = ROOT / "docs" / "architecture.md"
+#: the package folders as the checkout has them, in the order the page lists them
+TREE_ROOTS = (("tactus_memory", ROOT / "tactus_memory"), ("adapters", ROOT / "adapters"),
+              ("service", ROOT / "service"))  # fmt: skip
+
+
+def render_tree() -> str:
+    """One line per package folder: its path and its modules (``__init__`` left out)."""
+    lines = []
+    for label, folder in TREE_ROOTS:
+        for d in sorted([folder, *(p for p in folder.rglob("*") if p.is_dir())]):
+            if not (d / "__init__.py").exists():
+                continue  # data folders (configs, checkpoints, plans, static)
+            mods = sorted(p.stem for p in d.glob("*.py") if p.stem != "__init__")
+            rel = label + "/" + d.relative_to(folder).as_posix() + "/"
+            lines.append(f"{rel.replace('/./', '/'):<28}{' '.join(mods)}".rstrip())
+    return "```text\n" + "\n".join(lines) + "\n```"
+
+
+def render_layers() -> str:
+    rows = ["| layer | packages and modules |", "| --- | --- |"]
+    for name, entries in LAYER_MAP:
+        shown = [e.removeprefix("tactus_memory.") if e != "tactus_memory" else "__init__"
+                 for e in entries]  # fmt: skip
+        rule = " (imports only the base)" if name in ONLY else ""
+        rows.append(f"| {name}{rule} | {', '.join(f'`{s}`' for s in shown)} |")
+    return "\n".join(rows)
+
+
+def _block(text: str, name: str) -> str:
+    start, end = f"<!-- {name}:start -->\n", f"\n<!-- {name}:end -->"
+    return text[text.index(start) + len(start) : text.index(end)]
+
+
+def write_page() -> None:
+    text = PAGE.read_text()
+    for name, body in (("tree", render_tree()), ("layers", render_layers())):
+        old = _block(text, name)
+        text = text.replace(f"<!-- {name}:start -->\n{old}", f"<!-- {name}:start -->\n{body}")
+    PAGE.write_text(text)
+
+
+def test_the_docs_page_shows_the_tree_and_the_layer_map_as_they_are() -> None:
+    text = PAGE.read_text()
+    assert _block(text, "tree") == render_tree()
+    assert _block(text, "layers") == render_layers()
+
+
+def test_every_file_the_docs_page_names_exists() -> None:
+    """Paths in backticks (``memory/writes.py``, ``service/routers/touch.py``) name real files:
+    under the checkout, or under ``tactus_memory/``."""
+    import re
+
+    named = set(re.findall(r"`([\w/]+\.py)[`.:]", PAGE.read_text()))
+    assert len(named) > 20
+    missing = [
+        n for n in sorted(named)
+        if not (ROOT / n).exists() and not (ROOT / "tactus_memory" / n).exists()
+    ]  # fmt: skip
+    assert missing == []
+
+
+if __name__ == "__main__":  # python -m tests.project.test_architecture: rewrite the page's blocks
+    write_page()

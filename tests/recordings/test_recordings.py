@@ -13,8 +13,8 @@ import pytest
 
 from tactus_memory.errors import RecordingError, UnknownSenseError
 from tactus_memory.recordings import samples as rf
-from tactus_memory.recordings.export import export_rerun
 from tactus_memory.recordings.ingest import ingest_recording, list_topics, topic_source
+from tactus_memory.recordings.rerun import export_rerun
 from tactus_memory.touch.windows import cut_windows
 from tests.helpers.fakes import HashingSpace
 from tests.helpers.recording_files import N_FRAMES, NOTES, START, TOPICS, _messages
@@ -284,7 +284,7 @@ def test_exported_heat_map_is_the_page_renderer(tmp_path) -> None:
     """The .rrd image of a window is exactly render.window_rgba's picture of the stored window."""
     from rerun.chunk import RrdReader
 
-    from tactus_memory.recordings.export import EXPORT_SCALE
+    from tactus_memory.recordings.rerun import EXPORT_SCALE
     from tactus_memory.touch.render import window_rgba
 
     path = rf.write_mcap(tmp_path / "run.mcap", _messages())

@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 from tactus_memory.errors import RecordingError
 from tactus_memory.memory.main import Memory
 from tactus_memory.recordings import samples as rf
-from tactus_memory.recordings.export import export_rerun
 from tactus_memory.recordings.ingest import ingest_recording
+from tactus_memory.recordings.rerun import export_rerun
 
 pytestmark = pytest.mark.slow
 

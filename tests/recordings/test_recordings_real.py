@@ -19,8 +19,8 @@ from typer.testing import CliRunner
 
 from tactus_memory.memory.main import Memory
 from tactus_memory.recordings import samples as rf
-from tactus_memory.recordings.export import export_rerun
 from tactus_memory.recordings.ingest import ingest_recording
+from tactus_memory.recordings.rerun import export_rerun
 from tactus_memory.touch.windows import cut_windows
 
 pytestmark = pytest.mark.slow
