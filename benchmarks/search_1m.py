@@ -41,6 +41,7 @@ from serving import free_port, start_serve, stop_process, wait_ok
 from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
+from tactus_memory.search.ranking import Ranker
 from tactus_memory.storage.tables import IndexConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,7 +51,7 @@ K = 10
 GRIDS: dict[str, list[dict[str, Any]]] = {
     "IVF_SQ": [
         {"nprobes": p, "ef": None, "refine_factor": r}
-        for p in (10, 20, 40, 80)
+        for p in (10, 20, 40, 64, 80, 96)
         for r in (None, 2, 5)
     ],
     "IVF_PQ": [
@@ -60,7 +61,7 @@ GRIDS: dict[str, list[dict[str, Any]]] = {
     ],
     "IVF_RQ": [
         {"nprobes": p, "ef": None, "refine_factor": r}
-        for p in (10, 20, 40, 80)
+        for p in (24, 40, 64, 80, 96)
         for r in (5, 10, 20)
     ],
     "IVF_HNSW_SQ": [
@@ -128,6 +129,24 @@ def spec_store(cache: Path, base: Path, n: int, kind: str, rows_per_part: int) -
     return {"path": path, **json.loads(info_path.read_text())}
 
 
+def remeasure(info: dict[str, Any], kind: str, rows_per_part: int) -> None:
+    """Measure the probes of a cached spec's index again (StoreIndexes.measure_probes, as
+    a build does) and record them in its store and bench-index.json."""
+    cfg = IndexConfig(index_type=kind, rows_per_partition=rows_per_part, threshold=10**12)
+    mem = open_store(info["path"], cfg)
+    t0 = time.perf_counter()
+    measured = mem.store.measure_probes()
+    record = json.loads(mem.store.get_meta("index") or "{}")
+    record.update(measured, ladder={str(p): r for p, r in measured["ladder"].items()})
+    mem.store.set_meta("index", json.dumps(record))
+    mem.close()
+    info["measured"] = record
+    info["remeasured_s"] = time.perf_counter() - t0
+    saved = {k: v for k, v in info.items() if k != "path"}
+    (info["path"] / "bench-index.json").write_text(json.dumps(saved))
+    print(f"  remeasured {kind}:{rows_per_part}: {record}", flush=True)
+
+
 def filters(data: dict[str, Any]) -> dict[str, tuple[dict[str, Any], np.ndarray]]:
     """name -> (search_vector keyword filters, the row mask they allow)."""
     day = 86_400.0
@@ -146,10 +165,16 @@ def filters(data: dict[str, Any]) -> dict[str, tuple[dict[str, Any], np.ndarray]
 
 
 def filtered(mem: Memory, data: dict[str, Any], ids: np.ndarray, q: np.ndarray) -> dict[str, Any]:
+    """Each filter's p50/p95/recall beside the unfiltered search on the same queries, timed
+    just before it (``ratio_p50``: filtered over unfiltered p50)."""
     out = {}
+    truth = exact_topk(mem, data, ids, q, None, senses=rv.SENSES)
     for name, (kw, mask) in filters(data).items():
         truth = exact_topk(mem, data, ids, q, mask, senses=rv.SENSES)
+        base = measure(mem, q, truth)
         r = measure(mem, q, truth, **kw)
+        r["unfiltered_p50_ms"] = base["p50_ms"]
+        r["ratio_p50"] = round(r["p50_ms"] / base["p50_ms"], 2)
         scope = Scope.of(**kw)
         sql = scope.where().senses(scope.senses).sql() or ""
         p = plan(mem, q[0], sql)
@@ -164,10 +189,36 @@ def filtered(mem: Memory, data: dict[str, Any], ids: np.ndarray, q: np.ndarray) 
         )
         out[name] = r
         print(
-            f"    {name}: p50 {r['p50_ms']:.1f} p95 {r['p95_ms']:.1f} ms, recall "
-            f"{r['recall_at_10']:.3f}, scalar index {r['plan_uses_scalar_index']}",
+            f"    {name}: p50 {r['p50_ms']:.1f} p95 {r['p95_ms']:.1f} ms (x{r['ratio_p50']} of "
+            f"unfiltered), recall {r['recall_at_10']:.3f}, scalar index "
+            f"{r['plan_uses_scalar_index']}",
             flush=True,
         )
+    return out
+
+
+def split_vs_shared(
+    mem: Memory, q: np.ndarray, truth: list[set[str]], repeats: int, settings: dict[str, Any]
+) -> dict[str, Any]:
+    """The per-sense queries (each sense at its own probes, at once: ``Ranker.split_senses``)
+    against the shared query with its follow-ups (before), back to back on one store, at
+    ``settings`` (the index's own probes)."""
+    for key, val in settings.items():
+        setattr(mem.store.index, key, val)
+    out: dict[str, Any] = {"split": [], "shared": []}
+    try:
+        for r in range(repeats):
+            for label, split in (("split", True), ("shared", False)):
+                Ranker.split_senses = split
+                m = {**measure(mem, q, truth), "load_1min": load1()}
+                out[label].append(m)
+                print(
+                    f"  round {r} {label}: p50 {m['p50_ms']:.2f} p95 {m['p95_ms']:.2f} ms "
+                    f"recall {m['recall_at_10']:.3f} load {m['load_1min']}",
+                    flush=True,
+                )
+    finally:
+        Ranker.split_senses = True
     return out
 
 
@@ -204,7 +255,11 @@ def where_time_goes(mem: Memory, q: np.ndarray) -> dict[str, Any]:
         del store.vector_search
     n = store.count()
     return {
-        "settings": {"nprobes": store.probes(), "refine_factor": cfg.refine_factor},
+        "settings": {
+            "nprobes": store.probes(),
+            "nprobes_by_sense": {s: store.probes([s]) for s in rv.SENSES},
+            "refine_factor": cfg.refine_factor,
+        },
         "search_vector_p50_ms": search,
         "ann_queries_per_search": calls[0] / (len(q) + 1),
         "one_ann_query_with_hit_columns_p50_ms": p50(
@@ -252,6 +307,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3, help="A/B rounds of the chosen settings")
     ap.add_argument("--batch", type=int, default=20_000)
     ap.add_argument("--build-only", action="store_true")
+    ap.add_argument("--remeasure", action="store_true", help="measure cached indexes' probes")
     ap.add_argument("--http", action="store_true", help="time /search on the first spec")
     ap.add_argument("--onnx", type=Path, help="also time /search on `tactus serve --onnx DIR`")
     ap.add_argument("--only-http", action="store_true", help="skip the library measurements")
@@ -264,6 +320,9 @@ def main() -> None:
     base, ids = base_store(args.cache, data, args.batch)
     specs = [(s.split(":")[0], int(s.split(":")[1])) for s in args.specs]
     built = {f"{k}:{r}": spec_store(args.cache, base, args.rows, k, r) for k, r in specs}
+    if args.remeasure:
+        for (k, r), info in zip(specs, built.values(), strict=True):
+            remeasure(info, k, r)
     if args.build_only:
         return
     result: dict[str, Any] = {
@@ -286,13 +345,14 @@ def main() -> None:
         result.update(library(args, real, data, ids, built))
     if args.http:
         log = args.cache / "serve.log"
-        runs: dict[str, Any] = {"spec": first, "torch": [], "onnx": []}
-        for r in range(args.repeats):  # torch and ONNX Runtime servers, back to back
-            runs["torch"].append(http_search(built[first]["path"], 100, log))
+        # `tactus serve` as started (ONNX Runtime, the default server), and --onnx DIR
+        runs: dict[str, Any] = {"spec": first, "default": [], "onnx": []}
+        for r in range(args.repeats):
+            runs["default"].append(http_search(built[first]["path"], 100, log))
             if args.onnx:
                 onnx = ("--onnx", str(args.onnx))
                 runs["onnx"].append(http_search(built[first]["path"], 100, log, *onnx))
-            print(f"  http round {r}: {runs['torch'][-1]} {(runs['onnx'] or [None])[-1]}")
+            print(f"  http round {r}: {runs['default'][-1]} {(runs['onnx'] or [None])[-1]}")
         result["http_search"] = runs
     run["load_avg_end"] = os.getloadavg()
     run["total_s"] = time.perf_counter() - t_all
@@ -343,6 +403,7 @@ def library(
                     setattr(mem.store.index, key, val)
                 m = {**measure(mem, q, truth), "load_1min": load1()}
                 m["nprobes"] = mem.store.probes()
+                m["nprobes_by_sense"] = {s: mem.store.probes([s]) for s in rv.SENSES}
                 specs[name].setdefault(label, []).append(m)
                 print(
                     f"  round {r} {name} {label}: p50 {m['p50_ms']:.2f} p95 {m['p95_ms']:.2f} ms "
@@ -352,8 +413,10 @@ def library(
             for key, val in specs[name]["chosen"].items():
                 setattr(mem.store.index, key, val)
     first = next(iter(mems))
+    split_ab = split_vs_shared(mems[first], q, truth, args.repeats, as_built)
     print(f"== filtered ({first})", flush=True)
     out = {
+        "split_vs_shared": {"spec": first, **split_ab},
         "specs": specs,
         "filtered": {"spec": first, **filtered(mems[first], data, ids, q[:100])},
         "where_time_goes": {"spec": first, **where_time_goes(mems[first], q[:100])},

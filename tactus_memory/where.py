@@ -119,9 +119,27 @@ class Where:
     #: the rows that pass are scattered over the table (a place filter): reading each one's
     #: vector for an exact scan costs more than the ANN index's prefiltered search
     scattered: bool = False
+    #: a part -> what :meth:`count_sql` counts instead: ``t_end >= after`` (no index
+    #: answers it; a BTREE on t_end intersected with t's costs more still) is counted as
+    #: ``t >= after``, the items that start in the window (benchmarks/search_1m.py)
+    estimate: dict[str, str] = field(default_factory=dict)
+    #: the time window's lower bound (:meth:`overlaps`), for :meth:`narrowed`
+    after: float | None = None
 
     def copy(self) -> Where:
-        return Where(list(self.parts), list(self.refine), self.scattered)
+        out = Where(list(self.parts), list(self.refine), self.scattered, dict(self.estimate))
+        out.after = self.after
+        return out
+
+    def narrowed(self, longest: float) -> Where:
+        """A copy that also asks ``t >= after - longest`` when a time window has a lower
+        bound: the same rows when no item lasts longer than ``longest`` seconds
+        (:class:`tactus_memory.storage.spans.Spans`), a range the ``t`` index answers."""
+        out = self.copy()
+        if self.after is not None:
+            bound = finite_float(self.after - finite_float(longest, "longest"), "after")
+            out.parts.append(f"t >= {_sql_float(bound)}")
+        return out
 
     def _eq(self, column: str, value: str | None, check: Callable[[Any], str]) -> Where:
         if value is not None:
@@ -172,7 +190,10 @@ class Where:
         ``before`` alone: items that started at or before ``before`` (``t <= before``).
         """
         if after is not None:
-            self.parts.append(f"t_end >= {_sql_float(finite_float(after, 'after'))}")
+            value = _sql_float(finite_float(after, "after"))
+            self.parts.append(f"t_end >= {value}")
+            self.after = finite_float(after, "after")
+            self.estimate[f"t_end >= {value}"] = f"t >= {value}"
         if before is not None:
             self.parts.append(f"t <= {_sql_float(finite_float(before, 'before'))}")
         if after is not None and before is not None and float(after) > float(before):
@@ -211,9 +232,14 @@ class Where:
         return " AND ".join(f"({p})" for p in every) if every else None
 
     def count_sql(self) -> str | None:
-        """The filter without its refine conditions: a superset of :meth:`sql`'s rows that
-        the scalar indexes alone answer (to size a search, not to return rows)."""
-        return " AND ".join(f"({p})" for p in self.parts) if self.parts else None
+        """What the scalar indexes alone answer, to size a search (not to return rows): the
+        filter without its refine conditions (a place's box: a superset) and with a time
+        window's lower bound on the items' start (those that start in it: a subset, which
+        errs towards probing more or an exact scan; items that began before it and last
+        into it are left out, so a count of 0 is no proof of none)."""
+        if not self.parts:
+            return None
+        return " AND ".join(f"({self.estimate.get(p, p)})" for p in self.parts)
 
 
 # --------------------------------------------------------------------------- session walls

@@ -17,6 +17,7 @@ import numpy as np
 from tactus_memory.results import Hit, hit_from_row
 from tactus_memory.search.scoring import Calibration
 from tactus_memory.search.senses import SenseRegistry
+from tactus_memory.storage.spans import Spans
 from tactus_memory.storage.store import Store
 from tactus_memory.vectors import as_unit_rows
 from tactus_memory.where import Where
@@ -40,11 +41,19 @@ class Ranker:
     #: ask the ANN queries of a search's groups (senses with different query vectors) at
     #: once; False: one after the other (benchmarks/search_1m.py compares both)
     parallel_groups: bool = True
+    #: with an ANN index, ask each sense on its own (at the probes its own recall needed,
+    #: StoreIndexes.probes) rather than one query for the senses sharing a query vector:
+    #: a text query's nearest notes lie in the few partitions nearest to it, its best
+    #: touch windows (by calibrated score) many partitions further, so the shared query
+    #: would probe them all and then still ask touch again (benchmarks/search_1m.py)
+    split_senses: bool = True
 
     def __init__(self, store: Store, registry: SenseRegistry) -> None:
         self.store = store
         self.registry = registry
         self.space = registry.space
+        #: the longest item, to narrow a time window to the t index (Where.narrowed)
+        self.spans = Spans()
         #: ``(q, sense, transformed) -> (1, D)``: the taught labels' steering of a text query
         #: (:meth:`tactus_memory.search.teaching.Teachings.steer`); None: none
         self.steer: Any = None
@@ -62,14 +71,18 @@ class Ranker:
         ANN (or exact flat) search, calibrated scores, merged top k. ``base`` holds the
         non-sense conditions (session, time, source, ...); temporal operators reuse this.
 
-        Senses whose transformed query vectors coincide (e.g. identity transforms) share one
+        With an ANN index each sense is asked on its own, at its own probes, the senses at
+        once (``split_senses``, ``parallel_groups``). Otherwise (exact flat scans) senses
+        whose transformed query vectors coincide (e.g. identity transforms) share one
         LanceDB query fetching ``k * len(group)`` candidates; a sense with fewer than k of
         them gets its own query unless its best possible missing z-score (bounded by the
-        lowest candidate cosine) cannot reach the current k-th score. The merge is therefore
-        the same as one query per sense, at a fraction of the cost.
+        lowest candidate cosine) cannot reach the current k-th score. Either way the merge
+        is that of one query per sense.
         """
         counts = self.registry.counts()
         active = [name for name in senses if counts.get(name, 0) > 0]
+        if active and base.after is not None:  # rows exist: so does the items table
+            base = base.narrowed(self.spans.longest(self.store.items))
         groups: list[tuple[np.ndarray, list[str]]] = []
         for name in active:
             qs = self.query_for(q, name) if transform else q
@@ -79,6 +92,8 @@ class Ranker:
                     break
             else:
                 groups.append((qs, [name]))
+        if self.split_senses and self.store.has_vector_index():
+            groups = [(vec, [name]) for vec, names in groups for name in names]
         calib = {name: self.registry.calibration(name) for name in active}
         scored: list[tuple[float, float, dict[str, Any]]] = []
         if len(groups) > 1 and self.parallel_groups:
@@ -129,16 +144,16 @@ class Ranker:
         if set(names) != every:
             where.senses(names)
         sql = where.sql()
-        # a place filter's rows are estimated from its indexed box (a superset): enough to
-        # size the search, and it spares a second pass of the sphere test over the box
-        allowed = (
-            self.store.count(where.count_sql()) if base.parts else sum(counts[n] for n in names)
-        )
+        # a place or time filter's rows are estimated from the scalar indexes alone: enough
+        # to size the search, and it spares a scan (the sphere test, the items' ends)
+        allowed = self._allowed(base, where, names, counts)
         if allowed == 0:
             return []
         want = k * len(names)
         flat = not base.scattered  # scattered rows: the prefiltered ANN search is cheaper
-        rows = self.store.vector_search(vec, want, sql, allowed=allowed, total=total, flat=flat)
+        rows = self.store.vector_search(
+            vec, want, sql, allowed=allowed, total=total, flat=flat, senses=names
+        )
         out = [self._scored(row, calib) for row in rows.to_pylist()]
         if len(names) == 1 or len(out) < want:
             return out  # complete: every allowed row was a candidate or one sense only
@@ -152,13 +167,22 @@ class Ranker:
             if calib[name].score(floor) <= kth:
                 continue  # nothing of this sense below the floor can enter the top k
             one = base.copy().sense(name)
-            n_one = self.store.count(one.count_sql()) if base.parts else counts[name]
+            n_one = self._allowed(base, one, [name], counts)
             extra = self.store.vector_search(
-                vec, k, one.sql(), allowed=n_one, total=total, flat=flat
+                vec, k, one.sql(), allowed=n_one, total=total, flat=flat, senses=[name]
             )
             out = [x for x in out if x[2]["sense"] != name]
             out.extend(self._scored(row, calib) for row in extra.to_pylist())
         return out
+
+    def _allowed(self, base: Where, where: Where, names: list[str], counts: dict[str, int]) -> int:
+        """About how many rows of senses ``names`` pass ``where`` (``base`` and a sense
+        condition), to size the search: the senses' row counts when ``base`` has no
+        condition, else the scalar indexes' estimate (Where.count_sql), or the exact count
+        when the estimate is 0 (a time window's leaves out items that began before it)."""
+        if not base.parts:
+            return sum(counts[n] for n in names)
+        return self.store.count(where.count_sql()) or self.store.count(where.sql())
 
     @staticmethod
     def _scored(

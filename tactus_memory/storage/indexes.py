@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -32,6 +33,7 @@ class StoreIndexes:
     _scalar_indexed: bool
     _partitions: int | None
     _probes: int | None
+    _sense_probes: dict[str, int] | None
 
     items: Any  # the LanceDB table (Store.items)
     _meta: Any  # the store's meta table (Store._meta), None before it exists
@@ -50,16 +52,22 @@ class StoreIndexes:
             self._partitions = int(info.get("partitions", 1))
         return self._partitions
 
-    def probes(self) -> int:
+    def probes(self, senses: Sequence[str] | None = None) -> int:
         """Partitions a search probes: ``IndexConfig.nprobes`` when set, else the fewest
         that reached ``IndexConfig.target_recall`` on this index when it was built
-        (:meth:`measure_probes`, kept in the store's index record), else
-        ``UNMEASURED_NPROBES`` (an index built before they were measured)."""
+        (:meth:`measure_probes`, kept in the store's index record): for a search within
+        ``senses``, the most any of them needed on its own (a text query finds notes in
+        the few partitions nearest to it, touch windows only many partitions further); for
+        an unfiltered search or a sense not measured, the most any part needed; an index
+        built before they were measured: ``UNMEASURED_NPROBES``."""
         if self.index.nprobes is not None:
             return self.index.nprobes
-        if self._probes is None:
+        if self._probes is None or self._sense_probes is None:
             info = json.loads(self.get_meta("index") or "{}")
             self._probes = int(info.get("nprobes") or UNMEASURED_NPROBES)
+            self._sense_probes = {str(s): int(p) for s, p in info.get("by_sense", {}).items()}
+        if senses and all(s in self._sense_probes for s in senses):
+            return max(self._sense_probes[s] for s in senses)
         return self._probes
 
     def measure_probes(self, k: int = 10) -> dict[str, Any]:
@@ -115,21 +123,35 @@ class StoreIndexes:
             return np.asarray(s.select(["_distance"]).limit(k).to_arrow()["_distance"])
 
         exact = [[search(q, None, sense)[-1] + 1e-6 for q in qs] for sense, qs in checks]
-        ladder: dict[int, float] = {}
-        steps = [p for p in (4, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256) if p < parts]
+        # each part (unfiltered, each sense) climbs the ladder until it reaches the target
+        ladders: dict[str | None, dict[int, float]] = {sense: {} for sense, _ in checks}
+        ladder_steps = (4, 8, 12, 16, 24, 32, 40, 48, 64, 80, 96, 128, 160, 192, 256)
+        steps = [p for p in ladder_steps if p < parts]
         for p in [*steps, parts]:
-            worst = 1.0
             for (sense, qs), kth in zip(checks, exact, strict=True):
+                if any(r >= cfg.target_recall for r in ladders[sense].values()):
+                    continue
                 hits = [search(q, p, sense) <= t for q, t in zip(qs, kth, strict=True)]
-                got = sum(int(h.sum()) for h in hits)
-                worst = min(worst, got / (k * len(qs)))
-            ladder[p] = round(worst, 4)
-            if ladder[p] >= cfg.target_recall:
-                break
-        best = next((p for p, r in ladder.items() if r >= cfg.target_recall), None)
-        if best is None:
-            best = max(ladder, key=lambda p: (ladder[p], -p))
-        return {"nprobes": best, "recall": ladder[best], "ladder": ladder}
+                ladders[sense][p] = round(sum(int(h.sum()) for h in hits) / (k * len(qs)), 4)
+        chosen = {sense: self._fewest(ladder) for sense, ladder in ladders.items()}
+        best = max(chosen.values())
+        # the worst part's recall at each step it was measured (a reached part: its own)
+        ladder = {
+            p: min(
+                ls.get(p, next((r for q, r in ls.items() if q >= chosen[s]), 1.0))
+                for s, ls in ladders.items()
+            )
+            for p in sorted({p for ls in ladders.values() for p in ls})
+            if p <= best
+        }
+        by_sense = {s: p for s, p in chosen.items() if s is not None}
+        return {"nprobes": best, "recall": ladder[best], "ladder": ladder, "by_sense": by_sense}
+
+    def _fewest(self, ladder: dict[int, float]) -> int:
+        """The fewest probes of ``ladder`` (probes -> recall) that reach the target recall,
+        else the best measured."""
+        reached = [p for p, r in ladder.items() if r >= self.index.target_recall]
+        return min(reached) if reached else max(ladder, key=lambda p: (ladder[p], -p))
 
     def _probe_bank(self, dim: int) -> np.ndarray:
         """The text probe bank a search cached in the store (``probes:<space>:<n>``, the
@@ -192,6 +214,7 @@ class StoreIndexes:
         info["ladder"] = {str(p): r for p, r in measured["ladder"].items()}
         self.set_meta("index", json.dumps(info))
         self._probes = measured["nprobes"]
+        self._sense_probes = measured["by_sense"]
         log.info(
             "built %s index on %d rows in %.1fs; %d of %d partitions probed reach recall@10 %.3f "
             "(measured in %.1fs)", cfg.index_type, n, built, measured["nprobes"], parts,

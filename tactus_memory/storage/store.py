@@ -132,7 +132,7 @@ class Store(StoreIndexes):
         self._indexed = False
         self._scalar_indexed = False
         self._partitions: int | None = None
-        self._probes: int | None = None
+        self._probes = self._sense_probes = None
         #: expiry and thinning, and the erasure of deleted rows, run by maintenance
         #: (:mod:`tactus_memory.storage.retention`)
         self.retention = Retention(self, tenant)
@@ -340,6 +340,7 @@ class Store(StoreIndexes):
         total: int | None = None,
         columns: Sequence[str] = HIT_COLUMNS,
         flat: bool = True,
+        senses: Sequence[str] | None = None,
     ) -> pa.Table:
         """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
 
@@ -358,7 +359,7 @@ class Store(StoreIndexes):
         if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
             q = q.bypass_vector_index()
         elif indexed:
-            nprobes = self.probes()
+            nprobes = self.probes(senses)  # ``where`` keeps these senses (None: all)
             if allowed and total and allowed < total:
                 per_part = cfg.rows_per_partition * allowed / total
                 nprobes = max(nprobes, math.ceil(cfg.min_candidates / max(per_part, 1e-9)))
