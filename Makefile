@@ -11,6 +11,9 @@ PIP := PYTHONWARNINGS="ignore:Editable installation" $(PY) -m pip
 HOST ?= 127.0.0.1
 PORT ?= 8000
 DATA ?= ./memory
+# make run starts one server process (the light server's memory target is one server's);
+# `tactus serve` alone starts one per core (settings.MAX_DEFAULT_WORKERS at most)
+WORKERS ?= 1
 
 .PHONY: setup setup-test run test lint format bench
 
@@ -46,7 +49,7 @@ setup: $(VENV)/.base
 setup-test: $(VENV)/.test
 
 run: setup
-	$(VENV)/bin/tactus serve --host $(HOST) --port $(PORT) --data $(DATA)
+	$(VENV)/bin/tactus serve --host $(HOST) --port $(PORT) --data $(DATA) --workers $(WORKERS)
 
 lint: setup-test
 	$(VENV)/bin/ruff check .

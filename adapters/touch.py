@@ -54,6 +54,13 @@ from tactus_memory.touch.windows import CONTACT_LEVEL, CONTACT_MIN_TAXELS, windo
 from tactus_memory.vectors import as_unit_rows
 
 
+def _idle_error() -> IdleWindowError:
+    return IdleWindowError(
+        f"idle touch window: no frame has {CONTACT_MIN_TAXELS} taxels at the contact "
+        f"level ({CONTACT_LEVEL:.3g} calibrated); an idle hand is never stored as a grasp"
+    )
+
+
 class CalibratedWindow(np.ndarray):
     """A window the touch sense has validated: (K, 32, 32) float32, calibrated to [0, 1].
     ``validate`` returns one and takes one back as it is; ``embed`` trusts it.
@@ -167,11 +174,58 @@ class TactusEncoder(Sense):
             return item
         window = self._calibrated(item, calibrated)
         if not keep_idle and window_idle(window):
-            raise IdleWindowError(
-                f"idle touch window: no frame has {CONTACT_MIN_TAXELS} taxels at the contact "
-                f"level ({CONTACT_LEVEL:.3g} calibrated); an idle hand is never stored as a grasp"
-            )
+            raise _idle_error()
         return window
+
+    def validate_many(
+        self,
+        items: Sequence[Any] | np.ndarray,
+        *,
+        skip_idle: bool = True,
+        **options: Any,
+    ) -> tuple[list[np.ndarray], list[int]]:
+        """B windows -> (the calibrated windows kept, the indices skipped as idle), as
+        :meth:`validate` window by window gives them; a (B, K, 32, 32) array (an ``.npy`` body,
+        a JSON batch) is checked, calibrated and tested for contact in ONE numpy pass (the
+        shape once for the batch). The first window that fails raises what :meth:`validate`
+        raises for it. ``options``: :meth:`validate`'s (``calibrated``, ``keep_idle``), passed
+        on as given when it checks window by window."""
+        calibrated: bool | None = options.get("calibrated")
+        keep_idle = bool(options.get("keep_idle", False))
+        opts = {"skip_idle": skip_idle, **options}
+        arr = items if isinstance(items, np.ndarray) else None
+        if (
+            arr is None
+            or arr.ndim != 4
+            or arr.dtype.kind not in "iuf"
+            or arr.shape[0] == 0
+            or arr.shape[2:] != tuple(self.profile.shape)
+            or not 1 <= arr.shape[1] <= self.frames
+        ):  # not one (B, K, 32, 32) numeric array: window by window, each error as it comes
+            return super().validate_many(items, **opts)
+        lo, hi = arr.min(axis=(1, 2, 3)), arr.max(axis=(1, 2, 3))  # (B,) each
+        is_float = arr.dtype.kind == "f"
+        if calibrated is None:
+            cal = is_float & (lo >= 0) & (hi <= 1)
+        else:
+            cal = np.full(arr.shape[0], bool(calibrated))
+        unit = (lo >= 0) & (hi <= 1)
+        bad = np.where(cal, ~unit, unit | (hi <= self.profile.offset))
+        if is_float:
+            bad |= ~np.isfinite(arr).all(axis=(1, 2, 3))
+        if bad.any():  # a window fails: window by window, so the error is validate's own
+            return super().validate_many(items, **opts)
+        out = np.ascontiguousarray(arr, dtype=np.float32)
+        if not cal.all():
+            out = out.copy() if out is arr else out
+            out[~cal] = self.profile.scale(arr[~cal])
+        peak = (out >= np.float32(CONTACT_LEVEL)).sum(axis=(2, 3)).max(axis=1)  # (B,)
+        idle = np.zeros(arr.shape[0], bool) if keep_idle else peak < CONTACT_MIN_TAXELS
+        if idle.any() and not skip_idle:
+            raise _idle_error()
+        return [out[i].view(CalibratedWindow) for i in np.flatnonzero(~idle)], [
+            int(i) for i in np.flatnonzero(idle)
+        ]
 
     def _calibrated(self, item: Any, calibrated: bool | None) -> np.ndarray:
         """The checks of :meth:`validate` but the idle rule, and the one calibration."""

@@ -33,10 +33,10 @@ def start_serve(
     env: Mapping[str, str] | None = None,
     python: str | None = None,
 ) -> subprocess.Popen:
-    """Start ``tactus serve --host 127.0.0.1 --port PORT --data DATA *extra`` (the installed
-    package, this interpreter or ``python``: another checkout's, for an A/B run), its output
-    appended to ``log``; ``env`` is added to this process's environment, after
-    ``TACTUS_LOG_LEVEL=warning``."""
+    """Start ``tactus serve --host 127.0.0.1 --port PORT --data DATA [--workers 1] *extra``
+    (one worker unless ``extra`` names ``--workers``; the installed package, this interpreter
+    or ``python``: another checkout's, for an A/B run), its output appended to ``log``; ``env``
+    is added to this process's environment, after ``TACTUS_LOG_LEVEL=warning``."""
     cmd = [
         python or sys.executable,
         "-c",
@@ -48,6 +48,8 @@ def start_serve(
         str(port),
         "--data",
         str(data),
+        # one server process unless the caller names --workers (the default is every core)
+        *([] if "--workers" in extra else ["--workers", "1"]),
         *extra,
     ]
     full_env = {**os.environ, "TACTUS_LOG_LEVEL": "warning", **(env or {})}

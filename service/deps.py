@@ -5,7 +5,8 @@ failure refuses the socket with the same problem, see ``problems.py``)."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass, replace
 from typing import Annotated, Any, Literal
 
@@ -111,6 +112,26 @@ class ServiceState:
         queued = await self.write_threads.run(
             tenant.open_committer().submit, session, sense, items, **kw
         )
+        return await asyncio.wrap_future(queued)
+
+    async def write_body(
+        self,
+        tenant: Tenant,
+        session: str,
+        sense: str,
+        parse: Callable[[], tuple[Any, WriteKwargs]],
+    ) -> list[str]:
+        """A write whose body still has to be parsed (``service/touch_body.py``): ``parse``
+        (-> the items and their keywords) and ``GroupCommitter.submit`` run in ONE call on
+        the writer threads, so neither parsing nor the sense's checks hold the event loop;
+        returns the ids once the group commit stored them."""
+        assert self.write_threads is not None
+
+        def parse_and_submit() -> Future[list[str]]:
+            items, kw = parse()
+            return tenant.open_committer().submit(session, sense, items, **kw)
+
+        queued = await self.write_threads.run(parse_and_submit)
         return await asyncio.wrap_future(queued)
 
 

@@ -20,7 +20,12 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import InvalidIdError, InvalidInputError, SenseConflictError
+from tactus_memory.errors import (
+    IdleWindowError,
+    InvalidIdError,
+    InvalidInputError,
+    SenseConflictError,
+)
 from tactus_memory.limits import SENSE_NAME_RE
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
@@ -98,6 +103,26 @@ class Sense(ABC):
     def validate(self, item: Any) -> Any:
         """Check one raw item and return its canonical form. Raises ``InvalidInputError``.
         A sense with ``validate_options`` takes them as keyword arguments."""
+
+    def validate_many(
+        self, items: Sequence[Any], *, skip_idle: bool = True, **options: Any
+    ) -> tuple[list[Any], list[int]]:
+        """N items -> (their canonical forms, the indices of those skipped as idle), the
+        write path's one call per write. Each item as :meth:`validate` checks it; an item
+        that raises :class:`~tactus_memory.errors.IdleWindowError` is skipped
+        (``skip_idle``) or the error raised. A sense that can check a whole batch at once
+        (the touch sense: one numpy pass over (B, K, 32, 32)) overrides it, with the same
+        results and errors."""
+        canon: list[Any] = []
+        idle: list[int] = []
+        for i, x in enumerate(items):
+            try:
+                canon.append(self.validate(x, **options))
+            except IdleWindowError:
+                if not skip_idle:
+                    raise
+                idle.append(i)
+        return canon, idle
 
     @abstractmethod
     def embed(self, batch: Sequence[Any]) -> np.ndarray:

@@ -15,6 +15,7 @@ the policy object the store takes.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,22 @@ DEFAULT_COMMIT_MAX_PENDING = 1024
 #: niceness added to the group committer's thread (its encoder and commits) in a server: a
 #: search beside a 64-glove fleet then gets the cores first (benchmarks/fleet_ii.py)
 DEFAULT_COMMIT_NICE = 10
+
+
+#: the most workers ``tactus serve`` starts by default: each holds its own models (~0.4 GB
+#: on ONNX Runtime, docs/operations/speed.md) and appends to the one store, and issue 39's
+#: capacity target is linear to 8 workers on a 16-core machine; more is asked for by name
+MAX_DEFAULT_WORKERS = 8
+
+
+def default_workers() -> int:
+    """``tactus serve``'s default ``--workers``: the cores this process may use (its CPU
+    affinity), capped at :data:`MAX_DEFAULT_WORKERS`; 2 on a 2-core machine."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(MAX_DEFAULT_WORKERS, cores))
 
 
 class Settings(BaseSettings, MaintenanceConfig):
@@ -160,11 +177,12 @@ class Settings(BaseSettings, MaintenanceConfig):
         "default folder in the user's cache (MiniLM exported there on the first start).",
     )
     workers: int = Field(
-        1,
+        default_factory=default_workers,
         ge=1,
         le=64,
         description="`tactus serve`: server processes on one port and one store (each its own "
-        "event loop, committer and models; worker 0 maintains). 1: one process.",
+        "event loop, committer and models; worker 0 maintains). Default: the cores this "
+        f"process may use, at most {MAX_DEFAULT_WORKERS}. 1: one process.",
     )
     torch: bool = Field(
         False,

@@ -2,32 +2,20 @@
 
 Frames are RAW sensor units by default (what the glove's ADC reports, e.g. ~500-700 on the
 STAG glove); the touch sense calibrates them. Send ``calibrated: true`` for frames already
-calibrated to 0-1. Write path: see ``routers/items.py`` (threadpool, one commit, 201 after it).
-"""
+calibrated to 0-1. Write path: ``service/touch_body.py`` (the body parsed and validated once,
+off the event loop; one group commit, 201 after it)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
 from typing import Annotated, Any
 
-import numpy as np
-from fastapi import APIRouter, HTTPException, Query, Request
-from fastapi.exceptions import RequestValidationError
-from pydantic import ValidationError
+from fastapi import APIRouter, Query, Request
 
-from tactus_memory.errors import InvalidInputError
-from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
-from tactus_memory.service.deps import (
-    MemoryDep,
-    SessionId,
-    StateDep,
-    TenantDep,
-    TouchAvailable,
-    WriteThreadsDep,
-)
+from tactus_memory.service.deps import SessionId, StateDep, TenantDep, TouchAvailable
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SkippedOut, StoredOut, TouchBatchIn, TouchWindowIn
-from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.service.touch_body import touch_write
 
 router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
 
@@ -54,66 +42,6 @@ REQUEST_BODY: dict[str, Any] = {
 }
 
 
-def _validate(model: type, obj: Any) -> Any:
-    try:
-        return model.model_validate(obj)
-    except ValidationError as exc:
-        errs = [{**e, "loc": ("body", *e.get("loc", ()))} for e in exc.errors(include_url=False)]
-        raise RequestValidationError(errs, body=obj) from None
-
-
-@dataclass
-class _Upload:
-    """One touch POST, whatever its form: windows (the edge checked their shape) and their
-    times, meta, ids and the calibrated flag."""
-
-    windows: list[np.ndarray]
-    t: list[float] | None
-    t_end: list[float] | None
-    meta: Any
-    ids: list[str] | None
-    calibrated: bool
-    #: a batch (JSON ``windows``, a 4-D .npy): idle windows are skipped and named; one
-    #: window alone that is idle is refused (422 idle-window), as ``Memory.add`` refuses it
-    batch: bool = True
-
-
-def _upload(
-    ctype: str,
-    raw: bytes,
-    t: list[float] | None,
-    t_end: list[float] | None,
-    calibrated: bool,
-) -> _Upload:
-    if ctype in NPY_TYPES:
-        arr = load_npy(raw, "npy body")
-        if arr.ndim not in (3, 4) or arr.shape[-2:] != FRAME_SHAPE or 0 in arr.shape:
-            raise InvalidInputError(
-                f"npy body has shape {arr.shape}, expected (K, 32, 32) (one window) or "
-                "(B, K, 32, 32) (a batch)"
-            )
-        windows = list(as_windows(arr[None] if arr.ndim == 3 else arr, "npy body"))
-        if not t:
-            raise InvalidInputError("query parameter 't' is required with an npy body")
-        return _Upload(windows, t, t_end, None, None, calibrated, batch=arr.ndim == 4)
-    if ctype not in ("application/json", "") and not ctype.endswith("+json"):
-        raise HTTPException(
-            415, f"unsupported content type {ctype!r}: use application/json or application/x-npy"
-        )
-    obj = loads_strict(raw)
-    if not isinstance(obj, dict):
-        raise InvalidInputError("body must be a JSON object with 'frames' or 'windows'")
-    if "windows" in obj:
-        batch: TouchBatchIn = _validate(TouchBatchIn, obj)
-        windows = list(as_windows(batch.windows, "windows"))
-        return _Upload(windows, batch.t, batch.t_end, batch.meta, batch.ids, batch.calibrated)
-    one: TouchWindowIn = _validate(TouchWindowIn, obj)
-    window = as_window(one.frames, "frames")
-    t_end_one = None if one.t_end is None else [one.t_end]
-    ids = None if one.id is None else [one.id]
-    return _Upload([window], [one.t], t_end_one, one.meta, ids, one.calibrated, batch=False)
-
-
 @router.post(
     "/touch",
     status_code=201,
@@ -133,8 +61,6 @@ def _upload(
 async def add_touch(
     session: SessionId,
     request: Request,
-    memory: MemoryDep,
-    threads: WriteThreadsDep,
     state: StateDep,
     tenant: TenantDep,
     t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
@@ -143,20 +69,9 @@ async def add_touch(
 ) -> StoredOut:
     ctype = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
     raw = await request.body()
-    up = _upload(ctype, raw, t, t_end, calibrated)
-    # the edge checked shapes and sizes; the touch sense checks the rest (range, calibration,
-    # idle) once, and one t (t_end) per window is the library's check (rows.per_item)
-    ids = await state.write(
-        tenant,
-        session,
-        "touch",
-        up.windows,
-        t=up.t,
-        t_end=up.t_end,
-        meta=up.meta,
-        ids=up.ids,
-        options={"calibrated": up.calibrated},
-        skip_idle=up.batch,
-    )
+    # the body goes to the write path once: parsed, shape-checked and validated by the
+    # touch sense on the write threads, off the event loop (service/touch_body.py)
+    parse = functools.partial(touch_write, ctype, raw, t, t_end, calibrated)
+    ids = await state.write_body(tenant, session, "touch", parse)
     skipped = [SkippedOut(index=i, reason=why) for i, why in getattr(ids, "skipped", ())]
     return StoredOut(ids=ids, count=len(ids), skipped=skipped)

@@ -25,7 +25,8 @@ Protocol (all server messages are JSON objects with a ``type``):
   not stored (an idle hand must never match "holding a ..."):
   ``{"type": "idle", "seq": n, "t": ..., "t_end": ...}``.
 
-Each window is validated on arrival and handed to the service's group committer
+Each message is parsed, windowed and its windows validated on a write thread (off the event
+loop, one call per message) and handed to the service's group committer
 (``tactus_memory.memory.group_commit``): the windows of every glove and the HTTP writes that arrive
 within
 one tick are embedded in one encoder call and stored in one commit. An ack task per
@@ -43,6 +44,8 @@ import logging
 import math
 import time
 import uuid
+from concurrent.futures import Future
+from dataclasses import dataclass, field
 from typing import Annotated, Any
 
 import numpy as np
@@ -50,6 +53,7 @@ from fastapi import APIRouter, Depends, WebSocket, WebSocketDisconnect
 
 from tactus_memory.errors import IdleWindowError, InvalidInputError, OverloadedError, TactusError
 from tactus_memory.limits import MAX_WINDOW_FRAMES
+from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
 from tactus_memory.service.deps import (
     PrincipalDep,
@@ -62,7 +66,7 @@ from tactus_memory.service.deps import (
 )
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.touch.profile import FRAME_SHAPE
-from tactus_memory.touch.windows import WindowStream
+from tactus_memory.touch.windows import Windows, WindowStream
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -198,39 +202,36 @@ async def touch_stream(
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
                 break
+            # a JSON frame or a binary message of several frames is parsed and windowed on the
+            # write threads; the sense's checks of the windows it completes always are
+            assert state.write_threads is not None
+            job = (
+                message, frame_index, params, state.settings.max_ws_message_bytes, windower,
+                tenant.open_committer(), session, stream_id,
+            )  # fmt: skip
             try:
-                frames, times = _parse(
-                    message, frame_index, params, state.settings.max_ws_message_bytes
-                )
+                if _inline(message):
+                    done = _ingest(*job, queue=False)
+                    if done.completed is not None and len(done.completed):
+                        done = await state.write_threads.run(
+                            _queue_windows, done, params.calibrated, *job[5:]
+                        )
+                else:
+                    done = await state.write_threads.run(_ingest, *job)
             except TactusError as exc:
                 await send(
                     {"type": "error", "error": problem_for_exception(exc), "frame": frame_index}
                 )
                 frame_index += 1
                 continue
-            # every frame of the message in one push (one numpy operation, not one per frame)
-            frame_index += len(frames)
-            done = windower.push(frames, times)
-            for win, t_first, t_last in zip(done.frames, done.t, done.t_end, strict=True):
-                try:  # the sense's own checks (range, calibration, idle), before queueing
-                    queued = tenant.open_committer().submit(  # the one library write call
-                        session,
-                        "touch",
-                        [win],
-                        t=[float(t_first)],
-                        t_end=[float(t_last)],
-                        source=stream_id,
-                        options={"calibrated": params.calibrated},
-                        skip_idle=False,  # one window: an "idle" ack, below
-                    )
-                    fut = asyncio.wrap_future(queued)
-                except IdleWindowError:  # no contact: never stored as a grasp
-                    span = {"t": float(t_first), "t_end": float(t_last)}
-                    await send({"type": "idle", "seq": seq, **span})
-                except TactusError as exc:  # invalid window, or the write queue is full
-                    await send(_window_error(exc, seq, stream_id))
+            frame_index += done.frames
+            for t_first, t_last, outcome in done.windows:
+                if isinstance(outcome, IdleWindowError):  # no contact: never stored as a grasp
+                    await send({"type": "idle", "seq": seq, "t": t_first, "t_end": t_last})
+                elif isinstance(outcome, BaseException):  # invalid, or the write queue is full
+                    await send(_window_error(outcome, seq, stream_id))
                 else:
-                    await acks.put((seq, float(t_first), float(t_last), fut))
+                    await acks.put((seq, t_first, t_last, asyncio.wrap_future(outcome)))
                 seq += 1
             if acker_task.done():
                 break
@@ -268,6 +269,84 @@ async def _try_send(send: Any, message: dict[str, Any]) -> None:
     """Acks after the client left are dropped (the windows are stored all the same)."""
     with contextlib.suppress(Exception):
         await send(message)
+
+
+#: a binary message this small (``np.save`` of one (32, 32) float64 frame: 8,320 bytes) is
+#: parsed and windowed on the event loop: that takes ~40-50 us, a hop to a write thread and
+#: back ~150-200 us (measured on the 2-core machine, docs/operations/speed.md); a JSON frame
+#: (~1.4 ms to parse) or a larger binary message is parsed on the write threads
+INLINE_BINARY_BYTES = 8_320
+
+
+def _inline(message: dict[str, Any]) -> bool:
+    data = message.get("bytes")
+    return data is not None and len(data) <= INLINE_BINARY_BYTES
+
+
+@dataclass
+class _Ingested:
+    """What one message gave: its frame count, the windows it completed (until queued), and
+    per queued window its (t, t_end) and outcome: the queued write's future, or the error that
+    refused it (idle included)."""
+
+    frames: int
+    completed: Windows | None = None
+    windows: list[tuple[float, float, Future[list[str]] | TactusError]] = field(
+        default_factory=list
+    )
+
+
+def _ingest(
+    message: dict[str, Any],
+    index: int,
+    params: StreamParams,
+    max_bytes: int,
+    windower: WindowStream,
+    committer: GroupCommitter,
+    session: str,
+    stream_id: str,
+    *,
+    queue: bool = True,
+) -> _Ingested:
+    """One WebSocket message: parsed (M frames, one array) and windowed (one push); ``queue``:
+    and its completed windows queued too (:func:`_queue_windows`). A bad message raises."""
+    frames, times = _parse(message, index, params, max_bytes)
+    done = _Ingested(len(frames), windower.push(frames, times))
+    if not queue:
+        return done
+    return _queue_windows(done, params.calibrated, committer, session, stream_id)
+
+
+def _queue_windows(
+    done: _Ingested,
+    calibrated: bool,
+    committer: GroupCommitter,
+    session: str,
+    stream_id: str,
+) -> _Ingested:
+    """On a write thread: each completed window validated by the touch sense and queued for
+    the group commit (``GroupCommitter.submit``, the one library write call)."""
+    wins = done.completed
+    assert wins is not None
+    for win, t_first, t_last in zip(wins.frames, wins.t, wins.t_end, strict=True):
+        span = (float(t_first), float(t_last))
+        try:
+            queued = committer.submit(
+                session,
+                "touch",
+                win[None],  # (1, K, 32, 32)
+                t=[span[0]],
+                t_end=[span[1]],
+                source=stream_id,
+                options={"calibrated": calibrated},
+                skip_idle=False,  # one window: an "idle" message instead
+            )
+        except TactusError as exc:
+            done.windows.append((*span, exc))
+        else:
+            done.windows.append((*span, queued))
+    done.completed = None
+    return done
 
 
 def _parse(

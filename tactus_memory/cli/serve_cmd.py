@@ -62,7 +62,7 @@ def serve(
             max=64,
             help="Server processes on one port and one store (SO_REUSEPORT; each with its own "
             "event loop, committer and models; worker 0 maintains; env TACTUS_WORKERS). "
-            "Default 1.",
+            "Default: the cores this process may use, capped (settings.MAX_DEFAULT_WORKERS).",
         ),
     ] = None,
     torch: Annotated[

@@ -35,15 +35,6 @@ STARTUP_FAILED = 2
 POLL_S = 0.1
 
 
-def default_workers() -> int:
-    """The cores this process may use, capped at 8."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(8, cores))
-
-
 def worker_torch_threads(settings: Any) -> Any:
     """A torch server's workers share the cores: half of each one's share per call (as
     ``serving_torch_threads`` gives one server half of them)."""

@@ -32,9 +32,10 @@ from typing import Any
 
 import numpy as np
 
+from tactus_memory.memory.writes import embed_groups
 from tactus_memory.registry import lookup, registered_name
 from tactus_memory.sense import Sense
-from tactus_memory.storage.rows import PreparedWrite, embed_groups
+from tactus_memory.storage.rows import PreparedWrite
 
 log = logging.getLogger(__name__)
 

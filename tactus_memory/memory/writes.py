@@ -4,33 +4,30 @@ and store prepared writes in one LanceDB commit (:meth:`WritePath.commit_writes`
 ``memory.prepare_write``, ``memory.commit_writes`` and ``memory.validate_item`` ARE these
 methods; ``memory.add`` / ``add_many``, the group committer
 (:mod:`tactus_memory.memory.group_commit`),
-the service and recordings all write through them. Row-level helpers (batches, ids, the
-Arrow table written): :mod:`tactus_memory.storage.rows`.
+the service and recordings all write through them. The path a write takes: this module ->
+the sense (``validate_many``, ``embed``, ``to_row``) -> storage (the batch checks and the
+Arrow table, :mod:`tactus_memory.storage.rows`; the commit, :class:`Store`); storage never
+calls back into the sense.
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tactus_memory.errors import IdleWindowError, InvalidInputError
+import numpy as np
+
+from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.memory.places import Places
 from tactus_memory.results import Stored
 from tactus_memory.search.senses import SenseRegistry
+from tactus_memory.sense import Sense
 from tactus_memory.spaces.base import Space
-from tactus_memory.storage.rows import (
-    PreparedWrite,
-    check_batch,
-    claim_ids,
-    embed_groups,
-    embed_isolated,
-    options_for,
-    resolve_shared_ids,
-    writes_table,
-)
+from tactus_memory.storage.rows import PreparedWrite, check_batch, options_for, writes_table
 from tactus_memory.storage.store import Store
+from tactus_memory.vectors import as_unit_rows
 from tactus_memory.where import DEFAULT_FRAME, validate_id, validate_source
 
 
@@ -73,19 +70,13 @@ class WritePath:
         session = validate_id(session, "session id")
         source = validate_source(source)
         s = self.registry.live_sense(sense)
-        items = list(items)
+        # a (B, ...) array stays one array: the sense checks it in one pass (validate_many)
+        items = items if isinstance(items, np.ndarray) else list(items)
         batch = check_batch(len(items), t, t_end, meta, ids, position, frame)
-        opts = options_for(s, options)
-        canon, skipped = [], []
-        for i, x in enumerate(items):
-            try:
-                canon.append(s.validate(x, **opts))
-            except IdleWindowError:
-                if not skip_idle:
-                    raise
-                skipped.append((i, "idle"))
+        canon, idle = s.validate_many(items, skip_idle=skip_idle, **options_for(s, options))
+        skipped = [(i, "idle") for i in idle]
         if skipped:
-            batch = batch.without([i for i, _ in skipped])
+            batch = batch.without(idle)
         return PreparedWrite(session, s, canon, batch, source, skipped=skipped)
 
     def commit_writes(
@@ -100,7 +91,7 @@ class WritePath:
         embedding fails or whose id clashes (with another write of this commit, or another
         session's row) gets its ``error`` and is left out, the rest still commit once (an
         identical repeat of an id is written once,
-        :func:`~tactus_memory.storage.rows.resolve_shared_ids`).
+        :func:`resolve_shared_ids`).
         Rows embedded by an encoder the store no longer records for their sense (a
         re-embedding swapped it, here or in another process) are refused with
         SenseSwappedError (``isolate``: those writes' ``error``); the sense is rebuilt from
@@ -146,3 +137,97 @@ class WritePath:
         it is, without checking or calibrating it again."""
         s = self.registry.live_sense(sense)
         return s.validate(item, **options_for(s, options))
+
+
+def embed_groups(
+    writes: Sequence[PreparedWrite],
+    dim: int,
+    embed: Callable[[Sense, list[Any]], np.ndarray] | None = None,
+) -> None:
+    """Embed the writes that have no vectors yet: ONE ``embed`` call per sense across all of
+    them (``embed(sense, items)``, default ``sense.embed(items)``; the group committer's
+    encoder process passes its own); each write gets its slice of (n, ``dim``) unit rows."""
+    by_sense: dict[str, list[PreparedWrite]] = {}
+    for w in writes:
+        if w.vectors is None:
+            by_sense.setdefault(w.sense.name, []).append(w)
+    for name, group in by_sense.items():
+        canon = [x for w in group for x in w.canon]
+        sense = group[0].sense
+        raw = sense.embed(canon) if embed is None else embed(sense, canon)
+        vectors = as_unit_rows(raw, dim, what=f"{name} embedding")
+        if vectors.shape[0] != len(canon):
+            raise InvalidInputError(
+                f"sense {name!r} returned {vectors.shape[0]} vectors for {len(canon)}"
+            )
+        at = 0
+        for w in group:
+            w.vectors = vectors[at : at + len(w)]
+            w.extras = [sense.to_row(x) for x in w.canon]  # the sense's columns, once
+            at += len(w)
+
+
+def embed_isolated(writes: Sequence[PreparedWrite], dim: int) -> None:
+    """:func:`embed_groups`, but a failing embedding fails only its own write: when a sense's
+    batch call raises, that sense's writes are embedded one by one and each culprit gets the
+    exception as its ``error`` (no write is committed here, so nothing is written twice)."""
+    try:
+        embed_groups(writes, dim)
+    except Exception:  # noqa: BLE001  (isolated below, write by write)
+        for w in writes:
+            if w.vectors is None:
+                try:
+                    embed_groups([w], dim)
+                except Exception as exc:  # noqa: BLE001  (this write's own failure)
+                    w.error = exc
+
+
+def _payload(w: PreparedWrite, i: int) -> tuple[Any, ...]:
+    """What an item id stores but its vector and ``created``: a repeat of it is idempotent."""
+    row = w.sense.to_row(w.canon[i])
+    b = w.batch
+    return (w.session, w.sense.name, w.source, b.t[i], b.t_end[i], b.meta[i], sorted(row.items()))
+
+
+def resolve_shared_ids(writes: Sequence[PreparedWrite]) -> None:
+    """Two writes of one commit naming the same item id (say two clients retrying the same
+    note in one tick): the later one is an idempotent repeat when its session, sense and
+    payload match the earlier row (its row is marked ``dup`` and written once), else it fails
+    alone with :class:`IdConflictError`. The rest of the commit is not affected."""
+    first: dict[str, tuple[PreparedWrite, int]] = {}
+    for w in writes:
+        w.dup.clear()  # (re-)resolved from scratch: a write may have failed since
+        if w.error is not None or not w.batch.upsert:
+            continue  # generated ids never clash
+        for i, item_id in enumerate(w.ids):
+            seen = first.get(item_id)
+            if seen is not None and _payload(*seen) != _payload(w, i):
+                w.error = IdConflictError(
+                    f"item id {item_id!r} is written by two requests at once with different "
+                    "content (or session, sense); the other one was stored, send this one again "
+                    "to replace it"
+                )
+                w.dup.clear()
+                break
+            if seen is not None:
+                w.dup.add(i)
+        if w.error is None:
+            for i, item_id in enumerate(w.ids):
+                first.setdefault(item_id, (w, i))
+
+
+def claim_ids(store: Store, writes: Sequence[PreparedWrite], isolate: bool) -> dict[int, int]:
+    """Rows each upsert replaces (of its own session and sense), by ``id(write)``. An id of
+    another session or sense raises IdConflictError (``isolate``: that write's ``error``).
+    Call it under the memory's commit lock, just before the store write."""
+    replaced: dict[int, int] = {}
+    for w in writes:
+        if w.batch.upsert and w.error is None:
+            try:
+                replaced[id(w)] = store.owned_count(w.ids, w.session, w.sense.name)
+            except IdConflictError as exc:
+                if not isolate:
+                    raise
+                w.error = exc
+                resolve_shared_ids(writes)  # a repeat of its ids is no longer a repeat
+    return replaced

@@ -42,9 +42,10 @@ from tactus_memory.memory.reembed import (
     swap,
     vector_table,
 )
+from tactus_memory.memory.writes import embed_groups
 from tactus_memory.recordings.ingest import IngestSummary, Tally, plan_ingest
 from tactus_memory.recordings.reader import open_recording
-from tactus_memory.storage.rows import PreparedWrite, check_batch, embed_groups, writes_table
+from tactus_memory.storage.rows import PreparedWrite, check_batch, writes_table
 from tactus_memory.where import Where
 
 if TYPE_CHECKING:

@@ -1,22 +1,21 @@
 """Rows in and out of the items table: the checks on a write batch (times, meta, ids), the
-Arrow table one commit writes, session summaries."""
+Arrow table one commit writes, session summaries. Nothing here calls a sense: embedding, a
+sense's stored columns and the id checks that compare payloads are the write path's
+(``tactus_memory.memory.writes``)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tactus_memory.batches import check_ids, check_times, meta_json, per_item
-from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.results import SessionSummary, Stored
 from tactus_memory.sense import Sense
 from tactus_memory.storage.places import Placement, given_placement
-from tactus_memory.storage.store import Store
-from tactus_memory.vectors import as_unit_rows
 from tactus_memory.where import DEFAULT_FRAME, validate_frame
 
 if TYPE_CHECKING:
@@ -97,6 +96,10 @@ class PreparedWrite:
     dup: set[int] = field(default_factory=set)
     #: (index in the caller's items, reason) of each item skipped, not stored
     skipped: list[tuple[int, str]] = field(default_factory=list)
+    #: the sense's stored columns per item (``Sense.to_row``), filled in with ``vectors`` by
+    #: the write path (``tactus_memory.memory.writes``): what :func:`writes_table` stores beside
+    #: them
+    extras: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def ids(self) -> list[str]:
@@ -108,99 +111,6 @@ class PreparedWrite:
     def stored(self) -> Stored:
         """What the write returns: its ids and the items it skipped."""
         return Stored(self.ids, self.skipped)
-
-
-def embed_groups(
-    writes: Sequence[PreparedWrite],
-    dim: int,
-    embed: Callable[[Sense, list[Any]], np.ndarray] | None = None,
-) -> None:
-    """Embed the writes that have no vectors yet: ONE ``embed`` call per sense across all of
-    them (``embed(sense, items)``, default ``sense.embed(items)``; the group committer's
-    encoder process passes its own); each write gets its slice of (n, ``dim``) unit rows."""
-    by_sense: dict[str, list[PreparedWrite]] = {}
-    for w in writes:
-        if w.vectors is None:
-            by_sense.setdefault(w.sense.name, []).append(w)
-    for name, group in by_sense.items():
-        canon = [x for w in group for x in w.canon]
-        sense = group[0].sense
-        raw = sense.embed(canon) if embed is None else embed(sense, canon)
-        vectors = as_unit_rows(raw, dim, what=f"{name} embedding")
-        if vectors.shape[0] != len(canon):
-            raise InvalidInputError(
-                f"sense {name!r} returned {vectors.shape[0]} vectors for {len(canon)}"
-            )
-        at = 0
-        for w in group:
-            w.vectors = vectors[at : at + len(w)]
-            at += len(w)
-
-
-def embed_isolated(writes: Sequence[PreparedWrite], dim: int) -> None:
-    """:func:`embed_groups`, but a failing embedding fails only its own write: when a sense's
-    batch call raises, that sense's writes are embedded one by one and each culprit gets the
-    exception as its ``error`` (no write is committed here, so nothing is written twice)."""
-    try:
-        embed_groups(writes, dim)
-    except Exception:  # noqa: BLE001  (isolated below, write by write)
-        for w in writes:
-            if w.vectors is None:
-                try:
-                    embed_groups([w], dim)
-                except Exception as exc:  # noqa: BLE001  (this write's own failure)
-                    w.error = exc
-
-
-def _payload(w: PreparedWrite, i: int) -> tuple[Any, ...]:
-    """What an item id stores but its vector and ``created``: a repeat of it is idempotent."""
-    row = w.sense.to_row(w.canon[i])
-    b = w.batch
-    return (w.session, w.sense.name, w.source, b.t[i], b.t_end[i], b.meta[i], sorted(row.items()))
-
-
-def resolve_shared_ids(writes: Sequence[PreparedWrite]) -> None:
-    """Two writes of one commit naming the same item id (say two clients retrying the same
-    note in one tick): the later one is an idempotent repeat when its session, sense and
-    payload match the earlier row (its row is marked ``dup`` and written once), else it fails
-    alone with :class:`IdConflictError`. The rest of the commit is not affected."""
-    first: dict[str, tuple[PreparedWrite, int]] = {}
-    for w in writes:
-        w.dup.clear()  # (re-)resolved from scratch: a write may have failed since
-        if w.error is not None or not w.batch.upsert:
-            continue  # generated ids never clash
-        for i, item_id in enumerate(w.ids):
-            seen = first.get(item_id)
-            if seen is not None and _payload(*seen) != _payload(w, i):
-                w.error = IdConflictError(
-                    f"item id {item_id!r} is written by two requests at once with different "
-                    "content (or session, sense); the other one was stored, send this one again "
-                    "to replace it"
-                )
-                w.dup.clear()
-                break
-            if seen is not None:
-                w.dup.add(i)
-        if w.error is None:
-            for i, item_id in enumerate(w.ids):
-                first.setdefault(item_id, (w, i))
-
-
-def claim_ids(store: Store, writes: Sequence[PreparedWrite], isolate: bool) -> dict[int, int]:
-    """Rows each upsert replaces (of its own session and sense), by ``id(write)``. An id of
-    another session or sense raises IdConflictError (``isolate``: that write's ``error``).
-    Call it under the memory's commit lock, just before the store write."""
-    replaced: dict[int, int] = {}
-    for w in writes:
-        if w.batch.upsert and w.error is None:
-            try:
-                replaced[id(w)] = store.owned_count(w.ids, w.session, w.sense.name)
-            except IdConflictError as exc:
-                if not isolate:
-                    raise
-                w.error = exc
-                resolve_shared_ids(writes)  # a repeat of its ids is no longer a repeat
-    return replaced
 
 
 def items_table(
@@ -240,7 +150,9 @@ def items_table(
 
 
 def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table:
-    """The Arrow table of several embedded writes (one commit), less their ``dup`` rows."""
+    """The Arrow table of several embedded writes (one commit), less their ``dup`` rows: each
+    write's vectors and the sense's columns its write path gave it (``extras``); storage never
+    calls the sense."""
     import pyarrow as pa
 
     table = pa.concat_tables(
@@ -252,7 +164,7 @@ def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table
                 w.sense.name,
                 w.source,
                 np.asarray(w.vectors),
-                [w.sense.to_row(x) for x in w.canon],
+                w.extras,
             )
             for w in writes
         ]

@@ -329,13 +329,13 @@ def test_serve_sets_torch_threads_to_half_the_cores(monkeypatch):
     monkeypatch.setattr(serve_cmd, "load_app", lambda settings, say: seen.append(settings))
     monkeypatch.setattr(serve_cmd, "run_server", lambda application, settings: None)
     monkeypatch.delenv("TACTUS_TORCH_THREADS", raising=False)
-    assert CliRunner().invoke(cli_app, ["serve", "--torch"]).exit_code == 0
+    assert CliRunner().invoke(cli_app, ["serve", "--workers", "1", "--torch"]).exit_code == 0
     assert seen[-1].torch_threads == max(1, (os.cpu_count() or 2) // 2)
     assert seen[-1].onnx is None
-    assert CliRunner().invoke(cli_app, ["serve"]).exit_code == 0
+    assert CliRunner().invoke(cli_app, ["serve", "--workers", "1"]).exit_code == 0
     assert seen[-1].torch_threads is None and seen[-1].onnx  # the default: ONNX Runtime
     monkeypatch.setenv("TACTUS_TORCH_THREADS", "3")
-    assert CliRunner().invoke(cli_app, ["serve", "--torch"]).exit_code == 0
+    assert CliRunner().invoke(cli_app, ["serve", "--workers", "1", "--torch"]).exit_code == 0
     assert seen[-1].torch_threads == 3
 
 

@@ -284,7 +284,8 @@ def test_serve_opens_its_socket_at_once_and_says_what_loads(tmp_path: Path) -> N
         "from tactus_memory.cli import main\n"
         "main()\n"
     )
-    cmd = [sys.executable, "-c", hook, "serve", "--port", str(port), "--data", str(tmp_path / "m")]
+    cmd = [sys.executable, "-c", hook, "serve", "--workers", "1", "--port", str(port)]
+    cmd += ["--data", str(tmp_path / "m")]
     log = tmp_path / "serve.log"
     with log.open("ab") as fh:
         proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=shell_env(port))
@@ -320,7 +321,7 @@ def test_a_checkpoint_that_fails_to_load_after_the_socket_opened_exits_2(tmp_pat
     bad = tmp_path / "broken.safetensors"
     bad.write_bytes(b"not a checkpoint")
     cmd = [sys.executable, "-c", "from tactus_memory.cli import main; main()", "serve"]
-    cmd += ["--port", str(free_port()), "--data", str(tmp_path / "m")]
+    cmd += ["--workers", "1", "--port", str(free_port()), "--data", str(tmp_path / "m")]
     cmd += ["--touch-checkpoint", str(bad)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=STARTUP_S, env=shell_env(0))
     assert done.returncode == 2, done.stderr[-2000:]

@@ -616,7 +616,8 @@ def test_serve_command_builds_settings_and_runs_uvicorn(monkeypatch, tmp_path):
         serve_cmd, "load_app", lambda settings, say: seen.setdefault("settings", settings)
     )
     monkeypatch.setattr(serve_cmd, "run_server", lambda app, settings: seen.update(ran=settings))
-    args = ["serve", "--port", "8123", "--data", str(tmp_path), "--token", "T", "--no-touch"]
+    args = ["serve", "--workers", "1", "--port", "8123", "--data", str(tmp_path)]
+    args += ["--token", "T", "--no-touch"]
     result = CliRunner().invoke(cli_app, args)
     assert result.exit_code == 0, result.output
     s = seen["settings"]

@@ -27,7 +27,9 @@ from tests.helpers.servers import stop_process, wait_healthy
 pytestmark = pytest.mark.slow
 
 STARTUP_S = 180
+#: one server process (the trust checks read its log and its store alone)
 SERVE = [sys.executable, "-c", "from tactus_memory.cli import main; main()", "serve"]
+SERVE += ["--workers", "1"]
 #: an unprivileged user for the read-only tests when the tests run as root (root ignores
 #: file permissions); `setpriv` is util-linux. It keeps one capability, CAP_DAC_READ_SEARCH
 #: (read any file, search any folder; never write), so it can run this checkout's Python and

@@ -2,7 +2,8 @@
 both workers and each is acknowledged by its own committer; /ready waits for every worker;
 worker 0 alone maintains; ``kill -9`` of a worker while its glove streams loses nothing it
 acknowledged, and the worker is replaced. Frames go as binary ``.npy`` messages of several
-frames (parsed and windowed as one array)."""
+frames (parsed and windowed as one array); an HTTP ``.npy`` body of several windows is stored
+by the group too. "Worker 0 alone maintains" is read from the workers' banners."""
 
 from __future__ import annotations
 
@@ -143,6 +144,17 @@ def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
         after: list[str] = []
         stream(ws, 1, 2, after)
         assert len(after) == 2
+        # an HTTP .npy body of several windows: one write, parsed off the event loop
+        body = npy(frames(3 * WINDOW, 3).reshape(3, WINDOW, 32, 32))
+        r = httpx.post(
+            base + "/sessions/http/touch",
+            params={"t": [1.0, 2.0, 3.0]},
+            content=body,
+            headers={"content-type": "application/x-npy"},
+            timeout=60,
+        )
+        assert r.status_code == 201 and r.json()["count"] == 3, r.text
+        after += r.json()["ids"]
     finally:
         with contextlib.suppress(Exception):  # the killed worker's glove is closed already
             gloves.close()

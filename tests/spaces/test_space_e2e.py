@@ -192,18 +192,19 @@ def test_cli_space_options_and_one_line_errors(
     assert r.exit_code == 2 and QWEN in _one_line(r.stderr)
 
     # serve stops before listening, with one line, when the space cannot be built
-    r = _cli(["serve", "--data", data, "--no-touch"])
+    serve = ["serve", "--workers", "1"]  # one process: the error is the command's own
+    r = _cli([*serve, "--data", data, "--no-touch"])
     assert r.exit_code == 2 and "--space-path" in _one_line(r.stderr)
     fresh = str(tmp_path / "fresh")
-    r = _cli(["serve", "--data", fresh, "--space", "qwen3vl", "--no-touch"])
+    r = _cli([*serve, "--data", fresh, "--space", "qwen3vl", "--no-touch"])
     assert r.exit_code == 2 and "TACTUS_SPACE_PATH" in _one_line(r.stderr)
-    r = _cli(["serve", "--data", fresh, "--space", "qwen3vl", "--space-path", str(tmp_path / "x")])
+    r = _cli([*serve, "--data", fresh, "--space", "qwen3vl", "--space-path", str(tmp_path / "x")])
     assert r.exit_code == 2 and "not a folder" in _one_line(r.stderr)
-    r = _cli(["serve", "--data", data, "--space-path", str(other_qwen), "--no-touch"])
+    r = _cli([*serve, "--data", data, "--space-path", str(other_qwen), "--no-touch"])
     assert r.exit_code == 2 and "another model" in _one_line(r.stderr)
     missing = str(tmp_path / "no-such.safetensors")
     r = _cli(
-        ["serve", "--data", data, "--space-path", str(tiny_qwen), "--touch-checkpoint", missing]
+        [*serve, "--data", data, "--space-path", str(tiny_qwen), "--touch-checkpoint", missing]
     )
     assert r.exit_code == 2 and "no-such.safetensors" in _one_line(r.stderr)
 
@@ -446,6 +447,7 @@ def test_served_store_is_reopened_by_a_second_server(
     # a third start without the folder stops at once with one line naming the option
     env = {k: v for k, v in os.environ.items() if k not in SPACE_ENV}
     cmd = [sys.executable, "-c", "from tactus_memory.cli import main; main()", "serve"]
+    cmd += ["--workers", "1"]
     done = subprocess.run(
         [*cmd, "--data", str(data), "--port", "0", "--no-touch"],
         capture_output=True,
