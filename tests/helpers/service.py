@@ -121,3 +121,9 @@ PROBLEM = "application/problem+json"
 
 
 REST = 512  # a raw resting reading: no taxel in contact
+
+
+DIM = 64
+
+
+FRAMES = 4

@@ -18,8 +18,7 @@ from fastapi.testclient import TestClient
 from tactus_memory.errors import DynamicRangeError, IdleWindowError, InvalidInputError
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import MAX_DEFAULT_WORKERS, Settings, default_workers
-from tests.helpers.service import npy_bytes
-from tests.service.test_service_touch import DIM, FRAMES, checkpoint  # noqa: F401  (the fixture)
+from tests.helpers.service import DIM, FRAMES, npy_bytes
 
 
 @pytest.fixture

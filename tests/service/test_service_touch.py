@@ -3,37 +3,13 @@ raw vs calibrated windows, the calibrated flag, K limits, text search over touch
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
-from tests.helpers.service import assert_problem, npy_bytes, window
-
-DIM = 64
-FRAMES = 4
-
-
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory) -> Path:
-    import torch
-
-    from tactus_memory.touch.checkpoint import save_checkpoint
-    from tactus_memory.touch.model import create_model
-    from tactus_memory.touch.profile import STAG_GLOVE
-    from tactus_memory.touch.targets import build_targets
-    from tests.helpers.fakes import HashingSpace
-    from tests.helpers.stag_synth import OBJECTS
-
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("ckpt") / "tiny.safetensors"
-    model = create_model("tactus-tiny", out_dim=DIM, frames=FRAMES)
-    targets = build_targets(HashingSpace(dim=DIM), OBJECTS)
-    save_checkpoint(path, model, targets, space_dim=DIM, calibration=STAG_GLOVE.to_dict())
-    return path
+from tests.helpers.service import DIM, FRAMES, assert_problem, npy_bytes, window
 
 
 @pytest.fixture
