@@ -45,9 +45,9 @@ def mcp(
 ) -> None:
     """Serve the memory to an agent over the Model Context Protocol.
 
-    Tools: sessions, search, last, first, count, before, after, timeline (and remember with
-    --allow-writes). By default over stdio: an MCP client (an agent, a desktop app) starts
-    `tactus mcp --data DIR` itself. With --http: streamable HTTP at http://HOST:PORT/mcp,
+    Tools: sessions, search, last, first, count, before, after, timeline, where, at (and
+    remember, teach with --allow-writes). By default over stdio: an MCP client (an agent, a
+    desktop app) starts `tactus mcp --data DIR` itself. With --http: streamable HTTP at http://HOST:PORT/mcp,
     behind the same bearer token as `tactus serve`.
     """
     try:

@@ -72,11 +72,6 @@ class Found(BaseModel):
     )
 
 
-class SearchResult(BaseModel):
-    query: str
-    hits: list[Found]
-
-
 class MomentResult(BaseModel):
     """Things of one session that happened together."""
 
@@ -88,6 +83,14 @@ class MomentResult(BaseModel):
     senses: list[str] = Field(description="Senses with evidence in this moment.")
     best: str = Field(description="Id of the best-scoring item.")
     items: list[Found] = Field(description=f"Evidence, time order (at most {MAX_MOMENT_ITEMS}).")
+
+
+class SearchResult(BaseModel):
+    query: str
+    hits: list[Found]
+    moments: list[MomentResult] | None = Field(
+        None, description="With group='moment': the moments (hits are their best items)."
+    )
 
 
 class OccurrenceResult(BaseModel):

@@ -6,17 +6,17 @@ server.run()                                            # stdio, for an agent th
 ```
 
 Tools: ``search``, ``last``, ``first``, ``count``, ``before``, ``after``, ``timeline``,
-``sessions``, and ``remember`` (store a note) only with ``allow_writes=True``. Arguments are
+``sessions``, ``where`` and ``at`` (places, :mod:`tactus_memory.mcp.places`), and
+``remember`` (store a note) only with ``allow_writes=True``. Arguments are
 typed and documented (the JSON schema an agent sees); results are the compact models of
 :mod:`tactus_memory.mcp.hits` (text content: one line of JSON; structured content:
 the same object). A library error (unknown session, bad time range, ...) is a tool error
 carrying the library's message; the server keeps serving.
 
 The scope arguments (``session``, ``senses``, ``after``, ``before``) are one set of
-``Annotated`` aliases shared by every tool and turned into one :class:`~tactus_memory.query.
-Scope` by :func:`scope_of`; a place filter (``near``: a named place or x, y and a radius, once
-the memory knows places) is one more alias there and one more ``Scope`` field, and a
-``where`` tool sits beside ``last``.
+``Annotated`` aliases shared by every tool (:mod:`tactus_memory.mcp.args`) and turned
+into one :class:`~tactus_memory.query.Scope` by :func:`scope_of`; the place filter
+(``near``: ``[x, y, z, r]``, ``frame``) and ``group`` are as HTTP's.
 """
 
 from __future__ import annotations
@@ -30,13 +30,27 @@ from typing import Annotated, Any, TypeVar
 
 from mcp.server.mcpserver import Context, MCPServer
 from mcp.server.mcpserver.exceptions import ToolError
-from mcp.types import CallToolResult, TextContent, ToolAnnotations
-from pydantic import BaseModel, Field, Strict
+from mcp.types import CallToolResult, ToolAnnotations
+from pydantic import Field
 
 import tactus_memory
 from tactus_memory.errors import TactusError
-from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS, MAX_TEXT_CHARS
+from tactus_memory.limits import ID_PATTERN, MAX_ID_CHARS, MAX_TEXT_CHARS
 from tactus_memory.matching import DEFAULT_MERGE_GAP, DEFAULT_WINDOW
+from tactus_memory.mcp.args import (
+    MAX_TOOL_ITEMS,
+    AfterArg,
+    AnchorSensesArg,
+    BeforeArg,
+    KArg,
+    MergeGapArg,
+    Number,
+    QueryArg,
+    SensesArg,
+    SessionArg,
+    WindowsArg,
+    compact,
+)
 from tactus_memory.mcp.hits import (
     Compactor,
     ContextResult,
@@ -48,69 +62,29 @@ from tactus_memory.mcp.hits import (
     Taught,
     TimelineResult,
 )
+from tactus_memory.mcp.places import (
+    FrameArg,
+    NearArg,
+    PlaceTools,
+    QuestionGroupArg,
+    SearchGroupArg,
+    group_of,
+    near_of,
+)
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
 from tactus_memory.signatures import grouped
-from tactus_memory.temporal.grasps import windows_group
 
 log = logging.getLogger(__name__)
-
-#: most hits a tool returns at once (an agent reads them all; the library allows MAX_K)
-MAX_TOOL_K = 50
-#: most timeline items a tool returns at once
-MAX_TOOL_ITEMS = 500
 
 INSTRUCTIONS = (
     "A robot's memory of what it touched, heard and was told, searchable in words. Times are "
     "seconds on each session's clock (`when` gives wall-clock time where known). Ask `sessions` "
     "first to learn the session ids and time spans; `search` finds items (touch windows carry a "
     "contact summary); `last`/`first`/`count` answer when and how often something happened; "
-    "`before`/`after` list what happened around a moment; `timeline` reads a session in order."
+    "`before`/`after` list what happened around a moment; `timeline` reads a session in order; "
+    "`where` says where something happened and `at` what happened near a place (metres)."
 )
-
-# ----------------------------------------------------------------- arguments
-#: a number argument: strict, so a JSON ``true`` is refused rather than read as 1.0 (as the
-#: HTTP API and the library refuse booleans as numbers)
-Number = Annotated[float, Strict()]
-
-QueryArg = Annotated[
-    str,
-    Field(
-        min_length=1,
-        max_length=MAX_TEXT_CHARS,
-        description="What to look for, in words (e.g. 'holding a warm mug').",
-    ),
-]
-KArg = Annotated[int, Field(ge=1, le=MAX_TOOL_K, description="How many results.")]
-SessionArg = Annotated[
-    str | None,
-    Field(
-        pattern=ID_PATTERN,
-        max_length=MAX_ID_CHARS,
-        description="Only this session (default: every session). " + ID_DESCRIPTION,
-    ),
-]
-SensesArg = Annotated[
-    list[str] | None,
-    Field(description="Only these senses, e.g. ['touch'] or ['text'] (default: every sense)."),
-]
-AnchorSensesArg = Annotated[
-    list[str] | None, Field(description="Search the anchor only in these senses.")
-]
-AfterArg = Annotated[
-    Number | None, Field(description="Only items still going on at or after this time (s).")
-]
-BeforeArg = Annotated[Number | None, Field(description="Only items started at or before (s).")]
-MergeGapArg = Annotated[
-    Number, Field(ge=0.0, le=1e9, description="Matches this close (s) count as one occurrence.")
-]
-WindowsArg = Annotated[
-    bool,
-    Field(
-        description="Touch as single windows. By default a touch answer is a grasp (the "
-        "contiguous windows of one hold, scored together)."
-    ),
-]
 
 #: what a server that audits writes is told after each ``remember``: the request context
 #: of the call (the HTTP request, on HTTP), the status (201 stored, 422 refused) and the
@@ -121,10 +95,18 @@ R = TypeVar("R")
 
 
 def scope_of(
-    session: str | None, senses: list[str] | None, after: float | None, before: float | None
+    session: str | None,
+    senses: list[str] | None,
+    after: float | None,
+    before: float | None,
+    near: list[float] | None = None,
+    frame: str | None = None,
 ) -> Scope:
-    """The scope arguments of a tool -> the library's one :class:`Scope`."""
-    return Scope(session=session, senses=senses, after=after, before=before)
+    """The scope arguments of a tool -> the library's one :class:`Scope` (``near``:
+    ``[x, y, z, r]``, :func:`~tactus_memory.mcp.places.near_of`)."""
+    return Scope(
+        session=session, senses=senses, after=after, before=before, near=near_of(near), frame=frame
+    )
 
 
 @dataclass(frozen=True)
@@ -139,13 +121,16 @@ class Question:
     before: BeforeArg = None
     merge_gap: MergeGapArg = DEFAULT_MERGE_GAP
     windows: WindowsArg = False
+    group: QuestionGroupArg = None
+    near: NearArg = None
+    frame: FrameArg = None
 
     def scope(self) -> Scope:
-        return scope_of(self.session, self.senses, self.after, self.before)
+        return scope_of(self.session, self.senses, self.after, self.before, self.near, self.frame)
 
     @property
-    def group(self) -> str:
-        return windows_group(self.windows)
+    def grouping(self) -> str:
+        return group_of(self.group, self.windows)
 
 
 def around_args(side: str) -> type:
@@ -163,17 +148,11 @@ def around_args(side: str) -> type:
             ("session", SessionArg, field(default=None)),
             ("senses", SensesArg, field(default=None)),
             ("anchor_senses", AnchorSensesArg, field(default=None)),
+            ("near", NearArg, field(default=None)),
+            ("frame", FrameArg, field(default=None)),
         ],
         frozen=True,
     )
-
-
-def compact(result: BaseModel) -> CallToolResult:
-    """One line of JSON as text (what a model reads) and the same object as structured
-    content (what a program reads); empty fields are left out."""
-    body = result.model_dump(mode="json", exclude_none=True)
-    text = result.model_dump_json(exclude_none=True)
-    return CallToolResult(content=[TextContent(type="text", text=text)], structured_content=body)
 
 
 def tool_errors(fn: Callable[..., R]) -> Callable[..., R]:
@@ -190,7 +169,7 @@ def tool_errors(fn: Callable[..., R]) -> Callable[..., R]:
     return wrapper
 
 
-class MemoryTools:
+class MemoryTools(PlaceTools):
     """The tools over one memory (each a method; :func:`build_server` registers them)."""
 
     def __init__(self, memory: Memory, on_write: WriteHook | None = None) -> None:
@@ -214,21 +193,31 @@ class MemoryTools:
         after: AfterArg = None,
         before: BeforeArg = None,
         windows: WindowsArg = False,
+        group: SearchGroupArg = None,
+        near: NearArg = None,
+        frame: FrameArg = None,
     ) -> SearchResult:
         """Find remembered things (touch grasps, notes, ...) that match a description, best
         first. Each hit says when (t, t_end), which sense, its score and its id; a touch hit
-        is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones."""
+        is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones.
+        ``group='moment'`` also lists the moments (hits are each moment's best item)."""
         self._known(session)
-        scope = scope_of(session, senses, after, before)
-        group = windows_group(windows)
-        hits = self.memory.search(query, k, group=group, scope=scope)
-        return compact(SearchResult(query=query, hits=self.compactor.items(hits)))  # type: ignore[return-value]
+        scope = scope_of(session, senses, after, before, near, frame)
+        grouping = group_of(group, windows)
+        found = self.memory.search(query, k, group=grouping, scope=scope)
+        if grouping == "moment":  # as HTTP: the hits are each moment's best member
+            best = [next(h for h in m.hits if h.id == m.best) for m in found]
+            moments = self.compactor.moments(found)
+            result = SearchResult(query=query, hits=self.compactor.items(best), moments=moments)
+        else:
+            result = SearchResult(query=query, hits=self.compactor.items(found))
+        return compact(result)  # type: ignore[return-value]
 
     def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
         memory, query = self.memory, ask.query
         self._known(ask.session)
         moments = memory.occurrences(
-            query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
+            query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
         ).moments
         if not moments:
             return OccurrenceResult(query=query, found=False)
@@ -247,7 +236,7 @@ class MemoryTools:
         """How many distinct times did this happen? Also answers yes/no (count > 0)."""
         self._known(ask.session)
         occ = self.memory.occurrences(
-            ask.query, merge_gap=ask.merge_gap, group=ask.group, scope=ask.scope()
+            ask.query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
         )
         moments = self.compactor.moments(occ.moments)
         result = CountResult(
@@ -264,7 +253,7 @@ class MemoryTools:
     def _around(self, side: str, ask: Any) -> CallToolResult:
         fn = self.memory.before if side == "before" else self.memory.after
         self._known(ask.session)
-        scope = scope_of(ask.session, ask.senses, None, None)
+        scope = scope_of(ask.session, ask.senses, None, None, ask.near, ask.frame)
         ctx = fn(ask.anchor, ask.window, scope=scope, anchor_senses=ask.anchor_senses)
         if ctx is None:
             return compact(ContextResult(side=side, window=ask.window, items=[]))
@@ -298,9 +287,13 @@ class MemoryTools:
         limit: Annotated[
             int, Field(ge=1, le=MAX_TOOL_ITEMS, description="Most items returned.")
         ] = 50,
+        near: NearArg = None,
+        frame: FrameArg = None,
     ) -> TimelineResult:
         """A session's items in time order (narrow with after/before for long sessions)."""
-        items = self.memory.timeline(session, senses, after, before, limit=limit)
+        items = self.memory.timeline(
+            session, senses, after, before, limit=limit, near=near_of(near), frame=frame
+        )
         result = TimelineResult(session=session, items=self.compactor.items(items))
         return compact(result)  # type: ignore[return-value]
 
@@ -365,9 +358,15 @@ class MemoryTools:
         out = Taught(**{k: v for k, v in got.to_dict().items() if k in Taught.model_fields})
         return compact(out)  # type: ignore[return-value]
 
+    #: the place tools (:class:`~tactus_memory.mcp.places.PlaceTools`), as the others
+    where = tool_errors(PlaceTools.where)
+    at = tool_errors(PlaceTools.at)
+
 
 #: the read-only tools, in the order an agent sees them
-READ_TOOLS = ("sessions", "search", "last", "first", "count", "before", "after", "timeline")
+READ_TOOLS = (
+    "sessions", "search", "last", "first", "count", "before", "after", "timeline", "where", "at"
+)  # fmt: skip
 #: the tools that write, offered only with ``allow_writes``
 WRITE_TOOLS = ("remember", "teach")
 

@@ -1,8 +1,12 @@
 """A newcomer's first hour, as CI runs it: a fresh copy of the checkout, an empty ``HOME``,
-``make run``, then every ``bash`` and ``python`` block of the README's tour, of the docs'
-Getting-started page and of the guides in ``PAGES``, in order and as written (``--8<--``
-includes of ``examples/`` resolved as the docs build does), then the page. Real uvicorn on
-127.0.0.1, real MiniLM, the shipped touch encoder.
+``make run``, then every ``bash`` and ``python`` block of the README's tour and of every page
+of the docs site (``mkdocs.yml``'s nav, in its order: Getting started, every guide, the
+reference and operations pages), as written (``--8<--`` includes of ``examples/`` resolved as
+the docs build does; ``tests/helpers/doc_snippets.py``), then the page, then ``make lint`` and the
+checkout tests in the same folder. Real uvicorn on 127.0.0.1, real MiniLM, the shipped touch
+encoder. A block runs unless its page marks it, visibly, as needing what a fresh clone does
+not have (the STAG files, a GPU, an S3 bucket, ...): ``tests/project/test_doc_snippets.py`` keeps those
+few and each with its reason.
 
 * The copy holds the checkout's files (tracked and new, not ignored ones: no store, no
   runs), so ``./memory`` starts empty as on a fresh clone. The checkout's own ``.venv`` is
@@ -15,7 +19,8 @@ includes of ``examples/`` resolved as the docs build does), then the page. Real 
   ``...`` stands for anything. Every block must exit 0.
 * Anything a snippet needs (a recording, poses, arrays) is made by an earlier snippet or
   by a script in ``examples/``.
-* The page: a search in a real Chromium shows hits with their match bar.
+* The page: a search in a real Chromium shows hits with their match bar; ``/docs`` and
+  ``/redoc`` render there with every request off the server refused (offline).
 
 Also here: ``tactus serve`` opens its socket at once (``/live`` 200, ``/ready`` 503 naming
 the step while the touch encoder loads), observed on a real server whose loading waits on a
@@ -30,72 +35,36 @@ import shutil
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
 import pytest
 
 from benchmarks.serving import free_port, wait_ok
+from tests.helpers.doc_snippets import Block, all_blocks, nav_pages
 from tests.helpers.servers import stop_process
 
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
-README = ROOT / "README.md"
-#: the pages whose every bash/python block runs, in this order, after the README's tour
-PAGES = [
-    "docs/getting-started.md",
-    "docs/guides/questions.md",
-    "docs/guides/places.md",
-    "docs/guides/agents.md",
-]
 VENV = Path(sys.prefix)
 STARTUP_S = 180
 BLOCK_S = 300
-FENCE = re.compile(r"^```(\w*)\n(.*?)^```\n", re.M | re.S)
-INCLUDE = re.compile(r'^--8<-- "([^"]+)"\n', re.M)
 MAKE_RUN = re.compile(r"^make run(\s+#.*)?\n$")
 CURL_FAILS = 'curl() { command curl --fail-with-body -sS "$@"; }\n'
-
-
-@dataclass
-class Block:
-    page: str
-    section: str
-    lang: str
-    code: str
-    prints: list[str] | None = None
-
-
-def page_blocks(page: str, text: str, *, only: str | None = None) -> list[Block]:
-    """The bash/python blocks of a page, in order (``only``: of the "## " sections whose
-    title starts so), each with the ```text block that follows it (after at most a line such
-    as "prints"); ``--8<--`` includes are replaced by the file they name."""
-    text = INCLUDE.sub(lambda m: (ROOT / m.group(1)).read_text(), text)
-    blocks: list[Block] = []
-    for section in re.split(r"^## ", text, flags=re.M):
-        title = section.splitlines()[0] if section else ""
-        if only is not None and not title.startswith(only):
-            continue
-        last_end = None
-        for m in FENCE.finditer(section):
-            lang, code = m.group(1), m.group(2)
-            between = section[last_end : m.start()] if last_end is not None else None
-            if lang == "text" and blocks and between is not None and between.count("\n") <= 3:
-                blocks[-1].prints = [ln for ln in code.splitlines() if ln.strip()]
-            elif lang in ("bash", "python"):
-                blocks.append(Block(page, title, lang, code))
-            last_end = m.end()
-    return blocks
-
-
-def all_blocks() -> list[Block]:
-    blocks = page_blocks("README.md", README.read_text(), only="A 5-minute tour")
-    for page in PAGES:
-        blocks += page_blocks(page, (ROOT / page).read_text())
-    return blocks
+#: guides none of whose blocks runs on a fresh clone (each marked: the STAG files, a GPU, the
+#: Qwen3-VL weights); every other guide must run blocks
+NO_RUNNABLE_BLOCK = ("docs/guides/images.md", "docs/guides/training.md")
+#: the tests `make test` runs whose answer depends on the checkout's files (the lint config,
+#: the docs build, the layout, the snippet marks): run again in the clone after the snippets
+CHECKOUT_TESTS = (
+    "test_lint_config.py",
+    "test_docs.py",
+    "test_architecture.py",
+    "test_doc_snippets.py",
+)
 
 
 def lines_in_order(expected: list[str], output: str) -> None:
@@ -111,7 +80,8 @@ def lines_in_order(expected: list[str], output: str) -> None:
 
 
 def fresh_copy(dest: Path) -> None:
-    """The checkout's files as a fresh clone has them (tracked + new, not ignored)."""
+    """The checkout's files as a fresh clone has them (tracked + new, not ignored), in a git
+    repository of their own."""
     listed = subprocess.run(
         ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
         cwd=ROOT,
@@ -123,6 +93,10 @@ def fresh_copy(dest: Path) -> None:
         if src.is_file():
             (dest / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, dest / name)
+    # a clone is a git repository: `git ls-files` answers there as in the checkout
+    git = ["git", "-c", "user.name=newcomer", "-c", "user.email=newcomer@example.invalid"]
+    for args in (["init", "-q"], ["add", "-A"], ["commit", "-q", "-m", "fresh clone"]):
+        subprocess.run([*git, *args], cwd=dest, capture_output=True, check=True)
     (dest / ".venv").symlink_to(VENV, target_is_directory=True)
 
 
@@ -158,11 +132,15 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
     clone = tmp_path / "tactus-memory"
     fresh_copy(clone)
     assert not (clone / "memory").exists()
-    blocks = all_blocks()
+    blocks = [b for b in all_blocks() if b.exempt is None]
     starts = [b for b in blocks if MAKE_RUN.match(b.code)]
-    assert len(starts) == 1 and starts[0].page == PAGES[0], [b.code for b in starts]
+    assert len(starts) == 1 and starts[0].page == "docs/getting-started.md", starts
     assert [b for b in blocks if b.page == "README.md"], "no tour in the README"
-    assert {b.page for b in blocks} == {"README.md", *PAGES}  # every page has snippets
+    pages = nav_pages()
+    ran = {b.page for b in blocks}
+    assert "docs/getting-started.md" in pages and "docs/reference/mcp.md" in pages
+    guides = [p for p in pages if p.startswith("docs/guides/")]
+    assert len(guides) >= 8 and set(guides) <= ran | set(NO_RUNNABLE_BLOCK), (guides, ran)
     assert any("websockets.connect" in b.code for b in blocks), "no glove client"
     assert any("make_recording.py" in b.code for b in blocks), "no recording"
     port = free_port()
@@ -222,6 +200,15 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
     finally:
         stop_process(server)
     assert (clone / "memory").is_dir()  # the one default store, in the checkout
+    # `make test` in the same checkout after all that: its lint (the store and what the
+    # snippets left must not change what ruff sees), and the checkout's own checks
+    make = ["make", "-o", ".venv/.base", "-o", ".venv/.test", "lint"]
+    done = subprocess.run(make, cwd=clone, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    checks = [str(VENV / "bin" / "python"), "-m", "pytest", "-q", "-p", "no:cacheprovider"]
+    checks += [f"tests/{name}" for name in CHECKOUT_TESTS]
+    done = subprocess.run(checks, cwd=clone, env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
 
 
 def serving_processes(session: int) -> list[int]:
@@ -260,8 +247,35 @@ def page_search(base: str, tmp_path: Path) -> None:
             assert bars and len(bars) == hits, (bars, hits)
             assert "clear the match bar" in page.text_content("#search-status")
             assert not errors, errors
+            api_pages_render_offline(context, base)
         finally:
             context.close()
+
+
+def api_pages_render_offline(context: Any, base: str) -> None:
+    """``/docs`` (Swagger UI) and ``/redoc`` render with every request off the server
+    refused: no script, stylesheet or font comes from elsewhere (Redoc's bundle still asks its
+    vendor's CDN for the "API docs by Redocly" footer logo, an image; refused, it is left out)."""
+    asked_elsewhere: list[str] = []
+
+    def only_the_server(route: Any) -> None:
+        if route.request.url.startswith(base + "/") or route.request.url.startswith("data:"):
+            route.continue_()
+        else:
+            if route.request.resource_type != "image":
+                asked_elsewhere.append(route.request.url)
+            route.abort()
+
+    context.route("**/*", only_the_server)
+    page = context.new_page()
+    page.set_default_timeout(60_000)
+    page.goto(base + "/docs")
+    page.wait_for_selector(".swagger-ui .opblock-summary-path")  # the operations, rendered
+    assert "/search" in page.text_content(".swagger-ui")
+    page.goto(base + "/redoc")
+    page.wait_for_selector("redoc [role=menuitem], .menu-content label")  # its menu, rendered
+    assert "Search every sense in natural language" in page.text_content("body")
+    assert not asked_elsewhere, asked_elsewhere
 
 
 def test_serve_opens_its_socket_at_once_and_says_what_loads(tmp_path: Path) -> None:

@@ -1,0 +1,197 @@
+"""The place and grouping arguments of the MCP tools, and the two place tools.
+
+As the HTTP API has them (``service/routers/search.py``, ``temporal.py``, ``places.py``):
+
+* ``near``: ``[x, y, z, r]``, only items placed within ``r`` metres of ``(x, y, z)`` (HTTP's
+  ``near=x,y,z,r``; unplaced items never match); ``frame``: only items placed in that frame;
+* ``group`` on ``search`` (``auto`` / ``window`` / ``moment`` / ``grasp``) and on ``last`` /
+  ``first`` / ``count`` (``auto`` / ``window`` / ``grasp``), the same library calls;
+* ``where`` (HTTP ``GET /where``: ``memory.where``) and ``at`` (HTTP ``GET /at``:
+  ``memory.at``).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from mcp.types import CallToolResult
+from pydantic import BaseModel, Field
+
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.limits import ID_PATTERN, MAX_COORDINATE, MAX_ID_CHARS
+from tactus_memory.mcp.args import (
+    MAX_TOOL_ITEMS,
+    MAX_TOOL_K,
+    AfterArg,
+    BeforeArg,
+    Number,
+    QueryArg,
+    SensesArg,
+    SessionArg,
+    compact,
+)
+from tactus_memory.mcp.hits import Compactor, Found, when
+from tactus_memory.memory.main import Memory
+from tactus_memory.query import Scope
+from tactus_memory.results import Place
+from tactus_memory.temporal.grasps import windows_group
+from tactus_memory.where import Near, check_near
+
+#: a coordinate (m), bounded as HTTP's (``limits.MAX_COORDINATE``)
+Coordinate = Annotated[Number, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+
+NearArg = Annotated[
+    Annotated[list[Number], Field(min_length=4, max_length=4)] | None,
+    Field(
+        description="Only items placed within r metres of (x, y, z), given as [x, y, z, r] "
+        "(r > 0; HTTP's near=x,y,z,r). Items with no place never match."
+    ),
+]
+FrameArg = Annotated[
+    str | None,
+    Field(
+        pattern=ID_PATTERN,
+        max_length=MAX_ID_CHARS,
+        description="Only items placed in this frame (e.g. 'map').",
+    ),
+]
+SearchGroup = Literal["auto", "window", "moment", "grasp"]
+QuestionGroup = Literal["auto", "window", "grasp"]
+SearchGroupArg = Annotated[
+    SearchGroup | None,
+    Field(
+        description="'auto' (default): a touch answer is a grasp (a hold's contiguous windows, "
+        "scored together), other senses one hit per item; 'window': one hit per stored item; "
+        "'moment': hits close in time merged into moments across senses (listed in "
+        "`moments`); 'grasp': one hit per grasp of every sense. As HTTP's group=."
+    ),
+]
+QuestionGroupArg = Annotated[
+    QuestionGroup | None,
+    Field(
+        description="'auto' (default): touch is asked of grasps, other senses of items; "
+        "'window': of items everywhere; 'grasp': of grasps for every sense. As HTTP's group=."
+    ),
+]
+
+
+def near_of(near: list[float] | None) -> Near | None:
+    """``[x, y, z, r]`` -> the library's ``((x, y, z), r)`` (checked: r > 0, finite)."""
+    if near is None:
+        return None
+    x, y, z, r = near
+    return check_near(((x, y, z), r))
+
+
+def group_of(group: str | None, windows: bool) -> str:
+    """The ``group`` argument, or the older ``windows`` flag's; both given must agree."""
+    if group is None:
+        return windows_group(windows)
+    if windows and group != "window":
+        raise InvalidInputError(
+            f"windows: true asks for single windows, group {group!r} for something else: "
+            "give one of them"
+        )
+    return group
+
+
+class PlaceFound(BaseModel):
+    """Where a moment matching the query happened: its best placed member's position."""
+
+    session: str
+    position: tuple[float, float, float] = Field(description="(x, y, z), metres, in `frame`.")
+    frame: str
+    t: float
+    t_end: float
+    when: str | None = None
+    score: float
+    senses: list[str] = Field(description="Senses with evidence in this moment.")
+    best: str = Field(description="Id of the best-scoring item.")
+    items: list[Found] = Field(description="The moment's evidence, time order.")
+
+
+class WhereResult(BaseModel):
+    """``where``: the places, best first (moments with no placed member are left out)."""
+
+    query: str
+    places: list[PlaceFound]
+
+
+class AtResult(BaseModel):
+    """``at``: what happened within ``radius`` metres of ``position``, in time order."""
+
+    position: tuple[float, float, float]
+    radius: float
+    items: list[Found]
+
+
+def place_found(place: Place, items: list[Found]) -> PlaceFound:
+    """A library :class:`~tactus_memory.results.Place` -> :class:`PlaceFound`."""
+    x, y, z = (round(float(c), 4) for c in place.position)
+    return PlaceFound(
+        session=place.session,
+        position=(x, y, z),
+        frame=place.frame,
+        t=round(place.t, 3),
+        t_end=round(place.t_end, 3),
+        when=when(place.t),
+        score=round(place.score, 3),
+        senses=place.senses,
+        best=place.best,
+        items=items,
+    )
+
+
+class PlaceTools:
+    """The ``where`` and ``at`` tools (mixed into ``server.MemoryTools``, which gives
+    ``memory``, ``compactor`` and ``_known`` and turns library errors into tool errors)."""
+
+    memory: Memory
+    compactor: Compactor
+
+    def _known(self, session: str | None) -> None:  # pragma: no cover - MemoryTools's
+        raise NotImplementedError
+
+    def where(
+        self,
+        query: QueryArg,
+        k: Annotated[int, Field(ge=1, le=MAX_TOOL_K, description="How many places.")] = 5,
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        near: NearArg = None,
+        frame: FrameArg = None,
+    ) -> CallToolResult:
+        """Where did this happen? The places of the moments that match, best first: each
+        with its position (x, y, z in metres) and frame, its span, score and evidence (as
+        HTTP's GET /where). Moments with no placed item are left out."""
+        self._known(session)
+        scope = Scope(session, senses, None, after, before, near_of(near), frame)
+        places = self.memory.where(query, k, scope=scope)
+        out = [place_found(p, self.compactor.items(p.evidence)) for p in places]
+        return compact(WhereResult(query=query, places=out))
+
+    def at(
+        self,
+        x: Annotated[Coordinate, Field(description="x (m).")],
+        y: Annotated[Coordinate, Field(description="y (m).")],
+        z: Annotated[Coordinate, Field(description="z (m).")],
+        r: Annotated[Number, Field(gt=0.0, le=MAX_COORDINATE, description="Radius (m).")],
+        session: SessionArg = None,
+        senses: SensesArg = None,
+        after: AfterArg = None,
+        before: BeforeArg = None,
+        frame: FrameArg = None,
+        limit: Annotated[
+            int, Field(ge=1, le=MAX_TOOL_ITEMS, description="Most items returned.")
+        ] = 50,
+    ) -> CallToolResult:
+        """What happened near a place? The items placed within r metres of (x, y, z), in
+        time order (as HTTP's GET /at)."""
+        self._known(session)
+        items = self.memory.at(
+            (x, y, z), r, session=session, senses=senses, after=after, before=before, frame=frame
+        )
+        result = AtResult(position=(x, y, z), radius=r, items=self.compactor.items(items[:limit]))
+        return compact(result)
