@@ -8,7 +8,8 @@ the line right above its fence, with a reason the reader sees::
     *Needs the STAG files (not run by the docs test).*
 
 (:data:`EXEMPT`). Every other block runs: a new page is covered as soon as ``nav`` lists it.
-``tests/project/test_doc_snippets.py`` checks the marks (few, each with its reason) without a server;
+``tests/project/test_doc_snippets.py`` checks the marks (few, each with its reason) without a
+server;
 ``tests/project/test_newcomer.py`` runs the blocks against ``make run``.
 """
 

@@ -1,4 +1,5 @@
-"""The docs' snippets, checked without a server (``tests/helpers/doc_snippets.py``; the run itself is
+"""The docs' snippets, checked without a server (``tests/helpers/doc_snippets.py``; the run itself
+is
 ``tests/project/test_newcomer.py``, slow): every page of the site is read, a block is left out only
 when its page says why right above it, such blocks stay few, and every other block is at
 least valid bash or Python."""

@@ -5,7 +5,8 @@ reference and operations pages), as written (``--8<--`` includes of ``examples/`
 the docs build does; ``tests/helpers/doc_snippets.py``), then the page, then ``make lint`` and the
 checkout tests in the same folder. Real uvicorn on 127.0.0.1, real MiniLM, the shipped touch
 encoder. A block runs unless its page marks it, visibly, as needing what a fresh clone does
-not have (the STAG files, a GPU, an S3 bucket, ...): ``tests/project/test_doc_snippets.py`` keeps those
+not have (the STAG files, a GPU, an S3 bucket, ...): ``tests/project/test_doc_snippets.py`` keeps
+those
 few and each with its reason.
 
 * The copy holds the checkout's files (tracked and new, not ignored ones: no store, no
