@@ -227,6 +227,14 @@ Consecutive = Annotated[
 ]
 Augment = Annotated[str, typer.Option("--augment", help="default | strong | pressed-noise")]
 WeightDecay = Annotated[float, typer.Option("--weight-decay", help="AdamW weight decay")]
+PreciseBn = Annotated[
+    int,
+    typer.Option(
+        "--precise-bn",
+        help="after training, recompute BatchNorm statistics over N batches of training windows "
+        "(0: off, the STAG recipe); for short runs and small frames (touch/training/precise_bn.py)",
+    ),
+]
 
 
 def _override(flag: str, what: str) -> Any:

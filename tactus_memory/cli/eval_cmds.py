@@ -20,7 +20,9 @@ from tactus_memory.cli.common import (
     Threads,
     set_threads,
 )
+from tactus_memory.cli.sensor_opts import SensorData
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail, space_choice
+from tactus_memory.signatures import grouped
 
 baseline_app = typer.Typer(
     help="The supervised STAG CNN (closed-set reference), trained and scored like Tactus.",
@@ -61,6 +63,7 @@ def _write_outputs(
 
 
 @app.command("eval")
+@grouped(source=SensorData)
 def eval_cmd(
     checkpoint: Annotated[
         list[str],
@@ -68,7 +71,6 @@ def eval_cmd(
             "--checkpoint", help="Tactus or baseline .safetensors, or 'default'; repeat for runs"
         ),
     ],
-    data: StagFiles,
     split: Split = "test",
     holdout: ScoredHoldout = None,
     votes: int = typer.Option(4, "--votes", help="independent tuple draws pooled for *_vote"),
@@ -103,10 +105,14 @@ def eval_cmd(
         help="with --group grasp: how a grasp is scored, repeat to compare: mean (every "
         "window pooled) | top (its 3 windows closest to the query) | max (its best window)",
     ),
+    *,
+    source: SensorData,
 ) -> None:
-    """Score checkpoints on STAG: top-1/3, voting, recording level, per class, confusion.
-    The analyses embed phrasings in each checkpoint's space: a Qwen3-VL checkpoint needs
-    --space-path (else they are skipped with a note)."""
+    """Score checkpoints on STAG or your own sensor's recordings (--data FILE.npz or --bag;
+    calibrated with the first checkpoint's sensor profile unless --sensor/--shape say
+    otherwise): top-1/3, voting, recording level, per class, confusion. The analyses embed
+    phrasings in each checkpoint's space: a Qwen3-VL checkpoint needs --space-path (else they
+    are skipped with a note)."""
     logging.basicConfig(level=logging.WARNING)
     if split not in ("test", "all"):
         raise typer.BadParameter("--split must be 'test' or 'all'")
@@ -118,11 +124,24 @@ def eval_cmd(
         raise typer.BadParameter(f"--grasp-pool takes mean, top or max; got {bad}")
     set_threads(threads)
     from tactus_memory.errors import SpaceConfigError
-    from tactus_memory.training.eval_runs import load_eval_data, run_eval
+    from tactus_memory.training.eval_runs import (
+        checkpoint_profile,
+        load_eval_data,
+        run_eval,
+    )
+    from tactus_memory.training.evaluate import file_fingerprint
 
     given = space is not None or space_path is not None or space_dim is not None
     scope = {"split": split, "holdout": holdout, "votes": votes, "seed": seed}
-    loaded = load_eval_data(data)  # once: the stream evaluation reuses it
+    profile = source.profile(checkpoint_profile(checkpoint[0]))
+    data = list(source.data or ())
+    if source.bag:
+        bag_data, profile = source.load(profile)
+        loaded = (bag_data, [file_fingerprint(bag_data)])
+    else:
+        if not data:
+            raise typer.BadParameter("give --data FILE... or --bag REC...")
+        loaded = load_eval_data(data, profile)  # once: the stream evaluation reuses it
     try:
         payload, first, es = run_eval(
             checkpoint,
@@ -131,6 +150,7 @@ def eval_cmd(
             warn=_warn,
             space=space_choice(space, space_path, space_dim) if given else None,
             loaded=loaded,
+            profile=profile,
             **scope,
         )
     except SpaceConfigError as exc:

@@ -1,5 +1,5 @@
 """``tactus pretrain``, ``tactus train`` and ``tactus distill``: the touch encoder's recipe
-from STAG files."""
+from STAG files, or from your own sensor's recordings (.npz or a bag, ``sensor_opts.py``)."""
 
 from __future__ import annotations
 
@@ -26,23 +26,26 @@ from tactus_memory.cli.common import (
     LearningRate,
     ModelName,
     Positives,
+    PreciseBn,
     Pretrained,
     Resume,
     Seed,
-    StagFiles,
     Steps,
     Threads,
     TrainHoldout,
     WeightDecay,
     set_threads,
 )
+from tactus_memory.cli.sensor_opts import SensorData
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
 from tactus_memory.signatures import grouped
 
 
 @app.command("pretrain")
+@grouped(source=SensorData)
 def pretrain_cmd(
-    data: StagFiles,
+    *,
+    source: SensorData,
     out: Path = typer.Option(..., "--out", help="MAE checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="trunk architecture"),
     steps: int = typer.Option(400, "--steps", help="optimizer steps (shipped recipe: 400)"),
@@ -57,17 +60,16 @@ def pretrain_cmd(
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
-    from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.training.pretrain import PretrainConfig, pretrain, recipe_warmup
-    from tactus_memory.training.train import _resolve_device, holdout_recordings, load_data
+    from tactus_memory.training.train import _resolve_device, holdout_recordings
 
-    d = load_data(data)
-    d.check_dynamic_range(STAG_GLOVE)  # per source file; raises DynamicRangeError
+    d, profile = source.load()
+    d.check_dynamic_range(profile)  # per source file; raises DynamicRangeError
     excl = holdout_recordings(d, holdout)
     warmup = recipe_warmup(steps)
     cfg = PretrainConfig(model=model, steps=steps, batch=batch, lr=lr, seed=seed, warmup=warmup)
     summary = pretrain(
-        d.calibrated(STAG_GLOVE),
+        d.calibrated(profile),
         d.recording_id,
         excl,
         out,
@@ -86,7 +88,6 @@ class Recipe:
     """The options ``tactus train`` and ``tactus distill`` share (one group: the ladder's
     options, checkpoints README)."""
 
-    data: StagFiles
     out: CheckpointOut
     model: ModelName = "tactus-lite"
     pretrained: Pretrained = None
@@ -107,12 +108,13 @@ class Recipe:
     consecutive: Consecutive = 0.0
     augment: Augment = "default"
     weight_decay: WeightDecay = 0.05
+    precise_bn: PreciseBn = 0
     input_gamma: InputGamma = None
     input_blur: InputBlur = None
     dropout: Dropout = None
 
 
-def training_run(r: Recipe) -> tuple[Any, Any, Any, int]:
+def training_run(r: Recipe, source: SensorData) -> tuple[Any, Any, Any, int]:
     """The data, targets and TrainConfig of ``tactus train`` / ``tactus distill`` from their
     shared options. Returns (TrainData, Targets, TrainConfig, the space's dim)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
@@ -134,15 +136,15 @@ def training_run(r: Recipe) -> tuple[Any, Any, Any, int]:
     from tactus_memory.training.train import (
         TrainConfig,
         holdout_recordings,
-        load_data,
         prepare_data,
     )
 
-    d = load_data(r.data)
-    td = prepare_data(d, holdout_recordings(d, r.holdout), positives=r.positives)
+    d, profile = source.load()
+    td = prepare_data(d, holdout_recordings(d, r.holdout), positives=r.positives, profile=profile)
     targets = build_targets(sp, td.classes)
     typer.echo(json.dumps({"target_geometry": target_report(targets)}, indent=2))
     fields = ("model", "steps", "batch", "lr", "seed", "half", "consecutive", "weight_decay")
+    fields += ("precise_bn",)
     cfg = TrainConfig(balance=r.balance, **{f: getattr(r, f) for f in fields})
     cfg.warmup = recipe_warmup(cfg.steps)
     cfg.augment = augment_preset(r.augment)
@@ -152,12 +154,12 @@ def training_run(r: Recipe) -> tuple[Any, Any, Any, int]:
 
 
 @app.command("train")
-@grouped(recipe=Recipe)
-def train_cmd(*, recipe: Recipe) -> None:
+@grouped(source=SensorData, recipe=Recipe)
+def train_cmd(*, source: SensorData, recipe: Recipe) -> None:
     """Train the touch encoder against centred class-phrase targets embedded in the frozen
     space (--space, default MiniLM); report held-out accuracy. The checkpoint records the
     space's name, dim and model fingerprint, so it only registers in a memory of that space."""
-    td, targets, cfg, dim = training_run(recipe)
+    td, targets, cfg, dim = training_run(recipe, source)
     from tactus_memory.training.train import fit
 
     r = recipe
@@ -170,7 +172,7 @@ def train_cmd(*, recipe: Recipe) -> None:
 
 
 @app.command("distill")
-@grouped(recipe=Recipe)
+@grouped(source=SensorData, recipe=Recipe)
 def distill_cmd(
     teacher: list[Path] = typer.Option(
         ..., "--teacher", help="teacher checkpoint (same space); repeat to average several"
@@ -182,6 +184,7 @@ def distill_cmd(
         0.0, "--relational-weight", help="weight of the batch similarity-matrix MSE"
     ),
     *,
+    source: SensorData,
     recipe: Recipe,
 ) -> None:
     """Train a (fast) student as `tactus train` does, plus a loss pulling its embeddings
@@ -196,7 +199,7 @@ def distill_cmd(
     missing = [str(p) for p in teacher if not p.is_file()]
     if missing:
         raise typer.BadParameter(f"--teacher: no such file: {', '.join(missing)}")
-    td, targets, cfg, dim = training_run(recipe)
+    td, targets, cfg, dim = training_run(recipe, source)
     r = recipe
     try:
         summary = distill(

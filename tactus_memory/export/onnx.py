@@ -116,7 +116,9 @@ def export_touch(
     model = ckpt.model.eval()
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    frames = torch.rand(2, model.cfg.frames, 32, 32)
+    # (2, K, H, W): the sensor's frame shape, as its profile records it (the glove: 32x32)
+    shape = ckpt.meta.get("calibration", {}).get("shape") or model.cfg.frame_shape
+    frames = torch.rand(2, model.cfg.frames, *(int(v) for v in shape))
     names = {"inputs": ["frames"], "axes": {"frames": {0: "batch"}, "embedding": {0: "batch"}}}
     with torch.inference_mode():
         _export(model, (frames,), folder / TOUCH_ONNX, names)

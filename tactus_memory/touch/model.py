@@ -35,10 +35,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.touch.profile import FRAME_SHAPE, MIN_SIDE
 
-#: the smallest frame side the trunk takes (its stem and stages pool; the fused map is averaged)
-MIN_SIDE = 4
+#: a stride-2 stem only where the frame's short side is at least this (the configs' stride-2 stem
+#: was chosen on the 32x32 glove; a 16x16 skin or a 4x4 pad keeps its full resolution)
+STEM_STRIDE_MIN_SIDE = 32
+#: a stage halves the map only while its short side is at least this, so the last map keeps
+#: 2+ taxels a side (4x4 pad: 4 -> 2 -> 2 -> 2; 32x32 glove: unchanged 16 -> 8 -> 4 -> 2)
+STAGE_STRIDE_MIN_SIDE = 4
 
 
 @dataclass
@@ -58,12 +62,17 @@ class TactusConfig:
     # shaped input did not gain (touch ladder rung "shaped"). Defaults: off (the paper's recipe).
     input_gamma: float = 1.0  # pressure compression x ** gamma (1.0 = off)
     input_blur: float = 0.0  # Gaussian blur sigma in pixels (0.0 = off)
+    # the sensor's (H, W) frame: the stem and stage strides adapt to it (strides())
+    frame_shape: tuple[int, int] = FRAME_SHAPE
     # Where the text embedding of each class lives is not the model's business; see targets.py.
     extra: dict[str, Any] = field(default_factory=dict)  # free-form notes carried in metadata
 
     def __post_init__(self) -> None:
         self.widths = tuple(int(w) for w in self.widths)
         self.blocks = tuple(int(b) for b in self.blocks)
+        self.frame_shape = tuple(int(v) for v in self.frame_shape)  # type: ignore[assignment]
+        if len(self.frame_shape) != 2 or min(self.frame_shape) < MIN_SIDE:
+            raise ValueError(f"frame_shape must be (H, W) with H, W >= {MIN_SIDE}")
         if len(self.widths) != len(self.blocks) or not self.widths:
             raise ValueError(f"widths {self.widths} and blocks {self.blocks} must pair up")
         if self.frames < 1 or self.out_dim < 1:
@@ -80,7 +89,31 @@ class TactusConfig:
         d = asdict(self)
         d["widths"] = list(self.widths)
         d["blocks"] = list(self.blocks)
+        d["frame_shape"] = list(self.frame_shape)
         return d
+
+    def strides(self) -> tuple[int, list[int]]:
+        """(stem stride, [stride of each stage]) for ``frame_shape``: the configured stride-2
+        stem only on frames whose short side is >= STEM_STRIDE_MIN_SIDE, and a stage halves the
+        map only while its short side is >= STAGE_STRIDE_MIN_SIDE (a small frame must not
+        vanish under stride-2 convolutions). On 32x32 this is the configs' own layout."""
+        side = min(self.frame_shape)
+        stem = self.stem_stride if side >= STEM_STRIDE_MIN_SIDE else 1
+        side = -(-side // stem)
+        stages = []
+        for i in range(len(self.widths)):
+            s = 2 if i > 0 and side >= STAGE_STRIDE_MIN_SIDE else 1
+            stages.append(s)
+            side = -(-side // s)
+        return stem, stages
+
+    def out_shape(self) -> tuple[int, int]:
+        """(h, w) of the trunk's output map for a ``frame_shape`` frame."""
+        stem, stages = self.strides()
+        h, w = self.frame_shape
+        for s in (stem, *stages):
+            h, w = -(-h // s), -(-w // s)
+        return h, w
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TactusConfig:
@@ -110,12 +143,13 @@ class BasicBlock(nn.Module):
 
 
 class Trunk(nn.Module):
-    """Per-frame ResNet. x: (N, 1, 32, 32) -> (N, widths[-1], h, w)."""
+    """Per-frame ResNet. x: (N, 1, H, W) -> (N, widths[-1], h, w), (h, w) = cfg.out_shape()."""
 
     def __init__(self, cfg: TactusConfig) -> None:
         super().__init__()
+        stem_stride, stage_strides = cfg.strides()
         self.stem = nn.Sequential(
-            nn.Conv2d(1, cfg.stem_width, 3, cfg.stem_stride, 1, bias=False),
+            nn.Conv2d(1, cfg.stem_width, 3, stem_stride, 1, bias=False),
             nn.BatchNorm2d(cfg.stem_width),
             nn.ReLU(inplace=True),
         )
@@ -123,13 +157,13 @@ class Trunk(nn.Module):
         c_in = cfg.stem_width
         for i, (w, n) in enumerate(zip(cfg.widths, cfg.blocks, strict=True)):
             for j in range(n):
-                stride = 2 if (i > 0 and j == 0) else 1
+                stride = stage_strides[i] if j == 0 else 1
                 layers.append(BasicBlock(c_in, w, stride))
                 c_in = w
         self.stages = nn.Sequential(*layers)
         self.out_channels = c_in
-        # spatial size of the output map for a 32x32 input
-        self.out_size = FRAME_SHAPE[0] // cfg.stem_stride // (2 ** (len(cfg.widths) - 1))
+        # spatial size of the output map (its short side) for a frame_shape input
+        self.out_size = min(cfg.out_shape())
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.stages(self.stem(x))

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import DynamicRangeError, InvalidInputError
+from tactus_memory.touch.pads import Pad, assemble, check_layout, layout_mask, split
 
 RAW_OFFSET = 500  # STAG reference code / paper Sec. Method "Data path": clip((raw-500)/150, 0, 1)
 RAW_SPAN = 150  # same source: the informative band ends near raw 650
@@ -36,11 +37,36 @@ MAX_CALIBRATED_MEDIAN = 0.35  # gate: calibrated rest sits near 0.07-0.10 (spec)
 # --------------------------------------------------------------------------- calibration
 
 
+#: the smallest frame side a sensor may have (the trunk's stem and stages need 4 taxels a side)
+MIN_SIDE = 4
+
+#: an (H, W) grid of numbers held immutably (per-taxel offsets, gains, the taxel mask)
+Grid = tuple[tuple[float, ...], ...]
+
+
+def _grid(name: str, value: Any, shape: tuple[int, int], kind: type) -> Any:
+    """An (H, W) array-like -> a tuple-of-tuples grid of ``kind``; None stays None."""
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=bool if kind is bool else np.float64)
+    if arr.shape != tuple(shape):
+        raise InvalidInputError(f"{name} must have the frame shape {tuple(shape)}, got {arr.shape}")
+    if kind is not bool and not np.all(np.isfinite(arr)):
+        raise InvalidInputError(f"{name} must be finite")
+    return tuple(tuple(kind(v) for v in row) for row in arr.tolist())
+
+
 @dataclass(frozen=True)
 class SensorProfile:
-    """A named sensor calibration: ``clip((raw - offset) / span, 0, 1)`` in float32.
+    """A named sensor: its frame shape (H, W) and calibration to [0, 1] float32.
 
-    Other gloves get their own profile (register it in :data:`PROFILES`).
+    Calibration is ``clip((raw - offset) / span, 0, 1)``, or per taxel
+    ``clip((raw - taxel_offset) * taxel_gain, 0, 1)`` where those (H, W) arrays are given
+    (either replaces its scalar; ``offset`` stays the gates' "reading above rest" bar). Pixels
+    outside ``mask`` (H, W) bool calibrate to 0. ``pads`` name blocks of the frame (a robot
+    hand's fingertips and palm, :mod:`tactus_memory.touch.pads`); with pads and no mask the
+    mask is the pads' taxels. Built-in: :data:`STAG_GLOVE`; others from a TOML file or flags
+    (:mod:`tactus_memory.touch.sensor_file`).
     """
 
     name: str
@@ -49,6 +75,10 @@ class SensorProfile:
     shape: tuple[int, int] = FRAME_SHAPE
     rest_raw: float | None = None  # typical untouched reading, for diagnostics
     saturation_raw: float | None = None  # reading where the sensor saturates, for diagnostics
+    taxel_offset: Grid | None = None  # (H, W) raw offset per taxel, replaces ``offset``
+    taxel_gain: Grid | None = None  # (H, W) calibrated units per raw count, replaces 1 / span
+    mask: tuple[tuple[bool, ...], ...] | None = None  # (H, W) bool: real taxels
+    pads: tuple[Pad, ...] = ()  # named blocks of the frame, in drawing order
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.offset) or not np.isfinite(self.span) or self.span <= 0:
@@ -56,6 +86,28 @@ class SensorProfile:
                 f"profile {self.name!r}: offset must be finite and span > 0, "
                 f"got offset={self.offset}, span={self.span}"
             )
+        shape = tuple(int(v) for v in self.shape)
+        if len(shape) != 2 or min(shape) < MIN_SIDE:
+            raise InvalidInputError(
+                f"profile {self.name!r}: the frame shape must be (H, W) with H, W >= {MIN_SIDE}, "
+                f"got {self.shape}"
+            )
+        object.__setattr__(self, "shape", shape)
+        object.__setattr__(self, "pads", tuple(self.pads))
+        check_layout(self.pads, shape)  # type: ignore[arg-type]
+        mask = self.mask
+        if mask is None and self.pads:
+            mask = layout_mask(self.pads, shape)  # type: ignore[arg-type]
+        object.__setattr__(self, "mask", _grid("mask", mask, shape, bool))  # type: ignore[arg-type]
+        for f in ("taxel_offset", "taxel_gain"):
+            object.__setattr__(self, f, _grid(f, getattr(self, f), shape, float))  # type: ignore[arg-type]
+        if self.taxel_gain is not None and np.any(np.asarray(self.taxel_gain) <= 0):
+            raise InvalidInputError(f"profile {self.name!r}: taxel_gain must be > 0")
+
+    @property
+    def per_taxel(self) -> bool:
+        """Whether the calibration or the mask vary taxel by taxel."""
+        return any(v is not None for v in (self.taxel_offset, self.taxel_gain, self.mask))
 
     def calibrate(self, raw: np.ndarray) -> np.ndarray:
         """``raw``: (..., H, W) raw readings -> float32 in [0, 1], same shape."""
@@ -73,13 +125,41 @@ class SensorProfile:
         return out
 
     def scale(self, raw: np.ndarray) -> np.ndarray:
-        """The calibration affine alone, any shape, no checks: clip((raw - offset) / span, 0, 1)
-        as float32 (NaN stays NaN). ``calibrate`` adds the frame-shape and value checks."""
-        out = (np.asarray(raw).astype(np.float32) - np.float32(self.offset)) / np.float32(self.span)
-        return np.clip(out, 0.0, 1.0, out=out)
+        """The calibration alone, no checks: clip((raw - offset) / span, 0, 1) as float32 (per
+        taxel where the profile says so, 0 outside the mask; NaN stays NaN). Per-taxel
+        profiles need (..., H, W) input; ``calibrate`` adds the frame-shape and value checks."""
+        x = np.asarray(raw).astype(np.float32)
+        off = np.float32(self.offset) if self.taxel_offset is None else self._arr("taxel_offset")
+        if self.taxel_gain is None:
+            out = (x - off) / np.float32(self.span)
+        else:
+            out = (x - off) * self._arr("taxel_gain")
+        if self.mask is not None:
+            out = np.where(np.asarray(self.mask, dtype=bool), out, np.float32(0.0))
+        return np.clip(out, 0.0, 1.0, out=out).astype(np.float32, copy=False)
+
+    def _arr(self, name: str) -> np.ndarray:
+        return np.asarray(getattr(self, name), dtype=np.float32)
+
+    @property
+    def fill_raw(self) -> float:
+        """The raw reading for pixels no pad covers: the rest reading (else the offset)."""
+        return float(self.offset if self.rest_raw is None else self.rest_raw)
+
+    def assemble(self, readings: dict[str, np.ndarray]) -> np.ndarray:
+        """``{pad: (..., rows, cols)}`` raw pad readings -> (..., H, W) raw frames."""
+        if not self.pads:
+            raise InvalidInputError(f"profile {self.name!r} has no pad layout")
+        return assemble(readings, self.pads, self.shape, fill=self.fill_raw)
+
+    def split(self, frames: np.ndarray) -> dict[str, np.ndarray]:
+        """(..., H, W) frames -> ``{pad: (..., rows, cols)}`` (for drawing pads at their place)."""
+        if not self.pads:
+            raise InvalidInputError(f"profile {self.name!r} has no pad layout")
+        return split(frames, self.pads)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        d: dict[str, Any] = {
             "name": self.name,
             "offset": float(self.offset),
             "span": float(self.span),
@@ -87,6 +167,12 @@ class SensorProfile:
             "rest_raw": self.rest_raw,
             "saturation_raw": self.saturation_raw,
         }
+        for f in ("taxel_offset", "taxel_gain", "mask"):  # only when set: old dicts stay equal
+            if getattr(self, f) is not None:
+                d[f] = [list(row) for row in getattr(self, f)]
+        if self.pads:
+            d["pads"] = [p.to_dict() for p in self.pads]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SensorProfile:
@@ -100,6 +186,10 @@ class SensorProfile:
                 saturation_raw=(
                     None if d.get("saturation_raw") is None else float(d["saturation_raw"])
                 ),
+                taxel_offset=d.get("taxel_offset"),
+                taxel_gain=d.get("taxel_gain"),
+                mask=d.get("mask"),
+                pads=tuple(Pad.from_dict(p) for p in d.get("pads", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"bad sensor profile dict {d!r}: {exc}") from exc
@@ -207,6 +297,8 @@ def dynamic_range_report(
     frames = _frames(raw, profile.shape)
     spec = taxel_mask_from_spec() if tuple(profile.shape) == FRAME_SHAPE else None
     data_mask = taxel_mask_from_data(frames)
+    if mask is None and profile.mask is not None:  # the profile's taxels (e.g. its pads)
+        mask = np.asarray(profile.mask, dtype=bool)
     if mask is None:
         mask = data_mask if data_mask.any() or spec is None else spec
     mask = np.asarray(mask, dtype=bool)

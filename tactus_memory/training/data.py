@@ -77,7 +77,7 @@ class StagData:
     :meth:`select`, carried by :func:`combine`).
     """
 
-    pressure: np.ndarray  # (N, 32, 32) int16 raw, C order as loaded
+    pressure: np.ndarray  # (N, H, W) raw, C order: int16 (STAG: 32x32), float32 for float sensors
     object_id: np.ndarray  # (N,) int64
     recording_id: np.ndarray  # (N,) int64, globally unique across combined files
     batch_id: np.ndarray  # (N,) int64
@@ -162,7 +162,7 @@ class StagData:
         )
 
     def calibrated(self, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
-        """(N, 32, 32) float32 calibrated pressure."""
+        """(N, H, W) float32 calibrated pressure."""
         return profile.calibrate(self.pressure)
 
     def check_dynamic_range(
@@ -187,7 +187,9 @@ class StagData:
     def fingerprint(self) -> str:
         """sha256 over pressure, labels, masks and the class list (for checkpoint metadata)."""
         h = hashlib.sha256()
-        h.update(np.ascontiguousarray(self.pressure, dtype="<i2").tobytes())
+        # raw counts as int16 (STAG, integer sensors); float readings (other sensors) as float32
+        raw_dtype = "<f4" if np.issubdtype(self.pressure.dtype, np.floating) else "<i2"
+        h.update(np.ascontiguousarray(self.pressure, dtype=raw_dtype).tobytes())
         for arr in (self.object_id, self.recording_id, self.split_id, self.frame):
             h.update(np.ascontiguousarray(arr, dtype="<i8").tobytes())
         for arr in (self.valid, self.balanced):

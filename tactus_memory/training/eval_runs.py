@@ -41,15 +41,30 @@ HELDOUT_KEYS = (
 )
 
 
-def load_eval_data(paths: list[Path]) -> tuple[Any, list[dict[str, Any]]]:
-    """Load each file (fingerprinted), combine, run the dynamic-range gate per subset."""
+def load_eval_data(paths: list[Path], profile: Any = None) -> tuple[Any, list[dict[str, Any]]]:
+    """Load each file (fingerprinted; STAG or ``.npz``, whose frames ``profile`` checks),
+    combine, run the dynamic-range gate per subset under ``profile`` (default STAG_GLOVE)."""
+    from tactus_memory.touch.profile import STAG_GLOVE
     from tactus_memory.training.data import combine, load_stag
+    from tactus_memory.training.npz_io import load_npz
 
-    parts = [load_stag(p) for p in paths]
+    parts = [load_npz(p, profile) if str(p).endswith(".npz") else load_stag(p) for p in paths]
     fps = [file_fingerprint(d, p) for d, p in zip(parts, paths, strict=True)]
     data = parts[0] if len(parts) == 1 else combine(parts)
-    data.check_dynamic_range()
+    data.check_dynamic_range(STAG_GLOVE if profile is None else profile)
     return data, fps
+
+
+def checkpoint_profile(spec: str) -> Any:
+    """The sensor profile a Tactus checkpoint records (None for other checkpoints)."""
+    from tactus_memory.touch.checkpoint import read_metadata
+    from tactus_memory.touch.profile import SensorProfile
+
+    try:
+        calibration = read_metadata(resolve_checkpoint(spec)).get("calibration")
+    except (ValueError, FileNotFoundError):
+        return None
+    return SensorProfile.from_dict(calibration) if calibration else None
 
 
 def run_eval(
@@ -65,6 +80,7 @@ def run_eval(
     warn: Callable[[str], None] = log.warning,
     space: Any = None,
     loaded: tuple[Any, Any] | None = None,
+    profile: Any = None,
 ) -> tuple[dict[str, Any], Any, Any]:
     """Evaluate one or more checkpoints on one scope. Returns (payload, first result, scope).
 
@@ -74,9 +90,11 @@ def run_eval(
     ``space``: a ``SpaceChoice`` for the analyses' text space (each checkpoint's recorded
     space, its model folder from ``--space-path``); None: built from the name when possible.
     ``loaded``: what ``load_eval_data(data_paths)`` returned, when the caller has it already.
+    ``profile``: the sensor profile calibrating the frames (default STAG_GLOVE).
     """
-    data, fps = loaded if loaded is not None else load_eval_data(data_paths)
-    es = select_eval_frames(data, split, holdout, fingerprints=fps)
+    data, fps = loaded if loaded is not None else load_eval_data(data_paths, profile)
+    cal = None if profile is None else data.calibrated(profile)
+    es = select_eval_frames(data, split, holdout, fingerprints=fps, calibrated=cal)
     runs, first = [], None
     for spec in checkpoints:
         path = resolve_checkpoint(spec)

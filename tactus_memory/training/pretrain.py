@@ -47,7 +47,7 @@ from tactus_memory.training.precision import autocast
 log = logging.getLogger(__name__)
 
 MASK_RATIO = 0.6  # paper, Pretraining (HTT setting for taxel sensors)
-PATCH = 4  # 4x4 patches on a 32x32 frame -> an 8x8 grid of 64 patches
+PATCH = 4  # 4x4 patches: a 32x32 frame is an 8x8 grid of 64 patches
 GRID = FRAME_SHAPE[0] // PATCH
 N_PATCHES = GRID * GRID
 MIN_PATCH_STD = 0.02  # calibrated units (= 3 raw counts at 150 counts/unit): std floor
@@ -55,52 +55,69 @@ COLLAPSE_RATIO = 0.95  # warn when loss / mean-prediction baseline stays above t
 FORMAT = "tactus-mae/1"
 
 
+def patch_grid(shape: tuple[int, ...]) -> tuple[int, int]:
+    """(gh, gw): the patch grid of an (H, W) frame, sides rounded up to whole patches."""
+    h, w = shape[-2:]
+    return -(-h // PATCH), -(-w // PATCH)
+
+
+def pad_to_patches(x: torch.Tensor) -> torch.Tensor:
+    """(N, H, W) -> (N, gh*PATCH, gw*PATCH), zero-padded right and bottom (0 = no pressure)."""
+    gh, gw = patch_grid(tuple(x.shape))
+    return F.pad(x, (0, gw * PATCH - x.shape[-1], 0, gh * PATCH - x.shape[-2]))
+
+
 def patchify(x: torch.Tensor) -> torch.Tensor:
-    """(N, 32, 32) -> (N, 64, 16): row-major 8x8 grid of 4x4 patches."""
+    """(N, H, W), sides multiples of PATCH -> (N, gh*gw, 16): row-major grid of 4x4 patches
+    (32x32: (N, 64, 16))."""
     n = x.shape[0]
-    p = x.reshape(n, GRID, PATCH, GRID, PATCH).permute(0, 1, 3, 2, 4)
-    return p.reshape(n, N_PATCHES, PATCH * PATCH)
+    gh, gw = patch_grid(tuple(x.shape))
+    p = x.reshape(n, gh, PATCH, gw, PATCH).permute(0, 1, 3, 2, 4)
+    return p.reshape(n, gh * gw, PATCH * PATCH)
 
 
-def unpatchify(p: torch.Tensor) -> torch.Tensor:
-    """(N, 64, 16) -> (N, 32, 32); inverse of ``patchify``."""
+def unpatchify(p: torch.Tensor, grid: tuple[int, int] = (GRID, GRID)) -> torch.Tensor:
+    """(N, gh*gw, 16) -> (N, gh*PATCH, gw*PATCH); inverse of ``patchify``."""
     n = p.shape[0]
-    x = p.reshape(n, GRID, GRID, PATCH, PATCH).permute(0, 1, 3, 2, 4)
-    return x.reshape(n, *FRAME_SHAPE)
+    gh, gw = grid
+    x = p.reshape(n, gh, gw, PATCH, PATCH).permute(0, 1, 3, 2, 4)
+    return x.reshape(n, gh * PATCH, gw * PATCH)
 
 
 def patch_targets(x: torch.Tensor, min_std: float = MIN_PATCH_STD) -> torch.Tensor:
-    """(N, 32, 32) -> (N, 64, 16) per-patch normalised: (p - mean) / max(std, min_std)."""
+    """(N, H, W) -> (N, P, 16) per-patch normalised: (p - mean) / max(std, min_std)."""
     p = patchify(x.float())
     mean = p.mean(dim=-1, keepdim=True)
     std = p.std(dim=-1, unbiased=False, keepdim=True)
     return (p - mean) / std.clamp(min=min_std)
 
 
-def random_mask(n: int, gen: torch.Generator, ratio: float = MASK_RATIO) -> torch.Tensor:
-    """(N, 64) bool, True = masked; exactly round(ratio * 64) patches per frame."""
-    n_mask = int(round(ratio * N_PATCHES))
-    order = torch.argsort(torch.rand(n, N_PATCHES, generator=gen), dim=1)
-    mask = torch.zeros(n, N_PATCHES, dtype=torch.bool)
+def random_mask(
+    n: int, gen: torch.Generator, ratio: float = MASK_RATIO, n_patches: int = N_PATCHES
+) -> torch.Tensor:
+    """(N, P) bool, True = masked; exactly round(ratio * P) patches per frame."""
+    n_mask = int(round(ratio * n_patches))
+    order = torch.argsort(torch.rand(n, n_patches, generator=gen), dim=1)
+    mask = torch.zeros(n, n_patches, dtype=torch.bool)
     mask.scatter_(1, order[:, :n_mask], True)
     return mask
 
 
 def apply_mask(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Zero the masked patches. x: (N, 32, 32), mask: (N, 64) -> (N, 32, 32)."""
+    """Zero the masked patches. x: (N, H, W), mask: (N, P) -> (N, H, W)."""
     p = patchify(x) * (~mask).unsqueeze(-1).to(x.dtype)
-    return unpatchify(p)
+    return unpatchify(p, patch_grid(tuple(x.shape)))
 
 
 def masked_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean squared error over masked patches only. pred/target: (N, 64, 16), mask: (N, 64)."""
+    """Mean squared error over masked patches only. pred/target: (N, P, 16), mask: (N, P)."""
     per_patch = ((pred.float() - target) ** 2).mean(dim=-1)
     m = mask.float()
     return (per_patch * m).sum() / m.sum().clamp(min=1.0)
 
 
 class MAEDecoder(nn.Module):
-    """Trunk map (N, C, h, w) -> patch predictions (N, 64, 16)."""
+    """Trunk map (N, C, h, w) -> patch predictions (N, gh*gw, 16)."""
 
     def __init__(self, c_in: int, width: int = 64) -> None:
         super().__init__()
@@ -112,10 +129,10 @@ class MAEDecoder(nn.Module):
             nn.Conv2d(width, PATCH * PATCH, 1),
         )
 
-    def forward(self, f: torch.Tensor) -> torch.Tensor:
-        y = F.interpolate(self.inp(f), size=(GRID, GRID), mode="nearest")
-        y = self.body(y)  # (N, 16, 8, 8)
-        return y.flatten(2).transpose(1, 2)  # (N, 64, 16)
+    def forward(self, f: torch.Tensor, grid: tuple[int, int] = (GRID, GRID)) -> torch.Tensor:
+        y = F.interpolate(self.inp(f), size=grid, mode="nearest")
+        y = self.body(y)  # (N, 16, gh, gw)
+        return y.flatten(2).transpose(1, 2)  # (N, gh*gw, 16)
 
 
 class MAE(nn.Module):
@@ -128,9 +145,12 @@ class MAE(nn.Module):
         self.decoder = MAEDecoder(self.trunk.out_channels, decoder_width)
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """x: (N, 32, 32) calibrated, mask (N, 64) -> (loss, mean-prediction baseline)."""
+        """x: (N, H, W) calibrated, mask (N, P) over its patch grid (frames padded to whole
+        patches) -> (loss, mean-prediction baseline)."""
+        x = pad_to_patches(x)
         target = patch_targets(x)
-        pred = self.decoder(self.trunk(apply_mask(x, mask).unsqueeze(1)))
+        feats = self.trunk(apply_mask(x, mask).unsqueeze(1))
+        pred = self.decoder(feats, patch_grid(tuple(x.shape)))
         baseline = masked_loss(torch.zeros_like(target), target, mask)
         return masked_loss(pred, target, mask), baseline
 
@@ -179,7 +199,7 @@ def pretrain(
     resume: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """MAE-pretrain a trunk on ``calibrated`` (N, 32, 32) float32 frames, minus the excluded
+    """MAE-pretrain a trunk on ``calibrated`` (N, H, W) float32 frames, minus the excluded
     recordings, and save it to ``out`` (.safetensors). Returns a summary dict."""
     exclude = sorted({int(r) for r in exclude_recordings})
     pool = pretrain_pool(recording_id, exclude)
@@ -187,7 +207,9 @@ def pretrain(
         raise ValueError("no frames left for pretraining after exclusions")
     frames = torch.from_numpy(np.ascontiguousarray(calibrated[pool], dtype=np.float32))
     torch.manual_seed(cfg.seed)
-    mae = MAE(get_config(cfg.model)).to(device)
+    shape = tuple(int(v) for v in calibrated.shape[-2:])  # the sensor's (H, W)
+    gh, gw = patch_grid(shape)
+    mae = MAE(get_config(cfg.model, frame_shape=shape)).to(device)
     opt = torch.optim.AdamW(mae.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     gen = torch.Generator().manual_seed(cfg.seed)
     out = Path(out)
@@ -208,7 +230,7 @@ def pretrain(
             g["lr"] = lr_at(step, cfg.steps, cfg.warmup, cfg.lr)
         idx = torch.randint(0, len(frames), (cfg.batch,), generator=gen)
         x = frames[idx].to(device)
-        mask = random_mask(cfg.batch, gen).to(device)
+        mask = random_mask(cfg.batch, gen, n_patches=gh * gw).to(device)
         with amp:  # bf16 autocast on CUDA (the losses are computed in float32)
             loss, base = mae(x, mask)
         opt.zero_grad(set_to_none=True)
@@ -275,7 +297,7 @@ def load_pretrained_trunk(trunk: Trunk, path: str | os.PathLike[str], cfg: Tactu
         raise ValueError(f"{path} is not a Tactus MAE checkpoint")
     meta = json.loads(md["tactus_mae"])
     src = TactusConfig.from_dict(meta["model"])
-    keys = ("stem_width", "stem_stride", "widths", "blocks")
+    keys = ("stem_width", "stem_stride", "widths", "blocks", "frame_shape")
     if any(getattr(src, k) != getattr(cfg, k) for k in keys):
         raise ValueError(
             f"MAE trunk {src.name} ({[getattr(src, k) for k in keys]}) does not match model "

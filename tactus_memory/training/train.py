@@ -44,7 +44,7 @@ log = logging.getLogger(__name__)
 TEMPERATURE = 0.07  # paper, Method: cross-entropy over cosine logits at temperature 0.07
 EVAL_SEED = 1234  # fixed seed of the held-out tuple tiling
 
-#: a loss term added to the label cross-entropy: (x (B, K, 32, 32) augmented batch on the
+#: a loss term added to the label cross-entropy: (x (B, K, H, W) augmented batch on the
 #: device, z (B, D) float32 student embeddings) -> scalar tensor (distill.py's teacher loss)
 ExtraLoss = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
@@ -75,13 +75,16 @@ class TrainConfig:
     # the protocol's device check trains with it off to pair the two numeric paths
     amp: bool = True
     augment: AugmentConfig = field(default_factory=AugmentConfig)
+    # after training, recompute BatchNorm statistics over this many batches of (un-augmented)
+    # training windows (precise_bn.py); 0 = off, the STAG recipe's exponential averages
+    precise_bn: int = 0
 
 
 @dataclass
 class TrainData:
     """Arrays the loop needs; build with ``prepare_data`` from STAG files."""
 
-    calibrated: np.ndarray  # (N, 32, 32) float32 in [0, 1]
+    calibrated: np.ndarray  # (N, H, W) float32 in [0, 1], the sensor's frames
     labels: np.ndarray  # (N,) int64 class index
     recording_id: np.ndarray  # (N,) int64, globally unique
     train_valid: np.ndarray  # (N,) bool: frames allowed in training tuples
@@ -152,11 +155,14 @@ def holdout_recordings(data: Any, spec: str) -> list[int]:
     )
 
 
-def load_data(paths: Sequence[str | os.PathLike[str]]) -> Any:
-    """Load and combine STAG files (the data engineer's reader)."""
+def load_data(paths: Sequence[str | os.PathLike[str]], profile: Any = None) -> Any:
+    """Load and combine STAG files (the data engineer's reader) or ``.npz`` files of your own
+    sensor (``npz_io.py``; ``profile`` checks their frame shape). Combined files must share
+    their class list."""
     from tactus_memory.training.data import combine, load_stag
+    from tactus_memory.training.npz_io import load_npz
 
-    parts = [load_stag(p) for p in paths]
+    parts = [load_npz(p, profile) if str(p).endswith(".npz") else load_stag(p) for p in paths]
     return parts[0] if len(parts) == 1 else combine(parts)
 
 
@@ -170,8 +176,11 @@ def draw_weights(anchor_key: np.ndarray) -> np.ndarray:
     return 1.0 / counts[inv].astype(np.float64)
 
 
-def prepare_data(data: Any, holdout: list[int], positives: str = "valid") -> TrainData:
-    """Calibrate (STAG_GLOVE), gate the dynamic range, split off the held-out recordings.
+def prepare_data(
+    data: Any, holdout: list[int], positives: str = "valid", profile: Any = None
+) -> TrainData:
+    """Calibrate with ``profile`` (default STAG_GLOVE), gate the dynamic range, split off the
+    held-out recordings.
 
     ``positives``: ``valid`` trains on the dataset's valid-labelled frames; ``contact`` adds
     every frame in contact (``touch/windows.py`` rule) of the training recordings (each
@@ -181,17 +190,18 @@ def prepare_data(data: Any, holdout: list[int], positives: str = "valid") -> Tra
 
     if positives not in POSITIVES:
         raise ValueError(f"positives must be one of {POSITIVES}, got {positives!r}")
+    profile = STAG_GLOVE if profile is None else profile
 
     # per source file: a badly scaled file pooled with good ones must still fail loudly
-    data.check_dynamic_range(STAG_GLOVE)  # raises DynamicRangeError naming the file
-    cal = data.calibrated(STAG_GLOVE)
+    data.check_dynamic_range(profile)  # raises DynamicRangeError naming the file
+    cal = data.calibrated(profile)
     held = np.isin(data.recording_id, np.asarray(holdout, dtype=np.int64))
     return TrainData(
         calibrated=cal,
         labels=np.asarray(data.object_id, dtype=np.int64),
         recording_id=np.asarray(data.recording_id, dtype=np.int64),
         train_valid=(
-            data.valid | (contact_taxels(cal) >= CONTACT_MIN_TAXELS)
+            data.valid | (contact_taxels(cal, profile) >= CONTACT_MIN_TAXELS)
             if positives == "contact"
             else data.valid
         )
@@ -199,7 +209,7 @@ def prepare_data(data: Any, holdout: list[int], positives: str = "valid") -> Tra
         heldout_valid=data.valid & held,
         classes=list(data.objects),
         fingerprint=data.fingerprint(),
-        calibration=STAG_GLOVE.to_dict(),
+        calibration=profile.to_dict(),
         heldout_recordings=[data.recordings[r] for r in holdout],
         positives=positives,
     )
@@ -212,7 +222,7 @@ def prepare_data(data: Any, holdout: list[int], positives: str = "valid") -> Tra
 def embed_windows(
     model: TactusModel, windows: np.ndarray, batch: int = 256, device: str = "cpu"
 ) -> np.ndarray:
-    """windows: (B, K, 32, 32) calibrated -> (B, D) float32 unit rows."""
+    """windows: (B, K, H, W) calibrated -> (B, D) float32 unit rows."""
     model.eval()
     return batched_forward(model, windows, batch, device, model.cfg.out_dim)
 
@@ -262,6 +272,23 @@ def evaluate(
 # -- training -------------------------------------------------------------------------------
 
 
+def refresh_bn(
+    model: TactusModel, sampler: Any, frames: torch.Tensor, cfg: TrainConfig, device: str
+) -> None:
+    """Precise BN: the BatchNorm statistics over ``cfg.precise_bn`` batches of ``cfg.batch``
+    training tuples (frames (N, H, W) float32; a fixed draw, no augmentation)."""
+    from tactus_memory.training.precise_bn import recompute_bn_stats
+
+    rng = np.random.default_rng([cfg.seed, 0x42])  # fixed: the same statistics on a rerun
+    drawn = sampler.sample(rng)  # (T, K)
+    rows = rng.choice(len(drawn), size=min(len(drawn), cfg.precise_bn * cfg.batch), replace=False)
+    batches = (
+        frames[torch.from_numpy(drawn[rows[s : s + cfg.batch]])].to(device)  # (B, K, H, W)
+        for s in range(0, len(rows), cfg.batch)
+    )
+    recompute_bn_stats(model, batches)
+
+
 def _resolve_device(device: str) -> str:
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
@@ -308,7 +335,9 @@ def fit(
     device = _resolve_device(device)
     rank, world = _ddp_setup(device)
     torch.manual_seed(cfg.seed)
-    model = create_model(cfg.model, out_dim=space_dim, frames=cfg.k, **cfg.model_overrides)
+    shape = tuple(data.calibrated.shape[-2:])  # the sensor's (H, W): the stem adapts to it
+    overrides = {"frame_shape": shape, **cfg.model_overrides}
+    model = create_model(cfg.model, out_dim=space_dim, frames=cfg.k, **overrides)
     model = model.to(device)
     a = cfg.augment
     if model.cfg.input_gamma < 1.0 and a.noise_std > 0 and a.noise_on_zero:
@@ -370,7 +399,7 @@ def fit(
         else:
             rows = torch.multinomial(weights, cfg.batch, replacement=True, generator=gen)
         idx = tuples[rows]  # (B, K)
-        x = augment(frames[idx], cfg.augment, gen).to(device)  # (B, K, 32, 32)
+        x = augment(frames[idx], cfg.augment, gen).to(device)  # (B, K, H, W)
         y = labels[idx[:, 0]].to(device)
         with amp:
             z = net(x)
@@ -394,6 +423,8 @@ def fit(
         if rank == 0 and (step % cfg.save_every == 0 or step == cfg.steps):
             save_resume(state_path, module=model, opt=opt, gen=gen, step=step, history=history)
     bar.close()
+    if cfg.precise_bn > 0:
+        refresh_bn(model, sampler, frames, cfg, device)
     wall = time.perf_counter() - t0
     summary: dict[str, Any] = {
         "steps": step,
@@ -406,6 +437,7 @@ def fit(
         "train_tuples_per_draw": len(sampler),
         "device": device,
         "pretrained": str(pretrained) if pretrained else None,
+        "precise_bn_batches": cfg.precise_bn,
     }
     if rank != 0:  # pragma: no cover - needs GPUs
         return summary
