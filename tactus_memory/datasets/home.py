@@ -28,7 +28,7 @@ STAG = "stag"
 #: the subsets ``tactus data fetch stag`` downloads, and the one the real-data tests need most
 CORE_SUBSET = "weights_lite"
 #: the repository root of a source checkout (``tactus_memory/..``); the fallback sits beside it
-CHECKOUT = Path(__file__).resolve().parents[1]
+CHECKOUT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
