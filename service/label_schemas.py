@@ -5,6 +5,7 @@ from __future__ import annotations
 from pydantic import BaseModel, ConfigDict, Field
 
 from tactus_memory.limits import SENSE_NAME_PATTERN
+from tactus_memory.results import Teaching
 from tactus_memory.search.teaching import LABEL_PATTERN, MAX_LABEL_CHARS
 from tactus_memory.service.schemas import Strict
 
@@ -33,15 +34,8 @@ class LabelIn(Strict):
     )
 
 
-class TaughtOut(BaseModel):
-    id: str
-    label: str
-    session: str
-    sense: str
-    t: float
-    t_end: float
-    windows: int = Field(description="Windows of the span when it was taught.")
-    created: float
+class TaughtOut(Teaching):
+    """A taught span, as the service answers it."""
 
 
 class TaughtListOut(BaseModel):

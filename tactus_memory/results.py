@@ -4,7 +4,6 @@ service serves them as they are)."""
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -295,10 +294,11 @@ def label_key(label: str) -> str:
     return " ".join(label.lower().replace("_", " ").split())
 
 
-@dataclass(frozen=True)
-class Teaching:
+class Teaching(BaseModel):
     """One taught span: ``session``'s ``sense`` windows overlapping ``[t, t_end]`` held
     ``label``; ``windows`` is how many there were when it was taught."""
+
+    model_config = ConfigDict(frozen=True)
 
     id: str
     label: str
@@ -306,8 +306,8 @@ class Teaching:
     sense: str
     t: float
     t_end: float
-    windows: int
+    windows: int = Field(description="Windows of the span when it was taught.")
     created: float
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return self.model_dump()

@@ -30,7 +30,7 @@ from tactus_memory.mcp.args import (
     SessionArg,
     compact,
 )
-from tactus_memory.mcp.hits import Compactor, Found, when
+from tactus_memory.mcp.hits import Compactor, Found, MomentResult, when
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
 from tactus_memory.results import Place
@@ -95,19 +95,12 @@ def group_of(group: str | None, windows: bool) -> str:
     return group
 
 
-class PlaceFound(BaseModel):
-    """Where a moment matching the query happened: its best placed member's position."""
+class PlaceFound(MomentResult):
+    """Where a moment matching the query happened: the moment and its best placed member's
+    position."""
 
-    session: str
     position: tuple[float, float, float] = Field(description="(x, y, z), metres, in `frame`.")
     frame: str
-    t: float
-    t_end: float
-    when: str | None = None
-    score: float
-    senses: list[str] = Field(description="Senses with evidence in this moment.")
-    best: str = Field(description="Id of the best-scoring item.")
-    items: list[Found] = Field(description="The moment's evidence, time order.")
 
 
 class WhereResult(BaseModel):
