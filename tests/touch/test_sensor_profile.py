@@ -195,8 +195,8 @@ def test_training_flags_that_do_not_fit_are_named(tmp_path) -> None:
 def test_an_mcap_recording_with_a_label_topic_becomes_training_arrays(tmp_path, hand) -> None:
     """mono16 Images of the 12x16 hand and String labels, written with mcap-ros2-support's
     writer, read back as the .npz arrays: frames, labels, one recording per stretch."""
+    from tactus_memory.recordings.samples import mono16, note, vector3, write_mcap
     from tactus_memory.training.bag_io import read_bag_arrays
-    from tests.helpers.recording_files import mono16, note, vector3, write_mcap
 
     rng = np.random.default_rng(0)
     frames = rng.integers(200, 4000, (9, *HAND_SHAPE)).astype(np.int16)

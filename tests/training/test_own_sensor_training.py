@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.cli import app
+from tactus_memory.recordings.samples import int16_array, note, write_bag
 from tactus_memory.touch.checkpoint import load_checkpoint
 from tactus_memory.touch.profile import SensorProfile
 from tactus_memory.touch.sensor_file import load_profile_toml
@@ -23,7 +24,6 @@ from tactus_memory.touch.targets import natural_name, with_article
 from tactus_memory.touch.windows import window_idle
 from tactus_memory.training.data import load_stag
 from tests.helpers.hand_synth import HAND_SHAPE, OBJECTS, as_arrays, recordings, write_toml
-from tests.helpers.recording_files import int16_array, note, write_bag
 from tests.helpers.training import _last_json
 
 pytestmark = pytest.mark.slow
