@@ -50,7 +50,12 @@ from tactus_memory.registry import register
 from tactus_memory.sense import Sense, array_to_bytes, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
-from tactus_memory.touch.windows import CONTACT_LEVEL, CONTACT_MIN_TAXELS, window_idle
+from tactus_memory.touch.windows import (
+    CONTACT_LEVEL,
+    CONTACT_MIN_TAXELS,
+    WindowStream,
+    window_idle,
+)
 from tactus_memory.vectors import as_unit_rows
 
 
@@ -160,6 +165,11 @@ class TactusEncoder(Sense):
     def from_message(self, msg: Any, msgtype: str, where: str) -> np.ndarray:
         """One recorded touch message -> one (32, 32) frame (``recordings.decode``)."""
         return touch_frame(msg, msgtype, self.profile.shape, where)
+
+    def window_stream(self, window: int, stride: int) -> WindowStream:
+        """Raw frames (n, H, W) -> raw windows (K, H, W); no profile: :meth:`validate`
+        calibrates each window and judges it idle."""
+        return WindowStream(window, stride, profile=None)
 
     def validate(
         self, item: Any, *, calibrated: bool | None = None, keep_idle: bool = False

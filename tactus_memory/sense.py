@@ -79,6 +79,12 @@ class Sense(ABC):
         sense: one frame). ``where`` names the message in errors (RecordingError)."""
         raise InvalidInputError(f"{where}: sense {self.name!r} does not read recordings")
 
+    def window_stream(self, window: int, stride: int) -> Any:
+        """A windowed sense's cutter for one stream of raw messages: ``push(frames, times)``
+        returns the windows completed, ``pending`` counts the frames waiting. Recordings cut
+        through this, so they need no sense's own module."""
+        raise InvalidInputError(f"sense {self.name!r} is not cut into windows")
+
     @classmethod
     def create(cls, space: Space, /, **config: Any) -> Sense:
         """The sense from what a store recorded (``config()``), in the memory's ``space``."""

@@ -29,7 +29,7 @@ from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, Field
 
@@ -48,12 +48,11 @@ from tactus_memory.recordings.poses import (
 from tactus_memory.recordings.reader import Recording, TopicInfo, open_recording
 from tactus_memory.registry import lookup
 from tactus_memory.storage.rows import options_for
-from tactus_memory.touch.windows import WindowStream
 from tactus_memory.where import Where, validate_id
 
-#: a :class:`tactus_memory.memory.main.Memory`. Not imported, not even for type checking:
-#: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.
-Memory = Any
+if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them
+    from tactus_memory.memory.main import Memory
+
 
 #: items per commit (per sense and topic); a crash loses at most this many per topic
 DEFAULT_BATCH = 256
@@ -208,7 +207,7 @@ class DecodeSpec:
         digest = rec.digest
         name = rec.path.name
         index: Counter[str] = Counter()
-        streams: dict[str, WindowStream] = {}
+        streams: dict[str, Any] = {}  # topic -> the sense's window_stream
         for m in rec.messages(sorted(self.plan if topics is None else topics)):
             topic = self.plan[m.topic]
             tally.messages += 1
@@ -229,8 +228,8 @@ class DecodeSpec:
                     item_id = _item_id(self.session, digest, m.topic, ns, i)
                     yield Decoded(m.topic, item_id, item, t, t, meta)
                 continue
-            if m.topic not in streams:  # no profile: the sense calibrates, and judges idle
-                streams[m.topic] = WindowStream(self.window, self.stride, profile=None)
+            if m.topic not in streams:  # the sense cuts its own windows
+                streams[m.topic] = sense.window_stream(self.window, self.stride)
             done = streams[m.topic].push(raw, [t])  # raw: one (H, W) frame
             for w in range(len(done)):
                 window = done.frames[w]  # (K, H, W)

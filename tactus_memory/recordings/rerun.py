@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pydantic import BaseModel
@@ -32,9 +32,9 @@ from pydantic import BaseModel
 from tactus_memory.sense import bytes_to_array
 from tactus_memory.where import Where, validate_id
 
-#: a :class:`tactus_memory.memory.main.Memory`. Not imported, not even for type checking:
-#: ``Memory.ingest_recording``/``export_rerun`` delegate here, and the package has no cycles.
-Memory = Any
+if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them
+    from tactus_memory.memory.main import Memory
+
 
 TIMELINE = "session_time"
 APPLICATION_ID = "tactus-memory"

@@ -234,6 +234,15 @@ def test_layers_import_only_downwards() -> None:
     assert layer_violations(g) == []
 
 
+def test_recordings_cut_windows_through_the_sense() -> None:
+    """Ingest asks the mapped sense to decode and to window (``Sense.from_message``,
+    ``Sense.window_stream``): it imports no touch module and no sense adapter."""
+    deps = graph()["tactus_memory.recordings.ingest"]
+    assert [
+        d for d in deps if _under(d, "tactus_memory.touch") or _under(d, "tactus_memory.adapters")
+    ] == []
+
+
 def test_storage_gets_its_configuration_passed_in() -> None:
     """No ``Settings`` read inside storage: the memory (or the service) reads it once."""
     g = graph()
