@@ -22,11 +22,10 @@
 
 from __future__ import annotations
 
-import hashlib
 import re
 import time
 from collections import Counter
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,7 +33,8 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, Field
 
 import tactus_memory.adapters.decode as decode
-from tactus_memory.errors import IdleWindowError, RecordingError, TactusError, UnknownSenseError
+from tactus_memory.errors import RecordingError, UnknownSenseError
+from tactus_memory.recordings.decoding import NS, DecodeSpec, Tally, TopicPlan
 from tactus_memory.recordings.poses import (
     DEFAULT_TF,
     POSE,
@@ -47,7 +47,6 @@ from tactus_memory.recordings.poses import (
 )
 from tactus_memory.recordings.reader import Recording, TopicInfo, open_recording
 from tactus_memory.registry import lookup
-from tactus_memory.storage.rows import options_for
 from tactus_memory.where import Where, validate_id
 
 if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them
@@ -56,7 +55,6 @@ if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them
 
 #: items per commit (per sense and topic); a crash loses at most this many per topic
 DEFAULT_BATCH = 256
-NS = 1_000_000_000
 
 
 class TopicListing(BaseModel):
@@ -95,10 +93,6 @@ def topic_source(topic: str) -> str:
     return validate_id(s[:128], "source id")
 
 
-def _item_id(*parts: object) -> str:
-    return hashlib.sha256("\x1f".join(str(p) for p in parts).encode()).hexdigest()[:32]
-
-
 def list_topics(paths: Sequence[str | Path] | str | Path) -> list[TopicListing]:
     """Topics, types and counts of each recording, with the sense each would map to (the
     encoding of an ``Image`` topic is read from its first message)."""
@@ -129,121 +123,12 @@ def _paths(paths: Sequence[str | Path] | str | Path) -> list[Path]:
 
 
 @dataclass
-class _Topic:
-    """A mapped topic: its sense, and how its messages become items."""
-
-    topic: str
-    sense: str
-    source: str
-    skip_reason: str | None = None  # every message skipped for this reason
-
-
-@dataclass
 class _Batch:
     ids: list[str] = field(default_factory=list)
     items: list[Any] = field(default_factory=list)
     t: list[float] = field(default_factory=list)
     t_end: list[float] = field(default_factory=list)
     meta: list[dict[str, Any]] = field(default_factory=list)
-
-
-@dataclass
-class Tally:
-    """Messages read on the mapped topics; why items were not stored (reason -> count)."""
-
-    messages: int = 0
-    skipped: Counter[str] = field(default_factory=Counter)
-
-
-@dataclass(frozen=True)
-class Decoded:
-    """One item of a recording, validated by its sense, with the id every ingest gives it."""
-
-    topic: str
-    id: str
-    item: Any
-    t: float
-    t_end: float
-    meta: dict[str, Any]
-
-
-def accept(sense: Any, item: Any, keep_idle: bool, tally: Tally) -> Any | None:
-    """The sense's own checks; a refused item is counted in ``tally`` with the reason (an
-    idle touch window, refused by the touch sense's idle rule, unless ``keep_idle``)."""
-    try:
-        return sense.validate(item, **options_for(sense, {"keep_idle": keep_idle}))
-    except IdleWindowError:  # no contact: never embedded as a grasp (touch/windows.py)
-        tally.skipped[f"{sense.name}: idle window (no contact)"] += 1
-        return None
-    except TactusError as exc:
-        # numbers blanked so that one kind of refusal is one reason in the summary
-        why = re.sub(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", str(exc))
-        tally.skipped[f"{sense.name}: refused, {type(exc).__name__}: {why}"[:200]] += 1
-        return None
-
-
-@dataclass(frozen=True)
-class DecodeSpec:
-    """How the messages of a recording become items (picklable: the Ray path,
-    :mod:`tactus_memory.recordings.ray_jobs`, decodes on workers with the same spec, so the ids
-    match)."""
-
-    session: str
-    plan: dict[str, _Topic]
-    t0: int | None
-    window: int
-    stride: int
-    keep_idle: bool
-
-    def items(
-        self,
-        rec: Recording,
-        senses: Mapping[str, Any],
-        tally: Tally,
-        topics: Sequence[str] | None = None,
-    ) -> Iterator[Decoded]:
-        """The items of ``rec`` on ``topics`` (default: all planned), in message order; a
-        topic's items and ids do not depend on the other topics read with it."""
-        digest = rec.digest
-        name = rec.path.name
-        index: Counter[str] = Counter()
-        streams: dict[str, Any] = {}  # topic -> the sense's window_stream
-        for m in rec.messages(sorted(self.plan if topics is None else topics)):
-            topic = self.plan[m.topic]
-            tally.messages += 1
-            i = index[m.topic]
-            index[m.topic] += 1
-            if topic.skip_reason is not None:
-                tally.skipped[topic.skip_reason] += 1
-                continue
-            ns = decode.stamp_ns(m.msg) or m.log_time_ns
-            t = ns / NS if self.t0 is None else (ns - self.t0) / NS
-            where = f"{name} topic {m.topic!r} message {i}"
-            meta = {"topic": m.topic, "type": m.msgtype, "recording": name}
-            sense = senses[topic.sense]
-            raw = sense.from_message(m.msg, m.msgtype, where)  # the sense decodes its own
-            if not sense.windowed:
-                item = accept(sense, raw, self.keep_idle, tally)
-                if item is not None:
-                    item_id = _item_id(self.session, digest, m.topic, ns, i)
-                    yield Decoded(m.topic, item_id, item, t, t, meta)
-                continue
-            if m.topic not in streams:  # the sense cuts its own windows
-                streams[m.topic] = sense.window_stream(self.window, self.stride)
-            done = streams[m.topic].push(raw, [t])  # raw: one (H, W) frame
-            for w in range(len(done)):
-                window = done.frames[w]  # (K, H, W)
-                item = accept(sense, window, self.keep_idle, tally)
-                if item is None:
-                    continue
-                wid = _item_id(self.session, digest, m.topic, self.window, self.stride,
-                               int(done.start[w]), repr(float(done.t[w])))  # fmt: skip
-                wmeta = {**meta, "frames": int(window.shape[0]), "first_frame": int(done.start[w])}
-                yield Decoded(m.topic, wid, item, float(done.t[w]), float(done.t_end[w]), wmeta)
-        for topic_name, ws in streams.items():
-            if ws.pending:
-                sense_name = self.plan[topic_name].sense
-                tally.skipped[f"{sense_name}: frames after the last full window"] += ws.pending
 
 
 class IngestJob:
@@ -288,7 +173,7 @@ class IngestJob:
         self.window, self.stride = int(k), int(stride or k)
 
     # ------------------------------------------------------------------ planning
-    def _plan(self, topics: Mapping[str, str]) -> dict[str, _Topic]:
+    def _plan(self, topics: Mapping[str, str]) -> dict[str, TopicPlan]:
         if not topics and not self.pose_topics:
             raise RecordingError("no topics to ingest: map at least one, TOPIC=SENSE")
         infos: dict[str, list[TopicInfo]] = {}
@@ -301,7 +186,7 @@ class IngestJob:
                 raise RecordingError(f"topic {topic!r} is in none of the files (topics: {known})")
             for info in infos[topic]:
                 check_pose_topic(topic, info.msgtype)
-        plan: dict[str, _Topic] = {}
+        plan: dict[str, TopicPlan] = {}
         live = self.memory.senses
         for topic, sense in topics.items():
             if topic not in infos:
@@ -327,7 +212,7 @@ class IngestJob:
                 )
             for info in found:
                 decode.check_supported(topic, info.msgtype, sense, supported)
-            plan[topic] = _Topic(topic, sense, topic_source(topic), reason)
+            plan[topic] = TopicPlan(topic, sense, topic_source(topic), reason)
         return plan
 
     def _t0_ns(self) -> int | None:
@@ -351,7 +236,7 @@ class IngestJob:
         return min(firsts) if firsts else 0
 
     # ------------------------------------------------------------------ writing
-    def _queue(self, topic: _Topic, item_id: str, item: Any, t: float, t_end: float,
+    def _queue(self, topic: TopicPlan, item_id: str, item: Any, t: float, t_end: float,
                meta: dict[str, Any]) -> None:  # fmt: skip
         b = self.pending.setdefault(topic.topic, _Batch())
         b.ids.append(item_id)
@@ -362,7 +247,7 @@ class IngestJob:
         if len(b.ids) >= self.batch_size:
             self._flush(topic)
 
-    def _flush(self, topic: _Topic) -> None:
+    def _flush(self, topic: TopicPlan) -> None:
         b = self.pending.pop(topic.topic, None)
         if b is None or not b.ids:
             return

@@ -5,7 +5,7 @@ month of bags, a new touch checkpoint over every stored window).
 * **Ingest** (:func:`ingest_on_ray`): the driver plans, sets the session clock and stores
   the poses exactly as the local path does (:class:`~tactus_memory.recordings.ingest.IngestJob`);
   then each (file, topic) is one unit of work: a worker decodes it with the same
-  :class:`~tactus_memory.recordings.ingest.DecodeSpec` (so the same ids), drops ids already
+  :class:`~tactus_memory.recordings.decoding.DecodeSpec` (so the same ids), drops ids already
   stored, embeds in batches and hands Arrow rows of the items table to Lance's own Ray writer
   (``lance_ray.write_lance``): ONE commit per group of ``files_per_commit`` files. A re-run
   adds nothing; a killed job loses at most its uncommitted group, redone by the re-run. Items
@@ -43,7 +43,8 @@ from tactus_memory.memory.reembed import (
     vector_table,
 )
 from tactus_memory.memory.writes import embed_groups
-from tactus_memory.recordings.ingest import IngestSummary, Tally, plan_ingest
+from tactus_memory.recordings.decoding import Tally
+from tactus_memory.recordings.ingest import IngestSummary, plan_ingest
 from tactus_memory.recordings.reader import open_recording
 from tactus_memory.storage.rows import PreparedWrite, check_batch, writes_table
 from tactus_memory.where import Where
@@ -51,7 +52,7 @@ from tactus_memory.where import Where
 if TYPE_CHECKING:
     import pyarrow as pa
 
-    from tactus_memory.recordings.ingest import DecodeSpec
+    from tactus_memory.recordings.decoding import DecodeSpec
     from tactus_memory.sense import Sense
 
 #: ``--ray`` without an address: a Ray instance started on this machine
