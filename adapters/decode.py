@@ -7,7 +7,8 @@ topic is a :class:`RecordingError` naming the topic and the type):
 * ``touch``: ``sensor_msgs/msg/Image`` single-channel (``mono16``/``16UC1``: raw sensor units;
   ``32FC1``: raw, or calibrated when in [0, 1]; ``mono8``/``8UC1``: calibrated pressure x 255)
   of the sense's frame shape, and ``std_msgs/msg/{Int16,UInt16,Float32}MultiArray`` holding
-  exactly H*W values (row-major);
+  exactly H*W values (row-major; when its ``layout.dim`` names sizes, they must be (H, W),
+  or (1, H, W), the sense's frame shape: a 16x16 array is never read as a 32x8 one);
 * ``image``: ``sensor_msgs/msg/Image`` (``rgb8``/``bgr8``) and ``sensor_msgs/msg/CompressedImage``
   (any format Pillow reads: jpeg, png).
 """
@@ -114,6 +115,12 @@ def touch_frame(msg: Any, msgtype: str, shape: tuple[int, int], where: str) -> n
         if scale is not None:
             frame = frame.astype(np.float32) / np.float32(scale)
     elif msgtype in ARRAYS:
+        dims = _layout_sizes(msg)
+        if dims and tuple(d for d in dims if d != 1) != tuple(s for s in shape if s != 1):
+            raise RecordingError(
+                f"{where}: {msgtype} layout is {'x'.join(map(str, dims))}, but the sense reads "
+                f"{shape[0]}x{shape[1]} frames"
+            )
         values = np.asarray(msg.data, dtype=ARRAYS[msgtype]).reshape(-1)
         if values.size != shape[0] * shape[1]:
             raise RecordingError(
@@ -126,6 +133,13 @@ def touch_frame(msg: Any, msgtype: str, shape: tuple[int, int], where: str) -> n
     if frame.shape != shape:
         raise RecordingError(f"{where}: touch frame is {frame.shape}, the sense takes {shape}")
     return frame
+
+
+def _layout_sizes(msg: Any) -> tuple[int, ...]:
+    """The sizes a MultiArray's ``layout.dim`` names (empty when it names none)."""
+    layout = getattr(msg, "layout", None)
+    dims = getattr(layout, "dim", None) or ()
+    return tuple(int(getattr(d, "size", 0)) for d in dims if int(getattr(d, "size", 0)) > 0)
 
 
 def camera_image(msg: Any, msgtype: str, where: str) -> np.ndarray:

@@ -142,13 +142,19 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     """The senses the store records, rebuilt from their records (``memory.restore_senses``),
     then the defaults still missing, by registered name (:mod:`tactus_memory.registry`): touch
     (``settings.touch_checkpoint`` or the shipped checkpoint) and image (vision spaces); text
-    comes with the memory. Returns why touch is unavailable, or None."""
+    comes with the memory. The extra touch senses of ``settings.touch_senses`` (name ->
+    checkpoint, on torch) are registered first, as the glove's named checkpoint is. Returns
+    why touch is unavailable, or None."""
     onnx = {"onnx": settings.onnx} if settings.onnx else {}
     if settings.touch and (settings.touch_checkpoint or onnx) and "touch" not in memory.senses:
         # asked for by name: it wins over the store's record, and a failure stops the start
         memory.add_sense(
             create_sense("touch", memory.space, checkpoint=settings.touch_checkpoint, **onnx)
         )
+    for name, checkpoint in settings.touch_senses.items():
+        # touch senses beside the glove (--touch NAME=CKPT), each with its checkpoint's sensor
+        # profile; asked for by name, like the glove's checkpoint: a failure stops the start
+        memory.add_sense(create_sense("touch", memory.space, checkpoint=checkpoint, name=name))
     for name, reason in memory.restore_senses(skip=() if settings.touch else ("touch",)).items():
         log.warning("sense %r is searchable but not rebuilt: %s", name, reason)
     why: str | None = None

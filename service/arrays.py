@@ -1,9 +1,11 @@
 """Turning request payloads into arrays: JSON without NaN, ``.npy`` bodies, touch frames.
 
 The edge checks what a request is made of, once: parseable, numeric, the shape (windows
-(K, 32, 32), batches (B, K, 32, 32)) and the size; what the numbers mean (finite, range,
-calibration, idle) is the touch sense's check, once (``TactusEncoder.validate``). A stream
-frame is no item, so its own finiteness is checked here (the error names the frame).
+(K, H, W), batches (B, K, H, W), H x W the frame shape of the touch sense written to: 32x32
+for the STAG glove, its checkpoint's sensor profile for any other) and the size; what the
+numbers mean (finite, range, calibration, idle) is the touch sense's check, once
+(``TactusEncoder.validate``). A stream frame is no item, so its own finiteness is checked
+here (the error names the frame).
 Every failure raises ``InvalidInputError`` with a message naming the problem, so it becomes a
 422 problem in the one mapping (``errors.ERROR_STATUS``).
 """
@@ -128,7 +130,8 @@ def as_float_array(value: Any, what: str) -> np.ndarray:
         arr = np.asarray(value, dtype=np.float32)
     except (ValueError, TypeError):
         raise InvalidInputError(
-            f"{what} is ragged or not numeric: every frame must be 32 rows of 32 numbers"
+            f"{what} is ragged or not numeric: every frame must be H rows of W numbers "
+            "(the sense's frame shape)"
         ) from None
     return _in_range(arr, what)
 
@@ -140,25 +143,52 @@ def finite_frames(arr: np.ndarray, what: str) -> np.ndarray:
     return arr
 
 
-def as_window(value: Any, what: str = "touch window") -> np.ndarray:
-    """One window (K, 32, 32)."""
+def _expected(shape: tuple[int, int], sense: str | None) -> str:
+    """How a shape error names what was expected: the sense's frame shape, and the sense."""
+    h, w = shape
+    return f"{h}x{w} frames" + ("" if sense is None else f" (sense {sense!r} reads {h}x{w})")
+
+
+def as_window(
+    value: Any,
+    what: str = "touch window",
+    shape: tuple[int, int] = FRAME_SHAPE,
+    sense: str | None = None,
+) -> np.ndarray:
+    """One window (K, H, W), H x W = ``shape`` (the touch sense's frame shape)."""
     arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
-    if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE or arr.shape[0] < 1:
-        raise InvalidInputError(f"{what} has shape {arr.shape}, expected (K, 32, 32)")
+    if arr.ndim != 3 or arr.shape[1:] != tuple(shape) or arr.shape[0] < 1:
+        raise InvalidInputError(
+            f"{what} has shape {arr.shape}, expected (K, {shape[0]}, {shape[1]}): "
+            + _expected(shape, sense)
+        )
     return arr
 
 
-def as_windows(value: Any, what: str = "touch windows") -> np.ndarray:
-    """A batch of windows (B, K, 32, 32)."""
+def as_windows(
+    value: Any,
+    what: str = "touch windows",
+    shape: tuple[int, int] = FRAME_SHAPE,
+    sense: str | None = None,
+) -> np.ndarray:
+    """A batch of windows (B, K, H, W), H x W = ``shape``."""
     arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
-    if arr.ndim != 4 or arr.shape[2:] != FRAME_SHAPE or 0 in arr.shape[:2]:
-        raise InvalidInputError(f"{what} has shape {arr.shape}, expected (B, K, 32, 32)")
+    if arr.ndim != 4 or arr.shape[2:] != tuple(shape) or 0 in arr.shape[:2]:
+        raise InvalidInputError(
+            f"{what} has shape {arr.shape}, expected (B, K, {shape[0]}, {shape[1]}): "
+            + _expected(shape, sense)
+        )
     return arr
 
 
-def as_frame(value: Any, what: str = "frame") -> np.ndarray:
-    """One stream frame (32, 32) of parsed JSON (which holds no NaN; inf is out of range)."""
+def as_frame(
+    value: Any, what: str = "frame", shape: tuple[int, int] = FRAME_SHAPE, sense: str | None = None
+) -> np.ndarray:
+    """One stream frame (H, W) of parsed JSON (which holds no NaN; inf is out of range)."""
     arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
-    if arr.shape != FRAME_SHAPE:
-        raise InvalidInputError(f"{what} has shape {arr.shape}, expected (32, 32)")
+    if arr.shape != tuple(shape):
+        raise InvalidInputError(
+            f"{what} has shape {arr.shape}, expected ({shape[0]}, {shape[1]}): "
+            + _expected(shape, sense)
+        )
     return arr

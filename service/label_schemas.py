@@ -30,7 +30,11 @@ class LabelIn(Strict):
         None, description="End of the span (>= t); none: to the end of the session."
     )
     sense: str = Field(
-        "touch", pattern=SENSE_NAME_PATTERN, description="The sense whose windows were the grasp."
+        "touch",
+        pattern=SENSE_NAME_PATTERN,
+        description="The sense whose windows were the grasp (a sensed modality: the text "
+        "sense is refused, 422).",
+        json_schema_extra={"not": {"const": "text"}},
     )
 
 

@@ -188,8 +188,8 @@ def _loc(loc: tuple[Any, ...] | list[Any]) -> str:
 #: body fields holding nested arrays, and the shape each must have: a wrong shape is said in
 #: one line (as the library says it) instead of one error per number
 ARRAY_FIELDS = {
-    "frames": "(K, 32, 32)",
-    "windows": "(B, K, 32, 32)",
+    "frames": "(K, H, W) (H x W: the touch sense's frame shape, 32x32 on the glove)",
+    "windows": "(B, K, H, W) (H x W: the touch sense's frame shape, 32x32 on the glove)",
     "vector": "(D,)",
     "vectors": "(N, D)",
 }

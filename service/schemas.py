@@ -62,11 +62,15 @@ Component = Annotated[
 #: a vector: at least one component of magnitude >= 1e-11 (an all-zero vector has no
 #: direction; tactus_memory/vectors.py refuses norms below 1e-12)
 NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
-#: (32,) one row of a frame (touch/profile.py: FRAME_SHAPE)
+# The JSON schema states the default touch sense's frame, the 32x32 glove (touch/profile.py:
+# FRAME_SHAPE); a touch sense of another sensor (`?sense=NAME`, `"sense"`) reads its own
+# H x W (GET /senses: shape), which one schema cannot state per sense: the edge checks each
+# window against its sense's shape (service/arrays.py), not against this schema.
+#: (32,) one row of a glove frame
 Row = Annotated[list[Value], Field(json_schema_extra={"minItems": _COLS, "maxItems": _COLS})]
-#: (32, 32) one frame
+#: (32, 32) one glove frame
 Frame = Annotated[list[Row], Field(json_schema_extra={"minItems": _ROWS, "maxItems": _ROWS})]
-#: (K, 32, 32) a window, 1 <= K <= MAX_WINDOW_FRAMES
+#: (K, H, W) a window, 1 <= K <= MAX_WINDOW_FRAMES
 Window = Annotated[list[Frame], Field(min_length=1, max_length=MAX_WINDOW_FRAMES)]
 #: an item id (the store's rule)
 ItemId = Annotated[str, Field(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)]
@@ -83,7 +87,8 @@ T_END_DESC = "End time in seconds (>= t); defaults to t."
 
 # ----------------------------------------------------------------------------- writes
 class TouchWindowIn(Strict):
-    """One touch window: K frames of 32x32 pressure, raw sensor units by default."""
+    """One touch window: K frames of H x W pressure (the touch sense's frame shape: 32x32 on
+    the STAG glove), raw sensor units by default."""
 
     model_config = ConfigDict(
         json_schema_extra={
@@ -100,8 +105,10 @@ class TouchWindowIn(Strict):
     )
 
     frames: Window = Field(
-        description="(K, 32, 32) pressure frames, RAW sensor units (e.g. 500-700 for the STAG "
-        "glove) unless calibrated=true.",
+        description="(K, H, W) pressure frames, H x W the touch sense's frame shape: the "
+        "schema states the glove's 32x32; a touch sense named with ?sense=NAME reads its own "
+        "(GET /senses: shape). RAW sensor units (e.g. 500-700 for the STAG glove) unless "
+        "calibrated=true.",
     )
     t: float = Field(description=T_DESC)
     t_end: float | None = Field(None, description=T_END_DESC)
@@ -116,8 +123,8 @@ class TouchBatchIn(Strict):
     """Several touch windows of one session, stored in one commit."""
 
     windows: list[Window] = Field(
-        description="(B, K, 32, 32) windows, raw sensor units unless calibrated=true; every "
-        "window of a batch has the same K (422 else).",
+        description="(B, K, H, W) windows (H x W as for `frames`), raw sensor units unless "
+        "calibrated=true; every window of a batch has the same K (422 else).",
         min_length=1,
         max_length=MAX_JSON_WINDOWS,
     )
@@ -309,8 +316,9 @@ class SearchLikeIn(Strict):
                 {"sense": "touch", "frames": [_FRAME_EXAMPLE, _FRAME_EXAMPLE_2], "k": 5},
                 {"sense": "text", "text": "holding a mug", "k": 5},
             ],
-            # exactly one of frames (a touch window, sense 'touch'), vector (any sense) or
-            # text (sense 'text'): what _one_example and the senses enforce
+            # exactly one of frames (a touch window: the glove's 'touch' as the schema states
+            # it; another touch sense's window is its own H x W), vector (any sense) or text
+            # (sense 'text'): what _one_example and the senses enforce
             "oneOf": [
                 {"required": ["frames"], "properties": {"sense": {"const": "touch"}}},
                 {"required": ["vector"]},
@@ -320,7 +328,11 @@ class SearchLikeIn(Strict):
     )
 
     sense: str = Field(pattern=SENSE_PATTERN, description="The sense of the example.")
-    frames: Window | None = Field(None, description="A (K, 32, 32) touch window.")
+    frames: Window | None = Field(
+        None,
+        description="A (K, H, W) touch window of the touch sense `sense`: the schema states "
+        "the glove's 32x32, another touch sense's window is its own H x W (GET /senses).",
+    )
     vector: list[Component] | None = Field(
         None, description="A vector of that sense (dim D).", min_length=1, json_schema_extra=NONZERO
     )
@@ -369,6 +381,11 @@ class SenseOut(BaseModel):
     taught: list[str] = Field(
         default_factory=list,
         description="Labels taught to it (`POST /sessions/{id}/labels`), searchable by text.",
+    )
+    shape: list[int] | None = Field(
+        None,
+        description="A touch sense's frame shape [H, W] (its sensor profile: [32, 32] for the "
+        "STAG glove); its windows are (K, H, W). Null for other senses.",
     )
 
 

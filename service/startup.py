@@ -70,6 +70,32 @@ def check_checkpoint(checkpoint: str | None) -> None:
         )
 
 
+def check_touch_senses(touch_senses: dict[str, str]) -> None:
+    """Refuse a ``--touch NAME=CKPT`` whose checkpoint is not a file, before the socket opens."""
+    for name, checkpoint in touch_senses.items():
+        if not Path(checkpoint).is_file():
+            raise StartupError(
+                f"--touch {name}={checkpoint}: the checkpoint is not a file: pass one written "
+                "by `tactus train` for that sensor (in this memory's space)"
+            )
+
+
+def parse_touch_senses(pairs: list[str]) -> dict[str, str]:
+    """``--touch NAME=CKPT`` flags -> {name: checkpoint}; a malformed or repeated one is a
+    :class:`StartupError` naming it."""
+    out: dict[str, str] = {}
+    for pair in pairs:
+        name, sep, checkpoint = pair.partition("=")
+        if not sep or not name.strip() or not checkpoint.strip():
+            raise StartupError(
+                f"--touch {pair}: expected NAME=CHECKPOINT, e.g. --touch skin=skin16.safetensors"
+            )
+        if name.strip() in out:
+            raise StartupError(f"--touch {pair}: the sense {name.strip()!r} is named twice")
+        out[name.strip()] = checkpoint.strip()
+    return out
+
+
 def explain(exc: BaseException, data: str) -> str:
     """One line for an exception raised while opening the memory or building the app."""
     if isinstance(exc, StartupError):

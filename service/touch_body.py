@@ -20,7 +20,7 @@ from pydantic import ValidationError
 
 from tactus_memory.batches import WriteKwargs
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.service.arrays import NPY_TYPES, as_float_array, load_npy, loads_strict
+from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
 from tactus_memory.service.schemas import TouchBatchIn, TouchWindowIn
 from tactus_memory.touch.profile import FRAME_SHAPE
 
@@ -33,14 +33,12 @@ def _validate(model: type, obj: Any) -> Any:
         raise RequestValidationError(errs, body=obj) from None
 
 
-def _windows(value: Any, what: str, ndim: int) -> np.ndarray:
-    """The body's windows as one float32 array (B, K, 32, 32); ``ndim`` 3: one window sent
-    as (K, 32, 32). The one shape check of a touch body."""
-    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
-    want = "(K, 32, 32)" if ndim == 3 else "(B, K, 32, 32)"
-    if arr.ndim != ndim or arr.shape[-2:] != FRAME_SHAPE or 0 in arr.shape:
-        raise InvalidInputError(f"{what} has shape {arr.shape}, expected {want}")
-    return arr[None] if ndim == 3 else arr
+def _windows(value: Any, what: str, ndim: int, shape: tuple[int, int], sense: str) -> np.ndarray:
+    """The body's windows as one float32 array (B, K, H, W), H x W the sense's frame shape;
+    ``ndim`` 3: one window sent as (K, H, W). The one shape check of a touch body."""
+    if ndim == 3:
+        return as_window(value, what, shape, sense)[None]
+    return as_windows(value, what, shape, sense)
 
 
 def touch_write(
@@ -49,17 +47,21 @@ def touch_write(
     t: list[float] | None,
     t_end: list[float] | None,
     calibrated: bool,
+    sense: str = "touch",
+    shape: tuple[int, int] = FRAME_SHAPE,
 ) -> tuple[np.ndarray, WriteKwargs]:
-    """One touch POST (JSON window, JSON batch or ``.npy`` body) -> (windows (B, K, 32, 32)
-    float32, the write's keywords for ``GroupCommitter.submit``). A batch (JSON ``windows``,
+    """One touch POST (JSON window, JSON batch or ``.npy`` body) for the touch sense ``sense``
+    whose frames are ``shape`` -> (windows (B, K, H, W) float32, the write's keywords for
+    ``GroupCommitter.submit``). A batch (JSON ``windows``,
     a 4-D ``.npy``) skips its idle windows and names them; one window alone that is idle is
     refused (422 idle-window), as ``Memory.add`` refuses it."""
     if ctype in NPY_TYPES:
         arr = load_npy(raw, "npy body")
-        if arr.ndim not in (3, 4) or arr.shape[-2:] != FRAME_SHAPE or 0 in arr.shape:
+        h, w = shape
+        if arr.ndim not in (3, 4) or arr.shape[-2:] != tuple(shape) or 0 in arr.shape:
             raise InvalidInputError(
-                f"npy body has shape {arr.shape}, expected (K, 32, 32) (one window) or "
-                "(B, K, 32, 32) (a batch)"
+                f"npy body has shape {arr.shape}, expected (K, {h}, {w}) (one window) or "
+                f"(B, K, {h}, {w}) (a batch): sense {sense!r} reads {h}x{w} frames"
             )
         if not t:
             raise InvalidInputError("query parameter 't' is required with an npy body")
@@ -75,7 +77,7 @@ def touch_write(
         raise InvalidInputError("body must be a JSON object with 'frames' or 'windows'")
     if "windows" in obj:
         batch: TouchBatchIn = _validate(TouchBatchIn, obj)
-        return _windows(batch.windows, "windows", 4), {
+        return _windows(batch.windows, "windows", 4, shape, sense), {
             "t": batch.t,
             "t_end": batch.t_end,
             "meta": batch.meta,
@@ -84,7 +86,7 @@ def touch_write(
             "skip_idle": True,
         }
     one: TouchWindowIn = _validate(TouchWindowIn, obj)
-    return _windows(one.frames, "frames", 3), {
+    return _windows(one.frames, "frames", 3, shape, sense), {
         "t": [one.t],
         "t_end": None if one.t_end is None else [one.t_end],
         "meta": one.meta,

@@ -118,6 +118,8 @@ class SenseInfo(BaseModel):
     #: what a touch sense recognises: its trained classes and the labels taught to it
     classes: list[str] = []
     taught: list[str] = []
+    #: a touch sense's frame shape (H, W), from its sensor profile; None for other senses
+    shape: list[int] | None = None
 
 
 def row_fields(row: dict[str, Any]) -> dict[str, Any]:

@@ -16,6 +16,7 @@ the policy object the store takes.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S, MAX_WINDOW_FRAMES
+from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S, MAX_WINDOW_FRAMES, SENSE_NAME_PATTERN
 from tactus_memory.policies import MaintenanceConfig, never_is_none
 
 #: the memory every command opens when given no location (``Memory.open()``, ``tactus serve``,
@@ -91,6 +92,13 @@ class Settings(BaseSettings, MaintenanceConfig):
         None,
         description="Tactus checkpoint for the touch sense (default: the shipped MiniLM one); "
         "a store in another space needs one trained there (tactus train --space ...).",
+    )
+    touch_senses: dict[str, str] = Field(
+        default_factory=dict,
+        description="Touch senses beside the glove, each its own sensor: sense name -> Tactus "
+        "checkpoint (whose sensor profile gives the frame shape), e.g. {skin = "
+        '"/ck/skin16.safetensors"}. `tactus serve --touch NAME=CKPT` (repeated); env '
+        'TACTUS_TOUCH_SENSES=\'{"skin": "/ck/skin16.safetensors"}\'. They run on torch.',
     )
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
@@ -218,6 +226,25 @@ class Settings(BaseSettings, MaintenanceConfig):
         """The maintenance policy these settings describe."""
         # the fields as they are (a dump would mark every field of a retention rule as set)
         return MaintenanceConfig(**{f: getattr(self, f) for f in MaintenanceConfig.model_fields})
+
+    @field_validator("touch_senses")
+    @classmethod
+    def _touch_sense_names(cls, value: dict[str, str]) -> dict[str, str]:
+        """Each extra touch sense: a valid sense name other than the glove's ``touch``."""
+        for name, checkpoint in value.items():
+            if not re.fullmatch(SENSE_NAME_PATTERN, name):
+                raise ValueError(
+                    f"touch sense name {name!r} must match {SENSE_NAME_PATTERN} (lower case, "
+                    "digits, underscores)"
+                )
+            if name == "touch":
+                raise ValueError(
+                    "the sense 'touch' is the glove's: give its checkpoint with "
+                    "--touch-checkpoint, and other touch senses other names"
+                )
+            if not str(checkpoint).strip():
+                raise ValueError(f"touch sense {name!r} names no checkpoint")
+        return value
 
     @field_validator("token")
     @classmethod

@@ -13,6 +13,8 @@ from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, ScopeDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import HitOut, SearchLikeIn, SearchOut
+from tactus_memory.service.touch_senses import frame_shape
+from tactus_memory.touch.profile import FRAME_SHAPE
 
 router = APIRouter(prefix="/search", tags=["search"])
 
@@ -93,7 +95,11 @@ def search_like(body: SearchLikeIn, memory: MemoryDep, response: Response) -> Se
     t0 = time.perf_counter()
     scope = Scope(body.session, body.senses, body.source, body.after, body.before)
     if body.frames is not None:
-        window = as_window(body.frames)
+        # the example's frame shape is its sense's (a sense that is no touch sense refuses
+        # the window itself, below)
+        sense = memory.senses.get(body.sense)
+        shape = frame_shape(sense) if getattr(sense, "windowed", False) else FRAME_SHAPE
+        window = as_window(body.frames, "frames", shape, body.sense)
         opts = {"calibrated": body.calibrated}
         hits = memory.search_like(body.sense, window, k=body.k, options=opts, scope=scope)
     elif body.vector is not None:

@@ -2,16 +2,19 @@
 
 Protocol (all server messages are JSON objects with a ``type``):
 
-* connect with optional query parameters ``window`` (K, frames per window), ``stride``
+* connect with optional query parameters ``sense`` (the touch sense to write to, default
+  ``touch``, the 32x32 glove: each touch sense reads frames of its own shape H x W),
+  ``window`` (K, frames per window), ``stride``
   (frames between window starts; ``stride > window`` skips frames), ``calibrated``
   (frames already calibrated; default false = raw sensor units), ``hz`` and ``t0`` (times
   for binary frames: frame i gets ``t0 + i / hz``; without ``hz`` the server clock), and
   ``token`` (or an ``Authorization: Bearer`` header) when the server has a token.
 * the server answers ``{"type": "ready", "window": K, "stride": S, ...}`` (with
   ``--workers N``, also ``"worker": i``, the process that holds the connection).
-* send frames one by one: text ``{"frame": [[...32] x 32], "t": 12.5}``, or binary ``.npy``
-  bytes of a (32, 32) frame, or of (N, 32, 32) frames (parsed, timed and windowed as one
-  array).
+* send frames one by one: text ``{"frame": [[...W] x H], "t": 12.5}``, or binary ``.npy``
+  bytes of an (H, W) frame, or of (N, H, W) frames (parsed, timed and windowed as one
+  array); H x W is the sense's frame shape, and a frame of another shape is an error naming
+  both shapes.
 * every full window is stored (``t`` = first frame's t, ``t_end`` = last frame's t, source =
   this stream's id) and acknowledged after its commit:
   ``{"type": "stored", "id": "...", "seq": n, "t": ..., "t_end": ...}``.
@@ -61,11 +64,10 @@ from tactus_memory.service.deps import (
     SettingsDep,
     StateDep,
     TenantDep,
-    TouchAvailable,
     Writable,
 )
 from tactus_memory.service.problems import problem_body, problem_for_exception
-from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.service.touch_senses import TouchSenseDep, frame_shape
 from tactus_memory.touch.windows import Windows, WindowStream
 
 log = logging.getLogger("tactus_memory.service")
@@ -133,9 +135,7 @@ def stream_params(websocket: WebSocket, settings: SettingsDep) -> StreamParams:
     return StreamParams(websocket.query_params, settings.window, settings.stride)
 
 
-@router.websocket(
-    "/sessions/{session}/touch/stream", name="touch_stream", dependencies=[Writable, TouchAvailable]
-)
+@router.websocket("/sessions/{session}/touch/stream", name="touch_stream", dependencies=[Writable])
 async def touch_stream(
     websocket: WebSocket,
     session: SessionId,
@@ -143,9 +143,12 @@ async def touch_stream(
     tenant: TenantDep,
     principal: PrincipalDep,
     params: Annotated[StreamParams, Depends(stream_params)],
+    sense: TouchSenseDep,
 ) -> None:
-    """The token, the session id, a writable store and the touch sense are checked by the
-    same dependencies as the HTTP routes (the app includes this router with the token)."""
+    """The token, the session id, a writable store and the touch sense (``?sense=``) are
+    checked by the same dependencies as the HTTP routes (the app includes this router with
+    the token)."""
+    target = _Target(sense.name, frame_shape(sense))
     send_lock = asyncio.Lock()
 
     async def send(message: dict[str, Any]) -> None:
@@ -170,6 +173,8 @@ async def touch_stream(
             "window": params.window,
             "stride": params.stride,
             "calibrated": params.calibrated,
+            "sense": target.sense,
+            "shape": list(target.shape),
             # `tactus serve --workers N`: which worker process holds this glove
             **({"worker": state.workers.index} if state.workers is not None else {}),
         }
@@ -207,7 +212,7 @@ async def touch_stream(
             assert state.write_threads is not None
             job = (
                 message, frame_index, params, state.settings.max_ws_message_bytes, windower,
-                tenant.open_committer(), session, stream_id,
+                tenant.open_committer(), session, stream_id, target,
             )  # fmt: skip
             try:
                 if _inline(message):
@@ -296,6 +301,14 @@ class _Ingested:
     )
 
 
+@dataclass(frozen=True)
+class _Target:
+    """The touch sense a stream writes to and its frame shape (H, W)."""
+
+    sense: str
+    shape: tuple[int, int]
+
+
 def _ingest(
     message: dict[str, Any],
     index: int,
@@ -305,16 +318,17 @@ def _ingest(
     committer: GroupCommitter,
     session: str,
     stream_id: str,
+    target: _Target,
     *,
     queue: bool = True,
 ) -> _Ingested:
     """One WebSocket message: parsed (M frames, one array) and windowed (one push); ``queue``:
     and its completed windows queued too (:func:`_queue_windows`). A bad message raises."""
-    frames, times = _parse(message, index, params, max_bytes)
+    frames, times = _parse(message, index, params, max_bytes, target)
     done = _Ingested(len(frames), windower.push(frames, times))
     if not queue:
         return done
-    return _queue_windows(done, params.calibrated, committer, session, stream_id)
+    return _queue_windows(done, params.calibrated, committer, session, stream_id, target)
 
 
 def _queue_windows(
@@ -323,6 +337,7 @@ def _queue_windows(
     committer: GroupCommitter,
     session: str,
     stream_id: str,
+    target: _Target,
 ) -> _Ingested:
     """On a write thread: each completed window validated by the touch sense and queued for
     the group commit (``GroupCommitter.submit``, the one library write call)."""
@@ -333,8 +348,8 @@ def _queue_windows(
         try:
             queued = committer.submit(
                 session,
-                "touch",
-                win[None],  # (1, K, 32, 32)
+                target.sense,
+                win[None],  # (1, K, H, W)
                 t=[span[0]],
                 t_end=[span[1]],
                 source=stream_id,
@@ -350,20 +365,25 @@ def _queue_windows(
 
 
 def _parse(
-    message: dict[str, Any], index: int, params: StreamParams, max_bytes: int
+    message: dict[str, Any], index: int, params: StreamParams, max_bytes: int, target: _Target
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One WebSocket message -> (frames (M, 32, 32), times (M,) float64): a binary ``.npy``
-    of M frames is parsed and timed as one array."""
+    """One WebSocket message -> (frames (M, H, W), times (M,) float64), (H, W) the frame shape
+    of the stream's touch sense: a binary ``.npy`` of M frames is parsed and timed as one
+    array."""
+    shape, sense = target.shape, target.sense
+    h, w = shape
     data = message.get("bytes")
     if data is not None:
         if len(data) > max_bytes:
             raise InvalidInputError(f"message is {len(data)} bytes; the limit is {max_bytes}")
         arr = load_npy(data, f"binary frame {index}", frames=True)
+        sent = arr.shape
         if arr.ndim == 2:
             arr = arr[None]
-        if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE:
+        if arr.ndim != 3 or arr.shape[1:] != shape:
             raise InvalidInputError(
-                f"binary frame {index} has shape {arr.shape}, expected (32, 32) or (N, 32, 32)"
+                f"binary frame {index} has shape {sent}, expected ({h}, {w}) or "
+                f"(N, {h}, {w}): sense {sense!r} reads {h}x{w} frames"
             )
         m = arr.shape[0]
         if params.hz is not None:
@@ -379,7 +399,7 @@ def _parse(
     obj = loads_strict(text)
     if not isinstance(obj, dict) or "frame" not in obj:
         raise InvalidInputError(
-            f'message {index} must be a JSON object {{"frame": [[...32] x 32], "t": ...}}'
+            f'message {index} must be a JSON object {{"frame": [[...{w}] x {h}], "t": ...}}'
         )
-    frame = as_frame(obj["frame"], f"frame {index}")
+    frame = as_frame(obj["frame"], f"frame {index}", shape, sense)
     return frame[None], np.array([_frame_time(obj, index)])

@@ -20,11 +20,13 @@ from fastapi.responses import FileResponse, HTMLResponse, Response
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
-from tactus_memory.errors import InvalidInputError
+from tactus_memory.errors import InvalidInputError, UnknownSenseError
+from tactus_memory.limits import SENSE_NAME_PATTERN
 from tactus_memory.service.arrays import as_window
 from tactus_memory.service.deps import ItemIdPath, MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
+from tactus_memory.service.touch_senses import DEFAULT_TOUCH_SENSE, sense_profile
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 from tactus_memory.touch.render import MAX_FRAMES, SCALE, View, draw_window_png, window_values
 
@@ -86,9 +88,9 @@ def _static_file(name: str) -> Response:
 
 
 # ----------------------------------------------------------------------------- heat maps
-def _window_of(raw: Any) -> tuple[np.ndarray | None, bool | None]:
-    """The (K, 32, 32) frames inside a stored touch item, and whether they are calibrated
-    (None: unknown, decided from the values)."""
+def _window_of(raw: Any, shape: tuple[int, int]) -> tuple[np.ndarray | None, bool | None]:
+    """The (K, H, W) frames inside a stored touch item, (H, W) = ``shape`` its sense's frame
+    shape, and whether they are calibrated (None: unknown, decided from the values)."""
     calibrated = getattr(raw, "calibrated", None)
     if isinstance(raw, dict):
         calibrated = raw.get("calibrated")
@@ -100,14 +102,22 @@ def _window_of(raw: Any) -> tuple[np.ndarray | None, bool | None]:
     arr = np.asarray(raw)
     if arr.ndim == 2:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (32, 32) or arr.dtype == object:
+    if arr.ndim != 3 or arr.shape[1:] != tuple(shape) or arr.dtype == object:
         return None, None
     return arr, None if calibrated is None else bool(calibrated)
 
 
 def _profile(memory: Any, sense: str) -> SensorProfile:
-    p = getattr(memory.senses.get(sense), "profile", None)
-    return p if isinstance(p, SensorProfile) else STAG_GLOVE
+    """The live sense's sensor profile; for a sense known from the store only, the profile its
+    provenance recorded (the glove's when none)."""
+    live = memory.senses.get(sense)
+    if live is not None:
+        return sense_profile(live)
+    info = next((i for i in memory.sense_info() if i.name == sense), None)
+    if info is None:
+        raise UnknownSenseError(f"no sense {sense!r} in this memory")
+    recorded = info.provenance.get("calibration")
+    return SensorProfile.from_dict(recorded) if isinstance(recorded, dict) else STAG_GLOVE
 
 
 def _png(body: bytes) -> Response:
@@ -116,12 +126,13 @@ def _png(body: bytes) -> Response:
 
 def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, SensorProfile]:
     item = memory.get_item(item_id)  # NotFoundError -> 404
-    window, calibrated = _window_of(item.raw)
+    profile = _profile(memory, item.sense)
+    window, calibrated = _window_of(item.raw, profile.shape)
     if window is None:
         raise InvalidInputError(
             f"item {item_id!r} (sense {item.sense!r}) holds no touch window to draw"
         )
-    return window, calibrated, _profile(memory, item.sense)
+    return window, calibrated, profile
 
 
 def _item_view(memory: Any, item_id: str, layout: View) -> tuple[np.ndarray, View]:
@@ -145,9 +156,10 @@ def _item_values(memory: Any, item_id: str, layout: View) -> dict[str, Any]:
     summary="A stored touch window as a pressure heat map (PNG)",
     description=(
         "One image per frame (one row, or `columns` per row): calibrated pressure on the "
-        "glove's 548 taxels through the magma colour map, from the contact level (darkest) to "
+        "sensor's taxels through the magma colour map, from the contact level (darkest) to "
         "the window's 99th percentile (brightest), gamma 0.5, with a colour bar stating both; "
-        "pixels of the 32x32 raster that are not taxels are drawn in the background colour. "
+        "each frame is the sense's H x W grid (the glove: 32x32, whose pixels that are not "
+        "taxels are drawn in the background colour, as are the gaps between a hand's pads). "
         "422 when the item holds no touch window (e.g. a text note)."
     ),
     response_class=Response,
@@ -167,10 +179,11 @@ async def touch_png(
     "/items/{item_id}/touch.json",
     summary="The numbers behind a stored touch window's heat map",
     description=(
-        "For the same query as `touch.png`: `values` (K', 32, 32) calibrated pressure of the "
-        "drawn frames, `frames` their indices in the window, `taxels` the (32, 32) taxel mask, "
-        "`scale` (lo, hi, gamma, colormap) and `layout` (columns, rows, scale, gap, size, "
-        "width, height of the frames in pixels) so a pointer position maps to a taxel."
+        "For the same query as `touch.png`: `values` (K', H, W) calibrated pressure of the "
+        "drawn frames, `frames` their indices in the window, `taxels` the (H, W) taxel mask, "
+        "`scale` (lo, hi, gamma, colormap) and `layout` (columns, rows, scale, gap, "
+        "frame_rows, frame_cols, width, height of the frames in pixels) so a pointer position "
+        "maps to a taxel."
     ),
     responses=problem_responses(404, 422),
 )
@@ -185,9 +198,15 @@ async def touch_json(
 class RenderIn(Strict):
     """A touch window to draw (e.g. the example the user is about to search with)."""
 
-    frames: Window = Field(description="(K, 32, 32) pressure frames.")
+    frames: Window = Field(description="(K, H, W) pressure frames, H x W the sense's shape.")
     calibrated: bool | None = Field(
         None, description="true: 0..1; false: raw sensor units; null: decided from the values."
+    )
+    sense: str = Field(
+        DEFAULT_TOUCH_SENSE,
+        pattern=SENSE_NAME_PATTERN,
+        description="The touch sense whose sensor the window is from (its shape, calibration "
+        "and taxel layout); default the glove.",
     )
 
 
@@ -196,15 +215,22 @@ class RenderIn(Strict):
     summary="Draw a touch window as a pressure heat map (PNG)",
     description="The same picture as `GET /items/{id}/touch.png`, for a window in the body.",
     response_class=Response,
-    responses={**PNG_RESPONSE, **problem_responses(413, 422)},
+    responses={**PNG_RESPONSE, **problem_responses(404, 413, 422)},
 )
 async def render_touch_png(
     body: RenderIn,
     layout: LayoutDep,
+    memory: MemoryDep,
     legend: Legend = True,
 ) -> Response:
-    window = as_window(body.frames)
+    profile = _profile(memory, body.sense)
+    window = as_window(body.frames, "frames", profile.shape, body.sense)
     png = await run_in_threadpool(
-        draw_window_png, window, calibrated=body.calibrated, legend=legend, **layout
+        draw_window_png,
+        window,
+        calibrated=body.calibrated,
+        legend=legend,
+        profile=profile,
+        **layout,
     )
     return _png(png)

@@ -216,23 +216,25 @@ function heatmap(itemId, label) {
   );
 }
 
-// The taxel under the pointer: the image is drawn at layout.scale px per taxel, frames
-// (size + gap) taxels apart, layout.columns per row; the colour bar sits below the frames.
+// The taxel under the pointer: the image is drawn at layout.scale px per taxel, each frame
+// the sensor's frame_rows x frame_cols taxels, frames gap taxels apart, layout.columns per
+// row; the colour bar sits below the frames.
 function taxelAt(v, img, ev) {
   const L = v.layout;
   const k = img.naturalWidth / img.clientWidth; // CSS may shrink the image
   const x = ev.offsetX * k;
   const y = ev.offsetY * k;
   if (x >= L.width || y >= L.height) return "";
-  const pitch = (L.size + L.gap) * L.scale;
-  const col = Math.floor(x / pitch);
-  const row = Math.floor(y / pitch);
-  const c = Math.floor((x - col * pitch) / L.scale);
-  const r = Math.floor((y - row * pitch) / L.scale);
+  const pitchX = (L.frame_cols + L.gap) * L.scale;
+  const pitchY = (L.frame_rows + L.gap) * L.scale;
+  const col = Math.floor(x / pitchX);
+  const row = Math.floor(y / pitchY);
+  const c = Math.floor((x - col * pitchX) / L.scale);
+  const r = Math.floor((y - row * pitchY) / L.scale);
   const f = row * L.columns + col;
-  if (c >= L.size || r >= L.size || f >= v.values.length) return "";
+  if (c >= L.frame_cols || r >= L.frame_rows || f >= v.values.length) return "";
   const where = `frame ${v.frames[f] + 1}, row ${r}, column ${c}`;
-  if (!v.taxels[r][c]) return `${where}: not a taxel of the glove`;
+  if (!v.taxels[r][c]) return `${where}: not a taxel of the sensor`;
   const value = v.values[f][r][c];
   const contact = value > v.scale.lo ? "contact" : "no contact";
   return `${where}: ${value.toFixed(3)} calibrated (${contact})`;
@@ -403,6 +405,9 @@ function renderSenses() {
           ["dimension", s.dim],
           ["stored items", s.rows],
           ["live", s.live ? "yes: can embed new items" : "no: known from the store only"],
+          Array.isArray(s.shape) ? ["frame shape", `${s.shape[0]} × ${s.shape[1]} taxels`] : null,
+          s.classes && s.classes.length ? ["recognises", s.classes.join(", ")] : null,
+          s.taught && s.taught.length ? ["taught", s.taught.join(", ")] : null,
           s.mu !== null && s.mu !== undefined
             ? ["score calibration", `μ ${s.mu.toFixed(3)}, σ ${s.sigma.toFixed(3)}`]
             : null,
@@ -701,7 +706,8 @@ function shapeOf(arr) {
   return shape;
 }
 
-// -> {frames: K x 32 x 32 nested arrays, calibrated: bool|null}
+// -> {frames: K x H x W nested arrays, calibrated: bool|null}; H x W must be the frame shape
+// of a touch sense of this memory (GET /senses: shape), which touchSenseFor picks
 export async function readWindowFile(file) {
   let frames;
   let calibrated = null;
@@ -730,8 +736,8 @@ export async function readWindowFile(file) {
     frames = [frames];
     shape = [1, ...shape];
   }
-  if (shape.length !== 3 || shape[1] !== 32 || shape[2] !== 32 || shape[0] < 1) {
-    throw new Error(`a touch window must have shape K×32×32; this file has ${shape.join("×") || "no array"}`);
+  if (shape.length !== 3 || shape[0] < 1 || shape[1] < 1 || shape[2] < 1) {
+    throw new Error(`a touch window must have shape K×H×W; this file has ${shape.join("×") || "no array"}`);
   }
   if (shape[0] > 512) throw new Error(`at most 512 frames per window; this file has ${shape[0]}`);
   return { frames, calibrated };
@@ -750,12 +756,12 @@ async function onLike(e) {
     await likeImage(file, status);
     return;
   }
-  const sense = state.touchSenses.has("touch") ? "touch" : [...state.touchSenses][0] || "touch";
   setStatus(status, `Reading ${file.name}…`, "busy");
   try {
     const { frames, calibrated: fileCalibrated } = await readWindowFile(file);
+    const sense = touchSenseFor(shapeOf(frames).slice(1));
     const calibrated = $("#like-calibrated").checked || fileCalibrated === true;
-    showLikePreview(frames, calibrated, file.name);
+    showLikePreview(frames, calibrated, file.name, sense);
     const f = readFilters();
     const body = { sense, frames, calibrated, k: f.k };
     if (f.session) body.session = f.session;
@@ -795,12 +801,24 @@ async function likeImage(file, status) {
   }
 }
 
-async function showLikePreview(frames, calibrated, name) {
+// The touch sense whose frames are H x W (the glove's "touch" first when it fits): each touch
+// sense reads its own sensor's shape (GET /senses: shape). None fits: an error naming them.
+export function touchSenseFor([rows, cols], senses = state.senses) {
+  const touch = senses.filter((s) => s.modality === "touch" && Array.isArray(s.shape));
+  const fits = touch.filter((s) => s.shape[0] === rows && s.shape[1] === cols);
+  const pick = fits.find((s) => s.name === "touch") || fits[0];
+  if (pick) return pick.name;
+  if (!touch.length) return "touch"; // senses not loaded yet: the server names the problem
+  const known = touch.map((s) => `${s.name} ${s.shape[0]}×${s.shape[1]}`).join(", ");
+  throw new Error(`no touch sense reads ${rows}×${cols} frames (touch senses here: ${known})`);
+}
+
+async function showLikePreview(frames, calibrated, name, sense) {
   const fig = $("#like-preview");
   try {
     const res = await api(`/render/touch.png?${HEATMAP_QUERY}`, {
       method: "POST",
-      body: { frames, calibrated },
+      body: { frames, calibrated, sense },
       raw: true,
     });
     const img = $("img", fig);

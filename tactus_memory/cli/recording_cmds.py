@@ -37,13 +37,24 @@ export_app = typer.Typer(help="Export a session to a viewer's format.", no_args_
 app.add_typer(export_app, name="export")
 
 
-def _memory_for(data: str | None, senses: set[str]) -> Memory:
+def _memory_for(
+    data: str | None, senses: set[str], touch_senses: dict[str, str] | None = None
+) -> Memory:
+    """The memory with the senses the topics map to: the touch senses named with ``--touch
+    NAME=CKPT``, those the store records (rebuilt from their record, e.g. a sensor that
+    ``tactus serve --touch`` registered), then the defaults still missing."""
+    from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.memory.main import Memory
 
     memory = Memory.open(_data_dir(data))
+    for name, checkpoint in (touch_senses or {}).items():
+        memory.add_sense(TactusEncoder(checkpoint, name=name))
+    recorded = {s.name for s in memory.sense_info()}
+    wanted = senses - set(memory.senses)
+    if wanted & recorded:
+        for name, why in memory.restore_senses(skip=recorded - wanted).items():
+            typer.echo(f"sense {name!r} cannot be rebuilt: {why}", err=True)
     if "touch" in senses and "touch" not in memory.senses:
-        from tactus_memory.adapters.touch import TactusEncoder
-
         memory.add_sense(TactusEncoder())
     if (
         "image" in senses
@@ -54,6 +65,22 @@ def _memory_for(data: str | None, senses: set[str]) -> Memory:
 
         memory.add_sense(ImageSense(memory.space))
     return memory
+
+
+def _touch_senses(pairs: list[str] | None) -> dict[str, str]:
+    from tactus_memory.service.startup import (
+        StartupError,
+        check_touch_senses,
+        parse_touch_senses,
+    )
+
+    try:
+        named = parse_touch_senses(pairs or [])
+        check_touch_senses(named)
+        return named
+    except StartupError as exc:
+        fail(str(exc))
+        raise  # unreachable: fail exits
 
 
 @app.command("ingest")
@@ -74,6 +101,16 @@ def ingest(
         str,
         typer.Option("--tf", help="PARENT->CHILD transform read from a TFMessage pose topic."),
     ] = "map->base_link",
+    touch: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--touch",
+            metavar="NAME=CKPT",
+            help="A touch sense for your own sensor: NAME its sense name (map a topic to it), "
+            "CKPT its `tactus train` checkpoint (the frame shape comes from its sensor "
+            "profile); repeatable. A sense the store already records needs no flag.",
+        ),
+    ] = None,
     data: MemoryData = None,
     absolute: Annotated[
         bool, typer.Option("--absolute", help="Unix times instead of the session clock.")
@@ -113,7 +150,7 @@ def ingest(
         if not arrow or not parent.strip() or not child.strip():
             fail(f"--tf {tf!r}: write PARENT->CHILD, e.g. map->base_link")
         address = ray_cluster(ray, ray_address)
-        memory = _memory_for(data, set(topics.values()))
+        memory = _memory_for(data, set(topics.values()), _touch_senses(touch))
         kw = {"session": session, "topics": topics, "absolute": absolute, "window": window,
               "stride": stride, "tf": (parent.strip(), child.strip())}  # fmt: skip
         if address is None:

@@ -39,6 +39,17 @@ def serve(
             "default the shipped MiniLM one (env TACTUS_TOUCH_CHECKPOINT)."
         ),
     ] = None,
+    touch_sense: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--touch",
+            metavar="NAME=CKPT",
+            help="Serve another touch sense beside the glove: NAME its sense name, CKPT a "
+            "checkpoint of `tactus train` for that sensor (its frame shape comes from the "
+            "checkpoint's sensor profile); repeat for several. Writes name it with "
+            "?sense=NAME (env TACTUS_TOUCH_SENSES as JSON {name: checkpoint}).",
+        ),
+    ] = None,
     max_body_bytes: Annotated[
         int | None,
         typer.Option(help="Largest request body, 413 beyond (env TACTUS_MAX_BODY_BYTES)."),
@@ -100,7 +111,13 @@ def serve(
     options given here win. On a fresh store the default senses are registered: text, and
     touch with the shipped checkpoint.
     """
-    from tactus_memory.service.startup import check_checkpoint, check_location, explain
+    from tactus_memory.service.startup import (
+        check_checkpoint,
+        check_location,
+        check_touch_senses,
+        explain,
+        parse_touch_senses,
+    )
     from tactus_memory.settings import Settings
 
     given = {
@@ -129,10 +146,13 @@ def serve(
         overrides["torch"] = True
     where = data or "the memory"
     try:
+        if touch_sense:
+            overrides["touch_senses"] = parse_touch_senses(touch_sense)
         settings = Settings(**overrides)
         where = settings.data
         check_location(settings.data)
         check_checkpoint(settings.touch_checkpoint if settings.touch else None)
+        check_touch_senses(settings.touch_senses)
         settings = default_onnx(settings)
         if settings.workers > 1:  # forked before anything heavy is imported
             from tactus_memory.cli.workers import serve_workers, worker_torch_threads

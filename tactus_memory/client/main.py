@@ -241,14 +241,17 @@ class Client(TeachingCalls):
                 r = self.request("POST", base + "/image", data=form, files=files)
                 out += r.json()["ids"]
             return out
-        if sense == "touch":
+        # a touch sense (the glove, or another sensor's: GET /senses modality) -> ?sense=
+        if sense == "touch" or any(i.name == sense and i.modality == "touch"
+                                   for i in self.sense_info()):  # fmt: skip
             calibrated = bool((kw.get("options") or {}).get("calibrated", False))
+            base, params = base + "/touch", {"sense": sense}
             if ids is None and all(m is None for m in metas):  # binary: any batch, exact
-                params = {"t": times, "t_end": ends, "calibrated": calibrated}
+                params.update(t=times, t_end=ends, calibrated=calibrated)
                 arr = np.stack([np.asarray(w) for w in items]) if items else np.zeros((0,))
                 r = self.request(
                     "POST",
-                    base + "/touch",
+                    base,
                     content=npy(arr),
                     params=params,
                     headers={"Content-Type": "application/x-npy"},
@@ -262,7 +265,7 @@ class Client(TeachingCalls):
                 "ids": ids,
                 "calibrated": calibrated,
             }
-            return self.request("POST", base + "/touch", json=body).json()["ids"]
+            return self.request("POST", base, json=body, params=params).json()["ids"]
         body = {
             "sense": sense,
             "vectors": [np.asarray(v, dtype=float).tolist() for v in items],

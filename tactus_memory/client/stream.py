@@ -30,6 +30,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from tactus_memory.client.errors import problem_error
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.touch.profile import FRAME_SHAPE
 
 
 class TouchStream:
@@ -46,8 +47,9 @@ class TouchStream:
         hz: float | None = None,
         t0: float | None = None,
         timeout: float = 60.0,
+        sense: str | None = None,
     ) -> None:
-        query = {"window": window, "stride": stride, "hz": hz, "t0": t0}
+        query = {"sense": sense, "window": window, "stride": stride, "hz": hz, "t0": t0}
         parts = [f"{k}={v}" for k, v in query.items() if v is not None]
         parts.append(f"calibrated={'true' if calibrated else 'false'}")
         self.url = url + "?" + "&".join(parts)
@@ -60,6 +62,7 @@ class TouchStream:
         self.window = 0
         self.stride = 1
         self.frames_sent = 0
+        self.shape: tuple[int, ...] = FRAME_SHAPE  # the glove's until the server says
         self._answered = 0  # windows answered (stored, idle, or refused)
         self._bad_frames = 0
         self._changed = threading.Condition()
@@ -77,6 +80,8 @@ class TouchStream:
             raise problem_error(int(problem.get("status", 500)), problem)
         self.window, self.stride = int(first["window"]), int(first["stride"])
         self.stream_id = first.get("stream")
+        #: (H, W) of one frame of the stream's touch sense (the server's ready message)
+        self.shape = tuple(first.get("shape") or FRAME_SHAPE)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
         return self
@@ -106,14 +111,16 @@ class TouchStream:
                 self._changed.notify_all()
 
     def send(self, frame: np.ndarray, t: float | None = None) -> None:
-        """One (32, 32) frame, or (N, 32, 32) frames at once (binary, timed by ``hz``/``t0``
-        or the server's clock); with ``t`` a single frame goes as JSON with that time."""
+        """One (H, W) frame, or (N, H, W) frames at once (binary, timed by ``hz``/``t0`` or
+        the server's clock), H x W the stream's touch sense's frame shape (``sense=`` when
+        opened; the glove's 32x32 by default); with ``t`` a single frame goes as JSON with
+        that time."""
         if self._ws is None:
             raise InvalidInputError("send() outside the `with client.stream_touch(...)` block")
         arr = np.asarray(frame)
         if t is not None:
-            if arr.shape != (32, 32):
-                raise InvalidInputError(f"a frame with t= must be (32, 32), got {arr.shape}")
+            if arr.shape != self.shape:
+                raise InvalidInputError(f"a frame with t= must be {self.shape}, got {arr.shape}")
             self._ws.send(json.dumps({"frame": arr.tolist(), "t": float(t)}))
             self.frames_sent += 1
             return

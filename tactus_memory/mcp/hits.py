@@ -23,8 +23,6 @@ from tactus_memory.storage.store import Store
 from tactus_memory.touch.windows import contact_taxels
 from tactus_memory.where import Where
 
-#: taxels on the glove's pad (32 x 32): contact_area = contact_taxels / PAD_TAXELS
-PAD_TAXELS = 32 * 32
 #: a ``t`` at or after this (2001-09-09, unix 1e9) is a wall-clock time and gets ``when``
 UNIX_EPOCH_FLOOR = 1e9
 #: meta larger than this (JSON characters) is left out of a result (``meta_omitted``)
@@ -40,7 +38,10 @@ class TouchSummary(BaseModel):
     contact_taxels: int = Field(
         description="Most taxels in contact in any one frame (calibrated >= 1/6)."
     )
-    contact_area: float = Field(description="contact_taxels / 1024: share of the pad in contact.")
+    contact_area: float = Field(
+        description="contact_taxels / (H * W): share of the sensor's frame in contact (H x W "
+        "the touch sense's frame shape, 32x32 = 1024 taxels on the glove's raster)."
+    )
     peak: float = Field(description="Highest calibrated pressure in the window, 0..1.")
 
 
@@ -151,12 +152,13 @@ def when(t: float) -> str | None:
 
 
 def touch_summary(window: np.ndarray) -> TouchSummary:
-    """(K, 32, 32) stored (calibrated) window -> its summary."""
+    """(K, H, W) stored (calibrated) window of any touch sense -> its summary."""
     taxels = int(contact_taxels(window).max()) if window.size else 0
+    frame = int(window.shape[-2] * window.shape[-1]) if window.ndim == 3 else 1
     return TouchSummary(
         frames=int(window.shape[0]),
         contact_taxels=taxels,
-        contact_area=round(taxels / PAD_TAXELS, 4),
+        contact_area=round(taxels / max(frame, 1), 4),
         peak=round(float(np.max(window)) if window.size else 0.0, 4),
     )
 

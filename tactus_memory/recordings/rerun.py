@@ -76,11 +76,19 @@ def export_rerun(
         raise ImportError(
             f"exporting to Rerun needs rerun-sdk ({exc}); pip install 'tactus-memory[recordings]'"
         ) from exc
+    from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
     from tactus_memory.touch.render import window_rgba
 
     session = validate_id(session, "session id")
     items = memory.timeline(session)  # NotFoundError for an unknown session; aligned times
-    modality = {s.name: s.modality for s in memory.sense_info()}
+    infos = memory.sense_info()
+    modality = {s.name: s.modality for s in infos}
+    # each touch sense's sensor (its frame shape and taxel layout), as its provenance recorded
+    profiles = {
+        s.name: SensorProfile.from_dict(s.provenance["calibration"])
+        for s in infos
+        if isinstance(s.provenance.get("calibration"), dict)
+    }
     found = memory.search_moments(query, k=moments, session=session) if query else []
     table = memory.store.scan(Where().session(session).sql(), list(SCAN_COLUMNS))
     raw = dict(zip(table.column("id").to_pylist(), table.column("raw").to_pylist(), strict=True))
@@ -106,11 +114,12 @@ def export_rerun(
             kind = modality.get(it.sense, "")
             stream = _entity(it.source or it.sense)
             if kind == "touch" and raw.get(it.id) is not None:
-                window = bytes_to_array(raw[it.id]).astype(np.float32)  # (K, 32, 32)
+                window = bytes_to_array(raw[it.id]).astype(np.float32)  # (K, H, W)
+                profile = profiles.get(it.sense, STAG_GLOVE)
                 log(
                     f"touch/{stream}",
                     it.t_aligned,
-                    rr.Image(window_rgba(window, scale=EXPORT_SCALE)),
+                    rr.Image(window_rgba(window, scale=EXPORT_SCALE, profile=profile)),
                 )
             elif kind == "text" or (it.text is not None and kind != "image"):
                 log(f"text/{stream}", it.t_aligned, rr.TextLog(it.text or "", level="INFO"))

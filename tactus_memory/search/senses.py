@@ -298,12 +298,17 @@ class SenseRegistry:
         out = []
         for name, s in sorted(self._stored.items()):
             c = self._calib.get(name)
+            prov = s.provenance()
+            calibration = prov.get("calibration")  # a touch sense's sensor profile
             out.append(
                 SenseInfo(
                     name=name,
                     modality=s.modality,
                     dim=s.dim,
-                    provenance=s.provenance(),
+                    provenance=prov,
+                    shape=list(calibration["shape"])
+                    if isinstance(calibration, dict) and "shape" in calibration
+                    else None,
                     live=name in self._live,
                     rows=counts.get(name, 0),
                     mu=c.mu if c else None,

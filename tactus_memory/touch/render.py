@@ -1,6 +1,6 @@
 """Touch windows as pressure heat maps of the hand: ONE renderer for the web page and reports.
 
-``draw_window_png(window) -> bytes`` draws a (K, 32, 32) window as K frames (in a row, or a
+``draw_window_png(window) -> bytes`` draws a (K, H, W) window as K frames (in a row, or a
 grid with ``columns``) with a colour bar under them. Readable for real grasps:
 
 - **scale**: calibrated pressure (``clip((raw - 500) / 150, 0, 1)`` for the STAG glove), shown
@@ -12,10 +12,13 @@ grid with ``columns``) with a colour bar under them. Readable for real grasps:
   contact. The colour bar states ``lo``, ``hi`` and the gamma in calibrated units.
 - **colour**: matplotlib's perceptual ``magma``; a taxel at or below ``lo`` is magma's darkest
   colour, so only contact lights up.
+- **any sensor**: a frame is the profile's H x W grid (``SensorProfile.shape``: 32x32 for the
+  STAG glove, 16x16 for a skin, a robot hand's pads assembled into one frame).
 - **unused taxels** (the 476 pixels of the 32x32 raster that are not taxels of the glove,
-  ``data.taxel_mask_from_spec``) are drawn in the background colour, a near-black slate a
-  shade lighter than "no contact": the sensor layout shows faintly, never as bright bars.
-  Frames are separated by grey lines.
+  ``data.taxel_mask_from_spec``; for another sensor the pixels outside its taxel mask, e.g.
+  the gaps between a hand's pads, :func:`profile_mask`) are drawn in the background colour,
+  a near-black slate a shade lighter than "no contact": the sensor layout shows faintly, never
+  as bright bars. Frames are separated by grey lines.
 
 :func:`window_values` gives the same window as numbers (calibrated values, the taxel mask,
 the scale and the layout) so the page can show the value under the pointer. Used by the
@@ -39,7 +42,7 @@ from tactus_memory.touch.profile import (
     taxel_mask_from_spec,
 )
 
-#: default pixels per taxel: a frame is 32*4 = 128 px square
+#: default pixels per taxel: a glove frame is 32*4 = 128 px square
 SCALE = 4
 #: most frames drawn; longer windows are subsampled evenly (first and last kept)
 MAX_FRAMES = 16
@@ -85,37 +88,63 @@ class TouchScale:
 @dataclass(frozen=True)
 class Layout:
     """Where frame ``i`` sits: column ``i % columns``, row ``i // columns``, each frame
-    ``32 * scale`` px square, ``gap * scale`` px between frames."""
+    ``frame_cols * scale`` px wide and ``frame_rows * scale`` px high (the sensor's H x W),
+    ``gap * scale`` px between frames."""
 
     frames: int
     columns: int
     scale: int
     gap: int
-    size: int = FRAME_SHAPE[0]
+    frame_rows: int = FRAME_SHAPE[0]
+    frame_cols: int = FRAME_SHAPE[1]
 
     @property
     def rows(self) -> int:
         return -(-self.frames // self.columns)
 
     @property
-    def pitch(self) -> int:
-        return (self.size + self.gap) * self.scale
+    def pitch_x(self) -> int:
+        return (self.frame_cols + self.gap) * self.scale
+
+    @property
+    def pitch_y(self) -> int:
+        return (self.frame_rows + self.gap) * self.scale
 
     @property
     def width(self) -> int:
-        return self.columns * self.pitch - self.gap * self.scale
+        return self.columns * self.pitch_x - self.gap * self.scale
 
     @property
     def height(self) -> int:
-        return self.rows * self.pitch - self.gap * self.scale
+        return self.rows * self.pitch_y - self.gap * self.scale
 
     def origin(self, i: int) -> tuple[int, int]:
         """(x, y) of frame ``i``'s top-left pixel."""
-        return (i % self.columns) * self.pitch, (i // self.columns) * self.pitch
+        return (i % self.columns) * self.pitch_x, (i // self.columns) * self.pitch_y
 
 
-def as_frames(window: Any) -> np.ndarray:
-    """(K, 32, 32) or (32, 32) numbers -> float32 (K, 32, 32), finite; raises otherwise."""
+def profile_mask(profile: SensorProfile) -> np.ndarray:
+    """(H, W) bool, the pixels of ``profile``'s frame that are taxels: the profile's own mask
+    when it carries one (``taxel_mask``, e.g. a hand's pads placed in one frame), the spec's
+    548 taxels for a 32x32 glove frame, else every pixel of the H x W grid."""
+    own = getattr(profile, "taxel_mask", None)
+    own = own() if callable(own) else own
+    if own is not None:
+        mask = np.asarray(own, dtype=bool)
+        if mask.shape != tuple(profile.shape):
+            raise InvalidInputError(
+                f"profile {profile.name!r}: taxel mask {mask.shape} is not its frame "
+                f"shape {tuple(profile.shape)}"
+            )
+        return mask
+    if tuple(profile.shape) == FRAME_SHAPE:
+        return taxel_mask_from_spec()
+    return np.ones(profile.shape, dtype=bool)
+
+
+def as_frames(window: Any, shape: tuple[int, int] = FRAME_SHAPE) -> np.ndarray:
+    """(K, H, W) or (H, W) numbers, (H, W) = ``shape`` -> float32 (K, H, W), finite; raises
+    otherwise."""
     arr = np.asarray(window)
     if arr.dtype == object or not (
         np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
@@ -124,8 +153,12 @@ def as_frames(window: Any) -> np.ndarray:
     arr = arr.astype(np.float32)
     if arr.ndim == 2:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != FRAME_SHAPE or arr.shape[0] == 0:
-        raise InvalidInputError(f"touch window has shape {arr.shape}, expected (K, 32, 32)")
+    h, w = shape
+    if arr.ndim != 3 or arr.shape[1:] != tuple(shape) or arr.shape[0] == 0:
+        raise InvalidInputError(
+            f"touch window has shape {arr.shape}, expected (K, {h}, {w}): the sensor's "
+            f"frames are {h}x{w}"
+        )
     if not np.isfinite(arr).all():
         raise InvalidInputError("touch window contains NaN or inf")
     return arr
@@ -139,7 +172,7 @@ def calibrated_frames(
     ``calibrated=None`` decides from the values: everything within [0, 1] is already
     calibrated (raw glove units sit near 500-1000 and never are), anything else is raw.
     """
-    arr = as_frames(window)
+    arr = as_frames(window, tuple(profile.shape))  # type: ignore[arg-type]
     if calibrated is None:
         calibrated = bool(arr.min() >= 0.0 and arr.max() <= 1.0)
     if calibrated:
@@ -192,12 +225,14 @@ def _prepare(
     frames = calibrated_frames(window, calibrated=calibrated, profile=profile)
     picked = pick_frames(frames.shape[0], int(max_frames))
     frames = frames[picked]
-    taxels = taxel_mask_from_spec() if mask is None else np.asarray(mask, dtype=bool)
+    taxels = profile_mask(profile) if mask is None else np.asarray(mask, dtype=bool)
     if taxels.shape != frames.shape[1:]:
         raise InvalidInputError(f"mask has shape {taxels.shape}, frames {frames.shape[1:]}")
-    k = frames.shape[0]
+    k, h, w = frames.shape
     cols = k if columns is None else min(int(columns), k)
-    layout = Layout(frames=k, columns=cols, scale=int(scale), gap=int(gap))
+    layout = Layout(
+        frames=k, columns=cols, scale=int(scale), gap=int(gap), frame_rows=h, frame_cols=w
+    )
     return frames, picked, taxels, touch_scale(frames, taxels, profile), layout
 
 
@@ -241,15 +276,16 @@ def window_rgba(
 def _paint(frames: np.ndarray, taxels: np.ndarray, ts: TouchScale, layout: Layout) -> np.ndarray:
     from matplotlib import colormaps
 
-    rgba = colormaps[ts.colormap](ts.unit(frames), bytes=True)  # (K, 32, 32, 4) uint8
+    rgba = colormaps[ts.colormap](ts.unit(frames), bytes=True)  # (K, H, W, 4) uint8
     rgba[:, ~taxels] = BACKGROUND
     s = layout.scale
+    fh, fw = layout.frame_rows * s, layout.frame_cols * s
     out = np.empty((layout.height, layout.width, 4), np.uint8)
     out[:] = GAP_COLOUR
     for i in range(layout.frames):
         x, y = layout.origin(i)
         big = np.repeat(np.repeat(rgba[i], s, axis=0), s, axis=1)
-        out[y : y + 32 * s, x : x + 32 * s] = big
+        out[y : y + fh, x : x + fw] = big
     return out
 
 
@@ -295,10 +331,11 @@ def encode_png(rgba: np.ndarray) -> bytes:
 
 
 def draw_window_png(window: Any, *, legend: bool = True, **view: Unpack[View]) -> bytes:
-    """A touch window as a PNG heat map: one ``32*scale`` px image per frame (in one row, or
-    ``columns`` per row), and with ``legend`` a colour bar under them.
+    """A touch window as a PNG heat map: one ``W*scale`` x ``H*scale`` px image per frame (in
+    one row, or ``columns`` per row), and with ``legend`` a colour bar under them.
 
-    ``window``: (K, 32, 32) (or one (32, 32) frame), raw sensor units or calibrated 0..1
+    ``window``: (K, H, W) (or one (H, W) frame) of the profile's shape, raw sensor units or
+    calibrated 0..1
     (``calibrated=None`` decides from the values). See the module docstring for the scale.
     """
     cal, _, taxels, ts, layout = _prepare_view(window, view)
@@ -315,10 +352,11 @@ def draw_window_png(window: Any, *, legend: bool = True, **view: Unpack[View]) -
 
 
 def window_values(window: Any, **view: Unpack[View]) -> dict[str, Any]:
-    """The numbers behind :func:`draw_window_png` (JSON-ready): ``values`` (K', 32, 32)
+    """The numbers behind :func:`draw_window_png` (JSON-ready): ``values`` (K', H, W)
     calibrated, rounded to 1e-4, of the drawn frames; ``frames`` their indices in the window;
-    ``taxels`` the (32, 32) mask; ``scale`` (lo, hi, gamma, colormap); ``layout`` (columns,
-    scale, gap, frame size in taxels) so a pointer position maps to (frame, row, column)."""
+    ``taxels`` the (H, W) mask; ``scale`` (lo, hi, gamma, colormap); ``layout`` (columns,
+    scale, gap, frame_rows x frame_cols in taxels) so a pointer position maps to (frame, row,
+    column)."""
     frames, picked, taxels, ts, layout = _prepare_view(window, view)
     return {
         "values": np.round(frames, 4).tolist(),
@@ -330,7 +368,8 @@ def window_values(window: Any, **view: Unpack[View]) -> dict[str, Any]:
             "rows": layout.rows,
             "scale": layout.scale,
             "gap": layout.gap,
-            "size": layout.size,
+            "frame_rows": layout.frame_rows,
+            "frame_cols": layout.frame_cols,
             "width": layout.width,
             "height": layout.height,
         },

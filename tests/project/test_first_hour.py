@@ -36,7 +36,7 @@ def _npy(arr: np.ndarray) -> bytes:
 def test_a_single_frame_as_json_is_one_line_naming_the_shape(client) -> None:
     frame = window(1)[0].tolist()  # (32, 32): one frame, not a window
     r = client.post("/sessions/s/touch", json={"frames": frame, "t": 1.0})
-    body = assert_problem(r, 422, "must have shape (K, 32, 32), got (32, 32)")
+    body = assert_problem(r, 422, "must have shape (K, H, W)", "32x32 on the glove", "got (32, 32)")
     assert "more" not in body["detail"] and len(body["detail"]) < 200, body["detail"]
     r = client.post("/search/like", json={"sense": "touch", "frames": frame})
     assert_problem(r, 422, "got (32, 32)")

@@ -540,7 +540,9 @@ def test_search_by_example_upload_npy_and_json(page, served, tmp_path):
     page.wait_for_function(
         "() => document.querySelector('#search-status').dataset.kind === 'error'"
     )
-    assert "K×32×32" in page.text_content("#search-status")
+    # a 1x3 "frame": no touch sense reads it; the page names the shapes the senses read
+    status = page.text_content("#search-status")
+    assert "no touch sense reads 1×3 frames" in status and "touch 32×32" in status, status
 
 
 @pytest.mark.slow
