@@ -30,6 +30,7 @@ import io
 import json
 import time
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import AbstractContextManager
 from email.utils import parsedate_to_datetime
 from typing import Any
 
@@ -110,7 +111,7 @@ def image_bytes(image: Any) -> bytes:
     raise InvalidInputError(f"an image is PNG/JPEG bytes or a PIL image, not {type(image)}")
 
 
-class Client(TeachingCalls):
+class Client(TeachingCalls, AbstractContextManager["Client"]):
     """The service at ``url`` with the :class:`~tactus_memory.memory.main.Memory` API."""
 
     def __init__(
@@ -164,10 +165,7 @@ class Client(TeachingCalls):
     def close(self) -> None:
         self.http.close()
 
-    def __enter__(self) -> Client:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, *exc: object) -> None:  # ``with``: __enter__ (self) from the base
         self.close()
 
     def __repr__(self) -> str:

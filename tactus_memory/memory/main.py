@@ -40,6 +40,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Collection, Mapping, Sequence
+from contextlib import AbstractContextManager
 from datetime import timedelta
 from typing import Any
 
@@ -109,7 +110,7 @@ def _delegate(part: str, owner: type, name: str) -> Any:
     )
 
 
-class Memory:
+class Memory(AbstractContextManager["Memory"]):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
     Use :meth:`open`. Thread-safe: writes are serialised by a lock, reads run concurrently.
@@ -454,10 +455,7 @@ class Memory:
         self.wait_for_maintenance()
         self.store.wait_for_cleanup()
 
-    def __enter__(self) -> Memory:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, *exc: object) -> None:  # ``with``: __enter__ (self) from the base
         self.close()
 
     def __len__(self) -> int:
