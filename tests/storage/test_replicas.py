@@ -32,13 +32,19 @@ def _replica(path: Path, *, maintain: bool = False) -> Memory:
 
 
 # ------------------------------------------------------------------ settings
-def test_read_consistency_from_env_and_arguments(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.delenv("TACTUS_READ_CONSISTENCY", raising=False)
-    assert read_consistency_interval() == timedelta(seconds=1)
+def test_read_consistency_from_env_and_arguments(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Storage takes the interval it is given (1 s by default) and reads no settings; the
+    settings read ``TACTUS_READ_CONSISTENCY`` and ``Memory.open`` passes it down."""
     monkeypatch.setenv("TACTUS_READ_CONSISTENCY", "0.25")
-    assert read_consistency_interval() == timedelta(seconds=0.25)
+    assert read_consistency_interval() == timedelta(seconds=1)  # storage: no env
+    assert Settings().read_consistency == 0.25
+    mem = Memory.open(str(tmp_path / "m"), space=HashingSpace(), background=False)
+    assert mem.store.read_consistency == timedelta(seconds=0.25)
     monkeypatch.setenv("TACTUS_READ_CONSISTENCY", "off")
-    assert Settings().read_consistency is None and read_consistency_interval() is None
+    assert Settings().read_consistency is None
+    assert read_consistency_interval(Settings().read_consistency) is None
     assert read_consistency_interval(2) == timedelta(seconds=2)
     assert read_consistency_interval(None) is None
     with pytest.raises(InvalidInputError, match="read consistency"):
