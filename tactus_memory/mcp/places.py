@@ -30,7 +30,7 @@ from tactus_memory.mcp.args import (
     SessionArg,
     compact,
 )
-from tactus_memory.mcp.hits import Compactor, Found, MomentResult, when
+from tactus_memory.mcp.hits import Compactor, Found, MomentResult, moment_fields
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
 from tactus_memory.results import Place
@@ -121,18 +121,7 @@ class AtResult(BaseModel):
 def place_found(place: Place, items: list[Found]) -> PlaceFound:
     """A library :class:`~tactus_memory.results.Place` -> :class:`PlaceFound`."""
     x, y, z = (round(float(c), 4) for c in place.position)
-    return PlaceFound(
-        session=place.session,
-        position=(x, y, z),
-        frame=place.frame,
-        t=round(place.t, 3),
-        t_end=round(place.t_end, 3),
-        when=when(place.t),
-        score=round(place.score, 3),
-        senses=place.senses,
-        best=place.best,
-        items=items,
-    )
+    return PlaceFound(position=(x, y, z), frame=place.frame, **moment_fields(place, items))
 
 
 class PlaceTools:
