@@ -83,6 +83,21 @@ def near_of(near: list[float] | None) -> Near | None:
     return check_near(((x, y, z), r))
 
 
+def scope_of(
+    session: str | None,
+    senses: list[str] | None,
+    after: float | None,
+    before: float | None,
+    near: list[float] | None = None,
+    frame: str | None = None,
+) -> Scope:
+    """The scope arguments of a tool -> the library's one :class:`Scope` (``near``:
+    ``[x, y, z, r]``, :func:`near_of`)."""
+    return Scope(
+        session=session, senses=senses, after=after, before=before, near=near_of(near), frame=frame
+    )
+
+
 def group_of(group: str | None, windows: bool) -> str:
     """The ``group`` argument, or the older ``windows`` flag's; both given must agree."""
     if group is None:
@@ -149,7 +164,7 @@ class PlaceTools:
         with its position (x, y, z in metres) and frame, its span, score and evidence (as
         HTTP's GET /where). Moments with no placed item are left out."""
         self._known(session)
-        scope = Scope(session, senses, None, after, before, near_of(near), frame)
+        scope = scope_of(session, senses, after, before, near, frame)
         places = self.memory.where(query, k, scope=scope)
         out = [place_found(p, self.compactor.items(p.evidence)) for p in places]
         return compact(WhereResult(query=query, places=out))

@@ -70,6 +70,7 @@ from tactus_memory.mcp.places import (
     SearchGroupArg,
     group_of,
     near_of,
+    scope_of,
 )
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
@@ -92,21 +93,6 @@ INSTRUCTIONS = (
 WriteHook = Callable[[Any, int, int], None]
 
 R = TypeVar("R")
-
-
-def scope_of(
-    session: str | None,
-    senses: list[str] | None,
-    after: float | None,
-    before: float | None,
-    near: list[float] | None = None,
-    frame: str | None = None,
-) -> Scope:
-    """The scope arguments of a tool -> the library's one :class:`Scope` (``near``:
-    ``[x, y, z, r]``, :func:`~tactus_memory.mcp.places.near_of`)."""
-    return Scope(
-        session=session, senses=senses, after=after, before=before, near=near_of(near), frame=frame
-    )
 
 
 @dataclass(frozen=True)
