@@ -68,6 +68,7 @@ from tactus_memory.mcp.places import (
     PlaceTools,
     QuestionGroupArg,
     SearchGroupArg,
+    Within,
     group_of,
     near_of,
     scope_of,
@@ -170,14 +171,12 @@ class MemoryTools(PlaceTools):
             self.memory.session(session)
 
     @tool_errors
+    @grouped(within=Within)
     def search(
         self,
         query: QueryArg,
         k: KArg = 5,
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        after: AfterArg = None,
-        before: BeforeArg = None,
+        within: Within = Within(),
         windows: WindowsArg = False,
         group: SearchGroupArg = None,
         near: NearArg = None,
@@ -187,10 +186,9 @@ class MemoryTools(PlaceTools):
         first. Each hit says when (t, t_end), which sense, its score and its id; a touch hit
         is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones.
         ``group='moment'`` also lists the moments (hits are each moment's best item)."""
-        self._known(session)
-        scope = scope_of(session, senses, after, before, near, frame)
+        self._known(within.session)
         grouping = group_of(group, windows)
-        found = self.memory.search(query, k, group=grouping, scope=scope)
+        found = self.memory.search(query, k, group=grouping, scope=within.scope(near, frame))
         if grouping == "moment":  # as HTTP: the hits are each moment's best member
             best = [next(h for h in m.hits if h.id == m.best) for m in found]
             moments = self.compactor.moments(found)
