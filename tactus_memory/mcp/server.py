@@ -99,13 +99,10 @@ R = TypeVar("R")
 @dataclass(frozen=True)
 class Question:
     """The arguments of ``last``, ``first`` and ``count``, one group
-    (:func:`tactus_memory.signatures.grouped`)."""
+    (:func:`tactus_memory.signatures.grouped`, as :data:`ASK`)."""
 
     query: QueryArg
-    session: SessionArg = None
-    senses: SensesArg = None
-    after: AfterArg = None
-    before: BeforeArg = None
+    within: Within = Within()
     merge_gap: MergeGapArg = DEFAULT_MERGE_GAP
     windows: WindowsArg = False
     group: QuestionGroupArg = None
@@ -113,11 +110,15 @@ class Question:
     frame: FrameArg = None
 
     def scope(self) -> Scope:
-        return scope_of(self.session, self.senses, self.after, self.before, self.near, self.frame)
+        return self.within.scope(self.near, self.frame)
 
     @property
     def grouping(self) -> str:
         return group_of(self.group, self.windows)
+
+
+#: a :class:`Question` from its arguments with ``within``'s spelt out (the tools' group)
+ASK = grouped(within=Within)(Question)
 
 
 def around_args(side: str) -> type:
@@ -199,7 +200,7 @@ class MemoryTools(PlaceTools):
 
     def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
         memory, query = self.memory, ask.query
-        self._known(ask.session)
+        self._known(ask.within.session)
         moments = memory.occurrences(
             query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
         ).moments
@@ -209,16 +210,16 @@ class MemoryTools(PlaceTools):
         return OccurrenceResult(query=query, found=True, moment=moment)
 
     @tool_errors
-    @grouped(ask=Question)
+    @grouped(ask=ASK)
     def last(self, ask: Question) -> OccurrenceResult:
         """When did this last happen? The most recent occurrence (found: false if never)."""
         return compact(self._occurrence(-1, ask))  # type: ignore[return-value]
 
     @tool_errors
-    @grouped(ask=Question)
+    @grouped(ask=ASK)
     def count(self, ask: Question) -> CountResult:
         """How many distinct times did this happen? Also answers yes/no (count > 0)."""
-        self._known(ask.session)
+        self._known(ask.within.session)
         occ = self.memory.occurrences(
             ask.query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
         )
@@ -229,7 +230,7 @@ class MemoryTools(PlaceTools):
         return compact(result)  # type: ignore[return-value]
 
     @tool_errors
-    @grouped(ask=Question)
+    @grouped(ask=ASK)
     def first(self, ask: Question) -> OccurrenceResult:
         """When did this first happen? The earliest occurrence (found: false if never)."""
         return compact(self._occurrence(0, ask))  # type: ignore[return-value]
