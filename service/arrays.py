@@ -149,6 +149,21 @@ def _expected(shape: tuple[int, int], sense: str | None) -> str:
     return f"{h}x{w} frames" + ("" if sense is None else f" (sense {sense!r} reads {h}x{w})")
 
 
+def _shaped(
+    value: Any, what: str, shape: tuple[int, int], sense: str | None, lead: tuple[str, ...]
+) -> np.ndarray:
+    """``value`` as an array of the ``lead`` axes (named in the error; none empty), then
+    H x W = ``shape``."""
+    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
+    n = len(lead)
+    if arr.ndim != n + 2 or arr.shape[n:] != tuple(shape) or 0 in arr.shape[:n]:
+        axes = ", ".join([*lead, str(shape[0]), str(shape[1])])
+        raise InvalidInputError(
+            f"{what} has shape {arr.shape}, expected ({axes}): " + _expected(shape, sense)
+        )
+    return arr
+
+
 def as_window(
     value: Any,
     what: str = "touch window",
@@ -156,13 +171,7 @@ def as_window(
     sense: str | None = None,
 ) -> np.ndarray:
     """One window (K, H, W), H x W = ``shape`` (the touch sense's frame shape)."""
-    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
-    if arr.ndim != 3 or arr.shape[1:] != tuple(shape) or arr.shape[0] < 1:
-        raise InvalidInputError(
-            f"{what} has shape {arr.shape}, expected (K, {shape[0]}, {shape[1]}): "
-            + _expected(shape, sense)
-        )
-    return arr
+    return _shaped(value, what, shape, sense, ("K",))
 
 
 def as_windows(
@@ -172,23 +181,11 @@ def as_windows(
     sense: str | None = None,
 ) -> np.ndarray:
     """A batch of windows (B, K, H, W), H x W = ``shape``."""
-    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
-    if arr.ndim != 4 or arr.shape[2:] != tuple(shape) or 0 in arr.shape[:2]:
-        raise InvalidInputError(
-            f"{what} has shape {arr.shape}, expected (B, K, {shape[0]}, {shape[1]}): "
-            + _expected(shape, sense)
-        )
-    return arr
+    return _shaped(value, what, shape, sense, ("B", "K"))
 
 
 def as_frame(
     value: Any, what: str = "frame", shape: tuple[int, int] = FRAME_SHAPE, sense: str | None = None
 ) -> np.ndarray:
     """One stream frame (H, W) of parsed JSON (which holds no NaN; inf is out of range)."""
-    arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
-    if arr.shape != tuple(shape):
-        raise InvalidInputError(
-            f"{what} has shape {arr.shape}, expected ({shape[0]}, {shape[1]}): "
-            + _expected(shape, sense)
-        )
-    return arr
+    return _shaped(value, what, shape, sense, ())

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, Field
 
-from tactus_memory.results import Moment, SessionSummary
+from tactus_memory.results import Moment, Place, SessionSummary
 from tactus_memory.sense import bytes_to_array
 from tactus_memory.storage.store import Store
 from tactus_memory.touch.windows import contact_taxels
@@ -216,6 +216,21 @@ def shown_hits(m: Moment) -> list[Any]:
     return [h for h in m.hits if h.id in keep]
 
 
+def moment_fields(m: Moment | Place, items: list[Found]) -> dict[str, Any]:
+    """The fields of a :class:`MomentResult` (times and score rounded) from a library moment
+    or place, whose shown ``items`` are given."""
+    return {
+        "session": m.session,
+        "t": round(m.t, 3),
+        "t_end": round(m.t_end, 3),
+        "when": when(m.t),
+        "score": round(m.score, 3),
+        "senses": m.senses,
+        "best": m.best,
+        "items": items,
+    }
+
+
 class Compactor:
     """Turns the library's results into tool results, reading touch summaries as needed."""
 
@@ -233,15 +248,6 @@ class Compactor:
         shown = [shown_hits(m) for m in moments]
         touch = self._touch([h for hits in shown for h in hits])
         return [
-            MomentResult(
-                session=m.session,
-                t=round(m.t, 3),
-                t_end=round(m.t_end, 3),
-                when=when(m.t),
-                score=round(m.score, 3),
-                senses=m.senses,
-                best=m.best,
-                items=[found(h, touch) for h in hits],
-            )
+            MomentResult(**moment_fields(m, [found(h, touch) for h in hits]))
             for m, hits in zip(moments, shown, strict=True)
         ]

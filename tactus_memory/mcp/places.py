@@ -12,7 +12,8 @@ As the HTTP API has them (``service/routers/search.py``, ``temporal.py``, ``plac
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from dataclasses import asdict, dataclass
+from typing import Annotated, Any, Literal
 
 from mcp.types import CallToolResult
 from pydantic import BaseModel, Field
@@ -30,10 +31,11 @@ from tactus_memory.mcp.args import (
     SessionArg,
     compact,
 )
-from tactus_memory.mcp.hits import Compactor, Found, MomentResult, when
+from tactus_memory.mcp.hits import Compactor, Found, MomentResult, moment_fields
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
 from tactus_memory.results import Place
+from tactus_memory.signatures import grouped
 from tactus_memory.temporal.grasps import windows_group
 from tactus_memory.where import Near, check_near
 
@@ -83,6 +85,39 @@ def near_of(near: list[float] | None) -> Near | None:
     return check_near(((x, y, z), r))
 
 
+def scope_of(
+    session: str | None,
+    senses: list[str] | None,
+    after: float | None,
+    before: float | None,
+    near: list[float] | None = None,
+    frame: str | None = None,
+) -> Scope:
+    """The scope arguments of a tool -> the library's one :class:`Scope` (``near``:
+    ``[x, y, z, r]``, :func:`near_of`)."""
+    return Scope(
+        session=session, senses=senses, after=after, before=before, near=near_of(near), frame=frame
+    )
+
+
+@dataclass(frozen=True)
+class Within:
+    """``session``, ``senses``, ``after``, ``before``: which items a tool reads, one group of
+    arguments (:func:`tactus_memory.signatures.grouped`; ``search``, ``where``, ``at``)."""
+
+    session: SessionArg = None
+    senses: SensesArg = None
+    after: AfterArg = None
+    before: BeforeArg = None
+
+    def scope(self, near: list[float] | None = None, frame: str | None = None) -> Scope:
+        return scope_of(self.session, self.senses, self.after, self.before, near, frame)
+
+    def keywords(self) -> dict[str, Any]:
+        """As the library's keywords (``memory.at(..., **within.keywords())``)."""
+        return asdict(self)
+
+
 def group_of(group: str | None, windows: bool) -> str:
     """The ``group`` argument, or the older ``windows`` flag's; both given must agree."""
     if group is None:
@@ -121,18 +156,7 @@ class AtResult(BaseModel):
 def place_found(place: Place, items: list[Found]) -> PlaceFound:
     """A library :class:`~tactus_memory.results.Place` -> :class:`PlaceFound`."""
     x, y, z = (round(float(c), 4) for c in place.position)
-    return PlaceFound(
-        session=place.session,
-        position=(x, y, z),
-        frame=place.frame,
-        t=round(place.t, 3),
-        t_end=round(place.t_end, 3),
-        when=when(place.t),
-        score=round(place.score, 3),
-        senses=place.senses,
-        best=place.best,
-        items=items,
-    )
+    return PlaceFound(position=(x, y, z), frame=place.frame, **moment_fields(place, items))
 
 
 class PlaceTools:
@@ -145,36 +169,31 @@ class PlaceTools:
     def _known(self, session: str | None) -> None:  # pragma: no cover - MemoryTools's
         raise NotImplementedError
 
+    @grouped(within=Within)
     def where(
         self,
         query: QueryArg,
         k: Annotated[int, Field(ge=1, le=MAX_TOOL_K, description="How many places.")] = 5,
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        after: AfterArg = None,
-        before: BeforeArg = None,
+        within: Within = Within(),
         near: NearArg = None,
         frame: FrameArg = None,
     ) -> CallToolResult:
         """Where did this happen? The places of the moments that match, best first: each
         with its position (x, y, z in metres) and frame, its span, score and evidence (as
         HTTP's GET /where). Moments with no placed item are left out."""
-        self._known(session)
-        scope = Scope(session, senses, None, after, before, near_of(near), frame)
-        places = self.memory.where(query, k, scope=scope)
+        self._known(within.session)
+        places = self.memory.where(query, k, scope=within.scope(near, frame))
         out = [place_found(p, self.compactor.items(p.evidence)) for p in places]
         return compact(WhereResult(query=query, places=out))
 
+    @grouped(within=Within)
     def at(
         self,
         x: Annotated[Coordinate, Field(description="x (m).")],
         y: Annotated[Coordinate, Field(description="y (m).")],
         z: Annotated[Coordinate, Field(description="z (m).")],
         r: Annotated[Number, Field(gt=0.0, le=MAX_COORDINATE, description="Radius (m).")],
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        after: AfterArg = None,
-        before: BeforeArg = None,
+        within: Within = Within(),
         frame: FrameArg = None,
         limit: Annotated[
             int, Field(ge=1, le=MAX_TOOL_ITEMS, description="Most items returned.")
@@ -182,9 +201,7 @@ class PlaceTools:
     ) -> CallToolResult:
         """What happened near a place? The items placed within r metres of (x, y, z), in
         time order (as HTTP's GET /at)."""
-        self._known(session)
-        items = self.memory.at(
-            (x, y, z), r, session=session, senses=senses, after=after, before=before, frame=frame
-        )
+        self._known(within.session)
+        items = self.memory.at((x, y, z), r, frame=frame, **within.keywords())
         result = AtResult(position=(x, y, z), radius=r, items=self.compactor.items(items[:limit]))
         return compact(result)

@@ -68,8 +68,10 @@ from tactus_memory.mcp.places import (
     PlaceTools,
     QuestionGroupArg,
     SearchGroupArg,
+    Within,
     group_of,
     near_of,
+    scope_of,
 )
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
@@ -94,31 +96,13 @@ WriteHook = Callable[[Any, int, int], None]
 R = TypeVar("R")
 
 
-def scope_of(
-    session: str | None,
-    senses: list[str] | None,
-    after: float | None,
-    before: float | None,
-    near: list[float] | None = None,
-    frame: str | None = None,
-) -> Scope:
-    """The scope arguments of a tool -> the library's one :class:`Scope` (``near``:
-    ``[x, y, z, r]``, :func:`~tactus_memory.mcp.places.near_of`)."""
-    return Scope(
-        session=session, senses=senses, after=after, before=before, near=near_of(near), frame=frame
-    )
-
-
 @dataclass(frozen=True)
 class Question:
     """The arguments of ``last``, ``first`` and ``count``, one group
-    (:func:`tactus_memory.signatures.grouped`)."""
+    (:func:`tactus_memory.signatures.grouped`, as :data:`ASK`)."""
 
     query: QueryArg
-    session: SessionArg = None
-    senses: SensesArg = None
-    after: AfterArg = None
-    before: BeforeArg = None
+    within: Within = Within()
     merge_gap: MergeGapArg = DEFAULT_MERGE_GAP
     windows: WindowsArg = False
     group: QuestionGroupArg = None
@@ -126,11 +110,15 @@ class Question:
     frame: FrameArg = None
 
     def scope(self) -> Scope:
-        return scope_of(self.session, self.senses, self.after, self.before, self.near, self.frame)
+        return self.within.scope(self.near, self.frame)
 
     @property
     def grouping(self) -> str:
         return group_of(self.group, self.windows)
+
+
+#: a :class:`Question` from its arguments with ``within``'s spelt out (the tools' group)
+ASK = grouped(within=Within)(Question)
 
 
 def around_args(side: str) -> type:
@@ -184,14 +172,12 @@ class MemoryTools(PlaceTools):
             self.memory.session(session)
 
     @tool_errors
+    @grouped(within=Within)
     def search(
         self,
         query: QueryArg,
         k: KArg = 5,
-        session: SessionArg = None,
-        senses: SensesArg = None,
-        after: AfterArg = None,
-        before: BeforeArg = None,
+        within: Within = Within(),
         windows: WindowsArg = False,
         group: SearchGroupArg = None,
         near: NearArg = None,
@@ -201,10 +187,9 @@ class MemoryTools(PlaceTools):
         first. Each hit says when (t, t_end), which sense, its score and its id; a touch hit
         is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones.
         ``group='moment'`` also lists the moments (hits are each moment's best item)."""
-        self._known(session)
-        scope = scope_of(session, senses, after, before, near, frame)
+        self._known(within.session)
         grouping = group_of(group, windows)
-        found = self.memory.search(query, k, group=grouping, scope=scope)
+        found = self.memory.search(query, k, group=grouping, scope=within.scope(near, frame))
         if grouping == "moment":  # as HTTP: the hits are each moment's best member
             best = [next(h for h in m.hits if h.id == m.best) for m in found]
             moments = self.compactor.moments(found)
@@ -215,7 +200,7 @@ class MemoryTools(PlaceTools):
 
     def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
         memory, query = self.memory, ask.query
-        self._known(ask.session)
+        self._known(ask.within.session)
         moments = memory.occurrences(
             query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
         ).moments
@@ -225,16 +210,16 @@ class MemoryTools(PlaceTools):
         return OccurrenceResult(query=query, found=True, moment=moment)
 
     @tool_errors
-    @grouped(ask=Question)
+    @grouped(ask=ASK)
     def last(self, ask: Question) -> OccurrenceResult:
         """When did this last happen? The most recent occurrence (found: false if never)."""
         return compact(self._occurrence(-1, ask))  # type: ignore[return-value]
 
     @tool_errors
-    @grouped(ask=Question)
+    @grouped(ask=ASK)
     def count(self, ask: Question) -> CountResult:
         """How many distinct times did this happen? Also answers yes/no (count > 0)."""
-        self._known(ask.session)
+        self._known(ask.within.session)
         occ = self.memory.occurrences(
             ask.query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
         )
@@ -245,7 +230,7 @@ class MemoryTools(PlaceTools):
         return compact(result)  # type: ignore[return-value]
 
     @tool_errors
-    @grouped(ask=Question)
+    @grouped(ask=ASK)
     def first(self, ask: Question) -> OccurrenceResult:
         """When did this first happen? The earliest occurrence (found: false if never)."""
         return compact(self._occurrence(0, ask))  # type: ignore[return-value]

@@ -19,6 +19,8 @@ import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +79,24 @@ def launch(pw: Any, profile_dir: Path) -> Any:
         viewport=VIEWPORT,
         reduced_motion="reduce",
     )
+
+
+@contextmanager
+def ready_page(base: str, profile_dir: Path, timeout_ms: int) -> Iterator[tuple[Any, list[str]]]:
+    """Chromium on a fresh profile (:func:`launch`), one tab on the page at ``base`` once it
+    says it is ready: ``(page, errors)``, ``errors`` the JavaScript errors it raises."""
+    with sync_playwright() as pw:
+        context = launch(pw, profile_dir)
+        try:
+            page = context.new_page()
+            page.set_default_timeout(timeout_ms)
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(base + "/")
+            page.wait_for_selector("body[data-ready=true]")
+            yield page, errors
+        finally:
+            context.close()
 
 
 # ----------------------------------------------------------------------------- server

@@ -6,6 +6,7 @@ import signal
 import subprocess
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -54,3 +55,22 @@ class Server:
 
     def stop(self) -> None:
         stop_process(self.proc)
+
+
+def touch_and_note_found(
+    proc: subprocess.Popen, base: str, log: Path, ready_s: float
+) -> tuple[list[dict[str, Any]], str]:
+    """Once the server at ``base`` is ready (its ``log`` shown if not in ``ready_s``): a touch
+    window and a note stored, then ``(the hits of "red mug", the process's memory map)`` (the
+    map says which runtimes it loaded)."""
+    import httpx
+    import numpy as np
+
+    assert wait_ok(proc, base + "/ready", ready_s, interval=0.1) is not None, log.read_text()
+    raw = np.full((8, 32, 32), 512, np.int16)
+    raw[:, 10:22, 8:20] = 700
+    with httpx.Client(base_url=base, timeout=30) as c:
+        c.post("/sessions/a/touch", json={"frames": raw.tolist(), "t": 1.0}).raise_for_status()
+        c.post("/sessions/a/text", json={"text": "holding a red mug", "t": 2.0}).raise_for_status()
+        hits = c.get("/search", params={"q": "red mug", "k": 5}).json()["hits"]
+    return hits, Path(f"/proc/{proc.pid}/maps").read_text()

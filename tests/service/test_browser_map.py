@@ -10,7 +10,7 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.helpers.browser import Server, add_notes, launch, shot, sync_playwright
+from tests.helpers.browser import Server, add_notes, ready_page, shot
 
 pytestmark = pytest.mark.slow
 
@@ -45,17 +45,10 @@ def served(tmp_path_factory):
 
 @pytest.fixture
 def page(served):
-    with sync_playwright() as pw:
-        context = launch(pw, served["tmp"] / "chromium-profile")
-        page = context.new_page()
-        page.set_default_timeout(TIMEOUT_MS)
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(served["server"].base + "/")
-        page.wait_for_selector("body[data-ready=true]")
+    profile = served["tmp"] / "chromium-profile"
+    with ready_page(served["server"].base, profile, TIMEOUT_MS) as (page, errors):
         yield page
         assert not errors, f"JavaScript errors on the page: {errors}"
-        context.close()
 
 
 def _vertices(page) -> list[tuple[float, float]]:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tactus_memory.touch.render import LEGEND_PX
-from tests.helpers.browser import launch, sync_playwright
+from tests.helpers.browser import ready_page
 from tests.helpers.sensors import HAND, hand, train_checkpoint
 from tests.helpers.servers import Server
 from tests.service.test_browser import TIMEOUT_MS, first_hit, wait_heatmaps_loaded
@@ -32,36 +32,26 @@ def test_the_page_reads_a_hand(tmp_path, stag, windows, minilm_space):  # noqa: 
             ids = r.json()["ids"]
         example = tmp_path / "hand_example.npy"
         np.save(example, raw[3].astype(np.uint16))
-        with sync_playwright() as pw:
-            context = launch(pw, tmp_path / "chromium-profile")
-            try:
-                page = context.new_page()
-                page.set_default_timeout(TIMEOUT_MS)
-                errors: list[str] = []
-                page.on("pageerror", lambda e: errors.append(str(e)))
-                page.goto(server.base + "/")
-                page.wait_for_selector("body[data-ready=true]")
-                page.click("#tab-senses")
-                page.wait_for_selector("#senses-list .sense-card")
-                text = page.text_content("#senses-list")
-                assert "12 × 16 taxels" in text and "32 × 32 taxels" in text, text
-                page.click("#tab-search")
-                page.set_input_files("#like-file", str(example))
-                page.click("#like-form button[type=submit]")
-                page.wait_for_selector("#results > li.hit")
-                top = first_hit(page)
-                assert top["id"] == ids[3] and top["sense"] == "hand", top
-                wait_heatmaps_loaded(page, "#like-preview img")
-                wait_heatmaps_loaded(page, "#results img.heatmap")
-                size = page.eval_on_selector(
-                    "#results img.heatmap", "i => [i.naturalWidth, i.naturalHeight]"
-                )
-                # the page draws 4 frames a row at 5 px a taxel: 2 rows of 16 x 12 taxel frames
-                px, gap = 5, 5
-                want = [4 * 16 * px + 3 * gap, 2 * 12 * px + gap + 4 + LEGEND_PX]
-                assert size == want, size
-                assert not errors, errors
-            finally:
-                context.close()
+        with ready_page(server.base, tmp_path / "chromium-profile", TIMEOUT_MS) as (page, errors):
+            page.click("#tab-senses")
+            page.wait_for_selector("#senses-list .sense-card")
+            text = page.text_content("#senses-list")
+            assert "12 × 16 taxels" in text and "32 × 32 taxels" in text, text
+            page.click("#tab-search")
+            page.set_input_files("#like-file", str(example))
+            page.click("#like-form button[type=submit]")
+            page.wait_for_selector("#results > li.hit")
+            top = first_hit(page)
+            assert top["id"] == ids[3] and top["sense"] == "hand", top
+            wait_heatmaps_loaded(page, "#like-preview img")
+            wait_heatmaps_loaded(page, "#results img.heatmap")
+            size = page.eval_on_selector(
+                "#results img.heatmap", "i => [i.naturalWidth, i.naturalHeight]"
+            )
+            # the page draws 4 frames a row at 5 px a taxel: 2 rows of 16 x 12 taxel frames
+            px, gap = 5, 5
+            want = [4 * 16 * px + 3 * gap, 2 * 12 * px + gap + 4 + LEGEND_PX]
+            assert size == want, size
+            assert not errors, errors
     finally:
         server.stop()

@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
-from tests.helpers.browser import launch, sync_playwright  # noqa: E402
+from tests.helpers.browser import ready_page  # noqa: E402
 from tests.helpers.qwen_tiny import (
     build_tiny_qwen3vl,  # noqa: E402
     png_bytes,  # noqa: E402
@@ -50,36 +50,25 @@ def test_page_shows_image_thumbnails_and_searches_by_image(tmp_path: Path) -> No
                 ids.append(r.json()["ids"][0])
         example = tmp_path / "example.png"
         example.write_bytes(picture)
-        with sync_playwright() as pw:
-            context = launch(pw, tmp_path / "profile")
-            try:
-                page = context.new_page()
-                page.set_default_timeout(TIMEOUT_MS)
-                errors: list[str] = []
-                page.on("pageerror", lambda e: errors.append(str(e)))
-                page.goto(server.base + "/")
-                page.wait_for_selector("body[data-ready=true]")
-                page.uncheck("#f-group")
-                page.fill("#q", "a photo of a mug")
-                page.click("#search-form button[type=submit]")
-                page.wait_for_selector(HIT)
-                senses = page.eval_on_selector_all(HIT, "els => els.map(e => e.dataset.sense)")
-                assert set(senses) == {"image"} and len(senses) == 3
-                assert _thumb_loaded(page, "#results img.thumb") == 160  # ?size=160, landscape
-                alt = page.get_attribute("#results img.thumb", "alt")
-                assert alt.startswith("Image in session cam")
+        with ready_page(server.base, tmp_path / "profile", TIMEOUT_MS) as (page, errors):
+            page.uncheck("#f-group")
+            page.fill("#q", "a photo of a mug")
+            page.click("#search-form button[type=submit]")
+            page.wait_for_selector(HIT)
+            senses = page.eval_on_selector_all(HIT, "els => els.map(e => e.dataset.sense)")
+            assert set(senses) == {"image"} and len(senses) == 3
+            assert _thumb_loaded(page, "#results img.thumb") == 160  # ?size=160, landscape
+            alt = page.get_attribute("#results img.thumb", "alt")
+            assert alt.startswith("Image in session cam")
 
-                page.set_input_files("#like-file", str(example))
-                page.click("#like-form button[type=submit]")
-                page.wait_for_function(
-                    "() => document.querySelector('#search-status').textContent"
-                    ".includes('example.png')"
-                )
-                first = page.get_attribute(f"{HIT}:first-child", "data-id")
-                assert first == ids[0]
-                assert not page.is_hidden("#like-preview")
-                assert not errors, errors
-            finally:
-                context.close()
+            page.set_input_files("#like-file", str(example))
+            page.click("#like-form button[type=submit]")
+            page.wait_for_function(
+                "() => document.querySelector('#search-status').textContent.includes('example.png')"
+            )
+            first = page.get_attribute(f"{HIT}:first-child", "data-id")
+            assert first == ids[0]
+            assert not page.is_hidden("#like-preview")
+            assert not errors, errors
     finally:
         server.stop()

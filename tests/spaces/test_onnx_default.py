@@ -10,7 +10,6 @@ import os
 import shutil
 from pathlib import Path
 
-import httpx
 import numpy as np
 import pytest
 
@@ -22,6 +21,7 @@ from tactus_memory.hashing import file_sha256
 from tactus_memory.settings import Settings
 from tactus_memory.spaces.onnx_runtime import TOUCH_ONNX, TOUCH_SOURCE, OnnxTouch
 from tactus_memory.touch.checkpoint import default_checkpoint_path
+from tests.helpers.servers import touch_and_note_found
 
 pytestmark = pytest.mark.slow
 
@@ -113,14 +113,7 @@ def test_tactus_serve_runs_on_onnx_runtime_by_default(
     window and a note are stored and found by text."""
     proc, base, log = _serve(tmp_path, cache)
     try:
-        assert wait_ok(proc, base + "/ready", 180, interval=0.1) is not None, log.read_text()
-        raw = np.full((8, 32, 32), 512, np.int16)
-        raw[:, 10:22, 8:20] = 700
-        with httpx.Client(base_url=base, timeout=30) as c:
-            c.post("/sessions/a/touch", json={"frames": raw.tolist(), "t": 1.0}).raise_for_status()
-            c.post("/sessions/a/text", json={"text": "holding a red mug", "t": 2.0})
-            hits = c.get("/search", params={"q": "red mug", "k": 5}).json()["hits"]
-        maps = Path(f"/proc/{proc.pid}/maps").read_text()
+        hits, maps = touch_and_note_found(proc, base, log, 180)
         assert "onnxruntime" in maps and "libtorch" not in maps
         assert {h["sense"] for h in hits} == {"text", "touch"}
         started = log.read_text()

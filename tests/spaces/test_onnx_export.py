@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import httpx
 import numpy as np
 import pytest
 
@@ -16,12 +15,13 @@ pytestmark = pytest.mark.slow
 
 pytest.importorskip("onnxruntime", reason="the [onnx] extra is not installed")
 
-from benchmarks.serving import free_port, start_serve, stop_process, wait_ok  # noqa: E402
+from benchmarks.serving import free_port, start_serve, stop_process  # noqa: E402
 from tactus_memory.adapters.touch import TactusEncoder  # noqa: E402
 from tactus_memory.errors import InvalidInputError  # noqa: E402
 from tactus_memory.export.onnx import export_minilm, export_touch  # noqa: E402
 from tactus_memory.spaces.minilm import MiniLMSpace  # noqa: E402
 from tactus_memory.spaces.onnx_runtime import MINILM_MAX_TOKENS, OnnxMiniLM, OnnxTouch  # noqa: E402
+from tests.helpers.servers import touch_and_note_found  # noqa: E402
 
 TEXTS = [
     "where did I put the red mug?",
@@ -82,16 +82,7 @@ def test_serve_on_onnx_without_torch(folder: Path, tmp_path: Path) -> None:
     env = {"TACTUS_TORCH_THREADS": "1"}  # a torch setting must not bring torch in
     proc = start_serve(port, tmp_path / "mem", log, "--onnx", str(folder), env=env)
     try:
-        assert wait_ok(proc, base + "/ready", 120, interval=0.1) is not None, log.read_text()
-        raw = np.full((8, 32, 32), 512, np.int16)
-        raw[:, 10:22, 8:20] = 700
-        with httpx.Client(base_url=base, timeout=30) as c:
-            c.post("/sessions/a/touch", json={"frames": raw.tolist(), "t": 1.0}).raise_for_status()
-            c.post(
-                "/sessions/a/text", json={"text": "holding a red mug", "t": 2.0}
-            ).raise_for_status()
-            hits = c.get("/search", params={"q": "red mug", "k": 5}).json()["hits"]
-        maps = Path(f"/proc/{proc.pid}/maps").read_text()  # after loading, writes, a search
+        hits, maps = touch_and_note_found(proc, base, log, 120)  # maps after writes, a search
         assert "onnxruntime" in maps
         assert "libtorch" not in maps
         assert {h["sense"] for h in hits} == {"text", "touch"}
