@@ -30,7 +30,6 @@ from websockets.sync.client import ClientConnection, connect
 
 from tactus_memory.client.errors import problem_error
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.profile import FRAME_SHAPE
 
 
 class TouchStream:
@@ -62,7 +61,7 @@ class TouchStream:
         self.window = 0
         self.stride = 1
         self.frames_sent = 0
-        self.shape: tuple[int, ...] = FRAME_SHAPE  # the glove's until the server says
+        self.shape: tuple[int, ...] | None = None  # (H, W): the server's ready message says
         self._answered = 0  # windows answered (stored, idle, or refused)
         self._bad_frames = 0
         self._changed = threading.Condition()
@@ -81,7 +80,7 @@ class TouchStream:
         self.window, self.stride = int(first["window"]), int(first["stride"])
         self.stream_id = first.get("stream")
         #: (H, W) of one frame of the stream's touch sense (the server's ready message)
-        self.shape = tuple(first.get("shape") or FRAME_SHAPE)
+        self.shape = tuple(first["shape"])
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
         return self

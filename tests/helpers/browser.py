@@ -14,6 +14,7 @@ download (``playwright install``) is never used.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import shutil
@@ -242,3 +243,31 @@ def shot(page, tmp_path: Path, name: str) -> Path:
 
 
 SCREENSHOTS = ROOT / "runs" / "screenshots"
+
+
+TIMEOUT_MS = 60_000
+
+
+def png_size(data: bytes) -> tuple[int, int, str]:
+    from PIL import Image
+
+    with Image.open(io.BytesIO(data)) as img:
+        return img.width, img.height, img.mode
+
+
+def wait_heatmaps_loaded(page, selector: str) -> None:
+    """The first image matching ``selector`` has loaded (images load lazily, on screen)."""
+    page.locator(selector).first.scroll_into_view_if_needed()
+    page.wait_for_function(
+        """sel => { const i = document.querySelector(sel);
+                    return i !== null && i.complete && i.naturalWidth > 0; }""",
+        arg=selector,
+    )
+
+
+def first_hit(page) -> dict:
+    return page.eval_on_selector(
+        "#results > li.hit",
+        """li => ({id: li.dataset.id, sense: li.dataset.sense,
+                  text: li.querySelector('.hit-text')?.textContent ?? null})""",
+    )

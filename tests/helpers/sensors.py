@@ -19,18 +19,22 @@ one core); the checkpoint records the sensor's profile, so it serves any shape.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.profile import SensorProfile
 from tactus_memory.touch.targets import build_targets
-from tactus_memory.training.data import StagData
+from tactus_memory.touch.windows import window_idle
+from tactus_memory.training import stream_eval
+from tactus_memory.training.data import StagData, load_stag
 from tactus_memory.training.train import TrainConfig, TrainData, fit
-from tests.touch.test_sensor_shape import SKIN
 
 #: the hand's raw scale: 12-bit like the skin (its frames come from the pooled glove)
 HAND = SensorProfile("hand5", offset=2000.0, span=600.0, shape=(12, 16), saturation_raw=4095.0)
@@ -98,3 +102,52 @@ def train_checkpoint(
     finally:
         torch.set_num_threads(threads)
     return path
+
+
+#: 12-bit raw scale: the glove's 0..1023-ish counts times 4, offset and span scaled alike
+SKIN = SensorProfile("skin16", offset=2000.0, span=600.0, shape=(16, 16), saturation_raw=4095.0)
+
+
+@pytest.fixture(scope="module")
+def stag(stag_subset):
+    return load_stag(stag_subset("blindfolded_lite_train"))
+
+
+@pytest.fixture(scope="module")
+def windows(stag) -> Windows:
+    recs = [int(r) for r in np.unique(stag.recording_id)[:RECORDINGS]]
+    s = stream_eval.build_stream(stag, recs)
+    on = [
+        i
+        for i in np.flatnonzero(~s.idle)
+        if all(not window_idle(PROFILES[n].scale(CONVERT[n](s.frames[i]))) for n in CONVERT)
+    ]
+    assert len(on) >= 20, len(on)
+    taught = Counter(s.recording[i] for i in on).most_common(1)[0][0]
+    lesson = np.array([s.recording[i] == taught for i in on])
+    return Windows(s.frames[on], [s.obj[i] for i in on], lesson)
+
+
+CONVERT = {"skin": skin, "hand": hand}
+
+
+PROFILES = {"skin": SKIN, "hand": HAND}
+
+
+RECORDINGS = 16  # the blindfolded file's first recordings streamed (one object each)
+
+
+@dataclass
+class Windows:
+    """Stream windows in contact on both derived sensors: ``frames`` (N, 8, 32, 32) glove raw,
+    ``obj`` (N,) object names, ``lesson`` (N,) bool: the windows of the recording with the
+    most of them (the taught grasp)."""
+
+    frames: np.ndarray
+    obj: list[str]
+    lesson: np.ndarray
+
+    def of(self, sense: str, idx: np.ndarray | list[int] | None = None) -> np.ndarray:
+        """(n, 8, H, W) raw windows of ``sense``'s sensor."""
+        frames = self.frames if idx is None else self.frames[np.asarray(idx)]
+        return CONVERT[sense](frames)

@@ -7,6 +7,7 @@ from fastapi.testclient import TestClient
 
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
+from tests.helpers.sensors import stag, windows  # noqa: F401  (the sensor tests' STAG fixtures)
 from tests.helpers.service import DIM, FRAMES, make_memory
 
 

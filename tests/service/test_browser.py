@@ -8,7 +8,6 @@ Chromium missing is a FAILURE naming the install command, not a skip: CI install
 
 from __future__ import annotations
 
-import io
 import json
 import re
 import shutil
@@ -41,18 +40,21 @@ from tactus_memory.touch.render import (
 from tests.helpers.browser import (
     ROOT,
     SCREENSHOTS,
+    TIMEOUT_MS,
     Server,
     add_notes,
+    first_hit,
     launch,
     npy_bytes,
+    png_size,
     shot,
     stag_windows,
     sync_playwright,
     synthetic_windows,
+    wait_heatmaps_loaded,
 )
 
 STATIC = ROOT / "service" / "static"
-TIMEOUT_MS = 60_000
 
 # notes beside the touch windows (t = 1.5, 5.5, 9.5, 13.5: allen key set, ball, battery, eraser)
 NOTES = [
@@ -61,13 +63,6 @@ NOTES = [
     (9.0, "put the battery into the drawer"),
     (13.0, "picked up the blue mug by its handle"),
 ]
-
-
-def png_size(data: bytes) -> tuple[int, int, str]:
-    from PIL import Image
-
-    with Image.open(io.BytesIO(data)) as img:
-        return img.width, img.height, img.mode
 
 
 # ============================================================================ the renderer
@@ -228,26 +223,8 @@ def page(browser_context, served):
     page.close()
 
 
-def wait_heatmaps_loaded(page, selector: str) -> None:
-    """The first image matching ``selector`` has loaded (images load lazily, on screen)."""
-    page.locator(selector).first.scroll_into_view_if_needed()
-    page.wait_for_function(
-        """sel => { const i = document.querySelector(sel);
-                    return i !== null && i.complete && i.naturalWidth > 0; }""",
-        arg=selector,
-    )
-
-
 #: plain hits, and the hits inside moments (the page groups into moments when the server can)
 HIT = "#results li.hit:not(.moment)"
-
-
-def first_hit(page) -> dict:
-    return page.eval_on_selector(
-        "#results > li.hit",
-        """li => ({id: li.dataset.id, sense: li.dataset.sense,
-                  text: li.querySelector('.hit-text')?.textContent ?? null})""",
-    )
 
 
 def top_result(page) -> dict:

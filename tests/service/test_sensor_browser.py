@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 
 from tactus_memory.touch.render import LEGEND_PX
-from tests.helpers.browser import ready_page
-from tests.helpers.sensors import HAND, hand, train_checkpoint
+from tests.helpers.browser import TIMEOUT_MS, first_hit, ready_page, wait_heatmaps_loaded
+from tests.helpers.sensors import HAND, hand, stag, train_checkpoint, windows  # noqa: F401  (fixtures)
 from tests.helpers.servers import Server
-from tests.service.test_browser import TIMEOUT_MS, first_hit, wait_heatmaps_loaded
-from tests.service.test_sensor_serving import stag, windows  # noqa: F401  (module fixtures)
 
 pytestmark = pytest.mark.slow
 

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import io
 import json
-from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -31,41 +29,24 @@ from tactus_memory.recordings import samples as rf
 from tactus_memory.recordings.ingest import ingest_recording
 from tactus_memory.touch.render import LEGEND_PX, SCALE
 from tactus_memory.touch.windows import window_idle
-from tactus_memory.training import stream_eval
-from tactus_memory.training.data import load_stag
-from tests.helpers.sensors import HAND, SKIN, hand, skin, train_checkpoint
+from tests.helpers.browser import png_size
+from tests.helpers.sensors import (  # noqa: F401  (fixtures)
+    CONVERT,
+    HAND,
+    PROFILES,
+    SKIN,
+    Windows,
+    hand,
+    skin,
+    train_checkpoint,
+)
 from tests.helpers.servers import Server
-from tests.service.test_browser import png_size
 
 pytestmark = pytest.mark.slow
 
 TOKEN = "s3ns0r"
-CONVERT = {"skin": skin, "hand": hand}
-PROFILES = {"skin": SKIN, "hand": HAND}
-RECORDINGS = 16  # the blindfolded file's first recordings streamed (one object each)
 HZ = 30.0  # frame rate of the written recording (rf.GLOVE_HZ)
 KETTLE = "when was I holding the kettle?"  # no STAG object: only teaching can answer it
-
-
-@dataclass
-class Windows:
-    """Stream windows in contact on both derived sensors: ``frames`` (N, 8, 32, 32) glove raw,
-    ``obj`` (N,) object names, ``lesson`` (N,) bool: the windows of the recording with the
-    most of them (the taught grasp)."""
-
-    frames: np.ndarray
-    obj: list[str]
-    lesson: np.ndarray
-
-    def of(self, sense: str, idx: np.ndarray | list[int] | None = None) -> np.ndarray:
-        """(n, 8, H, W) raw windows of ``sense``'s sensor."""
-        frames = self.frames if idx is None else self.frames[np.asarray(idx)]
-        return CONVERT[sense](frames)
-
-
-@pytest.fixture(scope="module")
-def stag(stag_subset):
-    return load_stag(stag_subset("blindfolded_lite_train"))
 
 
 @pytest.fixture(scope="module")
@@ -76,21 +57,6 @@ def checkpoints(tmp_path_factory, stag, minilm_space) -> dict[str, Path]:
                                stag, minilm_space)
         for name in ("skin", "hand")
     }  # fmt: skip
-
-
-@pytest.fixture(scope="module")
-def windows(stag) -> Windows:
-    recs = [int(r) for r in np.unique(stag.recording_id)[:RECORDINGS]]
-    s = stream_eval.build_stream(stag, recs)
-    on = [
-        i
-        for i in np.flatnonzero(~s.idle)
-        if all(not window_idle(PROFILES[n].scale(CONVERT[n](s.frames[i]))) for n in CONVERT)
-    ]
-    assert len(on) >= 20, len(on)
-    taught = Counter(s.recording[i] for i in on).most_common(1)[0][0]
-    lesson = np.array([s.recording[i] == taught for i in on])
-    return Windows(s.frames[on], [s.obj[i] for i in on], lesson)
 
 
 def _above_chance(found: dict[str, str]) -> tuple[float, float]:

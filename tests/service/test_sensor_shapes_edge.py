@@ -29,8 +29,8 @@ from tactus_memory.touch.render import (
     window_rgba,
     window_values,
 )
+from tests.helpers.browser import png_size
 from tests.helpers.sensors import HAND, HAND_MASK, HAND_PADS, SKIN
-from tests.service.test_browser import png_size
 
 
 @dataclass(frozen=True)

@@ -13,14 +13,11 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.memory.main import Memory
 from tactus_memory.touch.checkpoint import save_checkpoint
 from tactus_memory.touch.model import create_model
-from tactus_memory.touch.profile import SensorProfile
 from tactus_memory.touch.targets import build_targets
 from tactus_memory.touch.windows import window_idle
 from tactus_memory.training import stream_eval
 from tactus_memory.training.data import load_stag
-
-#: 12-bit raw scale: the glove's 0..1023-ish counts times 4, offset and span scaled alike
-SKIN = SensorProfile("skin16", offset=2000.0, span=600.0, shape=(16, 16), saturation_raw=4095.0)
+from tests.helpers.sensors import SKIN
 
 
 def pooled(frames: np.ndarray) -> np.ndarray:
