@@ -8,8 +8,10 @@ held-out windows' classes above chance."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -24,6 +26,7 @@ from tactus_memory.touch.targets import natural_name, with_article
 from tactus_memory.touch.windows import window_idle
 from tactus_memory.training.data import load_stag
 from tests.helpers.hand_synth import HAND_SHAPE, OBJECTS, as_arrays, recordings, write_toml
+from tests.helpers.servers import Server
 from tests.helpers.training import _last_json
 
 pytestmark = pytest.mark.slow
@@ -101,18 +104,67 @@ def _bag_messages(hand: SensorProfile) -> list:
     return msgs
 
 
-def test_a_five_pad_hand_trains_from_a_bag_with_a_label_topic(hand_dir, hand) -> None:
+@pytest.fixture(scope="module")
+def bag_trained(hand_dir, hand) -> tuple[Path, dict]:
+    """``tactus train --bag`` on a real ROS 2 bag with a label topic: (checkpoint, summary)."""
     bag = write_bag(hand_dir / "hand_bag", _bag_messages(hand))
     out = hand_dir / "bag.safetensors"
     src = ["--bag", bag, "--topic", "/hand/tactile", "--labels", "/labels"]
     src += ["--sensor", hand_dir / "hand.toml", "--holdout", "one-per-object@"]
-    summary = _last_json(_run(["train", *src, "--out", out, *STEPS, *TINY]))
+    return out, _last_json(_run(["train", *src, "--out", out, *STEPS, *TINY]))
+
+
+def test_a_five_pad_hand_trains_from_a_bag_with_a_label_topic(bag_trained) -> None:
+    _, summary = bag_trained
     held = summary["heldout"]
     chance = 1 / len(OBJECTS)
     assert held["recordings"] == len(OBJECTS), held  # each grasp is one recording
     assert all(name.startswith("hand_bag#") for name in held["recordings_named"])
     print("hand bag held-out:", {k: held[k] for k in ("top1", "top3", "recording_top1")})
     assert held["top1"] > 2 * chance, held
+
+
+def _npy(arr: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    return buf.getvalue()
+
+
+def test_the_hand_trained_from_its_bag_is_served_and_answers(bag_trained, hand, tmp_path) -> None:
+    """From the bag to answers over real HTTP: ``tactus serve --touch hand=CKPT`` beside the
+    glove; fresh grasps of every object posted to ``?sense=hand`` as ``.npy`` windows; text
+    questions find the right grasp above chance; a glove-shaped window is a 422 naming the
+    hand's shape; a taught label is listed with the hand's classes."""
+    ckpt, _ = bag_trained
+    server = Server(tmp_path / "mem", tmp_path / "serve.log", "--touch", f"hand={ckpt}")
+    try:
+        with httpx.Client(base_url=server.base, timeout=120) as c:
+            senses = {s["name"]: s for s in c.get("/senses").json()["senses"]}
+            assert senses["hand"]["shape"] == list(HAND_SHAPE)
+            for obj, frames in recordings(hand, per_object=1, frames=16, seed=7):  # unseen
+                wins = frames.reshape(2, 8, *HAND_SHAPE)  # (B, K, 12, 16) raw
+                r = c.post(
+                    f"/sessions/s-{obj}/touch",
+                    params={"sense": "hand", "t": [0.0, 0.3]},
+                    content=_npy(wins),
+                    headers={"Content-Type": "application/x-npy"},
+                )
+                assert r.status_code == 201, r.text
+            right = 0
+            for obj in OBJECTS:
+                q = {"q": f"holding a {obj}", "sense": "hand", "k": 1}
+                hits = c.get("/search", params=q).json()["hits"]
+                right += bool(hits) and hits[0]["session"] == f"s-{obj}"
+            print(f"hand served: {right}/{len(OBJECTS)} questions answered by the right grasp")
+            assert right >= 2  # chance: 1 of 5
+            glove = {"frames": np.zeros((8, 32, 32)).tolist(), "t": 1.0}
+            r = c.post("/sessions/x/touch", params={"sense": "hand"}, json=glove)
+            assert r.status_code == 422 and "12x16" in r.text and "32" in r.text, r.text
+            body = {"label": "stapler", "t": 0.0, "t_end": 1.0, "sense": "hand"}
+            assert c.post("/sessions/s-pen/labels", json=body).status_code == 201
+            assert "stapler" in str(c.get("/senses").json())
+    finally:
+        server.stop()
 
 
 def pooled(frames: np.ndarray) -> np.ndarray:
