@@ -14,7 +14,7 @@ from tactus_memory.adapters.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.errors import IdleWindowError, InvalidInputError
 from tactus_memory.sense import Sense, array_to_bytes
 from tactus_memory.touch.profile import FRAME_SHAPE
-from tactus_memory.touch.windows import calibrated_frames, window_idle
+from tactus_memory.touch.windows import WindowStream, calibrated_frames, window_idle
 from tactus_memory.vectors import as_unit_rows
 
 
@@ -34,6 +34,9 @@ class StandInTouch(Sense):
 
     def from_message(self, msg: Any, msgtype: str, where: str) -> np.ndarray:
         return touch_frame(msg, msgtype, FRAME_SHAPE, where)
+
+    def window_stream(self, window: int, stride: int) -> WindowStream:
+        return WindowStream(window, stride, profile=None)  # raw windows, as the touch sense
 
     def validate(self, item: Any, *, keep_idle: bool = False) -> np.ndarray:
         arr = np.asarray(item, dtype=np.float32)
