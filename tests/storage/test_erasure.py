@@ -26,10 +26,14 @@ INDEX = IndexConfig(threshold=60, scalar_threshold=30, rows_per_partition=16)
 
 
 def found(root: Path, needles: dict[str, bytes]) -> dict[str, list[str]]:
-    """Which needles occur in which files under ``root`` (every byte of every file)."""
+    """Which needles occur in which files under ``root`` (every byte of every file). A file
+    the running server's cleanup removes between the listing and the read held nothing more."""
     where: dict[str, list[str]] = {}
     for path in sorted(p for p in root.rglob("*") if p.is_file()):
-        data = path.read_bytes()
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            continue
         for name, needle in needles.items():
             if needle in data:
                 where.setdefault(name, []).append(str(path.relative_to(root)))
