@@ -254,7 +254,10 @@ def test_two_sensors_served_side_by_side(tmp_path, checkpoints, windows):
                 r = c.post("/sessions/lesson/labels", json={"label": "kettle", "sense": name})
                 assert r.status_code == 201 and r.json()["windows"] == len(lesson), r.text
                 hits = c.get("/search", params=params).json()["hits"]
-                assert len(hits) == 5 and {h["session"] for h in hits} == {"lesson"}, hits
+                taught = sum(h["session"] == "lesson" for h in hits)
+                share = len(lesson) / (len(lesson) + len(day))  # a random window's chance
+                print(f"{name}: {taught}/5 kettle hits from the taught session ({share:.2f})")
+                assert len(hits) == 5 and taught >= 4 and taught / 5 > 2 * share, hits
             senses = {s["name"]: s for s in c.get("/senses").json()["senses"]}
             assert senses["skin"]["taught"] == ["kettle"] == senses["hand"]["taught"]
 
