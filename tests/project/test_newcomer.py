@@ -207,7 +207,7 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
     done = subprocess.run(make, cwd=clone, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout + done.stderr
     checks = [str(VENV / "bin" / "python"), "-m", "pytest", "-q", "-p", "no:cacheprovider"]
-    checks += [f"tests/{name}" for name in CHECKOUT_TESTS]
+    checks += [f"tests/project/{name}" for name in CHECKOUT_TESTS]
     done = subprocess.run(checks, cwd=clone, env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
 
