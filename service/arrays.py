@@ -149,11 +149,13 @@ def _expected(shape: tuple[int, int], sense: str | None) -> str:
     return f"{h}x{w} frames" + ("" if sense is None else f" (sense {sense!r} reads {h}x{w})")
 
 
-def _shaped(
-    value: Any, what: str, shape: tuple[int, int], sense: str | None, lead: tuple[str, ...]
+def as_touch_array(
+    value: Any, lead: str, what: str, shape: tuple[int, int] = FRAME_SHAPE, sense: str | None = None
 ) -> np.ndarray:
-    """``value`` as an array of the ``lead`` axes (named in the error; none empty), then
-    H x W = ``shape``."""
+    """``value`` as touch frames of the ``lead`` axes, then H x W = ``shape`` (the touch
+    sense's frame shape): ``""`` one stream frame (H, W), ``"K"`` one window (K, H, W), ``"BK"``
+    a batch of windows (B, K, H, W); a lead axis may not be empty. Parsed JSON holds no NaN
+    and inf is out of range; an error names ``what``, the shape expected and ``sense``."""
     arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
     n = len(lead)
     if arr.ndim != n + 2 or arr.shape[n:] != tuple(shape) or 0 in arr.shape[:n]:
@@ -162,30 +164,3 @@ def _shaped(
             f"{what} has shape {arr.shape}, expected ({axes}): " + _expected(shape, sense)
         )
     return arr
-
-
-def as_window(
-    value: Any,
-    what: str = "touch window",
-    shape: tuple[int, int] = FRAME_SHAPE,
-    sense: str | None = None,
-) -> np.ndarray:
-    """One window (K, H, W), H x W = ``shape`` (the touch sense's frame shape)."""
-    return _shaped(value, what, shape, sense, ("K",))
-
-
-def as_windows(
-    value: Any,
-    what: str = "touch windows",
-    shape: tuple[int, int] = FRAME_SHAPE,
-    sense: str | None = None,
-) -> np.ndarray:
-    """A batch of windows (B, K, H, W), H x W = ``shape``."""
-    return _shaped(value, what, shape, sense, ("B", "K"))
-
-
-def as_frame(
-    value: Any, what: str = "frame", shape: tuple[int, int] = FRAME_SHAPE, sense: str | None = None
-) -> np.ndarray:
-    """One stream frame (H, W) of parsed JSON (which holds no NaN; inf is out of range)."""
-    return _shaped(value, what, shape, sense, ())

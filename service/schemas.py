@@ -19,8 +19,9 @@ from tactus_memory.limits import (
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
 from tactus_memory.results import (
     Grasp,
+    Hit,
     Moment,
-    Position,
+    SenseInfo,
 )
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
 from tactus_memory.touch.profile import FRAME_SHAPE
@@ -49,7 +50,7 @@ class Strict(BaseModel):
 
 Meta = dict[str, Any]
 # The shape and float32 range are stated in the JSON schema here and enforced after parsing
-# (service/arrays.py: as_window / as_float_array), whose 422 names the whole shape, e.g.
+# (service/arrays.py: as_touch_array / as_float_array), whose 422 names the whole shape, e.g.
 # "(8, 32, 31)", instead of listing up to 1,024 per-element errors.
 #: one pressure value (service/arrays.py: MAX_FRAME_VALUE)
 Value = Annotated[
@@ -237,39 +238,14 @@ class StoredOut(BaseModel):
 
 
 # ----------------------------------------------------------------------------- reads
-class HitOut(BaseModel):
-    id: str
-    session: str
-    sense: str
-    t: float
-    t_end: float
+class HitOut(Hit):
+    """A search hit as the service sends it (:class:`tactus_memory.results.Hit`)."""
+
     score: float = Field(description="Calibrated score (comparable across senses).")
     cosine: float | None = Field(None, description="Raw cosine similarity.")
     meta: Meta = Field(default_factory=dict)
     text: str | None = Field(None, description="The stored text, for text items.")
     source: str = Field("", description="The stream the item came from, if any.")
-    episode: int | None = None
-    match: bool = Field(
-        False,
-        description="The hit clears its sense's match bar for this query (score >= bar), the "
-        "rule of /last, /first and /count.",
-    )
-    bar: float | None = Field(
-        None,
-        description="The score this hit's sense needed to match: max(the sense's threshold, "
-        "3.0 by default; 0.4 x the best score of that sense for the query).",
-    )
-    position: Position | None = Field(None, description="Where it happened (x, y, z), if known.")
-    frame: str | None = Field(None, description="The frame of `position`.")
-    n: int | None = Field(
-        None,
-        description="A touch answer is a grasp by default (group=auto): the windows it pools; "
-        "null for a single item.",
-    )
-    ids: list[str] | None = Field(None, description="A grasp's member windows, in time order.")
-    window_score: float | None = Field(
-        None, description="A grasp's best window's own score (`score` is the pooled one)."
-    )
 
 
 class SearchOut(BaseModel):
@@ -358,35 +334,8 @@ class SearchLikeIn(Strict):
         return self
 
 
-class SenseOut(BaseModel):
-    name: str
-    modality: str
-    dim: int
-    provenance: dict[str, Any] = Field(default_factory=dict)
-    live: bool = Field(description="Can embed new items now (false: known from the store only).")
-    rows: int = Field(description="Items of this sense in the store.")
-    mu: float | None = Field(None, description="Score calibration: null cosine mean.")
-    sigma: float | None = Field(None, description="Score calibration: null cosine spread.")
-    calib_n: int | None = Field(
-        None, description="Rows the score calibration was estimated on (null: not yet)."
-    )
-    calib_final: bool = Field(
-        False,
-        description="The calibration is frozen: this sense's scores no longer move as data "
-        "arrives (estimated on enough rows; re-estimated only after a re-embed).",
-    )
-    classes: list[str] = Field(
-        default_factory=list, description="What the sense recognises: its trained classes."
-    )
-    taught: list[str] = Field(
-        default_factory=list,
-        description="Labels taught to it (`POST /sessions/{id}/labels`), searchable by text.",
-    )
-    shape: list[int] | None = Field(
-        None,
-        description="A touch sense's frame shape [H, W] (its sensor profile: [32, 32] for the "
-        "STAG glove); its windows are (K, H, W). Null for other senses.",
-    )
+class SenseOut(SenseInfo):
+    """A registered sense as the service sends it (:class:`tactus_memory.results.SenseInfo`)."""
 
 
 class SensesOut(BaseModel):

@@ -20,7 +20,7 @@ from pydantic import ValidationError
 
 from tactus_memory.batches import WriteKwargs
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.service.arrays import NPY_TYPES, as_window, as_windows, load_npy, loads_strict
+from tactus_memory.service.arrays import NPY_TYPES, as_touch_array, load_npy, loads_strict
 from tactus_memory.service.schemas import TouchBatchIn, TouchWindowIn
 from tactus_memory.touch.profile import FRAME_SHAPE
 
@@ -37,8 +37,8 @@ def _windows(value: Any, what: str, ndim: int, shape: tuple[int, int], sense: st
     """The body's windows as one float32 array (B, K, H, W), H x W the sense's frame shape;
     ``ndim`` 3: one window sent as (K, H, W). The one shape check of a touch body."""
     if ndim == 3:
-        return as_window(value, what, shape, sense)[None]
-    return as_windows(value, what, shape, sense)
+        return as_touch_array(value, "K", what, shape, sense)[None]
+    return as_touch_array(value, "BK", what, shape, sense)
 
 
 def touch_write(

@@ -38,6 +38,37 @@ class WriteKwargs(BatchKwargs, total=False):
     skip_idle: bool
 
 
+class AddKwargs(TypedDict, total=False):
+    """The keywords of one item's write (``Memory.add``, ``Client.add``): ``t`` defaults to
+    now (unix seconds), ``t_end`` to ``t``; ``id`` makes the call an idempotent upsert of that
+    session's item of that sense; ``options`` go to the sense's ``validate``."""
+
+    t: float | None
+    t_end: float | None
+    meta: dict[str, Any] | None
+    id: str | None
+    source: str
+    options: Mapping[str, Any] | None
+
+
+def one_item(kw: Mapping[str, Any]) -> WriteKwargs:
+    """An ``add`` call's keywords (:class:`AddKwargs`) -> the batch of one item's
+    keywords for ``add_many``. Unknown keywords raise TypeError, as a misspelt keyword
+    argument would."""
+    unknown = sorted(set(kw) - set(AddKwargs.__annotations__))
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+    item_id = kw.get("id")
+    return WriteKwargs(
+        t=[kw.get("t")],
+        t_end=[kw.get("t_end")],
+        meta=[kw.get("meta")],
+        ids=None if item_id is None else [item_id],
+        source=kw.get("source", ""),
+        options=kw.get("options"),
+    )
+
+
 def nesting_depth(value: Any, limit: int) -> int:
     """How deep dicts and lists nest in ``value`` (a scalar 0, ``{}`` 1), counted without
     recursion and given up past ``limit`` (returns ``limit + 1``): a hostile value deep

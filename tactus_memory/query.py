@@ -84,6 +84,10 @@ class Scope:
         given = {k: v for k, v in kw.items() if v is not None}
         return replace(base, **given) if given else base
 
+    def keywords(self) -> dict[str, Any]:
+        """Every field but the session, as keywords (``memory.timeline(session, **kw)``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "session"}
+
     def bounds(self) -> tuple[float | None, float | None]:
         """``(after, before)`` as finite floats, checked in order."""
         after = None if self.after is None else finite_float(self.after, "after")
@@ -107,6 +111,36 @@ class Scope:
             .near(self.near)
             .frame(self.frame)
         )
+
+
+class TimelineKwargs(TypedDict, total=False):
+    """The keywords of ``timeline`` (the memory's and the client's): the senses, ``after`` /
+    ``before`` (overlap semantics on the aligned clock), ``episodes`` (episodes instead of
+    items), the source (stream) id, the place (``near``/``frame``, items only) and ``limit``
+    (keep the first N)."""
+
+    senses: Sequence[str] | None
+    after: float | None
+    before: float | None
+    episodes: bool
+    source: str | None
+    limit: int | None
+    near: Near | None
+    frame: str | None
+
+
+def timeline_scope(session: str | None, kw: Mapping[str, Any]) -> tuple[Scope, int | None]:
+    """A ``timeline`` call's keywords -> (its Scope, its checked ``limit``). Unknown keywords
+    raise TypeError (as a misspelt keyword would); a limit that is not a positive int raises
+    InvalidInputError."""
+    unknown = sorted(set(kw) - set(TimelineKwargs.__annotations__))
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+    limit = kw.get("limit")
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
+        raise InvalidInputError(f"limit must be a positive int, got {limit!r}")
+    names = ("senses", "source", "after", "before", "near", "frame")
+    return Scope(session, *(kw.get(name) for name in names)), limit
 
 
 def split_scope(kw: Mapping[str, Any]) -> tuple[Scope, dict[str, Any]]:

@@ -4,13 +4,18 @@ service serves them as they are)."""
 from __future__ import annotations
 
 import json
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 Side = Literal["before", "after"]
 #: a position (x, y, z) in metres, in the item's ``frame``
 Position = tuple[float, float, float]
+#: the place fields every item, hit and moment carries (None: not placed)
+PlacePosition = Annotated[
+    Position | None, Field(description="Where it happened (x, y, z), if known.")
+]
+PlaceFrame = Annotated[str | None, Field(description="The frame of `position`.")]
 
 
 # --------------------------------------------------------------------------- memory
@@ -44,8 +49,8 @@ class Hit(Span):
         "sense's threshold, MATCH_Z, 3.0 by default; RELATIVE_KEEP 0.4 x the best score of that "
         "sense for the query).",
     )
-    position: Position | None = None
-    frame: str | None = None
+    position: PlacePosition = None
+    frame: PlaceFrame = None
     n: int | None = Field(
         None,
         description="A grasp (touch answers by default, group='auto'): how many windows it "
@@ -67,8 +72,8 @@ class Item(Span):
     raw: Any = None
     source: str = ""
     episode: int | None = None
-    position: Position | None = None
-    frame: str | None = None
+    position: PlacePosition = None
+    frame: PlaceFrame = None
     orientation: tuple[float, float, float, float] | None = Field(
         default=None, description="Unit quaternion (x, y, z, w) when known."
     )
@@ -102,24 +107,31 @@ class SenseInfo(BaseModel):
     name: str
     modality: str
     dim: int
-    provenance: dict[str, Any]
-    live: bool
-    rows: int
-    mu: float | None = None
-    sigma: float | None = None
+    provenance: dict[str, Any] = Field(default_factory=dict)
+    live: bool = Field(description="Can embed new items now (false: known from the store only).")
+    rows: int = Field(description="Items of this sense in the store.")
+    mu: float | None = Field(None, description="Score calibration: null cosine mean.")
+    sigma: float | None = Field(None, description="Score calibration: null cosine spread.")
     calib_n: int | None = Field(
-        None, description="Rows the score calibration was estimated on (None: not yet)."
+        None, description="Rows the score calibration was estimated on (null: not yet)."
     )
     calib_final: bool = Field(
         False,
-        description="The calibration is frozen (estimated on enough rows): scores of this "
-        "sense no longer move as data arrives.",
+        description="The calibration is frozen: this sense's scores no longer move as data "
+        "arrives (estimated on enough rows; re-estimated only after a re-embed).",
     )
-    #: what a touch sense recognises: its trained classes and the labels taught to it
-    classes: list[str] = []
-    taught: list[str] = []
-    #: a touch sense's frame shape (H, W), from its sensor profile; None for other senses
-    shape: list[int] | None = None
+    classes: list[str] = Field(
+        default_factory=list, description="What the sense recognises: its trained classes."
+    )
+    taught: list[str] = Field(
+        default_factory=list,
+        description="Labels taught to it (`POST /sessions/{id}/labels`), searchable by text.",
+    )
+    shape: list[int] | None = Field(
+        None,
+        description="A touch sense's frame shape [H, W] (its sensor profile: [32, 32] for the "
+        "STAG glove); its windows are (K, H, W). Null for other senses.",
+    )
 
 
 def row_fields(row: dict[str, Any]) -> dict[str, Any]:
@@ -162,8 +174,8 @@ class TimelineItem(BaseModel):
     text: str | None = None
     meta: dict[str, Any] = Field(default_factory=dict)
     episode: int | None = None
-    position: Position | None = None
-    frame: str | None = None
+    position: PlacePosition = None
+    frame: PlaceFrame = None
 
 
 class Evidence(TimelineItem):
@@ -203,8 +215,8 @@ class Moment(BaseModel):
     senses: list[str]
     best: str
     hits: list[Evidence]
-    position: Position | None = None
-    frame: str | None = None
+    position: PlacePosition = None
+    frame: PlaceFrame = None
 
 
 class Occurrences(BaseModel):
@@ -289,6 +301,10 @@ class Episode(BaseModel):
     t_end_aligned: float
     n: int
     representative: str
+
+
+#: what ``timeline`` answers: items, or with ``episodes=True`` episodes
+Timeline = list[TimelineItem] | list[Episode]
 
 
 def label_key(label: str) -> str:

@@ -34,12 +34,16 @@ def _root(request: Request) -> str:
     return str(request.scope.get("root_path", "")).rstrip("/")
 
 
+def _page(root: str, viewer: str) -> dict[str, str]:
+    """What both API pages take: the OpenAPI document under the app's root, and a title."""
+    return {"openapi_url": root + OPENAPI_URL, "title": f"tactus-memory - {viewer}"}
+
+
 @router.get("/docs", response_class=HTMLResponse)
 def swagger_ui(request: Request) -> HTMLResponse:
     root = _root(request)
     return get_swagger_ui_html(
-        openapi_url=root + OPENAPI_URL,
-        title="tactus-memory - Swagger UI",
+        **_page(root, "Swagger UI"),
         oauth2_redirect_url=root + OAUTH2_REDIRECT_URL,
         swagger_js_url=f"{root}{ASSET_PREFIX}/swagger-ui-bundle.js",
         swagger_css_url=f"{root}{ASSET_PREFIX}/swagger-ui.css",
@@ -56,8 +60,7 @@ def swagger_ui_redirect() -> HTMLResponse:
 def redoc(request: Request) -> HTMLResponse:
     root = _root(request)
     return get_redoc_html(
-        openapi_url=root + OPENAPI_URL,
-        title="tactus-memory - ReDoc",
+        **_page(root, "ReDoc"),
         redoc_js_url=f"{root}{ASSET_PREFIX}/redoc.standalone.js",
         redoc_favicon_url=f"{root}{ASSET_PREFIX}/favicon.png",
         with_google_fonts=False,

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Response
 
 from tactus_memory.limits import MAX_K
 from tactus_memory.query import Scope
-from tactus_memory.service.arrays import as_window
+from tactus_memory.service.arrays import as_touch_array
 from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, ScopeDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import HitOut, SearchLikeIn, SearchOut
@@ -99,7 +99,7 @@ def search_like(body: SearchLikeIn, memory: MemoryDep, response: Response) -> Se
         # the window itself, below)
         sense = memory.senses.get(body.sense)
         shape = frame_shape(sense) if getattr(sense, "windowed", False) else FRAME_SHAPE
-        window = as_window(body.frames, "frames", shape, body.sense)
+        window = as_touch_array(body.frames, "K", "frames", shape, body.sense)
         opts = {"calibrated": body.calibrated}
         hits = memory.search_like(body.sense, window, k=body.k, options=opts, scope=scope)
     elif body.vector is not None:

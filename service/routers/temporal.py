@@ -268,10 +268,7 @@ def timeline(
     episodes: bool = False,
     limit: Annotated[int | None, Query(ge=1, le=100_000)] = None,
 ) -> TimelineOut:
-    out = memory.timeline(
-        session, scope.senses, scope.after, scope.before, episodes,
-        source=scope.source, limit=limit, near=scope.near, frame=scope.frame,
-    )  # fmt: skip
+    out = memory.timeline(session, **scope.keywords(), episodes=episodes, limit=limit)
     if episodes:
         return TimelineOut(session=session, episodes=out)
     return TimelineOut(session=session, items=out)

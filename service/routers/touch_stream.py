@@ -57,7 +57,7 @@ from fastapi import APIRouter, Depends, WebSocket, WebSocketDisconnect
 from tactus_memory.errors import IdleWindowError, InvalidInputError, OverloadedError, TactusError
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.memory.group_commit import GroupCommitter
-from tactus_memory.service.arrays import as_frame, load_npy, loads_strict
+from tactus_memory.service.arrays import as_touch_array, load_npy, loads_strict
 from tactus_memory.service.deps import (
     PrincipalDep,
     SessionId,
@@ -401,5 +401,5 @@ def _parse(
         raise InvalidInputError(
             f'message {index} must be a JSON object {{"frame": [[...{w}] x {h}], "t": ...}}'
         )
-    frame = as_frame(obj["frame"], f"frame {index}", shape, sense)
+    frame = as_touch_array(obj["frame"], "", f"frame {index}", shape, sense)
     return frame[None], np.array([_frame_time(obj, index)])

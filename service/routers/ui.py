@@ -22,7 +22,7 @@ from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import InvalidInputError, UnknownSenseError
 from tactus_memory.limits import SENSE_NAME_PATTERN
-from tactus_memory.service.arrays import as_window
+from tactus_memory.service.arrays import as_touch_array
 from tactus_memory.service.deps import ItemIdPath, MemoryDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
@@ -224,7 +224,7 @@ async def render_touch_png(
     legend: Legend = True,
 ) -> Response:
     profile = _profile(memory, body.sense)
-    window = as_window(body.frames, "frames", profile.shape, body.sense)
+    window = as_touch_array(body.frames, "K", "frames", profile.shape, body.sense)
     png = await run_in_threadpool(
         draw_window_png,
         window,

@@ -31,6 +31,19 @@ Windows = Annotated[
     ),
 ]
 
+#: ``--touch NAME=CKPT`` (serve, ingest): a touch sense for the user's own sensor
+TouchSenses = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--touch",
+        metavar="NAME=CKPT",
+        help="A touch sense for your own sensor: NAME its sense name (writes name it with "
+        "?sense=NAME; ingest maps a topic to it), CKPT its `tactus train` checkpoint (the frame "
+        "shape comes from its sensor profile); repeatable. A sense the store already records "
+        "needs no flag (serve: env TACTUS_TOUCH_SENSES as JSON {name: checkpoint}).",
+    ),
+]
+
 # ----------------------------------------------------------------------------- a memory store
 #: ``--data`` of the commands that open a memory store (search, sessions, ingest, export)
 MemoryData = Annotated[

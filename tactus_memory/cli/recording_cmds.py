@@ -21,6 +21,7 @@ from tactus_memory.cli.common import (
     MemoryData,
     RayAddress,
     RayWorkers,
+    TouchSenses,
     TouchStride,
     TouchWindow,
     UseRay,
@@ -101,16 +102,7 @@ def ingest(
         str,
         typer.Option("--tf", help="PARENT->CHILD transform read from a TFMessage pose topic."),
     ] = "map->base_link",
-    touch: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--touch",
-            metavar="NAME=CKPT",
-            help="A touch sense for your own sensor: NAME its sense name (map a topic to it), "
-            "CKPT its `tactus train` checkpoint (the frame shape comes from its sensor "
-            "profile); repeatable. A sense the store already records needs no flag.",
-        ),
-    ] = None,
+    touch: TouchSenses = None,
     data: MemoryData = None,
     absolute: Annotated[
         bool, typer.Option("--absolute", help="Unix times instead of the session clock.")

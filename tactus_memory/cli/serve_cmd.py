@@ -11,7 +11,7 @@ from typing import Annotated, Any
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import ServiceData, TouchStride, TouchWindow
+from tactus_memory.cli.common import ServiceData, TouchSenses, TouchStride, TouchWindow
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 
 
@@ -39,17 +39,7 @@ def serve(
             "default the shipped MiniLM one (env TACTUS_TOUCH_CHECKPOINT)."
         ),
     ] = None,
-    touch_sense: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--touch",
-            metavar="NAME=CKPT",
-            help="Serve another touch sense beside the glove: NAME its sense name, CKPT a "
-            "checkpoint of `tactus train` for that sensor (its frame shape comes from the "
-            "checkpoint's sensor profile); repeat for several. Writes name it with "
-            "?sense=NAME (env TACTUS_TOUCH_SENSES as JSON {name: checkpoint}).",
-        ),
-    ] = None,
+    touch_sense: TouchSenses = None,
     max_body_bytes: Annotated[
         int | None,
         typer.Option(help="Largest request body, 413 beyond (env TACTUS_MAX_BODY_BYTES)."),

@@ -38,7 +38,15 @@ import httpx
 import numpy as np
 from typing_extensions import Unpack
 
-from tactus_memory.batches import WriteKwargs, check_ids, check_times, meta_json, per_item
+from tactus_memory.batches import (
+    AddKwargs,
+    WriteKwargs,
+    check_ids,
+    check_times,
+    meta_json,
+    one_item,
+    per_item,
+)
 from tactus_memory.client.errors import problem_error
 from tactus_memory.client.params import match_params, npy, scope_params
 from tactus_memory.client.stream import TouchStream
@@ -55,7 +63,7 @@ from tactus_memory.matching import (
     grasp_params,
     split_match,
 )
-from tactus_memory.query import Scope, ScopeKwargs
+from tactus_memory.query import Scope, ScopeKwargs, TimelineKwargs, timeline_scope
 from tactus_memory.results import (
     ClockOffset,
     Context,
@@ -66,10 +74,10 @@ from tactus_memory.results import (
     Occurrences,
     SenseInfo,
     SessionSummary,
+    Timeline,
     TimelineItem,
 )
 from tactus_memory.sense import Sense
-from tactus_memory.where import Near
 
 #: retry answers: overload (503, the write queue) and rate limits (429)
 RETRY_STATUSES = (429, 503)
@@ -172,32 +180,9 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         return f"Client({self.url!r})"
 
     # ----------------------------------------------------------------- writes
-    def add(
-        self,
-        session: str,
-        sense: str,
-        item: Any,
-        *,
-        t: float | None = None,
-        t_end: float | None = None,
-        meta: dict[str, Any] | None = None,
-        id: str | None = None,  # noqa: A002  (Memory.add's name)
-        source: str = "",
-        options: Mapping[str, Any] | None = None,
-    ) -> str:
+    def add(self, session: str, sense: str, item: Any, **kw: Unpack[AddKwargs]) -> str:
         """Remember one item; returns its id (see :meth:`Memory.add`)."""
-        ids = None if id is None else [id]
-        return self.add_many(
-            session,
-            sense,
-            [item],
-            t=[t],
-            t_end=[t_end],
-            meta=[meta],
-            ids=ids,
-            source=source,
-            options=options,
-        )[0]
+        return self.add_many(session, sense, [item], **one_item(kw))[0]
 
     def add_many(
         self, session: str, sense: str, items: Sequence[Any], **kw: Unpack[WriteKwargs]
@@ -424,23 +409,10 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         """What happened in the ``window`` seconds after the best match of ``anchor``."""
         return self._around("after", anchor, window, kw)
 
-    def timeline(
-        self,
-        session: str,
-        senses: Sequence[str] | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        episodes: bool = False,
-        *,
-        source: str | None = None,
-        limit: int | None = None,
-        near: Near | None = None,
-        frame: str | None = None,
-    ) -> list[TimelineItem] | list[Episode]:
-        """The session's items (or episodes) in aligned time order."""
-        scope = Scope(
-            senses=senses, source=source, after=after, before=before, near=near, frame=frame
-        )
+    def timeline(self, session: str, **kw: Unpack[TimelineKwargs]) -> Timeline:
+        """The session's items or episodes in aligned time order (:meth:`Memory.timeline`)."""
+        scope, limit = timeline_scope(None, kw)
+        episodes = bool(kw.get("episodes", False))
         params: dict[str, Any] = {**scope_params(scope), "episodes": episodes}
         if limit is not None:
             params["limit"] = limit
@@ -453,7 +425,7 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         self, session: str, *, senses: Sequence[str] | None = None, source: str | None = None
     ) -> list[Episode]:
         """The session's episodes in aligned time order."""
-        return self.timeline(session, senses, episodes=True, source=source)  # type: ignore[return-value]
+        return self.timeline(session, senses=senses, episodes=True, source=source)  # type: ignore[return-value]
 
     def segment_episodes(self, session: str, **rule: float) -> int:
         """Segment a session's streams into stored episodes; returns how many."""

@@ -277,7 +277,13 @@ class MemoryTools(PlaceTools):
     ) -> TimelineResult:
         """A session's items in time order (narrow with after/before for long sessions)."""
         items = self.memory.timeline(
-            session, senses, after, before, limit=limit, near=near_of(near), frame=frame
+            session,
+            senses=senses,
+            after=after,
+            before=before,
+            limit=limit,
+            near=near_of(near),
+            frame=frame,
         )
         result = TimelineResult(session=session, items=self.compactor.items(items))
         return compact(result)  # type: ignore[return-value]

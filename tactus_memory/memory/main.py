@@ -48,7 +48,7 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.adapters.text import TextSense
-from tactus_memory.batches import WriteKwargs
+from tactus_memory.batches import AddKwargs, WriteKwargs, one_item
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.identity import DEFAULT_TENANT
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
@@ -241,31 +241,23 @@ class Memory(AbstractContextManager["Memory"]):
         sense: str,
         item: Any,
         *,
-        t: float | None = None,
-        t_end: float | None = None,
-        meta: dict[str, Any] | None = None,
-        id: str | None = None,  # noqa: A002  (the public contract names it id)
-        source: str = "",
-        options: Mapping[str, Any] | None = None,
         position: Sequence[float] | None = None,
         frame: str = DEFAULT_FRAME,
+        **kw: Unpack[AddKwargs],
     ) -> str:
-        """Remember one item; returns its id. ``t`` defaults to now (unix seconds), ``t_end``
-        to ``t``. Passing ``id`` makes the call an idempotent upsert of that session's item of
-        that sense; an id already used by another session or sense raises
+        """Remember one item; returns its id. The keywords (:class:`AddKwargs`): ``t``
+        defaults to now (unix seconds), ``t_end`` to ``t``; ``meta``; ``source``; ``options``
+        for the sense. Passing ``id`` makes the call an idempotent upsert of that session's
+        item of that sense; an id already used by another session or sense raises
         :class:`~tactus_memory.errors.IdConflictError` (nothing is written). ``position``
         ``(x, y, z)`` in ``frame`` says where it happened (default: from the session's
         poses, :mod:`tactus_memory.memory.places`)."""
+        batch = one_item(kw)
         return self.add_many(
             session,
             sense,
             [item],
-            t=[t],
-            t_end=[t_end],
-            meta=[meta],
-            ids=None if id is None else [id],
-            source=source,
-            options=options,
+            **batch,
             position=None if position is None else [position],
             frame=frame,
             skip_idle=False,  # one window: an idle one is refused (IdleWindowError)

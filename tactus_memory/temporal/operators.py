@@ -51,7 +51,7 @@ from tactus_memory.matching import (
     sense_bar,
     split_match,
 )
-from tactus_memory.query import Scope, check_k, embed_query
+from tactus_memory.query import Scope, TimelineKwargs, check_k, embed_query, timeline_scope
 from tactus_memory.results import (
     ClockOffset,
     Context,
@@ -61,6 +61,7 @@ from tactus_memory.results import (
     Moment,
     Occurrences,
     Side,
+    Timeline,
     TimelineItem,
     row_fields,
 )
@@ -86,7 +87,7 @@ from tactus_memory.temporal.grasps import (
     pool_grasps,
 )
 from tactus_memory.vectors import vector_column
-from tactus_memory.where import Near, Where, validate_id
+from tactus_memory.where import Where, validate_id
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None
@@ -291,29 +292,15 @@ class Temporal:
         items.sort(key=lambda it: (it.t_aligned, it.t_end_aligned, it.sense, it.source, it.id))
         return items
 
-    def timeline(
-        self,
-        session: str,
-        senses: Sequence[str] | None = None,
-        after: float | None = None,
-        before: float | None = None,
-        episodes: bool = False,
-        *,
-        source: str | None = None,
-        limit: int | None = None,
-        near: Near | None = None,
-        frame: str | None = None,
-    ) -> list[TimelineItem] | list[Episode]:
+    def timeline(self, session: str, **kw: Unpack[TimelineKwargs]) -> Timeline:
         """The session's items (or, with ``episodes=True``, its episodes) in aligned time
-        order; ``after``/``before`` use overlap semantics on the aligned clock, ``near`` /
-        ``frame`` keep the items placed there (not episodes); ``limit`` keeps the first.
-        Raises NotFoundError for an unknown session."""
+        order; the keywords (:class:`~tactus_memory.query.TimelineKwargs`): ``senses``,
+        ``after``/``before`` with overlap semantics on the aligned clock, ``source``,
+        ``near`` / ``frame`` keep the items placed there (not episodes), ``limit`` keeps the
+        first. Raises NotFoundError for an unknown session."""
         session = validate_id(session, "session id")
-        scope = Scope(session, senses, source, after, before, near, frame)
-        if limit is not None and (
-            isinstance(limit, bool) or not isinstance(limit, int) or limit < 1
-        ):
-            raise InvalidInputError(f"limit must be a positive int, got {limit!r}")
+        scope, limit = timeline_scope(session, kw)
+        episodes = bool(kw.get("episodes", False))
         names = None if scope.senses is None else self.registry.resolve(scope.senses)
         offsets = self.clocks.offsets()
         if self.store.count(Where().session(session).sql()) == 0:

@@ -108,7 +108,7 @@ def scenario(mem: Any) -> dict[str, Any]:
     ask("occurrences", lambda: mem.occurrences("table", session="kitchen", threshold=1.0))
     ask("before", lambda: mem.before("wiped the table", 15.0, senses=["text"]))
     ask("after", lambda: mem.after("picked up the red mug", 5.0, anchor_senses=["text"]))
-    ask("timeline", lambda: mem.timeline("kitchen", ["touch"], after=1.5, limit=2))
+    ask("timeline", lambda: mem.timeline("kitchen", senses=["touch"], after=1.5, limit=2))
     ask("sessions", mem.sessions)
     ask("session", lambda: mem.session("hall"))
     ask("session_ids", mem.session_ids)

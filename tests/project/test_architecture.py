@@ -125,6 +125,12 @@ def test_the_library_never_imports_the_service() -> None:
         assert not [d for d in deps if d.startswith("tactus_memory.service")], name
 
 
+#: the layers above the models, lowest first: each is one package, named as its layer
+PACKAGE_LAYERS = (
+    "adapters", "storage", "search", "temporal", "memory", "recordings", "export", "training",
+    "client", "mcp", "service", "cli"
+)  # fmt: skip
+
 #: The layer map, bottom to top (docs/architecture.md draws it). A module belongs to the layer
 #: whose entry names it most precisely (``tactus_memory.spaces.base`` is base, the rest of
 #: ``tactus_memory.spaces`` is models); it may import its own layer and the layers below, never
@@ -153,18 +159,8 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
         ),
     ),
     ("models", ("tactus_memory.spaces", "tactus_memory.touch", "tactus_memory.datasets")),
-    ("adapters", ("tactus_memory.adapters",)),
-    ("storage", ("tactus_memory.storage",)),
-    ("search", ("tactus_memory.search",)),
-    ("temporal", ("tactus_memory.temporal",)),
-    ("memory", ("tactus_memory.memory",)),
-    ("recordings", ("tactus_memory.recordings",)),
-    ("export", ("tactus_memory.export",)),
-    ("training", ("tactus_memory.training",)),
-    ("client", ("tactus_memory.client",)),
-    ("mcp", ("tactus_memory.mcp",)),
-    ("service", ("tactus_memory.service",)),
-    ("cli", ("tactus_memory.cli",)),
+    # every layer above the models is the one package of its name
+    *((name, (f"tactus_memory.{name}",)) for name in PACKAGE_LAYERS),
 )
 #: layers that may import only some of the layers below them (the remote client needs no
 #: store, search or model code: it speaks HTTP and shares the base's vocabulary)
