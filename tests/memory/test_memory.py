@@ -128,6 +128,22 @@ def test_unknown_sense_and_bad_query_args(mem: Memory) -> None:
         mem.search("mug", after="0 OR 1=1")  # type: ignore[arg-type]
 
 
+def test_misspelt_keywords_raise_type_error(mem: Memory) -> None:
+    """add and timeline take their options as typed keywords: a misspelt one raises, as a
+    misspelt keyword argument would, and nothing is written."""
+    _fill(mem)
+    n = len(mem)
+    with pytest.raises(TypeError, match="unexpected keyword argument.*tt"):
+        mem.add("s1", "text", "a note", tt=1.0)  # type: ignore[call-arg]
+    assert len(mem) == n
+    with pytest.raises(TypeError, match="unexpected keyword argument.*sense"):
+        mem.timeline("s1", sense=["text"])  # type: ignore[call-arg]
+    one = mem.add("s1", "text", "a note", t=1.0, t_end=2.0, meta={"by": "me"}, id="n1")
+    item = mem.get_item(one)
+    assert (one, item.t, item.t_end, item.meta) == ("n1", 1.0, 2.0, {"by": "me"})
+    assert [i.id for i in mem.timeline("s1", senses=["text"], after=1.5, limit=1)] == ["n1"]
+
+
 def test_filters_never_leak(mem: Memory) -> None:
     rng = np.random.default_rng(0)
     words = ["mug", "shelf", "door", "ball", "cup", "table"]
