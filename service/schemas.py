@@ -396,6 +396,11 @@ class RetentionOut(BaseModel):
     retain_seconds: float = Field(description="Old versions (deleted data) kept this long.")
     rules: int = Field(description="Rules per tenant, session or sense.")
     maintained_here: bool = Field(description="This process runs maintenance.")
+    worker: int | None = Field(
+        None,
+        description="The worker of `tactus serve --workers N` that answered (only worker 0 "
+        "maintains); null: a single server process.",
+    )
     expired: int = Field(description="Items the last pass expired.")
     thinned: int = Field(description="Items the last pass thinned.")
     expired_total: int = Field(description="Items expired by this process.")

@@ -3,7 +3,8 @@ both workers and each is acknowledged by its own committer; /ready waits for eve
 worker 0 alone maintains; ``kill -9`` of a worker while its glove streams loses nothing it
 acknowledged, and the worker is replaced. Frames go as binary ``.npy`` messages of several
 frames (parsed and windowed as one array); an HTTP ``.npy`` body of several windows is stored
-by the group too. "Worker 0 alone maintains" is read from the workers' banners."""
+by the group too. "Worker 0 alone maintains" is read from the workers' banners and from what
+each worker's ``/retention`` says it ran."""
 
 from __future__ import annotations
 
@@ -88,12 +89,33 @@ def ready_status(base: str) -> int | str | None:
     return 200 if r.status_code == 200 else r.json()["detail"].removeprefix("starting: ")
 
 
+def retention_by_worker(base: str) -> dict[int, float | None]:
+    """worker -> the unix time of its last retention pass (None: never ran one), from
+    ``GET /retention`` on fresh connections (the kernel spreads them) until both workers
+    answered and worker 0 has run a pass; every answer of worker 1 says it does not
+    maintain."""
+    seen: dict[int, float | None] = {}
+    deadline = time.monotonic() + STARTUP_S
+    while set(seen) != {0, 1} or seen[0] is None:
+        assert time.monotonic() < deadline, seen
+        body = httpx.get(base + "/retention", timeout=10).json()
+        assert body["maintained_here"] == (body["worker"] == 0), body
+        if body["worker"] == 1:
+            assert body["last_run"] is None and body["expired_total"] == 0, body
+        seen[body["worker"]] = body["last_run"]
+        time.sleep(0.05)
+    return seen
+
+
 def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     log = tmp_path / "serve.log"
     data = tmp_path / "mem"
-    proc = start_serve(port, data, log, "--workers", "2", env={"TACTUS_LOG_LEVEL": "warning"})
+    # a retention policy that expires nothing but makes every maintenance pass visible
+    maintained = {"TACTUS_RETAIN_DAYS": "3650", "TACTUS_RETENTION_INTERVAL": "0.5"}
+    env = {"TACTUS_LOG_LEVEL": "warning", "TACTUS_MAINTAIN_INTERVAL": "0.5", **maintained}
+    proc = start_serve(port, data, log, "--workers", "2", env=env)
     gloves = ExitStack()
     try:
         assert wait_ok(proc, base + "/ready", STARTUP_S, interval=0.2) is not None, log.read_text()
@@ -155,6 +177,9 @@ def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
         )
         assert r.status_code == 201 and r.json()["count"] == 3, r.text
         after += r.json()["ids"]
+        passes = retention_by_worker(base)
+        assert passes[0] is not None  # worker 0 maintains: its retention passes ran
+        assert passes[1] is None  # worker 1 (and its replacement) never ran one
     finally:
         with contextlib.suppress(Exception):  # the killed worker's glove is closed already
             gloves.close()
