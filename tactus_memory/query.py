@@ -143,6 +143,24 @@ def timeline_scope(session: str | None, kw: Mapping[str, Any]) -> tuple[Scope, i
     return Scope(session, *(kw.get(name) for name in names)), limit
 
 
+class TeachSpan(TypedDict, total=False):
+    """The span a ``teach`` marks (the memory's and the client's): the ``sense`` windows
+    (default touch) overlapping ``[after, before]`` (either open)."""
+
+    after: float | None
+    before: float | None
+    sense: str
+
+
+def teach_span(span: Mapping[str, Any]) -> tuple[float | None, float | None, str]:
+    """A ``teach`` call's span keywords -> ``(after, before, sense)``; others raise
+    InvalidInputError naming them."""
+    unknown = sorted(set(span) - set(TeachSpan.__annotations__))
+    if unknown:
+        raise InvalidInputError(f"teach takes after, before and sense, not {unknown}")
+    return span.get("after"), span.get("before"), span.get("sense", "touch")
+
+
 def split_scope(kw: Mapping[str, Any]) -> tuple[Scope, dict[str, Any]]:
     """Keyword arguments -> (the Scope they describe, the remaining keywords)."""
     names = {f.name for f in fields(Scope)} | {"scope"}

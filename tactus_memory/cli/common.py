@@ -82,13 +82,22 @@ RayWorkers = Annotated[
 ]
 
 
-def ray_cluster(ray: bool, address: str | None) -> str | None:
-    """The Ray cluster of ``--ray``/``--ray-address`` (None: no Ray)."""
-    if not ray and address is None:
-        return None
-    from tactus_memory.recordings.ray_jobs import default_address
+@dataclass(frozen=True)
+class RayJob:
+    """``--ray``, ``--ray-address``, ``--ray-workers`` of the bulk commands (ingest, reembed):
+    one group of options (:func:`tactus_memory.signatures.grouped`)."""
 
-    return default_address(address)
+    ray: UseRay = False
+    ray_address: RayAddress = None
+    ray_workers: RayWorkers = None
+
+    def cluster(self) -> str | None:
+        """The Ray cluster the options name (None: no Ray, the job runs here)."""
+        if not self.ray and self.ray_address is None:
+            return None
+        from tactus_memory.recordings.ray_jobs import default_address
+
+        return default_address(self.ray_address)
 
 
 #: ``--url`` of the commands that ask a memory: a running ``tactus serve`` answers instead

@@ -21,13 +21,10 @@ from tactus_memory.cli.app import app
 from tactus_memory.cli.common import (
     AsJson,
     MemoryData,
-    RayAddress,
-    RayWorkers,
+    RayJob,
     Scope,
     Source,
-    UseRay,
     Windows,
-    ray_cluster,
 )
 from tactus_memory.cli.remote import get_json
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, fail
@@ -217,6 +214,7 @@ def sessions(as_json: AsJson = False, *, source: Source) -> None:
 
 
 @app.command("reembed")
+@grouped(ray=RayJob)
 def reembed(
     checkpoint: str = typer.Option(
         ..., "--checkpoint", help="the new touch checkpoint (.safetensors), or 'default'"
@@ -227,9 +225,8 @@ def reembed(
     space: SpaceName = None,
     space_path: SpacePath = None,
     space_dim: SpaceDim = None,
-    ray: UseRay = False,
-    ray_address: RayAddress = None,
-    ray_workers: RayWorkers = None,
+    *,
+    ray: RayJob,
 ) -> None:
     """Recompute every stored vector of a touch sense with a new checkpoint, from the stored
     raw windows; swapped in one commit (readers see all old or all new vectors), resumable
@@ -242,13 +239,13 @@ def reembed(
 
         memory = _open(data, space, space_path, space_dim)
         enc = TactusEncoder(None if checkpoint == "default" else checkpoint, name=sense)
-        address = ray_cluster(ray, ray_address)
+        address = ray.cluster()
         if address is None:
             report = memory.reembed(sense, enc, batch=batch)
         else:
             from tactus_memory.recordings.ray_jobs import reembed_on_ray
 
-            report = reembed_on_ray(memory, sense, enc, address=address, workers=ray_workers,
+            report = reembed_on_ray(memory, sense, enc, address=address, workers=ray.ray_workers,
                                     batch=batch)  # fmt: skip
     except (TactusError, FileNotFoundError, ValueError, ImportError) as exc:
         fail(str(exc))

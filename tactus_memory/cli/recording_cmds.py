@@ -19,17 +19,15 @@ import typer
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import (
     MemoryData,
-    RayAddress,
-    RayWorkers,
+    RayJob,
     TouchSenses,
     TouchStride,
     TouchWindow,
-    UseRay,
-    ray_cluster,
 )
 from tactus_memory.cli.memory_cmds import _data_dir, _open, _print_json, _print_results
 from tactus_memory.cli.space_opts import fail
 from tactus_memory.recordings.rerun import export_rerun
+from tactus_memory.signatures import grouped
 
 if TYPE_CHECKING:
     from tactus_memory.memory.main import Memory
@@ -85,6 +83,7 @@ def _touch_senses(pairs: list[str] | None) -> dict[str, str]:
 
 
 @app.command("ingest")
+@grouped(ray=RayJob)
 def ingest(
     files: Annotated[
         list[Path], typer.Argument(help="MCAP files and/or ROS 2 bag folders.", exists=True)
@@ -113,9 +112,8 @@ def ingest(
     window: TouchWindow = None,
     stride: TouchStride = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
-    ray: UseRay = False,
-    ray_address: RayAddress = None,
-    ray_workers: RayWorkers = None,
+    *,
+    ray: RayJob,
 ) -> None:
     """Ingest ROS 2 bags / MCAP files: text (std_msgs/String), touch (mono16/16UC1/mono8/32FC1
     Images, Int16/Float32MultiArray), images (rgb8/bgr8, CompressedImage), the trajectory
@@ -141,7 +139,7 @@ def ingest(
         parent, arrow, child = tf.partition("->")
         if not arrow or not parent.strip() or not child.strip():
             fail(f"--tf {tf!r}: write PARENT->CHILD, e.g. map->base_link")
-        address = ray_cluster(ray, ray_address)
+        address = ray.cluster()
         memory = _memory_for(data, set(topics.values()), _touch_senses(touch))
         kw = {"session": session, "topics": topics, "absolute": absolute, "window": window,
               "stride": stride, "tf": (parent.strip(), child.strip())}  # fmt: skip
@@ -150,7 +148,7 @@ def ingest(
         else:
             from tactus_memory.recordings.ray_jobs import ingest_on_ray
 
-            summary = ingest_on_ray(memory, files, address=address, workers=ray_workers, **kw)
+            summary = ingest_on_ray(memory, files, address=address, workers=ray.ray_workers, **kw)
     except (TactusError, ImportError) as exc:
         fail(str(exc))  # exits
     if as_json:

@@ -7,8 +7,10 @@ from __future__ import annotations
 from typing import Any
 
 import httpx
+from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.query import TeachSpan, teach_span
 from tactus_memory.results import Teaching, label_key
 
 __all__ = ["Teaching", "TeachingCalls"]
@@ -23,13 +25,11 @@ class TeachingCalls:
     def _get(self, path: str, params: Any = None) -> Any:
         raise NotImplementedError
 
-    def teach(self, label: str, *, session: str, **span: Any) -> Teaching:
+    def teach(self, label: str, *, session: str, **span: Unpack[TeachSpan]) -> Teaching:
         """:meth:`Memory.teach` over HTTP (``POST /sessions/{id}/labels``); keywords
         ``after``, ``before``, ``sense``."""
-        body = {"label": label, "t": span.pop("after", None), "t_end": span.pop("before", None)}
-        body["sense"] = span.pop("sense", "touch")
-        if span:
-            raise InvalidInputError(f"teach takes after, before and sense, not {sorted(span)}")
+        after, before, sense = teach_span(span)
+        body = {"label": label, "t": after, "t_end": before, "sense": sense}
         return Teaching(**self.request("POST", f"/sessions/{session}/labels", json=body).json())
 
     def taught(self, sense: str | None = None) -> list[Teaching]:

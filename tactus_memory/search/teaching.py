@@ -37,8 +37,10 @@ import uuid
 from typing import Any
 
 import numpy as np
+from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.query import TeachSpan, teach_span
 from tactus_memory.results import Teaching, label_key
 from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.spaces.base import Space
@@ -92,19 +94,13 @@ class Teachings:
         self.w_text, self.w_proto, self.min_cos = W_TEXT, W_PROTO, MIN_LABEL_COS
 
     # ----------------------------------------------------------- records
-    def teach(
-        self,
-        label: str,
-        *,
-        session: str,
-        after: float | None = None,
-        before: float | None = None,
-        sense: str = "touch",
-    ) -> Teaching:
-        """Mark the ``sense`` windows of ``session`` overlapping ``[after, before]`` as
-        "holding ``label``": the label becomes a search target beside the sense's trained
-        classes (the module's rule). Raises NotFoundError when no such window is stored,
-        InvalidInputError on a bad label or span or a text sense."""
+    def teach(self, label: str, *, session: str, **span: Unpack[TeachSpan]) -> Teaching:
+        """Mark the ``sense`` windows (default touch) of ``session`` overlapping ``[after,
+        before]`` (:class:`~tactus_memory.query.TeachSpan`) as "holding ``label``": the label
+        becomes a search target beside the sense's trained classes (the module's rule).
+        Raises NotFoundError when no such window is stored, InvalidInputError on a bad label
+        or span or a text sense."""
+        after, before, sense = teach_span(span)
         label = validate_label(label)
         validate_id(session, "session")
         s = self.registry.search_sense(sense)  # UnknownSenseError names the registered ones
