@@ -24,6 +24,12 @@ from tactus_memory.vectors import as_unit_rows, vector_column
 
 log = logging.getLogger(__name__)
 
+#: probes measured in turn (then every partition); past 256 in steps of an eighth, for an
+#: index of small partitions whose touch rows lie behind every note partition
+LADDER = (4, 8, 12, 16, 24, 32, 40, 48, 64, 80, 96, 128, 160, 192, 224, 256) + tuple(
+    int(256 * 1.125**i) // 8 * 8 for i in range(1, 30)
+)
+
 
 class StoreIndexes:
     """Index state and builds of one store's items table (mixed into ``Store``)."""
@@ -125,8 +131,7 @@ class StoreIndexes:
         exact = [[search(q, None, sense)[-1] + 1e-6 for q in qs] for sense, qs in checks]
         # each part (unfiltered, each sense) climbs the ladder until it reaches the target
         ladders: dict[str | None, dict[int, float]] = {sense: {} for sense, _ in checks}
-        ladder_steps = (4, 8, 12, 16, 24, 32, 40, 48, 64, 80, 96, 128, 160, 192, 256)
-        steps = [p for p in ladder_steps if p < parts]
+        steps = [p for p in LADDER if p < parts]
         for p in [*steps, parts]:
             for (sense, qs), kth in zip(checks, exact, strict=True):
                 if any(r >= cfg.target_recall for r in ladders[sense].values()):

@@ -361,7 +361,7 @@ class Store(StoreIndexes):
         elif indexed:
             nprobes = self.probes(senses)  # ``where`` keeps these senses (None: all)
             if allowed and total and allowed < total:
-                per_part = cfg.rows_per_partition * allowed / total
+                per_part = allowed / self.partitions()  # the index's own partitions
                 nprobes = max(nprobes, math.ceil(cfg.min_candidates / max(per_part, 1e-9)))
             q = q.nprobes(min(nprobes, self.partitions()))
             if cfg.refine_factor:
