@@ -138,7 +138,7 @@ class IndexConfig:
     #: rows per IVF partition (num_partitions = rows / this). 1024 (976 partitions at 1M):
     #: each sense's query scores fewer rows (notes 48 probes of 1024 rows against 24 of
     #: 4096; a touch query's sense filter skips the note partitions cheaply): search p50
-    #: 7-9 % lower than with 4096 at load ~2 (a tie at load 6), recall@10 0.999
+    #: 7-14 % lower than with 4096 at load ~2 (a tie at load 6), recall@10 0.999
     #: (benchmarks/search_1m.py, results/search_1m_pq.json)
     rows_per_partition: int = 1024
     #: partitions probed; None (the default): the fewest that reached ``target_recall`` on
