@@ -47,7 +47,8 @@ from tactus_memory.storage.tables import IndexConfig
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "search_1m.json"
 K = 10
-#: search settings tried per index type (nprobes x refine_factor [x ef])
+#: search settings tried per index type (nprobes x refine_factor [x ef]); IVF probes are for
+#: 244 partitions (4096 rows each at 1M) and scale with a spec's partitions (``grid``)
 GRIDS: dict[str, list[dict[str, Any]]] = {
     "IVF_SQ": [
         {"nprobes": p, "ef": None, "refine_factor": r}
@@ -71,6 +72,14 @@ GRIDS: dict[str, list[dict[str, Any]]] = {
         for r in (None, 4)
     ],
 }
+
+
+def grid(kind: str, partitions: int) -> list[dict[str, Any]]:
+    """GRIDS[kind] with its IVF probes scaled from 244 partitions to ``partitions``."""
+    if kind.startswith("IVF_HNSW"):
+        return GRIDS[kind]
+    scale = partitions / 244
+    return [{**g, "nprobes": min(partitions, round(g["nprobes"] * scale))} for g in GRIDS[kind]]
 
 
 def load1() -> float:
@@ -386,7 +395,7 @@ def library(
             truth = exact_topk(mem, data, ids, q, None, senses=rv.SENSES)
             tune_truth = exact_topk(mem, data, ids, tq, None, senses=rv.SENSES)
         print(f"== {name}", flush=True)
-        chosen, sweep = tune(mem, tq, tune_truth, GRIDS[kind], args.target)
+        chosen, sweep = tune(mem, tq, tune_truth, grid(kind, info["partitions"]), args.target)
         print(f"  chosen {chosen}", flush=True)
         specs[name] = {
             **{k: v for k, v in info.items() if k != "path"},

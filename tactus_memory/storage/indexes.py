@@ -22,7 +22,16 @@ from tactus_memory.storage.tables import (
 )
 from tactus_memory.vectors import as_unit_rows, vector_column
 
+if TYPE_CHECKING:  # heavy imports stay lazy
+    import pyarrow as pa
+
 log = logging.getLogger(__name__)
+
+#: probes measured in turn (then every partition); past 256 in steps of an eighth, for an
+#: index of small partitions whose touch rows lie behind every note partition
+LADDER = (4, 8, 12, 16, 24, 32, 40, 48, 64, 80, 96, 128, 160, 192, 224, 256) + tuple(
+    int(256 * 1.125**i) // 8 * 8 for i in range(1, 30)
+)
 
 
 class StoreIndexes:
@@ -36,6 +45,8 @@ class StoreIndexes:
     _sense_probes: dict[str, int] | None
 
     items: Any  # the LanceDB table (Store.items)
+    #: ((id of the items table, its version), its lance dataset at that version): nearest()
+    _lance: tuple[tuple[int, int], Any] | None = None
     _meta: Any  # the store's meta table (Store._meta), None before it exists
 
     if TYPE_CHECKING:  # Store's, used here
@@ -44,6 +55,31 @@ class StoreIndexes:
         def dim(self) -> int: ...
         def get_meta(self, key: str) -> str | None: ...
         def set_meta(self, key: str, value: str) -> None: ...
+
+    def nearest(self, knn: dict[str, Any], where: str | None, columns: list[str]) -> pa.Table:
+        """One KNN query (lance's ``nearest`` parameters ``knn``), prefiltered by ``where``,
+        on the items' lance dataset at the table's current version. Asked of the dataset,
+        not through LanceDB's query builder: 2-3 ms less per search at 1M rows (two queries;
+        benchmarks/search_1m.py, docs/operations/speed.md)."""
+        kw: dict[str, Any] = {"filter": where, "prefilter": True} if where else {}
+        return self._dataset().to_table(columns=columns, nearest=knn, **kw)
+
+    def _dataset(self) -> Any:
+        """The items' lance dataset at the version the LanceDB table reads now (its read
+        consistency), kept between searches: a newer version is checked out of the one
+        kept, which keeps its session, so the index stays cached (a dataset opened anew
+        reads it again: its first search at 1M rows took 150 ms instead of 10-15)."""
+        items = self.items
+        key = (id(items), int(items.version))
+        kept = self._lance
+        if kept is not None and kept[0] == key:
+            return kept[1]
+        if kept is not None and kept[0][0] == key[0]:
+            ds = kept[1].checkout_version(key[1])
+        else:
+            ds = items.to_lance()
+        self._lance = (key, ds)
+        return ds
 
     def partitions(self) -> int:
         """IVF partitions of the current vector index (from the store's bookkeeping)."""
@@ -109,24 +145,23 @@ class StoreIndexes:
                 checks.append((str(name), rows(others, 0.0)))
 
         def search(q: np.ndarray, probes: int | None, sense: str | None) -> np.ndarray:
-            s = self.items.search(q, vector_column_name="vector").distance_type("cosine")
-            if sense is not None:
-                s = s.where(f"sense = '{sense.replace(chr(39), chr(39) * 2)}'", prefilter=True)
+            """The k nearest distances, as a search asks them (Store.vector_search)."""
+            knn: dict[str, Any] = {"column": "vector", "q": q, "k": k, "metric": "cosine"}
+            where = None if sense is None else f"sense = '{sense.replace(chr(39), chr(39) * 2)}'"
             if probes is None:
-                s = s.bypass_vector_index()
+                knn["use_index"] = False
             else:
-                s = s.nprobes(probes)
+                knn["nprobes"] = probes
                 if cfg.refine_factor:
-                    s = s.refine_factor(cfg.refine_factor)
+                    knn["refine_factor"] = cfg.refine_factor
                 if cfg.ef:
-                    s = s.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
-            return np.asarray(s.select(["_distance"]).limit(k).to_arrow()["_distance"])
+                    knn["ef"] = max(cfg.ef, k * (cfg.refine_factor or 1))
+            return np.asarray(self.nearest(knn, where, ["_distance"])["_distance"])
 
         exact = [[search(q, None, sense)[-1] + 1e-6 for q in qs] for sense, qs in checks]
         # each part (unfiltered, each sense) climbs the ladder until it reaches the target
         ladders: dict[str | None, dict[int, float]] = {sense: {} for sense, _ in checks}
-        ladder_steps = (4, 8, 12, 16, 24, 32, 40, 48, 64, 80, 96, 128, 160, 192, 256)
-        steps = [p for p in ladder_steps if p < parts]
+        steps = [p for p in LADDER if p < parts]
         for p in [*steps, parts]:
             for (sense, qs), kth in zip(checks, exact, strict=True):
                 if any(r >= cfg.target_recall for r in ladders[sense].values()):

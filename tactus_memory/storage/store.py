@@ -352,23 +352,21 @@ class Store(StoreIndexes):
         """
         cfg = self.index
         where = within_sessions(where)
-        q = self.items.search(vector, vector_column_name="vector").distance_type("cosine")
-        if where:
-            q = q.where(where, prefilter=True)
+        knn: dict[str, Any] = {"column": "vector", "q": vector, "k": k, "metric": "cosine"}
         indexed = self.has_vector_index()
         if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
-            q = q.bypass_vector_index()
+            knn["use_index"] = False
         elif indexed:
             nprobes = self.probes(senses)  # ``where`` keeps these senses (None: all)
             if allowed and total and allowed < total:
-                per_part = cfg.rows_per_partition * allowed / total
+                per_part = allowed / self.partitions()  # the index's own partitions
                 nprobes = max(nprobes, math.ceil(cfg.min_candidates / max(per_part, 1e-9)))
-            q = q.nprobes(min(nprobes, self.partitions()))
+            knn["nprobes"] = min(nprobes, self.partitions())
             if cfg.refine_factor:
-                q = q.refine_factor(cfg.refine_factor)
+                knn["refine_factor"] = cfg.refine_factor
             if cfg.ef:  # HNSW needs ef >= the candidates it returns
-                q = q.ef(max(cfg.ef, k * (cfg.refine_factor or 1)))
-        return q.select([*self.present(columns), "_distance"]).limit(k).to_arrow()
+                knn["ef"] = max(cfg.ef, k * (cfg.refine_factor or 1))
+        return self.nearest(knn, where, [*self.present(columns), "_distance"])
 
     def scan(self, where: str | None, columns: Sequence[str], limit: int | None = None) -> pa.Table:
         q = self.items.search()

@@ -135,8 +135,12 @@ class IndexConfig:
     #: build the scalar indexes (session, sense, t, id) from this many rows
     scalar_threshold: int = 10_000
     index_type: str = "IVF_SQ"
-    #: rows per IVF partition (num_partitions = rows / this)
-    rows_per_partition: int = 4096
+    #: rows per IVF partition (num_partitions = rows / this). 1024 (976 partitions at 1M):
+    #: each sense's query scores fewer rows (notes 48 probes of 1024 rows against 24 of
+    #: 4096; a touch query's sense filter skips the note partitions cheaply): search p50
+    #: 7-14 % lower than with 4096 at load ~2 (a tie at load 6), recall@10 0.999
+    #: (benchmarks/search_1m.py, results/search_1m_pq.json)
+    rows_per_partition: int = 1024
     #: partitions probed; None (the default): the fewest that reached ``target_recall`` on
     #: the index when it was built (recorded with it: StoreIndexes.probes), or
     #: ``UNMEASURED_NPROBES`` for an index built before; a number pins it (benchmark sweeps)
