@@ -97,81 +97,56 @@ class RetentionRule(BaseModel):
 
 class MaintenanceConfig(BaseModel):
     """The maintenance policy. Its fields are settings too (``TACTUS_<NAME>``, see
-    :class:`tactus_memory.settings.Settings`, whose ``maintenance()`` builds one)."""
+    :class:`tactus_memory.settings.Settings`, whose ``maintenance()`` builds one). Each
+    field's description is the docstring under it."""
 
-    maintain: bool = Field(
-        True,
-        description="This process maintains the store (compaction, index refresh, cleanup). "
-        "Exactly one process per store should: replicas run with maintain=False.",
-    )
-    retain_seconds: float = Field(
-        30.0,
-        ge=0.0,
-        description="Keep a version until it has been superseded this long (readers in flight "
-        "finish within it; other replicas re-read the latest version every read_consistency).",
-    )
-    maintain_interval: float = Field(
-        10.0, gt=0.0, description="Seconds between passes of `tactus maintain`."
-    )
-    cleanup_interval: float = Field(
-        10.0,
-        ge=0.0,
-        description="Least seconds between version cleanups (each reads every kept manifest, "
-        "so it runs in its own thread, not on every compaction).",
-    )
-    fan_in: int = Field(
-        8, ge=2, description="Merge a tier once it has this many adjacent fragments."
-    )
-    tier_base_bytes: int = Field(
-        1 * MiB, ge=1, description="Fragments below this are tier 0 (the streaming tail)."
-    )
-    settled_bytes: int = Field(
-        512 * MiB, ge=1, description="Fragments of this size are never merged again."
-    )
-    max_merge_share: float = Field(
-        0.25,
-        gt=0.0,
-        le=1.0,
-        description="A merge rewrites at most this share of the table (or free_merge_bytes): "
-        "its inputs stay on disk for retain_seconds, so this bounds the disk spike.",
-    )
-    free_merge_bytes: int = Field(
-        16 * MiB, ge=0, description="Merges up to this size are allowed whatever the share."
-    )
-    deletion_threshold: float = Field(
-        0.1, gt=0.0, le=1.0, description="Rewrite a fragment alone once this share is deleted."
-    )
-    num_threads: int = Field(1, ge=1, description="Threads per compaction (2 cores: leave 1).")
-    erase_deleted: bool = Field(
-        True,
-        description="Rewrite every fragment holding deleted rows (not only past "
-        "deletion_threshold), so deleted, expired and thinned data leave the store's files "
-        "once cleanup removes the versions that still name them (after retain_seconds).",
-    )
-    orphan_grace_seconds: float = Field(
-        ORPHAN_GRACE_S,
-        ge=0.0,
-        description="Remove a data, deletion or index file no version references once it is "
-        "this old (a crashed writer's; younger ones may be a writer's mid-commit).",
-    )
+    model_config = ConfigDict(use_attribute_docstrings=True)
+
+    maintain: bool = True
+    """This process maintains the store (compaction, index refresh, cleanup). Exactly one process
+    per store should: replicas run with maintain=False."""
+    retain_seconds: float = Field(30.0, ge=0.0)
+    """Keep a version until it has been superseded this long (readers in flight finish within it;
+    other replicas re-read the latest version every read_consistency)."""
+    maintain_interval: float = Field(10.0, gt=0.0)
+    """Seconds between passes of `tactus maintain`."""
+    cleanup_interval: float = Field(10.0, ge=0.0)
+    """Least seconds between version cleanups (each reads every kept manifest, so it runs in its
+    own thread, not on every compaction)."""
+    fan_in: int = Field(8, ge=2)
+    """Merge a tier once it has this many adjacent fragments."""
+    tier_base_bytes: int = Field(1 * MiB, ge=1)
+    """Fragments below this are tier 0 (the streaming tail)."""
+    settled_bytes: int = Field(512 * MiB, ge=1)
+    """Fragments of this size are never merged again."""
+    max_merge_share: float = Field(0.25, gt=0.0, le=1.0)
+    """A merge rewrites at most this share of the table (or free_merge_bytes): its inputs stay on
+    disk for retain_seconds, so this bounds the disk spike."""
+    free_merge_bytes: int = Field(16 * MiB, ge=0)
+    """Merges up to this size are allowed whatever the share."""
+    deletion_threshold: float = Field(0.1, gt=0.0, le=1.0)
+    """Rewrite a fragment alone once this share is deleted."""
+    num_threads: int = Field(1, ge=1)
+    """Threads per compaction (2 cores: leave 1)."""
+    erase_deleted: bool = True
+    """Rewrite every fragment holding deleted rows (not only past deletion_threshold), so
+    deleted, expired and thinned data leave the store's files once cleanup removes the
+    versions that still name them (after retain_seconds)."""
+    orphan_grace_seconds: float = Field(ORPHAN_GRACE_S, ge=0.0)
+    """Remove a data, deletion or index file no version references once it is this old (a crashed
+    writer's; younger ones may be a writer's mid-commit)."""
     # retention (tactus_memory.storage.retention; docs/operations/retention.md)
-    retain_days: float | None = Field(
-        None, gt=0.0, description="Delete items written more than this many days ago (none: keep)."
-    )
-    thin_after_days: float | None = Field(
-        None, ge=0.0, description="Thin stale duplicates among items older than this (none: off)."
-    )
-    thin_cosine: float = Field(
-        THIN_COSINE, gt=0.0, le=1.0, description="Thinning's bar: cosine to a kept neighbour."
-    )
-    retention: list[RetentionRule] = Field(
-        default_factory=list,
-        description="Rules per tenant, session (id or prefix*) and/or sense overriding "
-        "retain_days, thin_after_days, thin_cosine (the most specific rule wins).",
-    )
-    retention_interval: float = Field(
-        600.0, ge=0.0, description="Least seconds between retention passes (expiry, thinning)."
-    )
+    retain_days: float | None = Field(None, gt=0.0)
+    """Delete items written more than this many days ago (none: keep)."""
+    thin_after_days: float | None = Field(None, ge=0.0)
+    """Thin stale duplicates among items older than this (none: off)."""
+    thin_cosine: float = Field(THIN_COSINE, gt=0.0, le=1.0)
+    """Thinning's bar: cosine to a kept neighbour."""
+    retention: list[RetentionRule] = Field(default_factory=list)
+    """Rules per tenant, session (id or prefix*) and/or sense overriding retain_days,
+    thin_after_days, thin_cosine (the most specific rule wins)."""
+    retention_interval: float = Field(600.0, ge=0.0)
+    """Least seconds between retention passes (expiry, thinning)."""
 
     @field_validator("retain_days", "thin_after_days", mode="before")
     @classmethod

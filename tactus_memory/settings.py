@@ -65,125 +65,74 @@ def default_workers() -> int:
 class Settings(BaseSettings, MaintenanceConfig):
     """Everything tactus-memory can be told. Every field reads ``TACTUS_<NAME>`` too."""
 
-    model_config = SettingsConfigDict(env_prefix="TACTUS_", extra="ignore")
-
-    config: str | None = Field(
-        None,
-        description="A TOML file of settings (these field names as keys); flags and the "
-        "environment win over it.",
+    #: a field's description is the docstring under it
+    model_config = SettingsConfigDict(
+        env_prefix="TACTUS_", extra="ignore", use_attribute_docstrings=True
     )
 
-    data: str = Field(
-        DEFAULT_MEMORY,
-        description="Memory location: a local directory, file://, s3://, gs:// or az:// URI.",
-    )
-    space: str | None = Field(
-        None,
-        description="Embedding space (registry name: minilm, qwen3vl); default: the store's "
-        "recorded space, minilm for a fresh store.",
-    )
-    space_path: str | None = Field(
-        None, description="Local model folder of the space (needed by Qwen3-VL-Embedding-2B)."
-    )
-    space_dim: int | None = Field(
-        None, ge=1, description="Matryoshka output size of a Qwen3-VL space (64..2048)."
-    )
-    touch_checkpoint: str | None = Field(
-        None,
-        description="Tactus checkpoint for the touch sense (default: the shipped MiniLM one); "
-        "a store in another space needs one trained there (tactus train --space ...).",
-    )
-    touch_senses: dict[str, str] = Field(
-        default_factory=dict,
-        description="Touch senses beside the glove, each its own sensor: sense name -> Tactus "
-        "checkpoint (whose sensor profile gives the frame shape), e.g. {skin = "
-        '"/ck/skin16.safetensors"}. `tactus serve --touch NAME=CKPT` (repeated); env '
-        'TACTUS_TOUCH_SENSES=\'{"skin": "/ck/skin16.safetensors"}\'. They run on torch.',
-    )
+    config: str | None = None
+    """A TOML file of settings (these field names as keys); flags and the environment win over
+    it."""
+
+    data: str = DEFAULT_MEMORY
+    """Memory location: a local directory, file://, s3://, gs:// or az:// URI."""
+    space: str | None = None
+    """Embedding space (registry name: minilm, qwen3vl); default: the store's recorded space,
+    minilm for a fresh store."""
+    space_path: str | None = None
+    """Local model folder of the space (needed by Qwen3-VL-Embedding-2B)."""
+    space_dim: int | None = Field(None, ge=1)
+    """Matryoshka output size of a Qwen3-VL space (64..2048)."""
+    touch_checkpoint: str | None = None
+    """Tactus checkpoint for the touch sense (default: the shipped MiniLM one); a store in
+    another space needs one trained there (tactus train --space ...)."""
+    touch_senses: dict[str, str] = Field(default_factory=dict)
+    """Touch senses beside the glove, each its own sensor: sense name -> Tactus checkpoint (whose
+    sensor profile gives the frame shape), e.g. {skin = "/ck/skin16.safetensors"}. `tactus
+    serve --touch NAME=CKPT` (repeated); env TACTUS_TOUCH_SENSES='{"skin":
+    "/ck/skin16.safetensors"}'. They run on torch."""
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
-    token: SecretStr | None = Field(
-        None,
-        description="When set, every route but the open ones (/health, /live, /ready, /, "
-        "/static, /docs, /redoc, /openapi.json) needs 'Authorization: Bearer <token>'.",
-    )
-    max_body_bytes: int = Field(
-        16 * 1024 * 1024, ge=1024, description="Largest request body accepted (413 beyond it)."
-    )
-    max_ws_message_bytes: int = Field(
-        1024 * 1024, ge=1024, description="Largest WebSocket message accepted on touch streams."
-    )
-    window: int = Field(
-        8, ge=1, le=MAX_WINDOW_FRAMES, description="Default frames per window on touch streams."
-    )
-    stride: int = Field(
-        8, ge=1, le=MAX_WINDOW_FRAMES, description="Default frames between window starts."
-    )
-    write_threads: int = Field(
-        2,
-        ge=1,
-        le=64,
-        description="Worker threads that validate write bodies (commits: the group committer).",
-    )
-    read_threads: int = Field(
-        8,
-        ge=1,
-        le=256,
-        description="Worker threads for reads (search, sessions); writes never take them.",
-    )
-    read_consistency: float | None = Field(
-        DEFAULT_READ_CONSISTENCY_S,
-        ge=0.0,
-        description="Seconds between re-reads of the latest version (replicas sharing a store "
-        "see each other's commits within it); off/none: never.",
-    )
-    commit_tick_ms: float = Field(
-        DEFAULT_COMMIT_TICK_MS,
-        ge=0.0,
-        le=1000.0,
-        description="Group commit: how long the oldest queued write waits for company (ms).",
-    )
-    commit_max_batch: int = Field(
-        DEFAULT_COMMIT_MAX_BATCH,
-        ge=1,
-        le=100_000,
-        description="Group commit: most items embedded and committed at once.",
-    )
-    commit_max_pending: int = Field(
-        DEFAULT_COMMIT_MAX_PENDING,
-        ge=1,
-        le=1_000_000,
-        description="Group commit: items queued before writes are refused (503 + Retry-After).",
-    )
-    commit_nice: int = Field(
-        DEFAULT_COMMIT_NICE,
-        ge=0,
-        le=19,
-        description="Group commit: niceness added to the committer's thread (embedding and "
-        "commits) so reads get the cores first under a write load; 0: the same priority.",
-    )
-    encode_process: bool = Field(
-        False,
-        description="Group commit: embed touch windows in a worker process of their own "
-        "(its own interpreter lock; nice'd by commit_nice) instead of the committer's thread.",
-    )
-    torch_threads: int | None = Field(
-        None,
-        ge=1,
-        le=256,
-        description="Torch threads per call (encoder batches, query embedding). `tactus serve` "
-        "defaults to half the CPU cores, so the committer's encoder and a search's MiniLM each "
-        "get their own; unset elsewhere (torch's own default).",
-    )
-    touch: bool = Field(
-        True, description="Register the shipped touch encoder on startup when it is available."
-    )
-    onnx: str | None = Field(
-        None,
-        description="Folder of ONNX exports (`tactus export-onnx`): serve MiniLM and the touch "
-        "encoder on ONNX Runtime. `tactus serve` without it (and without `torch`) uses the "
-        "default folder in the user's cache (MiniLM exported there on the first start).",
-    )
+    token: SecretStr | None = None
+    """When set, every route but the open ones (/health, /live, /ready, /, /static, /docs,
+    /redoc, /openapi.json) needs 'Authorization: Bearer <token>'."""
+    max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024)
+    """Largest request body accepted (413 beyond it)."""
+    max_ws_message_bytes: int = Field(1024 * 1024, ge=1024)
+    """Largest WebSocket message accepted on touch streams."""
+    window: int = Field(8, ge=1, le=MAX_WINDOW_FRAMES)
+    """Default frames per window on touch streams."""
+    stride: int = Field(8, ge=1, le=MAX_WINDOW_FRAMES)
+    """Default frames between window starts."""
+    write_threads: int = Field(2, ge=1, le=64)
+    """Worker threads that validate write bodies (commits: the group committer)."""
+    read_threads: int = Field(8, ge=1, le=256)
+    """Worker threads for reads (search, sessions); writes never take them."""
+    read_consistency: float | None = Field(DEFAULT_READ_CONSISTENCY_S, ge=0.0)
+    """Seconds between re-reads of the latest version (replicas sharing a store see each other's
+    commits within it); off/none: never."""
+    commit_tick_ms: float = Field(DEFAULT_COMMIT_TICK_MS, ge=0.0, le=1000.0)
+    """Group commit: how long the oldest queued write waits for company (ms)."""
+    commit_max_batch: int = Field(DEFAULT_COMMIT_MAX_BATCH, ge=1, le=100_000)
+    """Group commit: most items embedded and committed at once."""
+    commit_max_pending: int = Field(DEFAULT_COMMIT_MAX_PENDING, ge=1, le=1_000_000)
+    """Group commit: items queued before writes are refused (503 + Retry-After)."""
+    commit_nice: int = Field(DEFAULT_COMMIT_NICE, ge=0, le=19)
+    """Group commit: niceness added to the committer's thread (embedding and commits) so reads
+    get the cores first under a write load; 0: the same priority."""
+    encode_process: bool = False
+    """Group commit: embed touch windows in a worker process of their own (its own interpreter
+    lock; nice'd by commit_nice) instead of the committer's thread."""
+    torch_threads: int | None = Field(None, ge=1, le=256)
+    """Torch threads per call (encoder batches, query embedding). `tactus serve` defaults to half
+    the CPU cores, so the committer's encoder and a search's MiniLM each get their own; unset
+    elsewhere (torch's own default)."""
+    touch: bool = True
+    """Register the shipped touch encoder on startup when it is available."""
+    onnx: str | None = None
+    """Folder of ONNX exports (`tactus export-onnx`): serve MiniLM and the touch encoder on ONNX
+    Runtime. `tactus serve` without it (and without `torch`) uses the default folder in the
+    user's cache (MiniLM exported there on the first start)."""
     workers: int = Field(
         default_factory=default_workers,
         ge=1,
@@ -192,11 +141,9 @@ class Settings(BaseSettings, MaintenanceConfig):
         "event loop, committer and models; worker 0 maintains). Default: the cores this "
         f"process may use, at most {MAX_DEFAULT_WORKERS}. 1: one process.",
     )
-    torch: bool = Field(
-        False,
-        description="`tactus serve`: run MiniLM and the touch encoder on torch instead of the "
-        "default ONNX Runtime (a heavier, slower start; needed for spaces other than MiniLM).",
-    )
+    torch: bool = False
+    """`tactus serve`: run MiniLM and the touch encoder on torch instead of the default ONNX
+    Runtime (a heavier, slower start; needed for spaces other than MiniLM)."""
     log_level: str = "info"
 
     @classmethod
