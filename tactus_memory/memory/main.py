@@ -349,13 +349,14 @@ class Memory(AbstractContextManager["Memory"]):
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return self.search_moments(query, k, gap=gap, scope=where)
         q = embed_query(self.space, query)
-        if g == "grasp":
-            return self.temporal.grasps(q, k, where, GraspRule(pool=pool))
-        k, names = check_k(k), self.resolve_senses(where.senses)
-        hits = grasp_hits(self.temporal, q, k, where, names, pool) if g == "auto" else None
-        if hits is None:  # no touch sense in scope, or group="window"
-            hits = mark_matches(self.rank(q, k, names, where.where(), transform=True))
-        return hits
+        with self.registry.pinned():  # one view of the senses for the whole question
+            if g == "grasp":
+                return self.temporal.grasps(q, k, where, GraspRule(pool=pool))
+            k, names = check_k(k), self.resolve_senses(where.senses)
+            hits = grasp_hits(self.temporal, q, k, where, names, pool) if g == "auto" else None
+            if hits is None:  # no touch sense in scope, or group="window"
+                hits = mark_matches(self.rank(q, k, names, where.where(), transform=True))
+            return hits
 
     def search_vector(
         self,

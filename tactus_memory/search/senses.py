@@ -13,7 +13,8 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -111,6 +112,7 @@ class SenseRegistry:
         self._calib: dict[str, Calibration] = {}
         self._counts: dict[str, int] | None = None
         self._seen_versions: tuple[int, int] = (-1, -1)  # (items, senses) the caches match
+        self._pinned = threading.local()  # .on: this thread's question has refreshed already
         self._probes: np.ndarray | None = None
         self.load()
 
@@ -319,10 +321,29 @@ class SenseRegistry:
             )
         return out
 
+    @contextmanager
+    def pinned(self) -> Iterator[None]:
+        """One :meth:`refresh` for a whole question on this thread: its steps (the senses in
+        scope, their counts and calibrations) read the registry as it was when it began,
+        instead of each asking the tables' versions again (each ask is a round trip to
+        LanceDB's event loop thread: three refreshes were six of a small search's nine)."""
+        if getattr(self._pinned, "on", False):  # a question inside a question
+            yield
+            return
+        self.refresh()
+        self._pinned.on = True
+        try:
+            yield
+        finally:
+            self._pinned.on = False
+
     def refresh(self) -> None:
         """Drop the row-count cache when the items table moved on (another process's
         commit, a compaction) and reload the stored senses and calibrations when the senses
-        table did: replicas agree within the store's read consistency interval."""
+        table did: replicas agree within the store's read consistency interval. Inside
+        :meth:`pinned` (this thread's question refreshed at its start) it does nothing."""
+        if getattr(self._pinned, "on", False):
+            return
         seen = (self.store.version(), self.store.senses_version())
         if seen == self._seen_versions:
             return

@@ -69,6 +69,31 @@ def test_group_moment_embeds_the_query_once(mem) -> None:
     assert q.shape == (1, space.dim)
 
 
+def test_a_search_reads_the_senses_once_and_still_sees_new_rows(mem, monkeypatch) -> None:
+    """A question refreshes the sense registry once (``pinned``), not at each step: the
+    items and senses tables' versions are asked once each (the ANN path and teaching ask
+    their own). A row added between two questions is still found by the next."""
+    store = mem.store
+    asked = {"items": 0, "senses": 0}
+    version, senses_version = store.version, store.senses_version
+
+    def items() -> int:
+        asked["items"] += 1
+        return version()
+
+    def senses() -> int:
+        asked["senses"] += 1
+        return senses_version()
+
+    monkeypatch.setattr(store, "version", items)
+    monkeypatch.setattr(store, "senses_version", senses)
+    mem.search("red ball", group="window")
+    assert asked["senses"] == 1  # three refreshes asked it three times before
+    assert asked["items"] <= 2  # the registry's refresh, and teaching's prototypes
+    mem.add("c", "text", "a green cube under the chair", t=20.0)
+    assert mem.search("green cube", k=1, group="window")[0].session == "c"
+
+
 def test_http_search_filters_by_source(tmp_path) -> None:
     memory = make_memory(tmp_path / "svc")
     memory.add("a", "text", "red ball", t=1.0, source="cam-1")
