@@ -14,6 +14,7 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
+from tactus_memory.signatures import reject_unknown
 from tactus_memory.where import finite_float, validate_id
 
 
@@ -55,9 +56,7 @@ def one_item(kw: Mapping[str, Any]) -> WriteKwargs:
     """An ``add`` call's keywords (:class:`AddKwargs`) -> the batch of one item's
     keywords for ``add_many``. Unknown keywords raise TypeError, as a misspelt keyword
     argument would."""
-    unknown = sorted(set(kw) - set(AddKwargs.__annotations__))
-    if unknown:
-        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+    reject_unknown(kw, AddKwargs.__annotations__)
     item_id = kw.get("id")
     return WriteKwargs(
         t=[kw.get("t")],

@@ -70,6 +70,7 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.results import Evidence, Hit, Moment
 from tactus_memory.sense import validate_sense_name
+from tactus_memory.signatures import reject_unknown
 from tactus_memory.where import finite_float
 
 # --------------------------------------------------------------------------- constants
@@ -138,9 +139,7 @@ class MatchKwargs(ScopeKwargs, total=False):
 def split_match(kw: Mapping[str, Any]) -> tuple[Scope, Match]:
     """Keyword arguments -> (Scope, Match); unknown keywords raise TypeError."""
     scope, rest = split_scope(kw)
-    unknown = sorted(set(rest) - {"threshold", "relative", "answer", "match"})
-    if unknown:
-        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+    reject_unknown(rest, {"threshold", "relative", "answer", "match"})
     match = rest.pop("match", None) or Match()
     given = {k: v for k, v in rest.items() if v is not None}
     return scope, replace(match, **given) if given else match

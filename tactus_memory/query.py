@@ -14,6 +14,7 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS
+from tactus_memory.signatures import reject_unknown
 from tactus_memory.vectors import as_unit_rows
 from tactus_memory.where import Near, Where, finite_float
 
@@ -76,10 +77,7 @@ class Scope:
     def of(cls, scope: Scope | None = None, **kw: Any) -> Scope:
         """``scope`` (default: everything) with the filter keywords given (non-None) applied.
         Unknown keywords raise TypeError, as a misspelt keyword argument would."""
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(kw) - names)
-        if unknown:
-            raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+        reject_unknown(kw, {f.name for f in fields(cls)})
         base = scope if scope is not None else cls()
         given = {k: v for k, v in kw.items() if v is not None}
         return replace(base, **given) if given else base
@@ -133,9 +131,7 @@ def timeline_scope(session: str | None, kw: Mapping[str, Any]) -> tuple[Scope, i
     """A ``timeline`` call's keywords -> (its Scope, its checked ``limit``). Unknown keywords
     raise TypeError (as a misspelt keyword would); a limit that is not a positive int raises
     InvalidInputError."""
-    unknown = sorted(set(kw) - set(TimelineKwargs.__annotations__))
-    if unknown:
-        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+    reject_unknown(kw, TimelineKwargs.__annotations__)
     limit = kw.get("limit")
     if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
         raise InvalidInputError(f"limit must be a positive int, got {limit!r}")

@@ -22,10 +22,18 @@ from __future__ import annotations
 
 import functools
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Iterable
 from typing import Any, TypeVar
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+
+def reject_unknown(given: Iterable[str], allowed: Collection[str]) -> None:
+    """TypeError naming the keywords ``given`` that are not ``allowed``, as Python says of a
+    misspelt keyword argument (for functions that take ``**kw: Unpack[SomeTypedDict]``)."""
+    unknown = sorted(set(given) - set(allowed))
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
 
 
 def grouped(**builders: Callable[..., Any]) -> Callable[[F], F]:

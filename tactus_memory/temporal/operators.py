@@ -133,7 +133,14 @@ class Temporal:
         """Every candidate of the (1, D) query ``q`` (all senses in scope), scored and flagged;
         and whether a sense was capped (``per_sense`` candidates, all matching). With a
         ``grasp`` rule, the candidates' grasps (:mod:`tactus_memory.temporal.grasps`) instead, each
-        scored and flagged by its pooled vector."""
+        scored and flagged by its pooled vector. One view of the senses for the whole question
+        (:meth:`SenseRegistry.pinned`), however many senses it ranks."""
+        with self.registry.pinned():
+            return self._scored(q, scope, match, per_sense, grasp)
+
+    def _scored(
+        self, q: np.ndarray, scope: Scope, match: Match, per_sense: int, grasp: Rule
+    ) -> tuple[list[Evidence], bool]:
         relative = check_relative(match.relative)
         offsets = self.clocks.offsets()
         base = scope.where(pad(offsets, scope.session))

@@ -70,9 +70,10 @@ def test_group_moment_embeds_the_query_once(mem) -> None:
 
 
 def test_a_search_reads_the_senses_once_and_still_sees_new_rows(mem, monkeypatch) -> None:
-    """A question refreshes the sense registry once (``pinned``), not at each step: the
-    items and senses tables' versions are asked once each (the ANN path and teaching ask
-    their own). A row added between two questions is still found by the next."""
+    """A question (a search, a temporal one) refreshes the sense registry once (``pinned``),
+    not at each step: the senses table's version is asked once (the ANN path and teaching
+    ask the items table's their own way). A row added between two questions is still found
+    by the next."""
     store = mem.store
     asked = {"items": 0, "senses": 0}
     version, senses_version = store.version, store.senses_version
@@ -90,6 +91,9 @@ def test_a_search_reads_the_senses_once_and_still_sees_new_rows(mem, monkeypatch
     mem.search("red ball", group="window")
     assert asked["senses"] == 1  # three refreshes asked it three times before
     assert asked["items"] <= 2  # the registry's refresh, and teaching's prototypes
+    asked.update(items=0, senses=0)
+    mem.last("red ball")  # a temporal question ranks each sense in scope: one view of them
+    assert asked["senses"] == 1
     mem.add("c", "text", "a green cube under the chair", t=20.0)
     assert mem.search("green cube", k=1, group="window")[0].session == "c"
 
