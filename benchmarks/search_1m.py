@@ -280,6 +280,57 @@ def where_time_goes(mem: Memory, q: np.ndarray) -> dict[str, Any]:
     }
 
 
+def compare_layouts(
+    args: argparse.Namespace,
+    real: dict[str, np.ndarray],
+    data: dict[str, Any],
+    first: str,
+    built: dict[str, dict[str, Any]],
+    ids: np.ndarray,
+) -> dict[str, Any]:
+    """The store of ``first`` (sense codes) against the same spec's store in ``--compare``
+    (a cache made before sense codes, its own ids), each as built (the probes it measured
+    for itself), interleaved for ``--repeats`` rounds on the held-out queries; with
+    ``--http`` also ``GET /search`` on each, interleaved alike."""
+    kind, rows_per_part = first.split(":")
+    cfg = IndexConfig(index_type=kind, rows_per_partition=int(rows_per_part), threshold=10**12)
+    old_ids = np.load(args.compare / f"ids-{args.rows}.npy")
+    old_path = args.compare / f"store-{args.rows}-{kind}-{rows_per_part}"
+    stores = {"codes": (built[first]["path"], ids), "before": (old_path, old_ids)}
+    q = real["queries"]
+    out: dict[str, Any] = {"spec": first, "before_cache": str(args.compare)}
+    truth: dict[str, list[set[str]]] = {}
+    for label, (path, its_ids) in stores.items():
+        mem = open_store(path, cfg)
+        truth[label] = exact_topk(mem, data, its_ids, q, None, senses=rv.SENSES)
+        out[label] = {
+            "codes": mem.store.codes(),
+            "nprobes_by_sense": {s: mem.store.probes([s]) for s in rv.SENSES},
+            "rounds": [],
+            "http": [],
+        }
+        mem.close()
+    for r in range(args.repeats):
+        for label, (path, _) in stores.items():
+            mem = open_store(path, cfg)
+            measure(mem, q[:20], None)  # warm the index cache
+            m = {**measure(mem, q, truth[label]), "load_1min": load1()}
+            out[label]["rounds"].append(m)
+            mem.close()
+            print(f"  round {r} {label}: {m}", flush=True)
+        if args.http:
+            for label, (path, _) in stores.items():
+                h = http_search(path, 100, args.cache / "serve.log")
+                out[label]["http"].append(h)
+                print(f"  http round {r} {label}: {h}", flush=True)
+    diffs = [
+        a["p50_ms"] - b["p50_ms"]
+        for a, b in zip(out["codes"]["rounds"], out["before"]["rounds"], strict=True)
+    ]
+    out["paired_p50_diff_ms"] = diffs
+    return out
+
+
 def http_search(store: Path, n_queries: int, log: Path, *extra: str) -> dict[str, Any]:
     """p50/p95 of GET /search?q=... on ``tactus serve --data store *extra`` (distinct texts)."""
     port = free_port()
@@ -321,6 +372,8 @@ def main() -> None:
     ap.add_argument("--onnx", type=Path, help="also time /search on `tactus serve --onnx DIR`")
     ap.add_argument("--only-http", action="store_true", help="skip the library measurements")
     ap.add_argument("--out", type=Path, default=RESULTS)
+    compare_help = "a --cache made before sense codes: time its store against the first spec's"
+    ap.add_argument("--compare", type=Path, help=compare_help)
     args = ap.parse_args()
 
     t_all = time.perf_counter()
@@ -350,7 +403,10 @@ def main() -> None:
         "load_avg_start": os.getloadavg(),
     }
     first = next(iter(built))
-    if not args.only_http:
+    if args.compare:
+        result["codes_vs_before"] = compare_layouts(args, real, data, first, built, ids)
+        args.http = False  # timed within the comparison
+    elif not args.only_http:
         result.update(library(args, real, data, ids, built))
     if args.http:
         log = args.cache / "serve.log"

@@ -50,6 +50,10 @@ def as_unit_rows(
 
 
 def vector_column(tbl: pa.Table, dim: int) -> np.ndarray:
-    """A scanned table's fixed-size-list ``vector`` column -> (N, dim) float32 (as stored)."""
-    flat = tbl.column("vector").combine_chunks().flatten()
-    return np.asarray(flat, dtype=np.float32).reshape(-1, dim)
+    """A scanned table's fixed-size-list ``vector`` column -> (N, dim) float32: the
+    embeddings as stored (without the sense codes a store may keep after them)."""
+    col = tbl.column("vector").combine_chunks()
+    width = col.type.list_size
+    if width < dim:
+        raise DimensionMismatchError(f"stored vectors have dimension {width}, expected {dim}")
+    return np.asarray(col.flatten(), dtype=np.float32).reshape(-1, width)[:, :dim]

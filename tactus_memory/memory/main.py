@@ -75,8 +75,8 @@ from tactus_memory.settings import DEFAULT_MEMORY, Settings
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.rows import options_for, summarise
 from tactus_memory.storage.scheduler import Background
-from tactus_memory.storage.store import HIT_COLUMNS, Store
-from tactus_memory.storage.tables import IndexConfig
+from tactus_memory.storage.store import Store
+from tactus_memory.storage.tables import HIT_COLUMNS, IndexConfig
 from tactus_memory.storage.tenants import tenant_uri
 from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, check_group, grasp_hits
 from tactus_memory.temporal.operators import Temporal

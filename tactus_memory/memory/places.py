@@ -34,7 +34,7 @@ from tactus_memory.query import Scope, embed_query
 from tactus_memory.results import Place, TimelineItem, TrajectoryOut, row_fields
 from tactus_memory.storage.places import POSE_TOLERANCE, Placement, check_poses, place_many
 from tactus_memory.storage.posestore import PoseStore
-from tactus_memory.storage.store import HIT_COLUMNS
+from tactus_memory.storage.tables import HIT_COLUMNS
 from tactus_memory.temporal.clocks import pad, session_clock
 from tactus_memory.where import (
     DEFAULT_FRAME,

@@ -49,6 +49,7 @@ from pydantic import BaseModel
 
 from tactus_memory.errors import InvalidInputError, SenseConflictError
 from tactus_memory.sense import Sense, validate_sense_name
+from tactus_memory.storage.codes import code_batches
 from tactus_memory.storage.rows import options_for
 from tactus_memory.storage.tables import items_schema
 from tactus_memory.vectors import as_unit_rows
@@ -147,6 +148,18 @@ def embed_rows(encoder: Sense, rows: Sequence[dict[str, Any]], dim: int) -> np.n
     return vecs
 
 
+def coded(store: Store, sense: str, staged: Any) -> pa.RecordBatchReader:
+    """Staged (id, D vector) rows of ``sense`` (a table or a LanceDB query), streamed as
+    the items table stores them: with the sense's code when the store keeps codes
+    (:mod:`tactus_memory.storage.codes`)."""
+    import pyarrow as pa
+
+    field = store.schema.field("vector")
+    reader = staged.to_reader() if isinstance(staged, pa.Table) else staged.to_batches()
+    schema = reader.schema.set(reader.schema.get_field_index("vector"), field)
+    return pa.RecordBatchReader.from_batches(schema, code_batches(reader, sense, field))
+
+
 def vector_table(ids: Sequence[str], vecs: np.ndarray, tag: str | None = None) -> pa.Table:
     import pyarrow as pa
 
@@ -241,7 +254,7 @@ def swap(memory: Reembeddable, job: Staged, batches: int) -> ReembedReport:
             job.table.add(vector_table(late, _embed(store, encoder, late, job.dim), job.tag))
         if current:
             # streamed from the staging table (memory stays bounded), one commit
-            new = job.table.search().select(["id", "vector"]).limit(None).to_batches()
+            new = coded(store, job.sense, job.table.search().select(["id", "vector"]))
             with store.commit_lock:  # THE swap
                 store.items.merge_insert("id").when_matched_update_all().execute(new)
         memory.registry.replace_sense(encoder)
@@ -252,7 +265,8 @@ def swap(memory: Reembeddable, job: Staged, batches: int) -> ReembedReport:
         done = set(current)
         after = [i for i in _ids(store, job.redo) if i not in done]
         if after:
-            redo = vector_table(after, _embed(store, encoder, after, job.dim))
+            vecs = _embed(store, encoder, after, job.dim)
+            redo = coded(store, job.sense, vector_table(after, vecs))
             with store.commit_lock:
                 store.items.merge_insert("id").when_matched_update_all().execute(redo)
         missing = _ids(store, missing_where)

@@ -8,19 +8,23 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactus_memory.storage.codes import coded_query, embedding_distance, strip_table
 from tactus_memory.storage.tables import (
+    HIT_COLUMNS,
     UNMEASURED_NPROBES,
     IndexConfig,
     scalar_index_config,
     vector_index_config,
 )
 from tactus_memory.vectors import as_unit_rows, vector_column
+from tactus_memory.where import Where, _sql_str, within_sessions
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa
@@ -32,6 +36,11 @@ log = logging.getLogger(__name__)
 LADDER = (4, 8, 12, 16, 24, 32, 40, 48, 64, 80, 96, 128, 160, 192, 224, 256) + tuple(
     int(256 * 1.125**i) // 8 * 8 for i in range(1, 30)
 )
+
+
+def _sense_sql(sense: str) -> tuple[str | None, ...]:
+    """The filters that keep one sense and nothing else, as a search renders them."""
+    return (Where().senses([sense]).sql(), Where().sense(sense).sql())
 
 
 class StoreIndexes:
@@ -53,16 +62,101 @@ class StoreIndexes:
 
         def count(self, where: str | None = None) -> int: ...
         def dim(self) -> int: ...
+        def codes(self) -> int: ...
+        def present(self, columns: Sequence[str]) -> list[str]: ...
         def get_meta(self, key: str) -> str | None: ...
         def set_meta(self, key: str, value: str) -> None: ...
 
-    def nearest(self, knn: dict[str, Any], where: str | None, columns: list[str]) -> pa.Table:
-        """One KNN query (lance's ``nearest`` parameters ``knn``), prefiltered by ``where``,
-        on the items' lance dataset at the table's current version. Asked of the dataset,
-        not through LanceDB's query builder: 2-3 ms less per search at 1M rows (two queries;
-        benchmarks/search_1m.py, docs/operations/speed.md)."""
+    def vector_search(
+        self,
+        vector: np.ndarray,
+        k: int,
+        where: str | None,
+        *,
+        allowed: int | None = None,
+        total: int | None = None,
+        columns: Sequence[str] = HIT_COLUMNS,
+        flat: bool = True,
+        senses: Sequence[str] | None = None,
+    ) -> pa.Table:
+        """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
+
+        ``allowed``: how many rows pass ``where`` (``total``: rows in the table). A selective
+        filter (allowed <= ``flat_max``) is answered by an exact flat scan of the allowed
+        rows (unless ``flat`` is False); otherwise the ANN index is probed, with more
+        partitions the more selective the filter, so that about ``min_candidates`` allowed
+        rows are scored. ``senses``: the senses ``where`` keeps (None: all); one sense is
+        asked with its sense code (:mod:`tactus_memory.storage.codes`), so the index's
+        partitions nearest the query are that sense's own, and only those rows are returned.
+        """
+        cfg = self.index
+        sense = senses[0] if senses is not None and len(senses) == 1 else None
+        # a coded query within one sense, and nothing else asked: no prefilter (below)
+        only = sense is not None and self.codes() > 0 and where in _sense_sql(sense)
+        where = within_sessions(where)
+        only = only and where in _sense_sql(sense)  # (no session prefix either)
+        knn: dict[str, Any] = {"column": "vector", "q": vector, "k": k, "metric": "cosine"}
+        indexed = self.has_vector_index()
+        if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
+            knn["use_index"] = False
+        elif indexed:
+            nprobes = self.probes(senses)  # ``where`` keeps these senses (None: all)
+            if allowed and total and allowed < total:
+                per_part = allowed / self.partitions()  # the index's own partitions
+                nprobes = max(nprobes, math.ceil(cfg.min_candidates / max(per_part, 1e-9)))
+            knn["nprobes"] = min(nprobes, self.partitions())
+            if cfg.refine_factor:
+                knn["refine_factor"] = cfg.refine_factor
+            if cfg.ef:  # HNSW needs ef >= the candidates it returns
+                knn["ef"] = max(cfg.ef, k * (cfg.refine_factor or 1))
+        cols = [*self.present(columns), "_distance"]
+        if only and "nprobes" in knn:
+            # the partitions nearest a query with the sense's code hold that sense's rows
+            # only, so the query is asked without the sense prefilter (its mask of the
+            # sense's rows cost ~3 ms at 750k rows; benchmarks/search_1m.py): the
+            # k rows it returns are the sense's top k among the probed rows when all are the
+            # sense's; when one is not (or fewer came back), it is asked with the prefilter
+            with_sense = cols if "sense" in cols else [*cols, "sense"]
+            rows = self.nearest(knn, None, with_sense, coded=sense)
+            if rows.num_rows == k and set(rows.column("sense").to_pylist()) == {sense}:
+                return rows.select(cols)
+        return self.nearest(knn, where, cols, sense=sense)
+
+    def nearest(
+        self,
+        knn: dict[str, Any],
+        where: str | None,
+        columns: list[str],
+        sense: str | None = None,
+        *,
+        coded: str | None = None,
+    ) -> pa.Table:
+        """One KNN query (lance's ``nearest`` parameters ``knn``, its ``q`` a (D,) unit
+        embedding), prefiltered by ``where``, on the items' lance dataset at the table's
+        current version; ``_distance`` is 1 - the embeddings' cosine and ``vector`` the D
+        embedding columns, whether or not the store keeps sense codes. ``sense``: only that
+        sense's rows are asked for (added to ``where``), with its code; ``coded``: asked
+        with that sense's code, but no row left out. Asked of the
+        dataset, not through LanceDB's query builder: 2-3 ms less per search at 1M rows
+        (two queries; benchmarks/search_1m.py, docs/operations/speed.md)."""
+        codes, dim = self.codes(), self.dim()
+        if sense is not None:
+            only = f"sense = {_sql_str(sense)}"
+            where = f"({where}) AND {only}" if where else only
+        code = sense if sense is not None else coded
+        if codes:
+            knn = {**knn, "q": coded_query(knn["q"], code, codes)}
         kw: dict[str, Any] = {"filter": where, "prefilter": True} if where else {}
-        return self._dataset().to_table(columns=columns, nearest=knn, **kw)
+        tbl = self._dataset().to_table(columns=columns, nearest=knn, **kw)
+        if not codes:
+            return tbl
+        if "_distance" in tbl.column_names:
+            import pyarrow as pa
+
+            at = tbl.schema.get_field_index("_distance")
+            d = embedding_distance(tbl.column(at).to_numpy(), code is not None)
+            tbl = tbl.set_column(at, tbl.schema.field(at), pa.array(d, pa.float32()))
+        return strip_table(tbl, dim)
 
     def _dataset(self) -> Any:
         """The items' lance dataset at the version the LanceDB table reads now (its read
@@ -147,7 +241,6 @@ class StoreIndexes:
         def search(q: np.ndarray, probes: int | None, sense: str | None) -> np.ndarray:
             """The k nearest distances, as a search asks them (Store.vector_search)."""
             knn: dict[str, Any] = {"column": "vector", "q": q, "k": k, "metric": "cosine"}
-            where = None if sense is None else f"sense = '{sense.replace(chr(39), chr(39) * 2)}'"
             if probes is None:
                 knn["use_index"] = False
             else:
@@ -156,7 +249,7 @@ class StoreIndexes:
                     knn["refine_factor"] = cfg.refine_factor
                 if cfg.ef:
                     knn["ef"] = max(cfg.ef, k * (cfg.refine_factor or 1))
-            return np.asarray(self.nearest(knn, where, ["_distance"])["_distance"])
+            return np.asarray(self.nearest(knn, None, ["_distance"], sense)["_distance"])
 
         exact = [[search(q, None, sense)[-1] + 1e-6 for q in qs] for sense, qs in checks]
         # each part (unfiltered, each sense) climbs the ladder until it reaches the target

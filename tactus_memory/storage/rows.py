@@ -15,6 +15,7 @@ import numpy as np
 from tactus_memory.batches import check_ids, check_times, meta_json, per_item
 from tactus_memory.results import SessionSummary, Stored
 from tactus_memory.sense import Sense
+from tactus_memory.storage.codes import vector_array
 from tactus_memory.storage.places import Placement, given_placement
 from tactus_memory.where import DEFAULT_FRAME, validate_frame
 
@@ -122,11 +123,12 @@ def items_table(
     vectors: np.ndarray,
     extras: Sequence[dict[str, Any]],
 ) -> pa.Table:
-    """The Arrow table of one write: ``vectors`` (N, D) unit rows, ``extras`` the sense's
-    ``to_row`` columns per item."""
+    """The Arrow table of one write: ``vectors`` (N, D) unit rows (stored with the sense's
+    code when ``schema``'s vector is wider: :mod:`tactus_memory.storage.codes`),
+    ``extras`` the sense's ``to_row`` columns per item."""
     import pyarrow as pa
 
-    n, dim = vectors.shape
+    n = len(vectors)
     return pa.table(
         {
             "id": batch.ids,
@@ -134,9 +136,7 @@ def items_table(
             "sense": [sense] * n,
             "t": batch.t,
             "t_end": batch.t_end,
-            "vector": pa.FixedSizeListArray.from_arrays(
-                pa.array(vectors.reshape(-1), pa.float32()), dim
-            ),
+            "vector": vector_array(vectors, sense, schema.field("vector").type.list_size),
             "meta": batch.meta,
             "text": [e.get("text") for e in extras],
             "raw": [e.get("raw") for e in extras],

@@ -5,8 +5,12 @@ One store is one LanceDB database (a directory or an object-storage prefix) with
 ``items``  one row per remembered thing (any sense), the columns in :func:`items_schema`::
 
     id str | session str | sense str | t float64 | t_end float64
-    vector fixed_size_list<float32>[D] | meta str (JSON) | text str? | raw binary? (npy bytes)
+    vector fixed_size_list<float32>[D + 16] | meta str (JSON) | text str? | raw binary? (npy bytes)
     source str | episode int64? | created float64
+
+(``vector``: the D embedding, then its sense's code, which sets each sense's rows apart in
+the ANN index: :mod:`tactus_memory.storage.codes`; every read returns the D embedding
+columns only; a store made before codes keeps D.)
 
 ``senses`` one row per sense ever registered: name, modality, dim, provenance (JSON), an
            optional ``query_centroid`` (npy bytes) and the score calibration (mu, sigma, calib_n).
@@ -43,6 +47,7 @@ import numpy as np
 from tactus_memory.errors import IdConflictError, SpaceMismatchError
 from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S
 from tactus_memory.policies import MaintenanceConfig
+from tactus_memory.storage.codes import CODE_DIMS, codes_of, strip_table
 from tactus_memory.storage.compaction import Maintainer, TableReport, fragment_infos
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
@@ -64,11 +69,6 @@ SENSES = "senses"
 META = "meta"
 #: the session trajectories (:mod:`tactus_memory.storage.posestore`)
 POSES = "poses"
-#: columns returned by searches (everything except the vector and raw bytes)
-HIT_COLUMNS = [
-    *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
-    *("x", "y", "z", "frame"),
-]
 
 
 def _upsert(table: Table, key: str, data: pa.Table) -> None:
@@ -207,7 +207,7 @@ class Store(StoreIndexes):
             # (measured at 1M rows, benchmarks/README.md)
             self._items = self.db.create_table(
                 ITEMS,
-                schema=items_schema(dim),
+                schema=items_schema(dim, CODE_DIMS),
                 exist_ok=True,
                 storage_options={**self.storage_options, "new_table_data_storage_version": "2.1"},
             )
@@ -330,50 +330,12 @@ class Store(StoreIndexes):
         return 0 if self._items is None else int(self.items.count_rows(within_sessions(where)))
 
     # ----------------------------------------------------------- reads
-    def vector_search(
-        self,
-        vector: np.ndarray,
-        k: int,
-        where: str | None,
-        *,
-        allowed: int | None = None,
-        total: int | None = None,
-        columns: Sequence[str] = HIT_COLUMNS,
-        flat: bool = True,
-        senses: Sequence[str] | None = None,
-    ) -> pa.Table:
-        """vector: (D,) unit float32 -> up to k rows with ``_distance`` = 1 - cosine.
-
-        ``allowed``: how many rows pass ``where`` (``total``: rows in the table). A selective
-        filter (allowed <= ``flat_max``) is answered by an exact flat scan of the allowed
-        rows (unless ``flat`` is False); otherwise the ANN index is probed, with more
-        partitions the more selective the filter, so that about ``min_candidates`` allowed
-        rows are scored.
-        """
-        cfg = self.index
-        where = within_sessions(where)
-        knn: dict[str, Any] = {"column": "vector", "q": vector, "k": k, "metric": "cosine"}
-        indexed = self.has_vector_index()
-        if indexed and where and flat and allowed is not None and allowed <= cfg.flat_max:
-            knn["use_index"] = False
-        elif indexed:
-            nprobes = self.probes(senses)  # ``where`` keeps these senses (None: all)
-            if allowed and total and allowed < total:
-                per_part = allowed / self.partitions()  # the index's own partitions
-                nprobes = max(nprobes, math.ceil(cfg.min_candidates / max(per_part, 1e-9)))
-            knn["nprobes"] = min(nprobes, self.partitions())
-            if cfg.refine_factor:
-                knn["refine_factor"] = cfg.refine_factor
-            if cfg.ef:  # HNSW needs ef >= the candidates it returns
-                knn["ef"] = max(cfg.ef, k * (cfg.refine_factor or 1))
-        return self.nearest(knn, where, [*self.present(columns), "_distance"])
-
     def scan(self, where: str | None, columns: Sequence[str], limit: int | None = None) -> pa.Table:
         q = self.items.search()
         where = within_sessions(where)
         if where:
             q = q.where(where)
-        return q.select(self.present(columns)).limit(limit).to_arrow()
+        return strip_table(q.select(self.present(columns)).limit(limit).to_arrow(), self.dim())
 
     def present(self, columns: Sequence[str]) -> list[str]:
         """``columns`` the items table has (a store made before places, opened where it
@@ -382,7 +344,12 @@ class Store(StoreIndexes):
 
     # ----------------------------------------------------------- indexes & compaction
     def dim(self) -> int:
-        return int(self.items.schema.field("vector").type.list_size)
+        """The embeddings' dimension D (the stored vectors may carry sense codes after it)."""
+        return int(self.schema.field("vector").type.list_size) - self.codes()
+
+    def codes(self) -> int:
+        """Sense-code dimensions after each stored embedding (:mod:`.codes`; 0: made before)."""
+        return codes_of(self.schema.field("vector"))
 
     def version(self) -> int:
         """The items table's version as this connection sees it (ours and others' commits)."""

@@ -12,8 +12,20 @@ if TYPE_CHECKING:
 
 
 # --------------------------------------------------------------------------- schema
-def items_schema(dim: int) -> pa.Schema:
+#: columns returned by searches (everything except the vector and raw bytes)
+HIT_COLUMNS = [
+    *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
+    *("x", "y", "z", "frame"),
+]
+
+
+def items_schema(dim: int, codes: int = 0) -> pa.Schema:
+    """The items table: ``vector`` holds each row's D embedding and, in a store made with
+    sense codes, ``codes`` more dimensions (:mod:`tactus_memory.storage.codes`; recorded
+    in the field's metadata)."""
     import pyarrow as pa
+
+    from tactus_memory.storage.codes import FIELD_KEY
 
     return pa.schema(
         [
@@ -22,7 +34,12 @@ def items_schema(dim: int) -> pa.Schema:
             pa.field("sense", pa.string(), nullable=False),
             pa.field("t", pa.float64(), nullable=False),
             pa.field("t_end", pa.float64(), nullable=False),
-            pa.field("vector", pa.list_(pa.float32(), dim), nullable=False),
+            pa.field(
+                "vector",
+                pa.list_(pa.float32(), dim + codes),
+                nullable=False,
+                metadata={FIELD_KEY: str(codes).encode()} if codes else None,
+            ),
             pa.field("meta", pa.string(), nullable=False),
             pa.field("text", pa.string()),
             pa.field("raw", pa.binary()),

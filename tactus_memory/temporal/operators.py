@@ -68,7 +68,8 @@ from tactus_memory.results import (
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.spaces.base import Space
-from tactus_memory.storage.store import HIT_COLUMNS, Store
+from tactus_memory.storage.store import Store
+from tactus_memory.storage.tables import HIT_COLUMNS
 from tactus_memory.temporal.clocks import Clocks, Offsets, pad
 from tactus_memory.temporal.episodes import (
     EPISODE_MAX_GAP,

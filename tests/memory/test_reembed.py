@@ -19,6 +19,7 @@ from tactus_memory.errors import IdleWindowError, SenseConflictError
 from tactus_memory.hashing import file_sha256
 from tactus_memory.memory.main import Memory
 from tactus_memory.memory.reembed import STAGING_PREFIX
+from tactus_memory.storage.codes import CODE_DIMS, CODE_WEIGHT, code
 from tactus_memory.storage.store import Store
 from tactus_memory.training.data import load_stag
 from tactus_memory.training.stream_eval import build_stream
@@ -96,6 +97,10 @@ def test_reembed_swaps_every_vector_to_b(tmp_path, pair, windows, minilm_space) 
     assert not np.allclose(after, before, atol=1e-2)  # A and B really differ
     # B of the stored window = B of the original window, up to the float16 storage
     assert (np.sum(after * enc_b.embed(list(windows)), axis=1) > 0.999).all()
+    # as stored, each swapped vector still carries the touch sense's code after it
+    raw = mem.store.items.to_lance().to_table(columns=["vector"], filter="sense = 'touch'")
+    tails = np.stack(raw.column("vector").to_numpy(zero_copy_only=False))[:, -CODE_DIMS:]
+    assert np.allclose(tails, CODE_WEIGHT * code("touch"), atol=1e-6)
     prov = {s.name: s.provenance for s in mem.sense_info()}["touch"]
     sha_b = file_sha256(pair.b)
     assert prov["checkpoint_sha256"] == sha_b == report.provenance["checkpoint_sha256"]

@@ -137,12 +137,14 @@ def test_per_sense_queries_give_the_hits_of_the_shared_query(store: dict) -> Non
     for q in queries(store, 12, seed=5):
         Ranker.split_senses = False
         try:
-            shared = [(h.id, round(h.score, 4)) for h in pinned.search_vector(q, k=K)]
+            shared = [(h.id, h.score) for h in pinned.search_vector(q, k=K)]
         finally:
             Ranker.split_senses = True
-        split = [(h.id, round(h.score, 4)) for h in pinned.search_vector(q, k=K)]
-        assert split == shared
-        assert [i for i, _ in split] == exact(store, q)
+        split = [(h.id, h.score) for h in pinned.search_vector(q, k=K)]
+        assert [i for i, _ in split] == [i for i, _ in shared] == exact(store, q)
+        # the same scores: a per-sense query asks with the sense's code, the shared one
+        # without, and both recover the embeddings' cosine (float32 distances: ~2e-7)
+        assert np.allclose([z for _, z in split], [z for _, z in shared], atol=1e-4)
         both += len({pinned.get_item(i).sense for i, _ in split}) == 2
     assert both >= 4  # answers mixing the two senses: the merge is tested
 

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pyarrow as pa
 import pytest
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatchError
+from tactus_memory.storage.codes import vector_array
 from tactus_memory.storage.connect import normalise_uri
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.tables import items_schema, place_fields
+from tactus_memory.storage.tables import place_fields
 from tactus_memory.where import Where, finite_float, validate_id
 
 HOSTILE = [
@@ -100,9 +102,12 @@ def test_uri_normalisation() -> None:
             normalise_uri(bad)
 
 
-def _rows(dim: int, items: list[tuple[str, str, str, float, float]]) -> pa.Table:
-    n = len(items)
-    vec = [[1.0] + [0.0] * (dim - 1)] * n
+def _rows(store: Store, items: list[tuple[str, str, str, float, float]]) -> pa.Table:
+    """Rows as the store keeps them (its schema: each vector with its sense's code)."""
+    n, dim, schema = len(items), store.dim(), store.schema
+    width = schema.field("vector").type.list_size
+    one = np.eye(1, dim, dtype=np.float32)
+    vec = pa.concat_arrays([vector_array(one, i[2], width) for i in items])
     return pa.table(
         {
             "id": [i[0] for i in items],
@@ -119,7 +124,7 @@ def _rows(dim: int, items: list[tuple[str, str, str, float, float]]) -> pa.Table
             "created": [0.0] * n,
             **{f.name: pa.nulls(n, f.type) for f in place_fields()},  # unplaced
         },
-        schema=items_schema(dim),
+        schema=schema,
     )
 
 
@@ -129,7 +134,7 @@ def test_filters_execute_on_real_lancedb(tmp_path) -> None:
     store.bind_space("fake", 4)
     store.write(
         _rows(
-            4,
+            store,
             [
                 ("a", "s1", "text", 0.0, 1.0),
                 ("b", "s1", "touch", 2.0, 5.0),
@@ -165,8 +170,8 @@ def test_space_recorded_and_checked(tmp_path) -> None:
 def test_upsert_is_idempotent(tmp_path) -> None:
     store = Store(str(tmp_path / "db"))
     store.bind_space("fake", 4)
-    store.write(_rows(4, [("a", "s1", "text", 0.0, 0.0)]), upsert=True)
-    store.write(_rows(4, [("a", "s1", "text", 7.0, 7.0)]), upsert=True)
+    store.write(_rows(store, [("a", "s1", "text", 0.0, 0.0)]), upsert=True)
+    store.write(_rows(store, [("a", "s1", "text", 7.0, 7.0)]), upsert=True)
     tbl = store.scan(None, ["id", "t"])
     assert tbl.num_rows == 1
     assert tbl.column("t")[0].as_py() == 7.0
