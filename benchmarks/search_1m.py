@@ -372,6 +372,7 @@ def main() -> None:
     ap.add_argument("--onnx", type=Path, help="also time /search on `tactus serve --onnx DIR`")
     ap.add_argument("--only-http", action="store_true", help="skip the library measurements")
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--filtered-only", action="store_true", help="only the filtered searches")
     compare_help = "a --cache made before sense codes: time its store against the first spec's"
     ap.add_argument("--compare", type=Path, help=compare_help)
     args = ap.parse_args()
@@ -406,6 +407,14 @@ def main() -> None:
     if args.compare:
         result["codes_vs_before"] = compare_layouts(args, real, data, first, built, ids)
         args.http = False  # timed within the comparison
+    elif args.filtered_only:
+        kind, rows_per_part = first.split(":")
+        cfg = IndexConfig(index_type=kind, rows_per_partition=int(rows_per_part), threshold=10**12)
+        mem = open_store(built[first]["path"], cfg)
+        q = real["queries"][:100]
+        result["filtered"] = {"spec": first, **filtered(mem, data, ids, q)}
+        result["where_time_goes"] = {"spec": first, **where_time_goes(mem, q)}
+        mem.close()
     elif not args.only_http:
         result.update(library(args, real, data, ids, built))
     if args.http:

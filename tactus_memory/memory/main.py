@@ -377,8 +377,9 @@ class Memory(AbstractContextManager["Memory"]):
     def _rank_in(self, q: np.ndarray, k: int, where: Scope, transform: bool) -> list[Hit]:
         """:meth:`rank` the (1, D) unit query ``q`` over the scope's senses and filters, hits
         marked with their match bar."""
-        names = self.resolve_senses(where.senses)
-        return mark_matches(self.rank(q, k, names, where.where(), transform=transform))
+        with self.registry.pinned():  # one view of the senses and tables for the question
+            names = self.resolve_senses(where.senses)
+            return mark_matches(self.rank(q, k, names, where.where(), transform=transform))
 
     def search_like(
         self,

@@ -330,12 +330,13 @@ class SenseRegistry:
         if getattr(self._pinned, "on", False):  # a question inside a question
             yield
             return
-        self.refresh()
-        self._pinned.on = True
-        try:
-            yield
-        finally:
-            self._pinned.on = False
+        with self.store.pinned():  # and the tables' versions read once (Store.pinned)
+            self.refresh()
+            self._pinned.on = True
+            try:
+                yield
+            finally:
+                self._pinned.on = False
 
     def refresh(self) -> None:
         """Drop the row-count cache when the items table moved on (another process's

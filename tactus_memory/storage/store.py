@@ -38,7 +38,9 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
@@ -63,6 +65,20 @@ if TYPE_CHECKING:  # heavy imports stay lazy
     from lancedb.table import Table
 
 log = logging.getLogger(__name__)
+
+#: table name -> its version, as first read inside Store.pinned (None: not pinned)
+_PINNED: ContextVar[dict[str, int] | None] = ContextVar("tactus_pinned_versions", default=None)
+
+
+def pinned_version(name: str, table: Any) -> int:
+    """``table``'s version: asked of LanceDB, or as first asked in this pinned context."""
+    seen = _PINNED.get()
+    if seen is None:
+        return int(table.version)
+    if name not in seen:
+        seen[name] = int(table.version)
+    return seen[name]
+
 
 ITEMS = "items"
 SENSES = "senses"
@@ -352,11 +368,24 @@ class Store(StoreIndexes):
         return codes_of(self.schema.field("vector"))
 
     def version(self) -> int:
-        """The items table's version as this connection sees it (ours and others' commits)."""
-        return 0 if self._items is None else int(self.items.version)
+        """The items table's version as this connection sees it (ours and others' commits);
+        inside :meth:`pinned`, as it was first asked there."""
+        return 0 if self._items is None else pinned_version(ITEMS, self.items)
 
     def senses_version(self) -> int:
-        return 0 if self._senses is None else int(self._senses.version)
+        return 0 if self._senses is None else pinned_version(SENSES, self._senses)
+
+    @contextmanager
+    def pinned(self) -> Iterator[None]:
+        """One read of each table's version for a whole question (a read only: a search),
+        in this context and the threads it hands its context to (the ANN queries): each ask
+        is a round trip to LanceDB's event loop thread, 4 of a search's 5 without it."""
+        token = _PINNED.set({}) if _PINNED.get() is None else None
+        try:
+            yield
+        finally:
+            if token is not None:
+                _PINNED.reset(token)
 
     def meta_version(self) -> int:
         """The meta table's version (caches of meta records key on it)."""

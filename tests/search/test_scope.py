@@ -69,33 +69,35 @@ def test_group_moment_embeds_the_query_once(mem) -> None:
     assert q.shape == (1, space.dim)
 
 
-def test_a_search_reads_the_senses_once_and_still_sees_new_rows(mem, monkeypatch) -> None:
-    """A question (a search, a temporal one) refreshes the sense registry once (``pinned``),
-    not at each step: the senses table's version is asked once (the ANN path and teaching
-    ask the items table's their own way). A row added between two questions is still found
-    by the next."""
+class _CountsVersions:
+    """A LanceDB table that counts how often its ``version`` is asked (a round trip to
+    LanceDB's event loop thread each)."""
+
+    def __init__(self, table: object) -> None:
+        self._table, self.asked = table, 0
+
+    def __getattr__(self, name: str) -> object:
+        if name == "version":
+            self.asked += 1
+        return getattr(self._table, name)
+
+
+def test_a_search_reads_the_tables_versions_once_and_still_sees_new_rows(mem) -> None:
+    """A question (a search, a temporal one) reads each table's version once (``pinned``),
+    not at each step (the registry's refresh, each sense's ANN query, teaching's
+    prototypes). A row added between two questions is still found by the next."""
     store = mem.store
-    asked = {"items": 0, "senses": 0}
-    version, senses_version = store.version, store.senses_version
-
-    def items() -> int:
-        asked["items"] += 1
-        return version()
-
-    def senses() -> int:
-        asked["senses"] += 1
-        return senses_version()
-
-    monkeypatch.setattr(store, "version", items)
-    monkeypatch.setattr(store, "senses_version", senses)
-    mem.search("red ball", group="window")
-    assert asked["senses"] == 1  # three refreshes asked it three times before
-    assert asked["items"] <= 2  # the registry's refresh, and teaching's prototypes
-    asked.update(items=0, senses=0)
-    mem.last("red ball")  # a temporal question ranks each sense in scope: one view of them
-    assert asked["senses"] == 1
-    mem.add("c", "text", "a green cube under the chair", t=20.0)
-    assert mem.search("green cube", k=1, group="window")[0].session == "c"
+    store._items, store._senses = _CountsVersions(store._items), _CountsVersions(store._senses)
+    try:
+        mem.search("red ball", group="window")
+        assert (store._items.asked, store._senses.asked) == (1, 1)  # items: 3 without Store.pinned
+        store._items.asked = store._senses.asked = 0
+        mem.last("red ball")  # a temporal question ranks each sense in scope: one view
+        assert (store._items.asked, store._senses.asked) == (1, 1)
+        mem.add("c", "text", "a green cube under the chair", t=20.0)
+        assert mem.search("green cube", k=1, group="window")[0].session == "c"
+    finally:
+        store._items, store._senses = store._items._table, store._senses._table
 
 
 def test_http_search_filters_by_source(tmp_path) -> None:
