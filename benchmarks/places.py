@@ -42,6 +42,7 @@ from benchmarks.memory import (  # noqa: E402
     open_memory,
     pct,
 )
+from tactus_memory.storage.codes import coded_query  # noqa: E402
 from tactus_memory.storage.tables import IndexConfig  # noqa: E402
 from tactus_memory.where import Where  # noqa: E402
 
@@ -78,6 +79,7 @@ def place_rows(data: dict[str, np.ndarray], how: str, rng: np.random.Generator) 
 def plan(mem: Any, vector: np.ndarray, sql: str) -> dict[str, Any]:
     """What LanceDB runs for the filter: the prefiltered vector search's plan and the count's
     (the ranker counts the allowed rows first), and whether each reads a scalar index."""
+    vector = coded_query(vector, None, mem.store.codes())  # as stored: with its code columns
     q = mem.store.items.search(vector, vector_column_name="vector").distance_type("cosine")
     text = q.where(sql, prefilter=True).limit(K).explain_plan(verbose=True)
     scan = mem.store.items.search().where(sql).limit(None).explain_plan(verbose=True)

@@ -42,6 +42,7 @@ from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
 from tactus_memory.search.ranking import Ranker
+from tactus_memory.storage.codes import coded_query
 from tactus_memory.storage.tables import IndexConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -253,6 +254,7 @@ def where_time_goes(mem: Memory, q: np.ndarray) -> dict[str, Any]:
         return round(pct(lat, 50), 2)
 
     def lance(v: np.ndarray, refine: int | None) -> Any:
+        v = coded_query(v, None, store.codes())  # as stored: with the code columns
         s = store.items.search(v, vector_column_name="vector").distance_type("cosine")
         s = s.nprobes(min(store.probes(), store.partitions()))
         return (s.refine_factor(refine) if refine else s).select(["id"]).limit(2 * K).to_arrow()

@@ -151,8 +151,11 @@ class Ranker:
             return []
         want = k * len(names)
         flat = not base.scattered  # scattered rows: the prefiltered ANN search is cheaper
+        # one sense: storage adds its condition itself (with the sense's code, and no
+        # prefilter when nothing else is asked: StoreIndexes.vector_search)
+        asked = base.sql() if len(names) == 1 else sql
         rows = self.store.vector_search(
-            vec, want, sql, allowed=allowed, total=total, flat=flat, senses=names
+            vec, want, asked, allowed=allowed, total=total, flat=flat, senses=names
         )
         out = [self._scored(row, calib) for row in rows.to_pylist()]
         if len(names) == 1 or len(out) < want:
@@ -169,7 +172,7 @@ class Ranker:
             one = base.copy().sense(name)
             n_one = self._allowed(base, one, [name], counts)
             extra = self.store.vector_search(
-                vec, k, one.sql(), allowed=n_one, total=total, flat=flat, senses=[name]
+                vec, k, base.sql(), allowed=n_one, total=total, flat=flat, senses=[name]
             )
             out = [x for x in out if x[2]["sense"] != name]
             out.extend(self._scored(row, calib) for row in extra.to_pylist())
