@@ -135,9 +135,9 @@ class StoreIndexes:
         current version; ``_distance`` is 1 - the embeddings' cosine and ``vector`` the D
         embedding columns, whether or not the store keeps sense codes. ``sense``: only that
         sense's rows are asked for (added to ``where``), with its code; ``coded``: asked
-        with that sense's code, but no row left out. Asked of the
-        dataset, not through LanceDB's query builder: 2-3 ms less per search at 1M rows
-        (two queries; benchmarks/search_1m.py, docs/operations/speed.md)."""
+        with that sense's code, but no row left out. Asked of the dataset, not through
+        LanceDB's query builder: 2-3 ms less per search at 1M rows (two queries;
+        benchmarks/search_1m.py, docs/operations/speed.md)."""
         codes, dim = self.codes(), self.dim()
         if sense is not None:
             only = f"sense = {_sql_str(sense)}"
