@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -12,6 +13,8 @@ import typer
 
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import ServiceData, TouchSenses, TouchStride, TouchWindow
+from tactus_memory.cli.prefetch import record as record_start_files
+from tactus_memory.cli.prefetch import wait as wait_for_prefetch
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 
 
@@ -147,6 +150,8 @@ def serve(
         if settings.workers > 1:  # forked before anything heavy is imported
             from tactus_memory.cli.workers import serve_workers, worker_torch_threads
 
+            wait_for_prefetch()  # the read-ahead thread done (JOIN_S at most) before it forks
+
             settings = worker_torch_threads(settings)
             say = lambda line: typer.echo(line, err=True)  # noqa: E731
             status = serve_workers(settings, settings.workers, say, (load_app, run_server), debug)
@@ -249,6 +254,10 @@ def load_app(
         why = step(3, touch, lambda: register_default_senses(memory, settings), state)
         if why:
             say(f"touch is off: {why}")
+        # what this start read, for the next start to read ahead (a thread: not on the way
+        # to /ready)
+        folders = [folder] if folder is not None else []
+        threading.Thread(target=record_start_files, args=(folders,), daemon=True).start()
         if on_ready is not None:
             on_ready()  # a worker of several: /ready answers 200 once every one is
             say("ready: GET /ready answers 200 once every worker is")
