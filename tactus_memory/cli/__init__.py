@@ -11,8 +11,8 @@ import sys
 
 from tactus_memory.cli import prefetch
 
-# `tactus serve`: read ahead, on a thread, the files its start will read (a cold file cache),
-# before the commands below import anything heavy
+# `tactus serve`: read ahead, in a reader process, the files its start will read (a cold file
+# cache), before the commands below import anything heavy
 prefetch.start(sys.argv)
 
 from tactus_memory.cli import (  # noqa: E402, F401  (imported for their registrations)

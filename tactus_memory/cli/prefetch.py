@@ -4,10 +4,11 @@
 A start reads ~1,600 files: the bytecode of ~1,300 modules, the shared libraries they map
 (LanceDB's and Lance's Rust runtimes, Arrow, ONNX Runtime) and the ONNX models. On a cold
 cache Python reads them one ``.pyc`` or page fault at a time, each a wait on the disk. Here a
-daemon thread, started before the command imports anything heavy, asks the kernel for every
-file of the list the last start recorded, in that start's order (``posix_fadvise`` with
-``WILLNEED``: the reads are queued and the thread does not wait for them), so the disk works
-ahead of the imports instead of behind them.
+small reader process, forked before the command imports anything heavy, asks the kernel for
+every file of the list the last start recorded, in that start's order (``posix_fadvise`` with
+``WILLNEED``: the reads are queued, the reader does not wait for them), so the disk works
+ahead of the imports instead of behind them. The page cache is the machine's: what the
+reader brings in, the server finds.
 
 Each start records its list once it is ready (:func:`record`: the modules of
 ``sys.modules``, which is in import order, the files in /proc/self/maps placed before their
@@ -19,8 +20,10 @@ upgrade) is skipped. ``TACTUS_PREFETCH=0`` turns it off. It acts where the OS ha
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import signal
 import sys
 import threading
 from collections.abc import Iterable, Sequence
@@ -32,11 +35,6 @@ from tactus_memory.export.user_cache import cache_root
 ENV = "TACTUS_PREFETCH"
 #: in the list's file name: bump when what a list holds changes
 LIST_VERSION = 1
-#: how long a ``--workers N`` start waits for the thread before it forks (the thread only
-#: opens each file and queues its read: ~0.1 s warm, well under a second on a cold cache)
-JOIN_S = 5.0
-
-_thread: threading.Thread | None = None
 
 
 def enabled() -> bool:
@@ -52,9 +50,16 @@ def list_path() -> Path:
 
 def read_ahead(paths: Iterable[str]) -> int:
     """Ask the kernel to read each file into its cache, without waiting for the reads; a
-    missing or unreadable file is skipped. Returns how many files were asked for."""
+    missing or unreadable file is skipped. A module's bytecode (``__pycache__/*.pyc``) has
+    its source looked up first, as an import does (it compares the two): the source's inode
+    comes into the cache, its text is not read. Returns how many files were asked for."""
+    from importlib.util import source_from_cache
+
     asked = 0
     for path in paths:
+        if path.endswith(".pyc"):
+            with contextlib.suppress(ValueError, OSError):
+                os.stat(source_from_cache(path))
         try:
             fd = os.open(path, os.O_RDONLY)
         except OSError:
@@ -69,27 +74,43 @@ def read_ahead(paths: Iterable[str]) -> int:
     return asked
 
 
-def start(argv: Sequence[str]) -> threading.Thread | None:
-    """For ``tactus serve`` (``argv[1]``), with a recorded list: read it ahead on a daemon
-    thread, returned (None where there is nothing to do)."""
-    global _thread
+def start(argv: Sequence[str]) -> bool:
+    """For ``tactus serve`` (``argv[1]``), with a recorded list: read it ahead in the
+    background. True where a reader was started."""
     if len(argv) < 2 or argv[1] != "serve" or not enabled():
-        return None
+        return False
     try:
         paths = list_path().read_text().splitlines()
     except (OSError, UnicodeDecodeError):
-        return None  # a first start (or an unreadable list): nothing to read ahead
-    _thread = threading.Thread(
-        target=read_ahead, args=(paths,), name="tactus-prefetch", daemon=True
-    )
-    _thread.start()
-    return _thread
+        return False  # a first start (or an unreadable list): nothing to read ahead
+    return _in_background(paths)
 
 
-def wait(timeout: float = JOIN_S) -> None:
-    """Let the read-ahead thread finish (at most ``timeout`` s): before ``--workers`` forks."""
-    if _thread is not None:
-        _thread.join(timeout)
+def _in_background(paths: list[str]) -> bool:
+    """``read_ahead(paths)`` in a grandchild process: forked twice, so this process neither
+    waits for it nor has it to reap (the child leaves at once; init adopts the reader). Its
+    own interpreter lock: a thread here took this process's lock back after each of its
+    ~4,500 system calls, each time after up to the 5 ms switch interval while the imports
+    ran, so it trailed the imports instead of leading them. Only from a process with one
+    thread (forking beside threads is unsafe), where ``os.fork`` exists."""
+    if not hasattr(os, "fork") or threading.active_count() > 1:
+        return False
+    try:
+        pid = os.fork()
+    except OSError:
+        return False
+    if pid == 0:  # the child: fork the reader, then leave at once, whatever happens
+        try:
+            if os.fork() == 0:
+                signal.signal(signal.SIGINT, signal.SIG_DFL)  # Ctrl+C: gone, no traceback
+                for fd in (0, 1, 2):  # no hold on the command's output (a pipe's reader)
+                    with contextlib.suppress(OSError):
+                        os.close(fd)
+                read_ahead(paths)
+        finally:
+            os._exit(0)
+    os.waitpid(pid, 0)
+    return True
 
 
 def _module_files() -> list[str]:

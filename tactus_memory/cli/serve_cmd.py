@@ -14,7 +14,6 @@ import typer
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import ServiceData, TouchSenses, TouchStride, TouchWindow
 from tactus_memory.cli.prefetch import record as record_start_files
-from tactus_memory.cli.prefetch import wait as wait_for_prefetch
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 
 
@@ -149,8 +148,6 @@ def serve(
         settings = default_onnx(settings)
         if settings.workers > 1:  # forked before anything heavy is imported
             from tactus_memory.cli.workers import serve_workers, worker_torch_threads
-
-            wait_for_prefetch()  # the read-ahead thread done (JOIN_S at most) before it forks
 
             settings = worker_torch_threads(settings)
             say = lambda line: typer.echo(line, err=True)  # noqa: E731

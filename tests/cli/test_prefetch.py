@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,10 +20,9 @@ needs_fadvise = pytest.mark.skipif(
 
 @pytest.fixture
 def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """The user's cache in ``tmp_path``, the read-ahead on, no thread left from before."""
+    """The user's cache in ``tmp_path``, the read-ahead on."""
     monkeypatch.setenv("TACTUS_CACHE", str(tmp_path))
     monkeypatch.delenv(prefetch.ENV, raising=False)
-    monkeypatch.setattr(prefetch, "_thread", None)
     return tmp_path
 
 
@@ -90,17 +91,29 @@ def test_mapped_files_reads_the_maps_text() -> None:
 
 
 def test_a_ready_process_records_its_list_and_the_next_serve_reads_it(cache: Path) -> None:
-    assert prefetch.start(["tactus", "serve"]) is None  # a first start: no list yet
+    assert prefetch.start(["tactus", "serve"]) is False  # a first start: no list yet
     assert prefetch.record() is True
     listed = prefetch.list_path().read_text().splitlines()
     assert prefetch.list_path().parent == cache / "prefetch"
-    assert str(Path(prefetch.__file__)) in listed or prefetch.__spec__.cached in listed
+    # this module, as a start reads it: its bytecode (its source where none was written)
+    assert prefetch.__spec__.cached in listed or prefetch.__file__ in listed
     assert prefetch.record() is False  # unchanged: not written again
-    assert prefetch.start(["tactus", "search", "mug"]) is None  # only serve reads ahead
-    thread = prefetch.start(["tactus", "serve", "--port", "0"])
-    assert thread is not None and thread.daemon
-    prefetch.wait()
-    assert not thread.is_alive()
+    assert prefetch.start(["tactus", "search", "mug"]) is False  # only serve reads ahead
+    # serve, in a fresh process (the reader is forked): started, and the command's output
+    # (a pipe here) is not held open by it
+    code = "from tactus_memory.cli import prefetch; print(prefetch.start(['tactus', 'serve']))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout.strip() == "True"
+
+
+@needs_fadvise
+def test_bytecode_whose_source_is_gone_is_still_read(tmp_path: Path) -> None:
+    cached = tmp_path / "__pycache__" / "gone.cpython-311.pyc"
+    cached.parent.mkdir()
+    cached.write_bytes(b"bytecode")
+    assert prefetch.read_ahead([str(cached), str(tmp_path / "__pycache__" / "x.pyc")]) == 1
 
 
 def test_turned_off_it_neither_records_nor_reads(
@@ -112,7 +125,7 @@ def test_turned_off_it_neither_records_nor_reads(
     monkeypatch.delenv(prefetch.ENV)
     prefetch.record()
     monkeypatch.setenv(prefetch.ENV, "0")
-    assert prefetch.start(["tactus", "serve"]) is None
+    assert prefetch.start(["tactus", "serve"]) is False
 
 
 def test_an_unwritable_cache_is_no_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -121,4 +134,4 @@ def test_an_unwritable_cache_is_no_error(tmp_path: Path, monkeypatch: pytest.Mon
     monkeypatch.setenv("TACTUS_CACHE", str(blocker))
     monkeypatch.delenv(prefetch.ENV, raising=False)
     assert prefetch.record() is False
-    assert prefetch.start(["tactus", "serve"]) is None
+    assert prefetch.start(["tactus", "serve"]) is False
