@@ -89,10 +89,11 @@ def start(argv: Sequence[str]) -> bool:
 def _in_background(paths: list[str]) -> bool:
     """``read_ahead(paths)`` in a grandchild process: forked twice, so this process neither
     waits for it nor has it to reap (the child leaves at once; init adopts the reader). Its
-    own interpreter lock: a thread here took this process's lock back after each of its
-    ~4,500 system calls, each time after up to the 5 ms switch interval while the imports
-    ran, so it trailed the imports instead of leading them. Only from a process with one
-    thread (forking beside threads is unsafe), where ``os.fork`` exists."""
+    own interpreter lock: a thread here takes this process's lock back after each of its
+    ~4,500 system calls, waiting up to the 5 ms switch interval whenever the imports hold it
+    (beside a busy main thread, 12 ms of work took 1.4 s; docs/operations/speed.md). Only
+    from a process with one thread (forking beside threads is unsafe), where ``os.fork``
+    exists."""
     if not hasattr(os, "fork") or threading.active_count() > 1:
         return False
     try:
