@@ -7,7 +7,15 @@ ONNX export, a first start's one-off, is made before the first round); the 1-min
 average and the cores are recorded with every figure. Linux only. Writes
 benchmarks/results/rss.json (``--out``).
 
+``--cold`` empties the kernel's file cache before every start (root: /proc/sys/vm/drop_caches),
+as after a boot. ``--ab`` starts the server twice a round, with the start's read-ahead off
+(``TACTUS_PREFETCH=0``, :mod:`tactus_memory.cli.prefetch`) and on, the order alternating
+round by round, after one unmeasured start that records the read-ahead list; it reports each
+variant's mean, the paired differences (on - off) and their mean with a 95 % t-interval.
+
     python benchmarks/rss.py [--rounds 3] [--torch] [--writes 200] [--searches 50]
+    python benchmarks/rss.py --cold --ab --rounds 5 --writes 0 --searches 0 \
+        --out benchmarks/results/rss_cold.json
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -28,6 +37,10 @@ from serving import free_port, start_serve, stop_process, wait_ok
 
 RESULTS = Path(__file__).resolve().parent / "results" / "rss.json"
 STARTUP_S = 300
+#: writing 3 here drops the page cache, dentries and inodes (Linux; root only)
+DROP_CACHES = Path("/proc/sys/vm/drop_caches")
+#: the A/B's two variants: the environment each start gets (tactus_memory/cli/prefetch.py)
+VARIANTS: dict[str, dict[str, str]] = {"off": {"TACTUS_PREFETCH": "0"}, "on": {}}
 
 
 def status_mb(pid: int) -> dict[str, float]:
@@ -44,15 +57,26 @@ def load1() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def one_start(args: argparse.Namespace, tmp: Path) -> dict[str, object]:
+def drop_caches() -> None:
+    """Write out dirty pages, then empty the kernel's file cache: the next start reads every
+    file from the disk, as the first start after a boot does."""
+    os.sync()
+    DROP_CACHES.write_text("3\n")
+
+
+def one_start(
+    args: argparse.Namespace, tmp: Path, env: dict[str, str] | None = None
+) -> dict[str, object]:
     """A fresh server on a new store: seconds to /ready, RSS then and after the load."""
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     log = tmp / "serve.log"
     extra = ["--torch"] if args.torch else []
+    if args.cold:
+        drop_caches()
     load_before = load1()
     t0 = time.perf_counter()
-    proc = start_serve(port, tmp / "memory", log, *extra)
+    proc = start_serve(port, tmp / "memory", log, *extra, env=env)
     try:
         if wait_ok(proc, base + "/ready", STARTUP_S, interval=0.05) is None:
             sys.exit(f"the server did not get ready:\n{log.read_text()[-2000:]}")
@@ -76,11 +100,58 @@ def one_start(args: argparse.Namespace, tmp: Path) -> dict[str, object]:
         stop_process(proc)
     return {
         "seconds_to_ready": round(ready_s, 2),
+        "cold": args.cold,
         "ready": ready,
         "after": used,
         "torch_loaded": torch_loaded,
         "load1_before": load_before,
         "load1_after": load1(),
+    }
+
+
+def paired(off: list[float], on: list[float]) -> dict[str, object]:
+    """The paired differences on - off, their mean and its 95 % t-interval (Student's t
+    with n - 1 degrees of freedom; needs two pairs at least); their median and how many
+    pairs were faster with the read-ahead, which one start slowed by a neighbour's burst
+    moves less than the mean."""
+    from scipy import stats
+
+    diffs = [b - a for a, b in zip(off, on, strict=True)]
+    n = len(diffs)
+    mean = float(np.mean(diffs))
+    half = float(stats.t.ppf(0.975, n - 1) * np.std(diffs, ddof=1) / np.sqrt(n))
+    return {
+        "differences_on_minus_off": [round(d, 2) for d in diffs],
+        "mean_difference": round(mean, 3),
+        "t95": [round(mean - half, 3), round(mean + half, 3)],
+        "inside_the_noise": mean - half <= 0 <= mean + half,
+        "median_difference": round(float(np.median(diffs)), 3),
+        "pairs_faster_on": f"{sum(d < 0 for d in diffs)} of {n}",
+    }
+
+
+def ab_rounds(args: argparse.Namespace) -> dict[str, Any]:
+    """``--ab``: one unmeasured start (it records the read-ahead list), then per round a
+    start with the read-ahead off and one with it on, the order alternating."""
+    with tempfile.TemporaryDirectory() as tmp:
+        one_start(args, Path(tmp))
+    rounds: list[dict[str, Any]] = []
+    for i in range(args.rounds):
+        order = list(VARIANTS) if i % 2 == 0 else list(reversed(VARIANTS))
+        pair: dict[str, Any] = {"order": order}
+        for name in order:
+            with tempfile.TemporaryDirectory() as tmp:
+                pair[name] = one_start(args, Path(tmp), env=VARIANTS[name])
+        rounds.append(pair)
+        seconds = {name: pair[name]["seconds_to_ready"] for name in order}
+        print(f"round {i + 1}: {json.dumps(seconds)} load {load1()}", flush=True)
+    seconds_of = {name: [r[name]["seconds_to_ready"] for r in rounds] for name in VARIANTS}
+    return {
+        "rounds": rounds,
+        "seconds_to_ready": seconds_of,
+        "mean_seconds": {k: round(float(np.mean(v)), 3) for k, v in seconds_of.items()},
+        "paired": paired(seconds_of["off"], seconds_of["on"]) if args.rounds > 1 else None,
+        "load1_before_each_start": [r[n]["load1_before"] for r in rounds for n in r["order"]],
     }
 
 
@@ -91,11 +162,33 @@ def main() -> None:
     ap.add_argument("--writes", type=int, default=200, help="touch windows + notes written")
     ap.add_argument("--searches", type=int, default=50)
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--cold", action="store_true", help="empty the file cache before each start")
+    ap.add_argument("--ab", action="store_true", help="read-ahead off/on pairs (TACTUS_PREFETCH)")
     args = ap.parse_args()
+    if args.cold and not os.access(DROP_CACHES, os.W_OK):
+        sys.exit(f"--cold writes {DROP_CACHES}: run as root")
     if not args.torch:  # a first start's one-off: not what a (re)start costs
         from tactus_memory.export.cache import default_folder, prepare
 
         prepare(default_folder(), None, print)
+    machine = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}",
+        "cores": os.cpu_count(),
+    }
+    if args.ab:
+        ab = {
+            "what": "seconds from `tactus serve` (as `make run` starts it) to /ready, the "
+            "start's read-ahead off (TACTUS_PREFETCH=0) and on, in pairs, the order "
+            "alternating; " + ("file cache emptied before every start" if args.cold else "warm"),
+            "runtime": "torch (--torch)" if args.torch else "ONNX Runtime (the default)",
+            "cold": args.cold,
+            **ab_rounds(args),
+            **machine,
+        }
+        args.out.write_text(json.dumps(ab, indent=2) + "\n")
+        print(json.dumps({k: ab[k] for k in ("mean_seconds", "paired", "load1_before_each_start")}))
+        return
     rounds = []
     for i in range(args.rounds):
         with tempfile.TemporaryDirectory() as tmp:
@@ -112,9 +205,8 @@ def main() -> None:
         "writes": args.writes,
         "searches": args.searches,
         "torch_threads": os.environ.get("TACTUS_TORCH_THREADS", "default (half the cores)"),
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}",
-        "cores": os.cpu_count(),
+        "cold": args.cold,
+        **machine,
     }
     args.out.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps({k: result[k] for k in ("runtime", "seconds_to_ready", "ready_rss_mb")}))

@@ -7,7 +7,15 @@ the library core (memory, spaces, senses, touch) never imports the service.
 
 from __future__ import annotations
 
-from tactus_memory.cli import (  # noqa: F401  (imported for their registrations)
+import sys
+
+from tactus_memory.cli import prefetch
+
+# `tactus serve`: read ahead, in a reader process, the files its start will read (a cold file
+# cache), before the commands below import anything heavy
+prefetch.start(sys.argv)
+
+from tactus_memory.cli import (  # noqa: E402, F401  (imported for their registrations)
     ask_cmds,
     data_cmds,
     demo_cmd,
@@ -21,7 +29,7 @@ from tactus_memory.cli import (  # noqa: F401  (imported for their registrations
     serve_cmd,
     train_cmds,
 )
-from tactus_memory.cli.app import app
+from tactus_memory.cli.app import app  # noqa: E402
 
 
 def main() -> None:

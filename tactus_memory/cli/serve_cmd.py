@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -12,6 +13,7 @@ import typer
 
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import ServiceData, TouchSenses, TouchStride, TouchWindow
+from tactus_memory.cli.prefetch import record as record_start_files
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath
 
 
@@ -249,6 +251,10 @@ def load_app(
         why = step(3, touch, lambda: register_default_senses(memory, settings), state)
         if why:
             say(f"touch is off: {why}")
+        # what this start read, for the next start to read ahead (a thread: not on the way
+        # to /ready)
+        folders = [folder] if folder is not None else []
+        threading.Thread(target=record_start_files, args=(folders,), daemon=True).start()
         if on_ready is not None:
             on_ready()  # a worker of several: /ready answers 200 once every one is
             say("ready: GET /ready answers 200 once every worker is")

@@ -27,6 +27,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from tactus_memory.export.user_cache import cache_root
 from tactus_memory.spaces.onnx_runtime import TOUCH_ONNX, TOUCH_SOURCE
 
 #: bump when the export changes what it writes: a new cache folder, exported again
@@ -43,14 +44,6 @@ CHECK_TEXTS = [
     "x",
     "squeezing a tennis ball gently with two fingers on the kitchen table",
 ]
-
-
-def cache_root() -> Path:
-    """``$TACTUS_CACHE``, else ``$XDG_CACHE_HOME/tactus``, else ``~/.cache/tactus``."""
-    if os.environ.get("TACTUS_CACHE"):
-        return Path(os.environ["TACTUS_CACHE"])
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".cache") / "tactus"
 
 
 def shipped_onnx() -> tuple[Path, dict[str, str]]:
