@@ -151,8 +151,8 @@ class Ranker:
             return []
         want = k * len(names)
         flat = not base.scattered  # scattered rows: the prefiltered ANN search is cheaper
-        # one sense: storage adds its condition itself (with the sense's code, and no
-        # prefilter when nothing else is asked: StoreIndexes.vector_search)
+        # one sense: storage adds its condition itself, with the sense's code
+        # (StoreIndexes.vector_search)
         asked = base.sql() if len(names) == 1 else sql
         rows = self.store.vector_search(
             vec, want, asked, allowed=allowed, total=total, flat=flat, senses=names

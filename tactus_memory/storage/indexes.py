@@ -89,10 +89,6 @@ class StoreIndexes:
         cfg = self.index
         sense = senses[0] if senses is not None and len(senses) == 1 else None
         where = within_sessions(where)
-        # a coded ANN query within one sense, and nothing else asked: no prefilter (below;
-        # with a time filter too, leaving the sense out of it measured slower: 45 against
-        # 31 ms p50 for a day at 1M rows)
-        only = sense is not None and self.codes() > 0 and where is None
         knn: dict[str, Any] = {"column": "vector", "q": vector, "k": k, "metric": "cosine"}
         indexed = self.has_vector_index()
         narrowed = where is not None or sense is not None
@@ -109,16 +105,6 @@ class StoreIndexes:
             if cfg.ef:  # HNSW needs ef >= the candidates it returns
                 knn["ef"] = max(cfg.ef, k * (cfg.refine_factor or 1))
         cols = [*self.present(columns), "_distance"]
-        if only and "nprobes" in knn:
-            # the partitions nearest a query with the sense's code hold that sense's rows
-            # only, so the query is asked without the sense condition (its mask of the
-            # sense's rows cost ~3 ms at 750k rows; benchmarks/search_1m.py): the
-            # k rows it returns are the sense's top k among the probed rows when all are the
-            # sense's; when one is not (or fewer came back), it is asked with the condition
-            with_sense = cols if "sense" in cols else [*cols, "sense"]
-            rows = self.nearest(knn, None, with_sense, coded=sense)
-            if rows.num_rows == k and set(rows.column("sense").to_pylist()) == {sense}:
-                return rows.select(cols)
         return self.nearest(knn, where, cols, sense=sense)
 
     def nearest(
@@ -127,24 +113,20 @@ class StoreIndexes:
         where: str | None,
         columns: list[str],
         sense: str | None = None,
-        *,
-        coded: str | None = None,
     ) -> pa.Table:
         """One KNN query (lance's ``nearest`` parameters ``knn``, its ``q`` a (D,) unit
         embedding), prefiltered by ``where``, on the items' lance dataset at the table's
         current version; ``_distance`` is 1 - the embeddings' cosine and ``vector`` the D
         embedding columns, whether or not the store keeps sense codes. ``sense``: only that
-        sense's rows are asked for (added to ``where``), with its code; ``coded``: asked
-        with that sense's code, but no row left out. Asked of the dataset, not through
-        LanceDB's query builder: 2-3 ms less per search at 1M rows (two queries;
-        benchmarks/search_1m.py, docs/operations/speed.md)."""
+        sense's rows are asked for (added to ``where``), with its code. Asked of the
+        dataset, not through LanceDB's query builder: 2-3 ms less per search at 1M rows
+        (two queries; benchmarks/search_1m.py, docs/operations/speed.md)."""
         codes, dim = self.codes(), self.dim()
         if sense is not None:
             only = f"sense = {_sql_str(sense)}"
             where = f"({where}) AND {only}" if where else only
-        code = sense if sense is not None else coded
         if codes:
-            knn = {**knn, "q": coded_query(knn["q"], code, codes)}
+            knn = {**knn, "q": coded_query(knn["q"], sense, codes)}
         kw: dict[str, Any] = {"filter": where, "prefilter": True} if where else {}
         tbl = self._dataset().to_table(columns=columns, nearest=knn, **kw)
         if not codes:
@@ -153,7 +135,7 @@ class StoreIndexes:
             import pyarrow as pa
 
             at = tbl.schema.get_field_index("_distance")
-            d = embedding_distance(tbl.column(at).to_numpy(), code is not None)
+            d = embedding_distance(tbl.column(at).to_numpy(), sense is not None)
             tbl = tbl.set_column(at, tbl.schema.field(at), pa.array(d, pa.float32()))
         return strip_table(tbl, dim)
 
