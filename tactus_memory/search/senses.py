@@ -112,7 +112,6 @@ class SenseRegistry:
         self._calib: dict[str, Calibration] = {}
         self._counts: dict[str, int] | None = None
         self._seen_versions: tuple[int, int] = (-1, -1)  # (items, senses) the caches match
-        self._pinned = threading.local()  # .on: this thread's question has refreshed already
         self._probes: np.ndarray | None = None
         self.load()
 
@@ -323,28 +322,19 @@ class SenseRegistry:
 
     @contextmanager
     def pinned(self) -> Iterator[None]:
-        """One :meth:`refresh` for a whole question on this thread: its steps (the senses in
-        scope, their counts and calibrations) read the registry as it was when it began,
-        instead of each asking the tables' versions again (each ask is a round trip to
-        LanceDB's event loop thread: three refreshes were six of a small search's nine)."""
-        if getattr(self._pinned, "on", False):  # a question inside a question
-            yield
-            return
-        with self.store.pinned():  # and the tables' versions read once (Store.pinned)
+        """One view of the registry for a whole question: the tables' versions are read once
+        (:meth:`Store.pinned`), so each step's :meth:`refresh` (the senses in scope, their
+        counts and calibrations) compares them without a round trip to LanceDB's event loop
+        thread and finds nothing moved."""
+        with self.store.pinned():
             self.refresh()
-            self._pinned.on = True
-            try:
-                yield
-            finally:
-                self._pinned.on = False
+            yield
 
     def refresh(self) -> None:
         """Drop the row-count cache when the items table moved on (another process's
         commit, a compaction) and reload the stored senses and calibrations when the senses
         table did: replicas agree within the store's read consistency interval. Inside
-        :meth:`pinned` (this thread's question refreshed at its start) it does nothing."""
-        if getattr(self._pinned, "on", False):
-            return
+        :meth:`pinned` the versions are those the question began with."""
         seen = (self.store.version(), self.store.senses_version())
         if seen == self._seen_versions:
             return
