@@ -58,12 +58,11 @@ def windows(n: int, seed: int) -> np.ndarray:
     return out
 
 
-def _encode_for(seconds: float, batch: int, start: Any, out: Any) -> None:
+def _encode_for(seconds: float, batch: int, onnx: str, start: Any, out: Any) -> None:
     """A child: embed batches of raw windows for ``seconds`` once ``start`` is set."""
     from tactus_memory.adapters.touch import TactusEncoder
-    from tactus_memory.export.cache import default_folder
 
-    enc = TactusEncoder(onnx=str(default_folder()))
+    enc = TactusEncoder(onnx=onnx)
     wins = windows(batch, 0)
     enc.embed(wins)  # warm
     start.wait()
@@ -74,10 +73,10 @@ def _encode_for(seconds: float, batch: int, start: Any, out: Any) -> None:
     out.put(n / (time.perf_counter() - t0))
 
 
-def encoder_alone(procs: int, seconds: float, batch: int) -> dict[str, Any]:
+def encoder_alone(procs: int, seconds: float, batch: int, onnx: str) -> dict[str, Any]:
     ctx = mp.get_context("spawn")
     start, out = ctx.Event(), ctx.Queue()
-    job = (seconds, batch, start, out)
+    job = (seconds, batch, onnx, start, out)
     kids = [ctx.Process(target=_encode_for, args=job) for _ in range(procs)]
     for k in kids:
         k.start()
@@ -97,8 +96,10 @@ def encoder_alone(procs: int, seconds: float, batch: int) -> dict[str, Any]:
     }
 
 
-async def closed_loop(port: int, gloves: int, depth: int, seconds: float) -> dict[str, Any]:
-    """Gloves that each keep ``depth`` windows in flight: acknowledged windows/s."""
+async def closed_loop(
+    port: int, gloves: int, depth: int, seconds: float, first: int = 0
+) -> dict[str, Any]:
+    """Gloves ``first``.. that each keep ``depth`` windows in flight: acknowledged windows/s."""
     from websockets.asyncio.client import connect
 
     msgs = [npy(w) for w in windows(16, 1)]
@@ -107,7 +108,7 @@ async def closed_loop(port: int, gloves: int, depth: int, seconds: float) -> dic
     workers: set[int] = set()
 
     async def glove(g: int) -> None:
-        url = f"ws://127.0.0.1:{port}/sessions/cap{g}/touch/stream?window={WINDOW}&hz=30"
+        url = f"ws://127.0.0.1:{port}/sessions/cap{first + g}/touch/stream?window={WINDOW}&hz=30"
         async with connect(url, max_size=2**22, open_timeout=120) as ws:
             ready = json.loads(await ws.recv())
             workers.add(ready.get("worker", 0))
@@ -144,6 +145,7 @@ async def closed_loop(port: int, gloves: int, depth: int, seconds: float) -> dic
     before = load1()
     await asyncio.gather(*(glove(g) for g in range(gloves)))
     return {
+        "stored_per_s": counts["stored"] / seconds,
         "gloves": gloves,
         "depth": depth,
         "seconds": seconds,
@@ -196,17 +198,50 @@ async def idle_search(port: int, seconds: float) -> dict[str, Any]:
     return {"p50_ms": round(1000 * pct(out, 50), 1), "p95_ms": round(1000 * pct(out, 95), 1)}
 
 
+def _closed_child(job: tuple[int, int, int, float, int]) -> dict[str, Any]:
+    return asyncio.run(closed_loop(*job))
+
+
+def closed_clients(
+    port: int, gloves: int, depth: int, seconds: float, clients: int
+) -> dict[str, Any]:
+    """The closed loop from ``clients`` processes (one Python client tops out near a few
+    thousand messages/s, below what 8 workers acknowledge): their gloves and rates summed.
+    Each process starts its clock once its own gloves are connected."""
+    if clients <= 1:
+        return asyncio.run(closed_loop(port, gloves, depth, seconds))
+    share = [gloves // clients + (i < gloves % clients) for i in range(clients)]
+    jobs = [(port, n, depth, seconds, sum(share[:i])) for i, n in enumerate(share)]
+    before = load1()
+    with mp.get_context("spawn").Pool(clients) as pool:
+        parts = pool.map(_closed_child, jobs)
+    keys = ("stored", "errors", "overloaded")
+    return {
+        "gloves": gloves,
+        "depth": depth,
+        "seconds": seconds,
+        "clients": clients,
+        "acked_windows_per_s": round(sum(p["stored_per_s"] for p in parts), 1),
+        **{k: sum(p[k] for p in parts) for k in keys},
+        "workers_holding_gloves": sorted({w for p in parts for w in p["workers_holding_gloves"]}),
+        "load1_before": before,
+        "load1_after": load1(),
+    }
+
+
 def one_count(args: argparse.Namespace, workers: int, tmp: Path) -> dict[str, Any]:
-    encoder = encoder_alone(workers, args.encoder_seconds, args.batch)
+    encoder = encoder_alone(workers, args.encoder_seconds, args.batch, str(args.onnx))
     print(f"  encoder alone, {workers} processes: {encoder}", flush=True)
     port = free_port()
     log = tmp / f"serve-{workers}.log"
-    proc = start_serve(port, tmp / f"memory-{workers}", log, "--workers", str(workers))
+    proc = start_serve(
+        port, tmp / f"memory-{workers}", log, "--workers", str(workers), "--onnx", str(args.onnx)
+    )
     try:
         if wait_ok(proc, f"http://127.0.0.1:{port}/ready", STARTUP_S, interval=0.2) is None:
             raise SystemExit(f"the server did not get ready:\n{log.read_text()[-3000:]}")
         idle = asyncio.run(idle_search(port, args.idle_seconds))
-        closed = asyncio.run(closed_loop(port, args.closed_gloves, args.depth, args.seconds))
+        closed = closed_clients(port, args.closed_gloves, args.depth, args.seconds, args.clients)
         print(f"  saturation: {closed}", flush=True)
         opened = asyncio.run(open_loop(port, args.open_gloves, args.seconds))
         print(f"  30 Hz fleet: {opened}", flush=True)
@@ -233,12 +268,23 @@ def main() -> None:
     ap.add_argument("--closed-gloves", type=int, default=32)
     ap.add_argument("--depth", type=int, default=4, help="windows in flight per closed glove")
     ap.add_argument("--open-gloves", type=int, default=32)
+    ap.add_argument(
+        "--clients", type=int, default=1, help="processes driving the closed-loop gloves"
+    )
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument(
+        "--onnx",
+        type=Path,
+        default=None,
+        help="an exported model folder to serve from (default: the user's cache, as serve does)",
+    )
     args = ap.parse_args()
-    from tactus_memory.export.cache import default_folder, prepare
+    if args.onnx is None:
+        from tactus_memory.export.cache import default_folder, prepare
 
-    prepare(default_folder(), None, print)  # a first start's one-off export, not measured
-    result: dict[str, Any] = {**run_header("capacity"), "runs": []}
+        # a first start's one-off export, not measured
+        args.onnx = prepare(default_folder(), None, print)
+    result: dict[str, Any] = {**run_header("capacity"), "onnx": args.onnx.name, "runs": []}
     with tempfile.TemporaryDirectory() as tmp:
         for w in args.workers:
             print(f"== --workers {w}", flush=True)

@@ -19,8 +19,8 @@ edge of what was read) and returns each grasp's members and its pooled vector, t
 members' unit vectors renormalised (the paper's recording-level pooling).
 
 Computed at query time from the stored windows, not stored: no write-path change, no schema
-change, a new rule or checkpoint applies to old data at once; the cost is one scan per
-neighbourhood (a few ms each; candidates of one grasp share one read).
+change, a new rule or checkpoint applies to old data at once; the cost is one scan for every
+neighbourhood of a question together (a second, narrower one while a grasp reaches an edge).
 
 Defaults: ``max_gap`` 0.5 s: one dropped idle window between two kept ones leaves a hole of
 one frame (0.14 s on the STAG glove's ~7.4 Hz, 0.03 s at 30 Hz), two or more (a release of
@@ -216,65 +216,123 @@ def _merge(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
     return out
 
 
+#: neighbourhoods read by one scan (their filters OR-ed): one LanceDB query per round, not
+#: one per stream; bounded so a filter stays a few KB
+GRASP_SPANS_PER_SCAN = 64
+#: what a neighbourhood's read needs of each row
+_SPAN_COLUMNS = ["session", "sense", "source", "id", "t", "t_end", "vector"]
+
+Stream = tuple[str, str, str]  # (session, sense, source)
+
+
+@dataclass
+class _Span:
+    """A stream's neighbourhood [lo, hi] to cut into grasps around ``cands``."""
+
+    key: Stream
+    lo: float
+    hi: float
+    cands: list[Evidence]
+
+    def where(self) -> str:
+        session, sense, source = self.key
+        sql = Where().session(session).sense(sense).source(source).overlaps(self.lo, self.hi)
+        return str(sql.sql())
+
+
 def find_grasps(
     store: Store, dim: int, candidates: Sequence[Evidence], rule: GraspRule = GraspRule()
 ) -> list[GraspRows]:
     """The grasps that contain ``candidates`` (stored items, e.g. a search's hits), one per
-    grasp, each with every member (not only the candidates); order: first candidate's rank."""
-    by_stream: dict[tuple[str, str, str], list[Evidence]] = {}
+    grasp, each with every member (not only the candidates); order: first candidate's rank.
+
+    Every neighbourhood is read by one scan per round (a few rounds at most, while a grasp
+    touches the edge of what was read): a search's candidates in 16 streams cost one LanceDB
+    query, not 16-32, which on a store of many fresh fragments was 35 ms each (1.2 s a search
+    beside a fleet's writes, benchmarks/capacity.py)."""
+    by_stream: dict[Stream, list[Evidence]] = {}
     for e in candidates:
         by_stream.setdefault((e.session, e.sense, e.source or ""), []).append(e)
+    pending = [
+        _Span(key, lo, hi, [c for c in cands if c.t_end >= lo and c.t <= hi])
+        for key, cands in by_stream.items()
+        for lo, hi in _merge([(c.t - GRASP_READ_S, c.t_end + GRASP_READ_S) for c in cands])
+    ]
     found: dict[str, GraspRows] = {}  # first member id -> grasp
-    for key, cands in by_stream.items():
-        spans = _merge([(c.t - GRASP_READ_S, c.t_end + GRASP_READ_S) for c in cands])
-        for lo, hi in spans:
-            inside = [c for c in cands if c.t_end >= lo and c.t <= hi]
-            for g in _grasps_in(store, dim, key, lo, hi, inside, rule):
-                have = found.get(g.ids[0])
-                if have is None:
-                    found[g.ids[0]] = g
-                else:
-                    known = {c.id for c in have.candidates}
-                    have.candidates += [c for c in g.candidates if c.id not in known]
+    while pending:
+        wider: list[_Span] = []
+        for i in range(0, len(pending), GRASP_SPANS_PER_SCAN):
+            batch = pending[i : i + GRASP_SPANS_PER_SCAN]
+            rows = _read(store, dim, batch)
+            for span in batch:
+                grasps = _grasps_in(span, rows, rule)
+                if grasps is None:  # a grasp reaches an edge of what was read: read wider
+                    grow = min(span.hi - span.lo, GRASP_MAX_S - (span.hi - span.lo)) / 2
+                    wider.append(_Span(span.key, span.lo - grow, span.hi + grow, span.cands))
+                    continue
+                for g in grasps:
+                    have = found.get(g.ids[0])
+                    if have is None:
+                        found[g.ids[0]] = g
+                    else:
+                        known = {c.id for c in have.candidates}
+                        have.candidates += [c for c in g.candidates if c.id not in known]
+        pending = wider
     rank = {c.id: i for i, c in enumerate(candidates)}
     return sorted(found.values(), key=lambda g: min(rank[c.id] for c in g.candidates))
 
 
-def _grasps_in(
-    store: Store,
-    dim: int,
-    key: tuple[str, str, str],
-    lo: float,
-    hi: float,
-    cands: list[Evidence],
-    rule: GraspRule,
-) -> list[GraspRows]:
-    """Read the stream in [lo, hi] (widening while a candidate's grasp reaches an edge of
-    what was read, up to GRASP_MAX_S) and cut it into grasps around ``cands``."""
-    session, sense, source = key
-    while True:
-        where = Where().session(session).sense(sense).source(source).overlaps(lo, hi)
-        tbl = store.scan(where.sql(), ["id", "t", "t_end", "vector"])
-        ids = tbl.column("id").to_pylist()
-        t = tbl.column("t").to_numpy()
-        t_end = tbl.column("t_end").to_numpy()
-        order = np.lexsort((np.array(ids, dtype=object), t))
-        ids = [ids[i] for i in order]
-        t, t_end = t[order], t_end[order]
-        vecs = vector_column(tbl, dim)[order]
-        labels = grasp_labels(t, t_end, vecs, rule)
-        pos = {i: n for n, i in enumerate(ids)}
-        runs = sorted({int(labels[pos[c.id]]) for c in cands if c.id in pos})
-        cut = False
-        for lab in runs:
-            members = np.flatnonzero(labels == lab)
-            starts_in = t[members[0]] - lo > rule.max_gap
-            ends_in = hi - t_end[members].max() > rule.max_gap
-            cut = cut or not (starts_in and ends_in)
-        if not cut or hi - lo >= GRASP_MAX_S:
-            break
-        grow = min(hi - lo, GRASP_MAX_S - (hi - lo)) / 2
-        lo, hi = lo - grow, hi + grow
+@dataclass
+class _Rows:
+    """One scan's rows, in stream and time order ``(stream, t, id)``."""
+
+    streams: dict[Stream, int]  # a stream -> its code in ``code``
+    code: np.ndarray  # (N,) int64: each row's stream
+    ids: list[str]
+    t: np.ndarray  # (N,) float64
+    t_end: np.ndarray  # (N,) float64
+    vecs: np.ndarray  # (N, D) float32 unit rows
+
+
+def _read(store: Store, dim: int, spans: list[_Span]) -> _Rows:
+    """The rows of every span in ``spans``: one scan, its filter the spans' filters OR-ed."""
+    tbl = store.scan(" OR ".join(f"({s.where()})" for s in spans), _SPAN_COLUMNS)
+    cols = [tbl.column(c).to_pylist() for c in ("session", "sense", "source")]
+    streams: dict[Stream, int] = {}
+    code = np.array(
+        [streams.setdefault(key, len(streams)) for key in zip(*cols, strict=True)], np.int64
+    )
+    ids = tbl.column("id").to_pylist()
+    t = tbl.column("t").to_numpy()
+    order = np.lexsort((np.array(ids, dtype=object), t, code))
+    return _Rows(
+        streams=streams,
+        code=code[order],
+        ids=[ids[i] for i in order],
+        t=t[order],
+        t_end=tbl.column("t_end").to_numpy()[order],
+        vecs=vector_column(tbl, dim)[order],
+    )
+
+
+def _grasps_in(span: _Span, rows: _Rows, rule: GraspRule) -> list[GraspRows] | None:
+    """Cut the stream's rows in [lo, hi] into grasps around the span's candidates; None when
+    one of them reaches an edge of the span (it may go on outside) and the span can still
+    grow (up to GRASP_MAX_S)."""
+    session, sense, source = span.key
+    mine = rows.code == rows.streams.get(span.key, -1)
+    sel = np.flatnonzero(mine & (rows.t_end >= span.lo) & (rows.t <= span.hi))
+    ids = [rows.ids[i] for i in sel]
+    t, t_end, vecs = rows.t[sel], rows.t_end[sel], rows.vecs[sel]
+    labels = grasp_labels(t, t_end, vecs, rule)
+    pos = {i: n for n, i in enumerate(ids)}
+    runs = sorted({int(labels[pos[c.id]]) for c in span.cands if c.id in pos})
+    for lab in runs:
+        members = np.flatnonzero(labels == lab)
+        starts_in = t[members[0]] - span.lo > rule.max_gap
+        ends_in = span.hi - t_end[members].max() > rule.max_gap
+        if not (starts_in and ends_in) and span.hi - span.lo < GRASP_MAX_S:
+            return None
     out = []
     for lab in runs:
         members = np.flatnonzero(labels == lab)
@@ -290,7 +348,7 @@ def _grasps_in(
                 t_end=float(t_end[members].max()),
                 vector=pooled(vecs[members]),
                 members=vecs[members],
-                candidates=[c for c in cands if c.id in mine],
+                candidates=[c for c in span.cands if c.id in mine],
             )
         )
     return out
