@@ -229,6 +229,16 @@ def closed_clients(
     }
 
 
+def little(closed: dict[str, Any]) -> dict[str, Any]:
+    """The closed loop's windows in flight and the mean ack time they imply (Little's law:
+    in flight / acknowledged per second): a closed loop of fixed depth is bounded by it, so
+    when the cores are not busy (load average well under the cores) the acknowledged rate is
+    a floor on capacity, not the capacity."""
+    in_flight = closed["gloves"] * closed["depth"]
+    rate = closed["acked_windows_per_s"]
+    return {"in_flight": in_flight, "implied_ack_s": round(in_flight / rate, 3) if rate else None}
+
+
 def one_count(args: argparse.Namespace, workers: int, tmp: Path) -> dict[str, Any]:
     encoder = encoder_alone(workers, args.encoder_seconds, args.batch, str(args.onnx))
     print(f"  encoder alone, {workers} processes: {encoder}", flush=True)
@@ -242,6 +252,7 @@ def one_count(args: argparse.Namespace, workers: int, tmp: Path) -> dict[str, An
             raise SystemExit(f"the server did not get ready:\n{log.read_text()[-3000:]}")
         idle = asyncio.run(idle_search(port, args.idle_seconds))
         closed = closed_clients(port, args.closed_gloves, args.depth, args.seconds, args.clients)
+        closed.update(little(closed))
         print(f"  saturation: {closed}", flush=True)
         opened = asyncio.run(open_loop(port, args.open_gloves, args.seconds))
         print(f"  30 Hz fleet: {opened}", flush=True)

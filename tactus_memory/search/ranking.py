@@ -79,7 +79,7 @@ class Ranker:
         lowest candidate cosine) cannot reach the current k-th score. Either way the merge
         is that of one query per sense.
         """
-        counts = self.registry.counts()
+        counts = self.registry.counts(exact=False)
         active = [name for name in senses if counts.get(name, 0) > 0]
         if active and base.after is not None:  # rows exist: so does the items table
             base = base.narrowed(self.spans.longest(self.store.items))

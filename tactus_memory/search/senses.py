@@ -111,6 +111,11 @@ class SenseRegistry:
         self._stored: dict[str, StoredSense] = {}
         self._calib: dict[str, Calibration] = {}
         self._counts: dict[str, int] | None = None
+        #: the last exact counts plus this process's writes since, and when they were read:
+        #: what a search goes by for up to the store's read consistency interval after
+        #: another process's commit (or a compaction) dropped the exact ones
+        self._recent: dict[str, int] | None = None
+        self._recent_at = 0.0
         self._seen_versions: tuple[int, int] = (-1, -1)  # (items, senses) the caches match
         self._probes: np.ndarray | None = None
         self.load()
@@ -354,14 +359,33 @@ class SenseRegistry:
         else:
             self._counts = None
 
-    def counts(self) -> dict[str, int]:
-        """Rows per sense in the whole memory (cached; whatever the context's session prefix)."""
+    def counts(self, exact: bool = True) -> dict[str, int]:
+        """Rows per sense in the whole memory (cached; whatever the context's session prefix).
+
+        ``exact=False`` (a search: which senses have rows, whether a calibration is stale)
+        may answer with the counts read at most the store's read consistency interval ago
+        plus this process's writes since: the interval in which replicas may already differ.
+        Otherwise, with several workers writing one store, every search after another
+        worker's commit would recount the whole table, one scan of every fragment
+        (benchmarks/capacity.py: search beside writes)."""
         self.refresh()
         counts = self._counts
         if counts is None:
+            recent = self._recent
+            if (
+                not exact
+                and recent is not None
+                and time.monotonic() < self._recent_at + (self._recount_s())
+            ):
+                return recent
             with sessions_under(None):
                 counts = self._counts = self._count_rows()
+            self._recent, self._recent_at = counts, time.monotonic()
         return counts
+
+    def _recount_s(self) -> float:
+        interval = self.store.read_consistency
+        return 0.0 if interval is None else interval.total_seconds()
 
     def _count_rows(self) -> dict[str, int]:
         import pyarrow.compute as pc
@@ -385,7 +409,7 @@ class SenseRegistry:
 
     def calibration(self, sense: str) -> Calibration:
         """The null statistics of a sense, re-estimated when its row count has doubled."""
-        rows = self.counts().get(sense, 0)
+        rows = self.counts(exact=False).get(sense, 0)
         calib = self._calib.get(sense, Calibration())
         if not calib.stale(rows):
             return calib
@@ -405,7 +429,7 @@ class SenseRegistry:
 
     def resolve(self, senses: Sequence[str] | None) -> list[str]:
         if senses is None:
-            counts = self.counts()
+            counts = self.counts(exact=False)
             return [name for name in sorted(self._stored) if counts.get(name, 0) > 0]
         if isinstance(senses, str):
             senses = [senses]
@@ -438,6 +462,10 @@ class SenseRegistry:
     def note_write(self, sense: str, n: int) -> None:
         """Keep the cached counts right after a write added n rows to ``sense`` (an upsert's
         new rows: its rows less those it replaced)."""
+        if self._recent is not None:
+            recent = dict(self._recent)
+            recent[sense] = recent.get(sense, 0) + n
+            self._recent = recent
         if self._counts is None:
             return
         counts = dict(self._counts)
@@ -445,4 +473,5 @@ class SenseRegistry:
         self._counts = counts
 
     def forget_counts(self) -> None:
-        self._counts = None
+        """After a delete (or a write whose count is unknown): recount before the next use."""
+        self._counts = self._recent = None

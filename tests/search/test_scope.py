@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
+
 import httpx
 import numpy as np
 import pytest
@@ -155,3 +157,30 @@ def test_touch_options_flow_through_the_memory_and_validate_once(tmp_path, enc, 
     assert isinstance(item, CalibratedWindow)
     assert enc.validate(item) is item  # a validated window comes back as it is
     mem.add("s", "text", "a note", options={"calibrated": True})  # not a text option
+
+
+def test_searches_after_another_writers_commit_go_by_recent_counts(tmp_path, monkeypatch) -> None:
+    """Another process's commit (or a compaction) drops the exact row counts. A search then
+    goes by the counts read within the store's read consistency interval, plus this process's
+    own writes, instead of recounting every fragment at each question; the exact counts
+    (``sense_info``, ``counts()``) still see the other writer's rows at once, and with a
+    read consistency of 0 a search recounts as before."""
+    path = str(tmp_path / "m")
+    mine = Memory.open(path, space=HashingSpace(), read_consistency_interval=0)
+    other = Memory.open(path, space=HashingSpace(), read_consistency_interval=0)
+    mine.add("a", "text", "red ball on the table", t=1.0)
+    registry = mine.registry
+    recounts = []
+    real = registry._count_rows
+    monkeypatch.setattr(registry, "_count_rows", lambda: recounts.append(1) or real())
+    assert registry.counts() == {"text": 1} and recounts == [1]
+    monkeypatch.setattr(mine.store, "read_consistency", timedelta(hours=1))
+    other.add("b", "text", "blue cube under the chair", t=2.0)  # the items table moved on
+    mine.add("a", "text", "red ball on the floor", t=3.0)  # this process's write: counted
+    assert registry.counts(exact=False) == {"text": 2} and recounts == [1]
+    assert [h.session for h in mine.search("blue cube", k=1, group="window")] == ["b"]
+    assert recounts == [1]  # the search itself went by the recent counts
+    assert registry.counts() == {"text": 3} and recounts == [1, 1]  # exact: recounted
+    other.add("b", "text", "a green cone", t=4.0)
+    monkeypatch.setattr(mine.store, "read_consistency", timedelta(0))
+    assert registry.counts(exact=False) == {"text": 4} and recounts == [1, 1, 1]
