@@ -49,11 +49,19 @@ def as_unit_rows(
     return (arr / norms).astype(np.float32)
 
 
-def vector_column(tbl: pa.Table, dim: int) -> np.ndarray:
-    """A scanned table's fixed-size-list ``vector`` column -> (N, dim) float32: the
-    embeddings as stored (without the sense codes a store may keep after them)."""
-    col = tbl.column("vector").combine_chunks()
-    width = col.type.list_size
+def vector_rows(column: pa.Array | pa.ChunkedArray, dim: int) -> np.ndarray:
+    """A fixed-size-list vector column (N x width) -> (N, dim) float32: the embeddings as
+    stored, without the sense codes a store may keep after them (width - dim columns)."""
+    import pyarrow as pa
+
+    if isinstance(column, pa.ChunkedArray):
+        column = column.combine_chunks()
+    width = column.type.list_size
     if width < dim:
         raise DimensionMismatchError(f"stored vectors have dimension {width}, expected {dim}")
-    return np.asarray(col.flatten(), dtype=np.float32).reshape(-1, width)[:, :dim]
+    return np.asarray(column.flatten(), dtype=np.float32).reshape(-1, width)[:, :dim]
+
+
+def vector_column(tbl: pa.Table, dim: int) -> np.ndarray:
+    """A scanned table's ``vector`` column -> (N, dim) float32 (:func:`vector_rows`)."""
+    return vector_rows(tbl.column("vector"), dim)

@@ -10,8 +10,12 @@ with GroupCommitter(memory, tick=0.025) as gc:
 How it works: :meth:`GroupCommitter.submit` validates the write in the caller's thread
 (:meth:`Memory.prepare_write`, so a bad item fails only its own call, at once) and queues it.
 One committer thread takes whatever is queued once the oldest write has waited ``tick``
-seconds (or ``max_batch`` items are waiting), embeds it with one ``embed`` call per sense and
-stores it in one commit (:meth:`Memory.commit_writes`). Each write's future resolves only
+seconds (or ``max_batch`` items are waiting) and embeds it with one ``embed`` call per sense;
+a second thread stores each embedded batch in one commit (:meth:`Memory.commit_writes`), in
+the order taken, while the first embeds the next (at most one batch waits between them).
+The commit's Arrow table, LanceDB's append and the acknowledgements then no longer stand
+between two encoder calls: with one worker they took a quarter of the committer thread
+(benchmarks/capacity.py, sampled at saturation). Each write's future resolves only
 after that commit returned, so an acknowledged write survives a crash. A write that fails on
 its own (its embedding raises, its id is another session's, or another write of the batch
 names the same id with other content: 409) is left out and fails alone, and the rest is
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import os
+import queue
 import threading
 import time
 from collections import deque
@@ -45,6 +50,7 @@ from tactus_memory.batches import WriteKwargs
 from tactus_memory.errors import OverloadedError
 from tactus_memory.memory.encode_process import EncoderProcess
 from tactus_memory.memory.main import Memory
+from tactus_memory.memory.writes import embed_isolated
 from tactus_memory.settings import (
     DEFAULT_COMMIT_MAX_BATCH,
     DEFAULT_COMMIT_MAX_PENDING,
@@ -127,8 +133,15 @@ class GroupCommitter:
         self._queued_items = 0
         self._pending_items = 0  # queued + being committed
         self._closing = False
+        #: embedded batches (and when their embedding began) on their way to the store thread;
+        #: None: the committer thread is done
+        self._embedded: queue.Queue[tuple[list[_Queued], float] | None] = queue.Queue(maxsize=1)
         self._thread = threading.Thread(target=self._run, name="tactus-group-commit", daemon=True)
+        self._storer = threading.Thread(
+            target=self._store_run, name="tactus-group-store", daemon=True
+        )
         self._thread.start()
+        self._storer.start()
 
     # ------------------------------------------------------------------ submit
     def submit(
@@ -183,7 +196,9 @@ class GroupCommitter:
         with self._cond:
             self._closing = True
             self._cond.notify_all()
+        until = None if timeout is None else time.monotonic() + timeout
         self._thread.join(timeout)
+        self._storer.join(None if until is None else max(0.0, until - time.monotonic()))
         if self.encoder is not None:
             self.encoder.close()
 
@@ -220,20 +235,48 @@ class GroupCommitter:
             return batch
 
     def _run(self) -> None:
+        """The committer thread: take each due batch and embed it, then hand it on."""
         if self.encode_threads is not None:
             import torch
 
             torch.set_num_threads(self.encode_threads)
         if self.nice:
             lower_thread_priority(self.nice)
+        try:
+            while True:
+                batch = self._take()
+                if batch is None:
+                    return
+                if not batch:
+                    continue
+                t0 = time.perf_counter()
+                try:
+                    self._embed(batch)
+                except BaseException:  # noqa: BLE001  (commit_writes embeds what is left)
+                    log.exception("embedding a batch failed unexpectedly")
+                self._embedded.put((batch, t0))
+        finally:
+            self._embedded.put(None)
+
+    def _embed(self, batch: list[_Queued]) -> None:
+        """The batch's vectors: the encoder process's senses there, the rest here (a write
+        whose embedding fails gets its ``error`` and fails alone)."""
+        writes = [q.write for q in batch]
+        if self.encoder is not None:
+            self.encoder.embed_writes(writes, self.memory.space.dim)
+        embed_isolated([w for w in writes if len(w) and w.vectors is None], self.memory.space.dim)
+
+    def _store_run(self) -> None:
+        """The store thread: commit each embedded batch, in the order taken."""
+        if self.nice:
+            lower_thread_priority(self.nice)
         while True:
-            batch = self._take()
-            if batch is None:
+            item = self._embedded.get()
+            if item is None:
                 return
-            if not batch:
-                continue
+            batch, t0 = item
             try:
-                self._commit(batch)
+                self._commit(batch, t0)
             except BaseException:  # noqa: BLE001  (never leave a future hanging)
                 log.exception("group commit failed unexpectedly")
                 self._release(batch)
@@ -252,15 +295,13 @@ class GroupCommitter:
                     q.released = True
                     self._pending_items -= len(q.write)
 
-    def _commit(self, batch: list[_Queued]) -> None:
-        """ONE commit for the batch, never a second: a write that fails on its own (its
-        embedding, an id clash) is left out and fails alone; a failing commit fails every
+    def _commit(self, batch: list[_Queued], t0: float) -> None:
+        """ONE commit for the (embedded) batch, never a second: a write that fails on its own
+        (its embedding, an id clash) is left out and fails alone; a failing commit fails every
         write of the batch; once it succeeded, every other write is acknowledged whatever
-        fails after it (the bookkeeping is logged and repaired by the memory)."""
-        t0 = time.perf_counter()
+        fails after it (the bookkeeping is logged and repaired by the memory). ``t0``: when
+        its embedding began (``commit_seconds`` counts both)."""
         writes = [q.write for q in batch]
-        if self.encoder is not None:  # what it cannot embed, commit_writes embeds here
-            self.encoder.embed_writes(writes, self.memory.space.dim)
         try:
             self.memory.commit_writes(writes, isolate=True)
         except Exception as exc:  # noqa: BLE001  (the commit itself failed: nothing stored)

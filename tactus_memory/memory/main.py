@@ -355,7 +355,7 @@ class Memory(AbstractContextManager["Memory"]):
             k, names = check_k(k), self.resolve_senses(where.senses)
             hits = grasp_hits(self.temporal, q, k, where, names, pool) if g == "auto" else None
             if hits is None:  # no touch sense in scope, or group="window"
-                hits = mark_matches(self.rank(q, k, names, where.where(), transform=True))
+                hits = self._rank_in(q, k, where, transform=True)
             return hits
 
     def search_vector(

@@ -102,8 +102,8 @@ class WritePath:
         live = [w for w in writes if len(w)]
         if not live:
             return [w.stored() for w in writes]
-        if isolate:
-            embed_isolated(live, self.space.dim)
+        if isolate:  # a write that already failed its embedding (the committer's) stays out
+            embed_isolated([w for w in live if w.error is None], self.space.dim)
             resolve_shared_ids(live)
         else:
             embed_groups(live, self.space.dim)

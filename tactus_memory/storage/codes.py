@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tactus_memory.vectors import vector_rows
+
 if TYPE_CHECKING:
     import pyarrow as pa
 
@@ -105,10 +107,7 @@ def strip_column(column: pa.ChunkedArray | pa.Array, dim: int) -> pa.FixedSizeLi
     """A stored vector column (N x (D + codes)) -> its (N x D) embeddings."""
     import pyarrow as pa
 
-    if isinstance(column, pa.ChunkedArray):
-        column = column.combine_chunks()
-    width = column.type.list_size
-    flat = np.asarray(column.flatten(), np.float32).reshape(-1, width)[:, :dim]
+    flat = vector_rows(column, dim)
     return pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1), pa.float32()), dim)
 
 

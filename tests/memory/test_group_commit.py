@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -109,6 +110,42 @@ def test_bad_write_fails_alone_and_neighbours_commit(memory):
     assert stats.batch_retries == 1 and stats.failed_writes == 1
     assert len(memory) == 5 and {memory.get_item(i).id for i in stored} == set(stored)
     assert "s-bad" not in {s.id for s in memory.sessions()}
+
+
+def test_the_next_batch_is_embedded_while_the_last_one_is_stored(memory, monkeypatch):
+    """Two stages: while batch A's commit is held inside the store write, batch B is taken
+    and embedded already (one encoder call), then stored after A, in the order taken; both
+    are acknowledged after their own commits only."""
+    touch = PoisonTouch(memory.space.dim)
+    memory.add_sense(touch)
+    in_write, release = threading.Event(), threading.Event()
+    order: list[int] = []
+    real_write = memory.store.write
+
+    def held_write(table, **kw):
+        order.append(len(table))
+        if len(order) == 1:
+            in_write.set()
+            assert release.wait(30), "test never released the first commit"
+        return real_write(table, **kw)
+
+    monkeypatch.setattr(memory.store, "write", held_write)
+    gc = GroupCommitter(memory, tick=0.0)
+    try:
+        a = gc.submit("a", "touch", [window(seed=1)], t=[0.0])
+        assert in_write.wait(30)  # A is being stored
+        b = gc.submit("b", "touch", [window(seed=2), window(seed=3)], t=[1.0, 2.0])
+        deadline = time.monotonic() + 30
+        while len(touch.calls) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert touch.calls == [1, 2]  # B embedded while A's commit is still held
+        assert not a.done() and not b.done() and order == [1]
+        release.set()
+        assert len(a.result(timeout=30)) == 1 and len(b.result(timeout=30)) == 2
+    finally:
+        release.set()
+        gc.close(timeout=30)
+    assert order == [1, 2] and len(memory) == 3 and gc.stats.commits == 2
 
 
 def test_full_queue_pushes_back(memory):
