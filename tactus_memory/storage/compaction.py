@@ -83,7 +83,9 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
 
     For tier T = 0, 1, ...: in a run of adjacent fragments all of tier <= T, the fragments up
     to and including its ``fan_in``-th fragment *of tier T* are a group (tier 0: the whole
-    run once it has ``fan_in``; smaller stragglers
+    run once it has ``fan_in``, cut into consecutive groups within the budget below when it
+    is larger: a burst of writes between two passes, 64 gloves streaming 4 MB/s for a 10 s
+    interval, would otherwise leave a tail no merge may take, growing for ever; smaller stragglers
     inside it, e.g. appends that landed between a merge's inputs and its output, are absorbed
     rather than stranded). A group may rewrite at most ``max_merge_share`` of the table's
     bytes (or ``free_merge_bytes``): a larger merge waits until the table has grown, which
@@ -108,11 +110,28 @@ def plan_compaction(frags: list[FragmentInfo], cfg: MaintenanceConfig) -> list[l
                     continue  # the tier-0 tail is merged whole (it is small)
             if at_level >= cfg.fan_in and sum(size[i] for i in run) <= budget:
                 groups.append(run)
+            elif level == 0 and at_level >= cfg.fan_in:  # a tail longer than the budget
+                groups += _chunks(run, size, budget, cfg.fan_in)
             run, at_level = [], 0
         if groups:
             return groups
     bar = 0.0 if cfg.erase_deleted else cfg.deletion_threshold
     return [[f.id] for f in frags if f.deleted and f.deleted / f.rows >= bar and f.deleted < f.rows]
+
+
+def _chunks(run: list[int], size: dict[int, int], budget: float, least: int) -> list[list[int]]:
+    """``run`` (tier-0 fragment ids, in order) cut into consecutive groups of at most
+    ``budget`` bytes; a group of fewer than ``least`` fragments (the end of the run) waits."""
+    out: list[list[int]] = []
+    group: list[int] = []
+    total = 0
+    for i in run:
+        if group and total + size[i] > budget:
+            out.append(group)
+            group, total = [], 0
+        group.append(i)
+        total += size[i]
+    return [g for g in [*out, group] if len(g) >= least]
 
 
 # --------------------------------------------------------------------------- running

@@ -273,3 +273,31 @@ def test_plan_caps_a_merge_at_a_share_of_the_table() -> None:
     assert plan_compaction(big + tier2, cfg) == [[0, 1, 2]]  # now 3 % of the table
     tail = [FragmentInfo(20 + i, 1, 0, 100) for i in range(5)]
     assert plan_compaction(big + tail, cfg) == [[20, 21, 22, 23, 24]]  # tier 0: whole run
+
+
+def test_plan_cuts_a_tail_longer_than_the_budget_into_merges_within_it() -> None:
+    """A burst of writes between two passes (a fleet streaming faster than one pass merges)
+    leaves a tier-0 tail larger than a merge may rewrite; it is merged in consecutive groups
+    within the budget, not left to grow for ever; the end of it under fan_in waits."""
+    sizes = {"tier_base_bytes": 1000, "fan_in": 3, "settled_bytes": 10**9}
+    cfg = MaintenanceConfig(**sizes, max_merge_share=0.1, free_merge_bytes=500)
+    tail = [FragmentInfo(i, 1, 0, 100) for i in range(22)]  # 2,200 bytes; budget 500
+    groups = plan_compaction(tail, cfg)
+    assert groups == [list(range(i, i + 5)) for i in range(0, 20, 5)]  # 20, 21: wait
+    assert all(sum(tail[i].bytes for i in g) <= 500 for g in groups)
+
+
+def test_a_burst_longer_than_a_merge_budget_is_still_compacted(tmp_path: Path) -> None:
+    """160 one-row commits with no pass in between (2.6 MB of tier-0 fragments against a
+    256 KiB merge budget): passes merge the tail group by group until few fragments are left
+    (before, the tail was one group too large to merge and stayed 160 fragments)."""
+    cfg = _cfg(free_merge_bytes=256 * KiB, max_merge_share=0.05)
+    mem = _open(tmp_path / "m", cfg, compact_every=10**6)  # no pass during the burst
+    _stream(mem, 160)
+    table = str(tmp_path / "m" / "items.lance")
+    assert footprint(table).fragments == 160
+    for _ in range(4):
+        mem.optimize()
+    fp = footprint(table)
+    assert fp.rows == 160 and len(mem) == 160
+    assert fp.fragments <= 16, fp
