@@ -1,5 +1,5 @@
 """Moving a store made before sense codes to the coded layout, in place
-(tactus_memory.storage.migrate): every row and column kept,
+(tactus_memory.storage.migrate, ``tactus maintain --sense-codes``): every row and column kept,
 each vector given its sense's code, the same hits and cosines, the ANN index built again.
 Real LanceDB files."""
 
@@ -14,8 +14,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
 from lance.commit import CommitConflictError
+from typer.testing import CliRunner
 
 from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.cli import app
 from tactus_memory.memory.main import Memory
 from tactus_memory.storage.codes import CODE_DIMS, FIELD_KEY, code, codes_of
 from tactus_memory.storage.migrate import RETIRED, STAGED, add_sense_codes, stage, swap
@@ -230,4 +232,27 @@ def test_a_commit_of_another_writer_meanwhile_is_refused_and_nothing_is_lost(
     assert report.migrated and report.rows == 2 * ROWS + 1
     assert_coded(mem)
     other.close()
+    mem.close()
+
+
+def test_the_maintain_command_migrates_a_store(tmp_path: Path) -> None:
+    root = tmp_path / "m"
+    mem = old_memory(root, indexed=True)
+    before = every_row(mem)
+    mem.close()
+
+    def run() -> dict:
+        res = CliRunner().invoke(app, ["maintain", "--sense-codes", "--data", str(root)])
+        assert res.exit_code == 0, res.output
+        [line] = [json.loads(x) for x in res.stdout.splitlines() if x.startswith("{")]
+        return line
+
+    first = run()
+    assert first["migrated"] and first["rows"] == 2 * ROWS and first["index_rebuilt"]
+    assert first["codes"] == CODE_DIMS and first["seconds"] > 0
+    second = run()
+    assert not second["migrated"] and second["rows"] == 0 and not second["index_rebuilt"]
+    mem = Memory.open(str(root), HashingSpace(dim=DIM), index=CFG, background=False)
+    assert mem.store.codes() == CODE_DIMS and mem.store.has_vector_index()
+    assert every_row(mem).equals(before)
     mem.close()
