@@ -49,6 +49,16 @@ def maintain(
             "exit 1 when damaged. Changes nothing.",
         ),
     ] = False,
+    sense_codes: Annotated[
+        bool,
+        typer.Option(
+            "--sense-codes",
+            help="Move a store made before sense codes to the coded layout, in place (every "
+            "vector rewritten with its sense's code, the ANN index built again), then exit: "
+            "one JSON line per store (rows rewritten, seconds, index rebuilt). A store with "
+            "codes already is left as it is. Stop the store's servers first.",
+        ),
+    ] = False,
 ) -> None:
     """Maintain a store: retention (expiry, thinning), size-tiered compaction, incremental
     index refresh, version cleanup.
@@ -88,6 +98,8 @@ def maintain(
         raise typer.Exit(2)
     if check:
         raise typer.Exit(max(_check(s) for s in stores))
+    if sense_codes:
+        raise typer.Exit(max(_sense_codes(s, s is store) for s in stores))
     typer.echo(
         f"maintaining {store.uri} every {cfg.maintain_interval:g}s "
         f"(retain {cfg.retain_seconds:g}s, fan-in {cfg.fan_in})",
@@ -145,3 +157,39 @@ def _check(store: Store) -> int:
         err=True,
     )
     return 1 if damaged else 0
+
+
+def _sense_codes(store: Store, root: bool) -> int:
+    """``--sense-codes``: migrate one store (:mod:`tactus_memory.storage.migrate`) and print
+    its report (one JSON line); 1 when it failed."""
+    from tactus_memory.storage.migrate import add_sense_codes
+
+    where = {} if root else {"tenant": store.retention.tenant}
+    progress = _Progress(store.uri)
+    try:
+        report = add_sense_codes(store, on_batch=progress)
+    except Exception as exc:  # noqa: BLE001  (reported; every store is tried)
+        typer.echo(
+            f"{store.uri}: sense codes not added: {exc} (run it again with the store's "
+            "servers stopped: it finishes or redoes what was left)",
+            err=True,
+        )
+        return 1
+    typer.echo(json.dumps({**where, **report.as_dict()}))
+    return 0
+
+
+class _Progress:
+    """Rows coded so far, on stderr every ``PROGRESS_EVERY`` seconds."""
+
+    #: seconds between two progress lines
+    PROGRESS_EVERY = 10.0
+
+    def __init__(self, uri: str) -> None:
+        self.uri = uri
+        self.last = time.monotonic()
+
+    def __call__(self, rows: int) -> None:
+        if time.monotonic() - self.last >= self.PROGRESS_EVERY:
+            self.last = time.monotonic()
+            typer.echo(f"{self.uri}: {rows:,} rows coded", err=True)

@@ -52,6 +52,7 @@ class StoreIndexes:
     #: ((id of the items table, its version), its lance dataset at that version): nearest()
     _lance: tuple[tuple[int, int], Any] | None = None
     _meta: Any  # the store's meta table (Store._meta), None before it exists
+    _schema: Any  # the items table's schema as first read (Store.schema)
 
     if TYPE_CHECKING:  # Store's, used here
 
@@ -272,6 +273,15 @@ class StoreIndexes:
                 if bank.ndim == 2 and bank.shape[1] == dim and len(bank):
                     return as_unit_rows(bank, dim)
         return np.zeros((0, dim), np.float32)
+
+    def reread_layout(self) -> None:
+        """Forget what was read of the items table's schema, indexes and index record, and
+        read its latest version: after its columns changed (:mod:`.migrate`)."""
+        self.items.checkout_latest()
+        self._schema = None
+        self._indexed = self._scalar_indexed = False
+        self._partitions = self._probes = self._sense_probes = None
+        self._lance = None
 
     def has_vector_index(self) -> bool:
         if not self._indexed:
