@@ -159,7 +159,10 @@ def test_codes_give_each_sense_its_own_partitions(stores: dict) -> None:
         notes = nearest_partition(stores["coded"], coded_query(q, "notes", CODE_DIMS))
         plain = nearest_partition(stores["plain"], q)
         assert 0 < len(touch) < 1_000 and set(touch) == {"touch"}
-        assert set(notes) == {"notes"} and set(plain) == {"notes"}
+        assert set(notes) == {"notes"}
+        # without codes the partition nearest to it holds notes (k-means may give it some
+        # touch rows too: 1 build in 12 did)
+        assert "notes" in plain
 
 
 def test_a_sense_of_a_few_rows_is_found_with_its_code_and_nothing_else(
