@@ -371,3 +371,22 @@ def test_temporal_is_built_from_its_parts_and_memory_asks_it(kitchen) -> None:
     assert mem.last.__self__ is mem.temporal
     strict = Match(threshold=1e6)
     assert mem.count("picked up the mug", scope=Scope(session=S), match=strict) == 0
+
+
+def test_clock_offsets_are_read_once_per_meta_version(tmp_path, monkeypatch) -> None:
+    """Every question asks for the clock offsets; they are read from the store again only
+    when the meta table moved on (here: another memory on the store set one)."""
+    path = str(tmp_path / "mem")
+    mem = Memory.open(path, space=HashingSpace(dim=384), read_consistency_interval=0)
+    other = Memory.open(path, space=HashingSpace(dim=384), read_consistency_interval=0)
+    mem.set_clock_offset(S, "text", 100.0)
+    reads = []
+    real = mem.store.meta_items
+    monkeypatch.setattr(mem.store, "meta_items", lambda p: reads.append(p) or real(p))
+    clocks = mem.temporal.clocks
+    assert clocks.offsets() == {(S, "text", ""): 100.0} and len(reads) == 1
+    clocks.offsets()[(S, "text", "")] = 5.0  # a caller's copy: the cache is not changed
+    assert clocks.offsets() == {(S, "text", ""): 100.0} and len(reads) == 1
+    other.set_clock_offset(S, "touch", -2.0)
+    assert clocks.offsets() == {(S, "text", ""): 100.0, (S, "touch", ""): -2.0}
+    assert len(reads) == 2
