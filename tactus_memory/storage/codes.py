@@ -74,15 +74,16 @@ def with_code(vectors: np.ndarray, sense: str, dims: int) -> np.ndarray:
 
 def with_codes(vectors: np.ndarray, senses: np.ndarray, dims: int) -> np.ndarray:
     """(N, D) rows of several senses (``senses``: each row's sense name) -> (N, D + dims)
-    as stored, each row with its own sense's code (as :func:`with_code` gives it): a store
-    made before codes, moved over (:mod:`tactus_memory.storage.migrate`)."""
+    as stored, each row as :func:`with_code` stores it for its own sense: a store made
+    before codes, moved over (:mod:`tactus_memory.storage.migrate`)."""
     vectors = np.asarray(vectors, np.float32)
-    if not len(vectors):
-        return np.zeros((0, vectors.shape[1] + dims), np.float32)
     names, which = np.unique(np.asarray(senses, dtype=object), return_inverse=True)
-    tails = np.stack([CODE_WEIGHT * code(str(name), dims) for name in names])
-    norms = np.linalg.norm(vectors, axis=1, keepdims=True)
-    return np.concatenate([vectors, norms * tails[which.reshape(-1)]], axis=1)
+    which = which.reshape(-1)
+    out = np.empty((len(vectors), vectors.shape[1] + dims), np.float32)
+    for n, name in enumerate(names):
+        rows = which == n
+        out[rows] = with_code(vectors[rows], str(name), dims)
+    return out
 
 
 def coded_query(q: np.ndarray, sense: str | None, dims: int) -> np.ndarray:

@@ -24,7 +24,7 @@ from tactus_memory.storage.tables import (
     vector_index_config,
 )
 from tactus_memory.vectors import as_unit_rows, vector_column
-from tactus_memory.where import _sql_str, within_sessions
+from tactus_memory.where import Where, within_sessions
 
 if TYPE_CHECKING:  # heavy imports stay lazy
     import pyarrow as pa
@@ -124,7 +124,7 @@ class StoreIndexes:
         (two queries; benchmarks/search_1m.py, docs/operations/speed.md)."""
         codes, dim = self.codes(), self.dim()
         if sense is not None:
-            only = f"sense = {_sql_str(sense)}"
+            only = Where().sense(sense).sql()
             where = f"({where}) AND {only}" if where else only
         if codes:
             knn = {**knn, "q": coded_query(knn["q"], sense, codes)}
