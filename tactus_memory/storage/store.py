@@ -66,8 +66,11 @@ if TYPE_CHECKING:  # heavy imports stay lazy
 
 log = logging.getLogger(__name__)
 
-#: table name -> its version, as first read inside Store.pinned (None: not pinned)
-_PINNED: ContextVar[dict[str, int] | None] = ContextVar("tactus_pinned_versions", default=None)
+#: (table name, id of its handle) -> its version, as first read inside Store.pinned (None:
+#: not pinned); keyed by the handle too, so two stores (tenants) in one context never share
+_PINNED: ContextVar[dict[tuple[str, int], int] | None] = ContextVar(
+    "tactus_pinned_versions", default=None
+)
 
 
 def pinned_version(name: str, table: Any) -> int:
@@ -75,9 +78,10 @@ def pinned_version(name: str, table: Any) -> int:
     seen = _PINNED.get()
     if seen is None:
         return int(table.version)
-    if name not in seen:
-        seen[name] = int(table.version)
-    return seen[name]
+    key = (name, id(table))
+    if key not in seen:
+        seen[key] = int(table.version)
+    return seen[key]
 
 
 ITEMS = "items"

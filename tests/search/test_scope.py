@@ -184,3 +184,17 @@ def test_searches_after_another_writers_commit_go_by_recent_counts(tmp_path, mon
     other.add("b", "text", "a green cone", t=4.0)
     monkeypatch.setattr(mine.store, "read_consistency", timedelta(0))
     assert registry.counts(exact=False) == {"text": 4} and recounts == [1, 1, 1]
+
+
+def test_two_stores_in_one_pinned_question_keep_their_own_versions(tmp_path) -> None:
+    """Pinned versions are kept per table handle: a second store (another tenant's) asked
+    inside the first one's pinned question reads its own version, not the first's."""
+    a = Memory.open(str(tmp_path / "a"), space=HashingSpace())
+    b = Memory.open(str(tmp_path / "b"), space=HashingSpace())
+    for i in range(3):
+        a.add("s", "text", f"note {i}", t=float(i))
+    b.add("s", "text", "one note", t=0.0)
+    va, vb = a.store.version(), b.store.version()
+    assert va != vb
+    with a.store.pinned():
+        assert (a.store.version(), b.store.version()) == (va, vb)
