@@ -109,8 +109,9 @@ def test_each_sense_probes_what_its_own_recall_needed(store: dict) -> None:
     by_sense = info["by_sense"]
     assert set(by_sense) == {"near", "far"}
     # the bank lies by the near sense's rows: a few partitions hold them; the far sense's
-    # best rows for it are anywhere, so its search probes (many) more
-    assert by_sense["near"] < by_sense["far"] <= info["partitions"]
+    # best rows for it are anywhere, so its search probes at least as many (with sense
+    # codes its rows have partitions of their own: k-means gave both 8 in 1 CI run of 4)
+    assert by_sense["near"] <= by_sense["far"] <= info["partitions"]
     assert info["nprobes"] == max(by_sense.values())
     assert mem.store.probes(["near"]) == by_sense["near"]
     assert mem.store.probes(["far"]) == by_sense["far"]
