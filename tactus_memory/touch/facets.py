@@ -1,0 +1,252 @@
+"""Facets: what a touch window or a grasp physically was, computed from its calibrated frames
+with numpy alone (no model): how hard, how much of the sensor, where, on which regions, and
+for a grasp when it began and ended, how fast it tightened, whether it slid, which grip.
+
+Per window (:func:`window_facets`, vectorised over B windows of K frames, (B, K, H, W) in):
+
+* ``force``: per frame the sum of the calibrated taxel values (:func:`taxel_mask`), averaged
+  over the window's frames (calibrated units; times ``newtons_per_unit`` when the caller
+  knows the sensor's factor to newtons). Every taxel counts, so a resting sensor has a
+  floor (the STAG glove's pedestal sits near 0.07-0.10 calibrated, stag-format.md: about
+  55 of force on the blindfolded recordings' held frames);
+* ``area``: per frame the share of the sensor's taxels (:func:`taxel_mask`) at or
+  above the contact level (:func:`contact_level`), averaged over the frames;
+* ``peak``: the highest calibrated taxel value of the window;
+* ``centroid`` (row, col) and ``spread`` (taxels): the mean position and the RMS distance from
+  it of the *contact load*, the calibrated values of the taxels at or above the contact level
+  summed over the frames (the resting pedestal would pull every centroid to the middle);
+  None without contact;
+* ``regions``: each region's (:mod:`tactus_memory.touch.regions`) share of the contact load;
+  empty for a sensor without regions;
+* ``grip``: :func:`grip_of` the regions.
+
+Per grasp (:func:`grasp_facets`, from its member windows' facets and time spans):
+``force``, ``area``, ``peak`` and ``spread`` are the maxima over the windows; ``centroid`` and
+``regions`` the contact-load-weighted means; ``onset`` the first window's start, ``release``
+the last window's end, ``duration`` their difference; ``peak_time`` the middle of the window
+of highest force; ``ramp`` (squeeze) the rise of force from the first window to that one per
+second (0 when the first window is the firmest); ``slip`` the centroid's speed, the length of
+its path through the windows over the time between the first and the last window's middle
+(taxels per second; 0 for one window); ``grip`` from the grasp's regions.
+
+**The grip rule** (:func:`grip_of`). A region is *active* when it carries at least
+:data:`ACTIVE_SHARE` of the contact load. Then, in this order: no active region: ``none``;
+the palm and any other region: ``power``; one region alone: ``press``; the thumb and one
+finger: ``pinch``; the thumb and two fingers: ``tripod``; anything else (three or more fingers
+without the palm, fingers without the thumb): ``other``. Region roles come from their names:
+``thumb`` and ``palm``; every other region (a pad of a robot hand) is a finger. A sensor
+without regions has no grip (None).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.touch.profile import SensorProfile
+from tactus_memory.touch.regions import PALM, THUMB, RegionMap, regions_of
+from tactus_memory.touch.windows import CONTACT_LEVEL
+
+#: a region carries at least this share of the contact load to count as active in the grip
+#: rule: one finger's strip of the STAG glove is 42 of its 548 taxels (7.7 %), so a tenth of
+#: the load is more than a uniform spread would give it
+ACTIVE_SHARE = 0.10
+#: grip names, in the order the rule tests them (module docstring)
+GRIPS = ("none", "power", "press", "pinch", "tripod", "other")
+#: the facet names a window has, and those a grasp adds
+WINDOW_FACETS = ("force", "area", "peak", "centroid", "spread", "regions", "grip")
+GRASP_FACETS = (*WINDOW_FACETS, "onset", "release", "duration", "peak_time", "ramp", "slip")
+
+
+def contact_level(profile: SensorProfile | None = None) -> float:
+    """The calibrated level at which a taxel of ``profile`` counts as touching. Today every
+    sensor's is the touch sense's :data:`~tactus_memory.touch.windows.CONTACT_LEVEL`; this is
+    the one place that reads it, so a per-sensor level switches here."""
+    del profile
+    return float(CONTACT_LEVEL)
+
+
+def grip_of(shares: dict[str, float]) -> str | None:
+    """The grip a region -> load-share mapping shows (the rule in the module docstring);
+    None when there are no regions (a sensor without them)."""
+    if not shares:
+        return None
+    active = {r for r, s in shares.items() if s >= ACTIVE_SHARE}
+    fingers = len(active - {THUMB, PALM})
+    if not active:
+        return "none"
+    if PALM in active and len(active) > 1:
+        return "power"
+    if len(active) == 1:
+        return "press"
+    if THUMB in active and PALM not in active and fingers == 1:
+        return "pinch"
+    if THUMB in active and PALM not in active and fingers == 2:
+        return "tripod"
+    return "other"
+
+
+@dataclass(frozen=True)
+class WindowFacets:
+    """Facets of B windows, one entry per window. ``centroid`` (B, 2) (row, col) and
+    ``spread`` (B,) are NaN without contact; ``regions`` (B, R) shares of the contact load
+    (0 without contact), names in ``region_names``; ``load`` (B,) the contact load itself
+    (the weight a grasp gives each window)."""
+
+    force: np.ndarray
+    area: np.ndarray
+    peak: np.ndarray
+    centroid: np.ndarray
+    spread: np.ndarray
+    regions: np.ndarray
+    load: np.ndarray
+    region_names: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return int(self.force.shape[0])
+
+    def shares(self, i: int) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(self.region_names, self.regions[i], strict=True)}
+
+    def row(self, i: int) -> dict[str, Any]:
+        """Window ``i``'s facets as plain values (the names of :data:`WINDOW_FACETS`)."""
+        c = self.centroid[i]
+        shares = self.shares(i)
+        return {
+            "force": float(self.force[i]),
+            "area": float(self.area[i]),
+            "peak": float(self.peak[i]),
+            "centroid": None if np.isnan(c).any() else [float(c[0]), float(c[1])],
+            "spread": None if np.isnan(self.spread[i]) else float(self.spread[i]),
+            "regions": shares,
+            "grip": grip_of(shares) if self.load[i] > 0 or not shares else "none",
+        }
+
+    def rows(self) -> list[dict[str, Any]]:
+        return [self.row(i) for i in range(len(self))]
+
+
+def taxel_mask(
+    profile: SensorProfile | None, regions: RegionMap | None, shape: tuple[int, int]
+) -> np.ndarray:
+    """(H, W) bool, the taxels facets count: the profile's mask, else the taxels the regions
+    cover (the STAG glove's 548), else every pixel."""
+    if profile is not None and profile.mask is not None:
+        return np.asarray(profile.mask, dtype=bool)
+    if regions is not None:
+        return regions.index >= 0
+    return np.ones(shape, dtype=bool)
+
+
+def window_facets(
+    frames: np.ndarray,
+    profile: SensorProfile | None = None,
+    *,
+    regions: RegionMap | None = None,
+    level: float | None = None,
+    newtons_per_unit: float | None = None,
+) -> WindowFacets:
+    """Facets of calibrated windows: ``frames`` (B, K, H, W) or one window (K, H, W), values
+    in [0, 1] (the touch sense's ``validate`` output).
+
+    ``profile`` gives the regions (:func:`~tactus_memory.touch.regions.regions_of`), the
+    contact level (:func:`contact_level`) and the taxels (:func:`taxel_mask`; pixels that are
+    no taxel count 0); ``regions`` and ``level`` override them (without a profile: no
+    regions, the touch sense's contact level, every pixel a taxel). ``newtons_per_unit``
+    scales ``force``."""
+    arr = np.asarray(frames, dtype=np.float32)
+    if arr.ndim == 3:
+        arr = arr[None]
+    if arr.ndim != 4 or arr.shape[1] < 1:
+        raise InvalidInputError(f"facets need (B, K, H, W) windows, got shape {arr.shape}")
+    b, k, h, w = arr.shape
+    if profile is not None and tuple(profile.shape) != (h, w):
+        raise InvalidInputError(f"profile {profile.name!r} reads {profile.shape}, got {h}x{w}")
+    if regions is None and profile is not None:
+        regions = regions_of(profile)
+    if regions is not None and regions.shape != (h, w):
+        raise InvalidInputError(f"the region map is {regions.shape}, frames are {h}x{w}")
+    lvl = np.float32(contact_level(profile) if level is None else level)
+    mask = taxel_mask(profile, regions, (h, w)).reshape(-1)  # (HW,)
+    x = arr.reshape(b, k, h * w)
+    if not mask.all():  # pixels that are no taxel (the glove's 476 constant ones) count 0
+        x = np.where(mask, x, np.float32(0))
+    n_taxels = max(1, int(mask.sum()))
+    on = x >= lvl  # (B, K, HW)
+    force = x.sum(axis=2, dtype=np.float64).mean(axis=1)  # (B,)
+    if newtons_per_unit is not None:
+        force = force * float(newtons_per_unit)
+    area = on.sum(axis=2).mean(axis=1) / float(n_taxels)  # (B,)
+    peak = x.max(axis=(1, 2)).astype(np.float64)  # (B,)
+    lw = np.where(on, x, np.float32(0)).sum(axis=1, dtype=np.float64)  # (B, HW) contact load
+    load = lw.sum(axis=1)  # (B,)
+    rr, cc = np.divmod(np.arange(h * w, dtype=np.float64), w)  # (HW,) taxel row, column
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cy, cx = lw @ rr / load, lw @ cc / load
+        var = lw @ (rr * rr + cc * cc) / load - cy * cy - cx * cx
+    spread = np.sqrt(np.maximum(var, 0.0))
+    if regions is None:
+        shares = np.zeros((b, 0))
+        names: tuple[str, ...] = ()
+    else:
+        names = regions.names
+        with np.errstate(invalid="ignore", divide="ignore"):
+            shares = np.nan_to_num((lw @ regions.onehot()) / load[:, None], nan=0.0)
+    return WindowFacets(
+        force=force,
+        area=area,
+        peak=peak,
+        centroid=np.stack([cy, cx], axis=1),
+        spread=spread,
+        regions=shares,
+        load=load,
+        region_names=names,
+    )
+
+
+def grasp_facets(f: WindowFacets, t: np.ndarray, t_end: np.ndarray) -> dict[str, Any]:
+    """One grasp's facets from its n member windows' facets ``f`` and their spans ``t``,
+    ``t_end`` (n,) seconds (any order: sorted by ``t`` here). Names: :data:`GRASP_FACETS`."""
+    n = len(f)
+    ts, te = np.asarray(t, np.float64).reshape(-1), np.asarray(t_end, np.float64).reshape(-1)
+    if n == 0 or ts.shape != (n,) or te.shape != (n,):
+        raise InvalidInputError(f"a grasp needs >= 1 window and one span each, got {n} windows")
+    order = np.argsort(ts, kind="stable")
+    ts, te = ts[order], te[order]
+    force, load = f.force[order], f.load[order]
+    mid = (ts + te) / 2
+    top = int(np.argmax(force))
+    total = float(load.sum())
+    if total > 0:
+        w = load / total
+        has = load > 0
+        cen = (f.centroid[order][has] * w[has, None]).sum(axis=0) / w[has].sum()
+        centroid: list[float] | None = [float(cen[0]), float(cen[1])]
+        shares = {
+            name: float(v) for name, v in zip(f.region_names, w @ f.regions[order], strict=True)
+        }
+    else:
+        centroid, shares = None, {name: 0.0 for name in f.region_names}
+    path = f.centroid[order][load > 0]
+    dt = float(mid[load > 0][-1] - mid[load > 0][0]) if len(path) > 1 else 0.0
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1).sum() if len(path) > 1 else 0.0
+    ramp_dt = float(mid[top] - mid[0])
+    spread = f.spread[order]
+    return {
+        "force": float(force.max()),
+        "area": float(f.area.max()),
+        "peak": float(f.peak.max()),
+        "centroid": centroid,
+        "spread": None if np.isnan(spread).all() else float(np.nanmax(spread)),
+        "regions": shares,
+        "grip": grip_of(shares) if total > 0 or not shares else "none",
+        "onset": float(ts[0]),
+        "release": float(te.max()),
+        "duration": float(te.max() - ts[0]),
+        "peak_time": float(mid[top]),
+        "ramp": float((force[top] - force[0]) / ramp_dt) if ramp_dt > 0 else 0.0,
+        "slip": float(steps / dt) if dt > 0 else 0.0,
+    }
