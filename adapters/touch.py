@@ -350,8 +350,15 @@ class TactusEncoder(Sense):
         return out[0] if single else out
 
     def to_row(self, item: np.ndarray) -> dict[str, Any]:
-        """Store the calibrated window (float16 .npy bytes; 1/150 raw steps survive float16)."""
-        return {"raw": array_to_bytes(np.asarray(item, dtype=np.float16))}
+        """Store the calibrated window (float16 .npy bytes; 1/150 raw steps survive float16)
+        and its facets (:mod:`tactus_memory.touch.facets`, from the float32 window)."""
+        from tactus_memory.touch.facets import facet_columns, window_facets
+
+        window = np.asarray(item, dtype=np.float32)
+        return {
+            "raw": array_to_bytes(window.astype(np.float16)),
+            **facet_columns(window_facets(window[None], self.profile).row(0)),
+        }
 
     def from_row(self, row: dict[str, Any]) -> Any:
         arr = super().from_row(row)

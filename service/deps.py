@@ -44,6 +44,7 @@ from tactus_memory.where import (
     SESSION_PREFIX,
     Near,
     check_near,
+    check_regions,
     session_visible,
     validate_frame,
 )
@@ -336,7 +337,52 @@ def parse_near(near: str | None) -> Near | None:
     return check_near(((x, y, z), r))
 
 
+ForceMinQ = Annotated[
+    float | None,
+    Query(description="Touch only: force (calibrated units: the sum of the taxels) >= this."),
+]
+ForceMaxQ = Annotated[float | None, Query(description="Touch only: force <= this.")]
+AreaMinQ = Annotated[
+    float | None,
+    Query(ge=0.0, le=1.0, description="Touch only: contact area (share of the taxels) >= this."),
+]
+RegionsQ = Annotated[
+    str | None,
+    Query(
+        max_length=400,
+        description="Touch only: every one of these regions or pads active (comma-separated, "
+        "e.g. `thumb,index`).",
+    ),
+]
+GripQ = Annotated[
+    Literal["none", "power", "press", "pinch", "tripod", "other"] | None,
+    Query(description="Touch only: this grip (from the active regions; docs: touch facets)."),
+]
+
+
+@dataclass(frozen=True)
+class FacetFilters:
+    """The touch facet filters of a query string (one Depends, so routes stay short)."""
+
+    force_min: float | None = None
+    force_max: float | None = None
+    area_min: float | None = None
+    regions: str | None = None
+    grip: str | None = None
+
+
+def facet_filters(
+    force_min: ForceMinQ = None,
+    force_max: ForceMaxQ = None,
+    area_min: AreaMinQ = None,
+    regions: RegionsQ = None,
+    grip: GripQ = None,
+) -> FacetFilters:
+    return FacetFilters(force_min, force_max, area_min, regions, grip)
+
+
 def stream_scope(
+    facets: Annotated[FacetFilters, Depends(facet_filters)],
     sense: SensesQ = None,
     source: SourceQ = None,
     after: AfterQ = None,
@@ -352,6 +398,11 @@ def stream_scope(
         before=before,
         near=parse_near(near),
         frame=None if frame is None else validate_frame(frame),
+        force_min=facets.force_min,
+        force_max=facets.force_max,
+        area_min=facets.area_min,
+        regions=check_regions(facets.regions),
+        grip=facets.grip,
     )
 
 

@@ -55,6 +55,11 @@ class ScopeKwargs(TypedDict, total=False):
     before: float | None
     near: Near | None
     frame: str | None
+    force_min: float | None
+    force_max: float | None
+    area_min: float | None
+    regions: Sequence[str] | str | None
+    grip: str | None
 
 
 @dataclass(frozen=True)
@@ -63,7 +68,10 @@ class Scope:
     rows), a source (stream) id, and ``after``/``before`` with overlap semantics (an item
     spanning ``[t, t_end]`` is in scope when ``t_end >= after`` and ``t <= before``), and a
     place: ``near=((x, y, z), radius)`` keeps items placed within ``radius`` metres of the
-    point (unplaced items never match), ``frame`` items placed in that frame."""
+    point (unplaced items never match), ``frame`` items placed in that frame. Touch facets
+    (:mod:`tactus_memory.touch.facets`): ``force_min``/``force_max``, ``area_min``,
+    ``regions`` (names, or one comma-separated string: every one active) and ``grip`` keep
+    touch items whose facets qualify (other senses' items have none, so never match)."""
 
     session: str | None = None
     senses: Sequence[str] | None = None
@@ -72,6 +80,19 @@ class Scope:
     before: float | None = None
     near: Near | None = None
     frame: str | None = None
+    force_min: float | None = None
+    force_max: float | None = None
+    area_min: float | None = None
+    regions: Sequence[str] | str | None = None
+    grip: str | None = None
+
+    @property
+    def faceted(self) -> bool:
+        """Whether a facet filter is set (the store needs its facet columns)."""
+        return any(
+            v is not None
+            for v in (self.force_min, self.force_max, self.area_min, self.regions, self.grip)
+        )
 
     @classmethod
     def of(cls, scope: Scope | None = None, **kw: Any) -> Scope:
@@ -108,6 +129,10 @@ class Scope:
             .source(self.source)
             .near(self.near)
             .frame(self.frame)
+            .facet_range("force", self.force_min, self.force_max)
+            .facet_range("area", self.area_min)
+            .regions(self.regions)
+            .grip(self.grip)
         )
 
 

@@ -19,6 +19,19 @@ PlaceFrame = Annotated[str | None, Field(description="The frame of `position`.")
 
 
 # --------------------------------------------------------------------------- memory
+#: a touch item's or grasp's facets (tactus_memory.touch.facets): force, area, peak,
+#: centroid, spread, regions, grip (and for a grasp onset, release, duration, peak_time, ramp,
+#: slip); None for other senses and for touch rows stored before facets
+FacetsField = Annotated[
+    dict[str, Any] | None,
+    Field(
+        description="Touch only: what the window or grasp physically was (force, area, peak, "
+        "centroid, spread, regions, grip; a grasp adds onset, release, duration, peak_time, "
+        "ramp, slip), computed from its calibrated frames."
+    ),
+]
+
+
 class Span(BaseModel):
     """What every stored item has first: its id, session, sense and time span."""
 
@@ -60,6 +73,7 @@ class Hit(Span):
     window_score: float | None = Field(
         None, description="A grasp's best member window's own score (score is the pooled one)."
     )
+    facets: FacetsField = None
 
 
 class Item(Span):
@@ -79,6 +93,7 @@ class Item(Span):
     )
     created: float
     vector: list[float] | None = None
+    facets: FacetsField = None
 
 
 class Stored(list):  # type: ignore[type-arg]
@@ -141,6 +156,8 @@ def row_fields(row: dict[str, Any]) -> dict[str, Any]:
     out.update(meta=json.loads(row["meta"] or "{}"), source=row.get("source") or "")
     if row.get("x") is not None:
         out.update(position=(row["x"], row["y"], row["z"]), frame=row.get("frame"))
+    if row.get("facets"):
+        out["facets"] = json.loads(row["facets"])
     return out
 
 
@@ -176,6 +193,7 @@ class TimelineItem(BaseModel):
     episode: int | None = None
     position: PlacePosition = None
     frame: PlaceFrame = None
+    facets: FacetsField = None
 
 
 class Evidence(TimelineItem):

@@ -5,6 +5,7 @@ literals are also quote-escaped; no user string reaches LanceDB any other way)."
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -49,6 +50,44 @@ def finite_float(value: Any, what: str) -> float:
     if not math.isfinite(out):
         raise InvalidInputError(f"{what} must be finite, got {value!r}")
     return out
+
+
+#: grip names a touch facet takes (tactus_memory.touch.facets: the rule that gives them)
+GRIPS = ("none", "power", "press", "pinch", "tripod", "other")
+#: orders a search's hits may be put in by a facet instead of the score: ``force``/``area``
+#: ascending, ``-force``/``-area`` descending, ``t``/``-t`` by time
+SORTS = ("force", "-force", "area", "-area", "t", "-t")
+#: a region or pad name in a facet filter (``regions=thumb,index``)
+REGION_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")
+
+
+def check_regions(value: Any) -> tuple[str, ...] | None:
+    """Region names, as a sequence or one comma-separated string (``"thumb,index"``)."""
+    if value is None:
+        return None
+    names = value.split(",") if isinstance(value, str) else list(value)
+    names = [n.strip() if isinstance(n, str) else n for n in names]
+    for n in names:
+        if not isinstance(n, str) or not REGION_RE.fullmatch(n):
+            raise InvalidInputError(
+                f"region names are 1-64 chars of [A-Za-z0-9_-] (thumb, index, palm, a pad's "
+                f"name), got {n!r}"
+            )
+    if not names:
+        raise InvalidInputError("regions needs at least one region name")
+    return tuple(names)
+
+
+def check_grip(value: Any) -> str | None:
+    if value is not None and value not in GRIPS:
+        raise InvalidInputError(f"unknown grip {value!r}; use one of {', '.join(GRIPS)}")
+    return value
+
+
+def check_sort(value: Any) -> str | None:
+    if value is not None and value not in SORTS:
+        raise InvalidInputError(f"unknown sort {value!r}; use one of {', '.join(SORTS)}")
+    return value
 
 
 #: the frame positions are in unless one is named (REP 105's world-fixed frame)
@@ -210,6 +249,30 @@ class Where:
 
     def frame(self, frame: str | None) -> Where:
         return self._eq("frame", frame, validate_frame)
+
+    def facet_range(self, column: str, lo: float | None, hi: float | None = None) -> Where:
+        """Touch rows whose facet ``column`` (``force``, ``area``) lies in [lo, hi] (rows
+        without facets never match)."""
+        if column not in ("force", "area", "peak"):
+            raise InvalidInputError(f"no facet column {column!r}")
+        if lo is not None:
+            self.parts.append(f"{column} >= {_sql_float(finite_float(lo, column + '_min'))}")
+        if hi is not None:
+            self.parts.append(f"{column} <= {_sql_float(finite_float(hi, column + '_max'))}")
+        if lo is not None and hi is not None and float(lo) > float(hi):
+            raise InvalidInputError(f"{column}_min ({lo}) is above {column}_max ({hi})")
+        return self
+
+    def regions(self, names: Iterable[str] | str | None) -> Where:
+        """Touch rows where every region of ``names`` is active (carries a share of the
+        load, tactus_memory.touch.facets.ACTIVE_SHARE)."""
+        for n in check_regions(names) or ():
+            self.parts.append(f"regions LIKE {_sql_str('%,' + n + ',%')}")
+        return self
+
+    def grip(self, grip: str | None) -> Where:
+        """Touch rows of this grip (one of :data:`GRIPS`)."""
+        return self._eq("grip", grip, check_grip)
 
     def near(self, near: Near | None) -> Where:
         """Items placed within ``radius`` of ``(x, y, z)`` (unplaced items never match). The

@@ -62,20 +62,27 @@ def search(
         Query(ge=0.0, le=3600.0, description="With group=moment: seconds that still join hits."),
     ] = None,
     pool: GraspPool = "mean",
+    sort: Annotated[
+        Literal["force", "-force", "area", "-area", "t", "-t"] | None,
+        Query(
+            description="Order the question's best candidates by a touch facet (`-force`: the "
+            "firmest first) or by time, instead of by score; the first `k` are returned."
+        ),
+    ] = None,
 ) -> SearchOut:
     t0 = time.perf_counter()
     if group == "moment":
-        moments = memory.search(q, k=k, group="moment", gap=gap, scope=scope)
+        moments = memory.search(q, k=k, group="moment", gap=gap, scope=scope, sort=sort)
         _timing(response, t0)
         best = [next(h for h in m.hits if h.id == m.best) for m in moments]
         return SearchOut(
             hits=[HitOut.model_validate(h, from_attributes=True) for h in best], moments=moments
         )
     if group == "grasp":
-        grasps = memory.search(q, k=k, group="grasp", pool=pool, scope=scope)
+        grasps = memory.search(q, k=k, group="grasp", pool=pool, scope=scope, sort=sort)
         _timing(response, t0)
         return SearchOut(hits=_out(grasps).hits, grasps=grasps)
-    hits = memory.search(q, k=k, group=group, pool=pool, scope=scope)
+    hits = memory.search(q, k=k, group=group, pool=pool, scope=scope, sort=sort)
     _timing(response, t0)
     return _out(hits)
 

@@ -66,6 +66,7 @@ from tactus_memory.results import (
     Stored,
     item_from_row,
 )
+from tactus_memory.search.ordering import candidates, sort_hits
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.scoring import Calibration
 from tactus_memory.search.senses import SenseRegistry
@@ -76,7 +77,7 @@ from tactus_memory.spaces.base import Space
 from tactus_memory.storage.rows import options_for, summarise
 from tactus_memory.storage.scheduler import Background
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.tables import HIT_COLUMNS, IndexConfig
+from tactus_memory.storage.tables import HIT_COLUMNS, IndexConfig, check_facet_columns
 from tactus_memory.storage.tenants import tenant_uri
 from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, check_group, grasp_hits
 from tactus_memory.temporal.operators import Temporal
@@ -335,6 +336,7 @@ class Memory(AbstractContextManager["Memory"]):
         group: str | None = DEFAULT_GROUP,
         gap: float | None = None,
         pool: str = "mean",
+        sort: str | None = None,
         **scope: Unpack[ScopeKwargs],
     ) -> list[Hit] | list[Moment] | list[Grasp]:
         """Natural-language search over the scope's senses (default: every sense with rows).
@@ -343,20 +345,26 @@ class Memory(AbstractContextManager["Memory"]):
         (or one ``scope=`` :class:`Scope`). ``group``: ``"auto"`` (default) answers touch with
         grasps, one Hit each (``temporal.grasps.grasp_hits``); ``"window"`` (or None) one Hit per
         stored item; ``"grasp"`` one Grasp per grasp of every sense; ``"moment"`` Moments
-        (:meth:`search_moments`). The query is embedded once."""
+        (:meth:`search_moments`). The query is embedded once. Touch facet filters
+        (``force_min``, ``force_max``, ``area_min``, ``regions``, ``grip``) are scope filters;
+        ``sort`` (``force``, ``-force``, ``area``, ``-area``, ``t``, ``-t``) orders the
+        question's best candidates by that facet (:mod:`tactus_memory.search.ordering`)."""
         where, g = Scope.of(**scope), check_group(group)
+        if where.faceted or sort is not None:
+            check_facet_columns(self.store.schema)
+        kk = candidates(check_k(k), sort)
         if g == "moment":  # embeds the query itself, once
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
-            return self.search_moments(query, k, gap=gap, scope=where)
+            return sort_hits(self.search_moments(query, kk, gap=gap, scope=where), sort, k)
         q = embed_query(self.space, query)
         with self.registry.pinned():  # one view of the senses for the whole question
             if g == "grasp":
-                return self.temporal.grasps(q, k, where, GraspRule(pool=pool))
-            k, names = check_k(k), self.resolve_senses(where.senses)
-            hits = grasp_hits(self.temporal, q, k, where, names, pool) if g == "auto" else None
+                return sort_hits(self.temporal.grasps(q, kk, where, GraspRule(pool=pool)), sort, k)
+            names = self.resolve_senses(where.senses)
+            hits = grasp_hits(self.temporal, q, kk, where, names, pool) if g == "auto" else None
             if hits is None:  # no touch sense in scope, or group="window"
-                hits = self._rank_in(q, k, where, transform=True)
-            return hits
+                hits = self._rank_in(q, kk, where, transform=True)
+            return sort_hits(hits, sort, k)
 
     def search_vector(
         self,

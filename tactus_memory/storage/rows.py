@@ -17,6 +17,7 @@ from tactus_memory.results import SessionSummary, Stored
 from tactus_memory.sense import Sense
 from tactus_memory.storage.codes import vector_array
 from tactus_memory.storage.places import Placement, given_placement
+from tactus_memory.storage.tables import FACET_COLUMNS
 from tactus_memory.where import DEFAULT_FRAME, validate_frame
 
 if TYPE_CHECKING:
@@ -125,10 +126,12 @@ def items_table(
 ) -> pa.Table:
     """The Arrow table of one write: ``vectors`` (N, D) unit rows (stored with the sense's
     code when ``schema``'s vector is wider: :mod:`tactus_memory.storage.codes`),
-    ``extras`` the sense's ``to_row`` columns per item."""
+    ``extras`` the sense's ``to_row`` columns per item (a touch sense's include its
+    facets, :data:`FACET_COLUMNS`, stored where ``schema`` has them)."""
     import pyarrow as pa
 
     n = len(vectors)
+    facets = {c: [e.get(c) for e in extras] for c in FACET_COLUMNS if c in schema.names}
     return pa.table(
         {
             "id": batch.ids,
@@ -144,6 +147,7 @@ def items_table(
             "episode": pa.nulls(n, pa.int64()),
             "created": [batch.created] * n,
             **batch.place.columns(),
+            **facets,
         },
         schema=schema,
     )

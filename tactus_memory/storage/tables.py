@@ -13,9 +13,14 @@ if TYPE_CHECKING:
 
 # --------------------------------------------------------------------------- schema
 #: columns returned by searches (everything except the vector and raw bytes)
+#: a touch row's facets (:mod:`tactus_memory.touch.facets`), computed at write time; null on
+#: other senses' rows. ``regions``: the active regions as ``",thumb,index,"`` (a filter asks
+#: ``regions LIKE '%,thumb,%'``); ``facets``: every facet of the window as JSON
+FACET_COLUMNS = ("force", "area", "peak", "grip", "regions", "facets")
 HIT_COLUMNS = [
     *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),
     *("x", "y", "z", "frame"),
+    *FACET_COLUMNS,
 ]
 
 
@@ -47,8 +52,34 @@ def items_schema(dim: int, codes: int = 0) -> pa.Schema:
             pa.field("episode", pa.int64()),
             pa.field("created", pa.float64(), nullable=False),
             *place_fields(),
+            *facet_fields(),
         ]
     )
+
+
+def check_facet_columns(schema: pa.Schema) -> None:
+    """Raise InvalidInputError when the items table has no facet columns (a store made
+    before facets): a facet filter or order needs ``tactus maintain --facets`` first."""
+    if "facets" not in schema.names:
+        raise InvalidInputError(
+            "this store was made before touch facets: filtering or sorting by a facet needs "
+            "its facet columns; run `tactus maintain --facets` on it first"
+        )
+
+
+def facet_fields() -> list[pa.Field]:
+    """A touch row's facets (:data:`FACET_COLUMNS`; null on other rows and on rows stored
+    before facets, until ``tactus maintain --facets``)."""
+    import pyarrow as pa
+
+    return [
+        pa.field("force", pa.float64()),
+        pa.field("area", pa.float64()),
+        pa.field("peak", pa.float64()),
+        pa.field("grip", pa.string()),
+        pa.field("regions", pa.string()),
+        pa.field("facets", pa.string()),
+    ]
 
 
 def place_fields() -> list[pa.Field]:

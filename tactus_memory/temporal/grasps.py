@@ -39,6 +39,7 @@ but the match bar (``MATCH_Z``) was set on windows and is not re-measured for gr
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -195,6 +196,19 @@ class GraspRows:
     vector: np.ndarray
     members: np.ndarray
     candidates: list[Evidence]
+    #: the members' stored facets JSON and spans (None: a row without facets)
+    facets: list[str | None] | None = None
+    spans: tuple[np.ndarray, np.ndarray] | None = None
+
+    def grasp_facets(self) -> dict[str, Any] | None:
+        """The grasp's facets (:func:`tactus_memory.touch.facets.grasp_facets`) from its
+        members' stored ones; None when a member has none (another sense, an old row)."""
+        if not self.facets or any(f is None for f in self.facets) or self.spans is None:
+            return None
+        from tactus_memory.touch.facets import facets_of_rows, grasp_facets
+
+        rows = [json.loads(f) for f in self.facets if f is not None]
+        return grasp_facets(facets_of_rows(rows), *self.spans)
 
     def cosine(self, q: np.ndarray, pool: str) -> float:
         """The grasp's cosine to the (D,) query ``q`` under ``pool`` (see POOLS)."""
@@ -220,7 +234,7 @@ def _merge(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
 #: one per stream; bounded so a filter stays a few KB
 GRASP_SPANS_PER_SCAN = 64
 #: what a neighbourhood's read needs of each row
-_SPAN_COLUMNS = ["session", "sense", "source", "id", "t", "t_end", "vector"]
+_SPAN_COLUMNS = ["session", "sense", "source", "id", "t", "t_end", "vector", "facets"]
 
 Stream = tuple[str, str, str]  # (session, sense, source)
 
@@ -292,6 +306,7 @@ class _Rows:
     t: np.ndarray  # (N,) float64
     t_end: np.ndarray  # (N,) float64
     vecs: np.ndarray  # (N, D) float32 unit rows
+    facets: list[str | None]  # (N,) each row's facets JSON (None: none stored)
 
 
 def _read(store: Store, dim: int, spans: list[_Span]) -> _Rows:
@@ -304,6 +319,7 @@ def _read(store: Store, dim: int, spans: list[_Span]) -> _Rows:
     )
     ids = tbl.column("id").to_pylist()
     t = tbl.column("t").to_numpy()
+    facets = tbl.column("facets").to_pylist() if "facets" in tbl.column_names else [None] * len(ids)
     order = np.lexsort((np.array(ids, dtype=object), t, code))
     return _Rows(
         streams=streams,
@@ -312,6 +328,7 @@ def _read(store: Store, dim: int, spans: list[_Span]) -> _Rows:
         t=t[order],
         t_end=tbl.column("t_end").to_numpy()[order],
         vecs=vector_column(tbl, dim)[order],
+        facets=[facets[i] for i in order],
     )
 
 
@@ -349,6 +366,8 @@ def _grasps_in(span: _Span, rows: _Rows, rule: GraspRule) -> list[GraspRows] | N
                 vector=pooled(vecs[members]),
                 members=vecs[members],
                 candidates=[c for c in span.cands if c.id in mine],
+                facets=[rows.facets[sel[i]] for i in members],
+                spans=(t[members], t_end[members]),
             )
         )
     return out
@@ -369,7 +388,7 @@ def pool_grasps(
         cos = g.cosine(qs, rule.pool)
         off = best.t_aligned - best.t
         fields = best.model_dump(exclude={"t", "t_end", "t_aligned", "t_end_aligned", "score"})
-        fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids)
+        fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids, facets=g.grasp_facets())
         out.append(
             Grasp(
                 **fields,

@@ -18,7 +18,8 @@ Per window (:func:`window_facets`, vectorised over B windows of K frames, (B, K,
   None without contact;
 * ``regions``: each region's (:mod:`tactus_memory.touch.regions`) share of the contact load;
   empty for a sensor without regions;
-* ``grip``: :func:`grip_of` the regions.
+* ``grip``: :func:`grip_of` the regions;
+* ``load``: the contact load itself (what a grasp weighs its windows by).
 
 Per grasp (:func:`grasp_facets`, from its member windows' facets and time spans):
 ``force``, ``area``, ``peak`` and ``spread`` are the maxima over the windows; ``centroid`` and
@@ -40,6 +41,7 @@ without regions has no grip (None).
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -57,7 +59,7 @@ ACTIVE_SHARE = 0.10
 #: grip names, in the order the rule tests them (module docstring)
 GRIPS = ("none", "power", "press", "pinch", "tripod", "other")
 #: the facet names a window has, and those a grasp adds
-WINDOW_FACETS = ("force", "area", "peak", "centroid", "spread", "regions", "grip")
+WINDOW_FACETS = ("force", "area", "peak", "centroid", "spread", "regions", "grip", "load")
 GRASP_FACETS = (*WINDOW_FACETS, "onset", "release", "duration", "peak_time", "ramp", "slip")
 
 
@@ -123,6 +125,7 @@ class WindowFacets:
             "spread": None if np.isnan(self.spread[i]) else float(self.spread[i]),
             "regions": shares,
             "grip": grip_of(shares) if self.load[i] > 0 or not shares else "none",
+            "load": float(self.load[i]),
         }
 
     def rows(self) -> list[dict[str, Any]]:
@@ -243,6 +246,7 @@ def grasp_facets(f: WindowFacets, t: np.ndarray, t_end: np.ndarray) -> dict[str,
         "spread": None if np.isnan(spread).all() else float(np.nanmax(spread)),
         "regions": shares,
         "grip": grip_of(shares) if total > 0 or not shares else "none",
+        "load": total,
         "onset": float(ts[0]),
         "release": float(te.max()),
         "duration": float(te.max() - ts[0]),
@@ -250,3 +254,47 @@ def grasp_facets(f: WindowFacets, t: np.ndarray, t_end: np.ndarray) -> dict[str,
         "ramp": float((force[top] - force[0]) / ramp_dt) if ramp_dt > 0 else 0.0,
         "slip": float(steps / dt) if dt > 0 else 0.0,
     }
+
+
+def active_regions(shares: dict[str, float]) -> list[str]:
+    """The regions carrying at least :data:`ACTIVE_SHARE` of the load, most loaded first."""
+    return [r for r, s in sorted(shares.items(), key=lambda kv: -kv[1]) if s >= ACTIVE_SHARE]
+
+
+def facet_columns(facets: dict[str, Any]) -> dict[str, Any]:
+    """One window's facets (:meth:`WindowFacets.row`) -> the store's facet columns
+    (``storage.tables.FACET_COLUMNS``): ``force``, ``area``, ``peak``, ``grip``, ``regions``
+    (the active regions as ``",thumb,index,"``, so a filter can ask for one by name) and
+    ``facets`` (all of them as JSON)."""
+    active = active_regions(facets.get("regions") or {})
+    return {
+        "force": facets["force"],
+        "area": facets["area"],
+        "peak": facets["peak"],
+        "grip": facets.get("grip"),
+        "regions": "," + ",".join(active) + "," if active else ",",
+        "facets": json.dumps(facets, separators=(",", ":")),
+    }
+
+
+def facets_of_rows(rows: list[dict[str, Any]]) -> WindowFacets:
+    """Stored windows' facets (each a :meth:`WindowFacets.row` dict, as the ``facets`` column
+    holds it) -> :class:`WindowFacets` again, for :func:`grasp_facets`."""
+    names = tuple(rows[0].get("regions") or {}) if rows else ()
+    force = np.array([r["force"] for r in rows], np.float64)
+    cen = np.array(
+        [r["centroid"] if r.get("centroid") else (np.nan, np.nan) for r in rows], np.float64
+    ).reshape(-1, 2)
+    load = np.array([r.get("load", 0.0) for r in rows], np.float64)
+    return WindowFacets(
+        force=force,
+        area=np.array([r["area"] for r in rows], np.float64),
+        peak=np.array([r["peak"] for r in rows], np.float64),
+        centroid=cen,
+        spread=np.array([np.nan if r.get("spread") is None else r["spread"] for r in rows]),
+        regions=np.array(
+            [[(r.get("regions") or {}).get(n, 0.0) for n in names] for r in rows]
+        ).reshape(len(rows), len(names)),
+        load=load,
+        region_names=names,
+    )

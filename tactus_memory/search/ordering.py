@@ -1,0 +1,44 @@
+"""Hits put in order by a touch facet instead of their score (``search(q, sort="-force")``):
+the question chooses the candidates (the :data:`SORT_CANDIDATES` best hits in scope), the
+facet orders them, the first ``k`` are the answer. "The firmest grasp of session S" is
+``search("holding something", session="S", sort="-force", k=1)``.
+
+Hits without facets (other senses, rows stored before facets) come after those with, in
+their score order; ``t``/``-t`` order by start time (aligned when the hit has it)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, TypeVar
+
+from tactus_memory.limits import MAX_K
+from tactus_memory.where import check_sort
+
+#: how many best hits a sorted search orders by the facet (the question's candidates)
+SORT_CANDIDATES = MAX_K // 4
+
+H = TypeVar("H")
+
+
+def candidates(k: int, sort: str | None) -> int:
+    """How many hits to ask for: ``k``, or :data:`SORT_CANDIDATES` (at least k) when sorted."""
+    return k if check_sort(sort) is None else max(k, SORT_CANDIDATES)
+
+
+def _key(hit: Any, sort: str) -> tuple[int, float]:
+    name = sort.lstrip("-")
+    sign = -1.0 if sort.startswith("-") else 1.0
+    if name == "t":
+        t = getattr(hit, "t_aligned", None)
+        return 0, sign * float(hit.t if t is None else t)
+    facets = getattr(hit, "facets", None) or {}
+    value = facets.get(name)
+    return (1, 0.0) if value is None else (0, sign * float(value))
+
+
+def sort_hits(hits: Sequence[H], sort: str | None, k: int) -> list[H]:
+    """``hits`` (best first) in ``sort`` order (None: as they are), the first ``k``."""
+    if check_sort(sort) is None:
+        return list(hits)[:k]
+    order = sorted(range(len(hits)), key=lambda i: (*_key(hits[i], sort), i))  # type: ignore[arg-type]
+    return [hits[i] for i in order[:k]]

@@ -1,0 +1,140 @@
+"""Touch facets stored, returned and filtered (issue 50): the real touch sense (a tiny
+checkpoint with the glove's profile) writes its windows' facets into a real LanceDB store; the
+same filters and order answer alike from Python and over HTTP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from tactus_memory.adapters.touch import TactusEncoder
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.service.app import create_app
+from tactus_memory.settings import Settings
+from tactus_memory.storage.tables import FACET_COLUMNS
+from tactus_memory.touch.facets import window_facets
+from tactus_memory.touch.profile import STAG_GLOVE
+from tactus_memory.touch.regions import STAG_REGIONS
+from tests.helpers.service import FRAMES, make_memory
+
+REST = 512  # raw resting reading (stag-format.md)
+#: the windows written: (grip they show, regions loaded, raw level, start time)
+GRASPS = [
+    ("pinch", ("thumb", "index"), 620, 10.0),
+    ("pinch", ("thumb", "index"), 700, 30.0),
+    ("power", ("palm", "index", "middle", "ring"), 640, 50.0),
+    ("press", ("palm",), 600, 70.0),
+    ("tripod", ("thumb", "index", "middle"), 660, 90.0),
+]
+
+
+def glove_window(regions: tuple[str, ...], level: int, seed: int) -> np.ndarray:
+    """(FRAMES, 32, 32) raw: the glove at rest, 6 taxels of each region pressed to ``level``."""
+    rng = np.random.default_rng(seed)
+    w = np.full((FRAMES, 32, 32), REST, np.int16) + rng.integers(-2, 3, (FRAMES, 32, 32))
+    for name in regions:
+        rows, cols = np.nonzero(STAG_REGIONS.taxels(name))
+        w[:, rows[:6], cols[:6]] = level
+    return w.astype(np.int16)
+
+
+@pytest.fixture
+def stored(tmp_path: Path, checkpoint: Path):
+    memory = make_memory(tmp_path / "mem", touch=False)
+    memory.add_sense(TactusEncoder(checkpoint))
+    ids = []
+    for i, (_, regions, level, t) in enumerate(GRASPS):
+        win = glove_window(regions, level, i)
+        ids.append(memory.add("day", "touch", win, t=t, t_end=t + 1.0))
+    return memory, ids
+
+
+def test_facets_are_stored_at_write_time_and_returned(stored) -> None:
+    memory, ids = stored
+    hits = memory.search("something", k=10, senses=["touch"], group="window")
+    assert len(hits) == len(GRASPS)
+    by_id = {h.id: h for h in hits}
+    for i, (grip, regions, level, _) in enumerate(GRASPS):
+        f = by_id[ids[i]].facets
+        want = window_facets(STAG_GLOVE.calibrate(glove_window(regions, level, i)), STAG_GLOVE)
+        assert f["force"] == pytest.approx(float(want.force[0]))
+        assert f["area"] == pytest.approx(len(regions) * 6 / 548)
+        assert f["grip"] == grip
+        assert {r for r, s in f["regions"].items() if s > 0} == set(regions)
+    grasps = memory.search("something", k=10, senses=["touch"])  # auto: touch as grasps
+    assert {g.facets["grip"] for g in grasps} == {g for g, *_ in GRASPS}
+    for g in grasps:
+        assert g.facets["duration"] == pytest.approx(1.0)
+        assert g.facets["onset"] == g.t and g.facets["release"] == g.t_end
+
+
+def _python(memory, **kw) -> list[str]:
+    return [h.id for h in memory.search("something", k=10, senses=["touch"], **kw)]
+
+
+def _http(client: TestClient, **kw) -> list[str]:
+    r = client.get("/search", params={"q": "something", "k": 10, "sense": "touch", **kw})
+    assert r.status_code == 200, r.text
+    return [h["id"] for h in r.json()["hits"]]
+
+
+CASES = [
+    ({"grip": "pinch"}, {0, 1}),
+    ({"regions": "thumb,index"}, {0, 1, 4}),
+    ({"regions": "palm"}, {2, 3}),
+    ({"force_min": 58.0}, {2, 4}),  # forces: 52.6, 55.0, 64.2, 47.2, 60.5
+    ({"area_min": 0.03}, {2, 4}),
+    ({"grip": "tripod", "force_max": 1e9}, {4}),
+]
+
+
+def test_filters_and_sort_answer_alike_in_python_and_over_http(stored) -> None:
+    memory, ids = stored
+    with TestClient(create_app(Settings(), memory=memory)) as client:
+        for kw, want in CASES:
+            for group in ("window", "auto"):
+                py, http = _python(memory, group=group, **kw), _http(client, group=group, **kw)
+                assert sorted(py) == sorted(http), (kw, group)
+                if want is not None:
+                    assert set(py) == {ids[i] for i in want}, (kw, group)
+        forces = {h.id: h.facets["force"] for h in memory.search("x", k=10, group="window")}
+        firm = {i for i, f in forces.items() if f >= 54.0}
+        assert 0 < len(firm) < len(ids)
+        assert set(_python(memory, group="window", force_min=54.0)) == firm
+        for sort in ("-force", "force", "t", "-t"):
+            py = _python(memory, group="window", sort=sort)
+            assert py == _http(client, group="window", sort=sort)
+            key = (lambda i: forces[i]) if "force" in sort else ids.index
+            assert py == sorted(ids, key=key, reverse=sort.startswith("-"))
+        firmest = memory.search("x", k=1, group="window", sort="-force")[0]
+        assert firmest.id == ids[2]  # the power grasp: four regions pressed
+        for route in ("/count", "/moments", "/last", "/first"):
+            r = client.get(route, params={"q": "something", "grip": "pinch"})
+            assert r.status_code == 200, r.text
+            body = r.json()
+            moments = body.get("moments") or ([body["moment"]] if body.get("moment") else [])
+            seen = {e["id"] for m in moments for e in m["hits"]}
+            assert seen <= {ids[0], ids[1]}, route  # only the pinches are asked of
+            assert client.get(route, params={"q": "x", "grip": "fist"}).status_code == 422
+        bad = client.get("/search", params={"q": "x", "grip": "fist"})
+        assert bad.status_code == 422
+        bad = client.get("/search", params={"q": "x", "regions": "thumb;drop"})
+        assert bad.status_code == 422 and "region" in bad.text
+
+
+def test_facet_filters_refuse_bad_values_and_old_stores(stored, tmp_path: Path) -> None:
+    memory, _ = stored
+    with pytest.raises(InvalidInputError, match="sort"):
+        memory.search("x", sort="hardest")
+    with pytest.raises(InvalidInputError, match="force_min"):
+        memory.search("x", force_min=5.0, force_max=1.0)
+    with pytest.raises(InvalidInputError, match="region"):
+        memory.search("x", regions="a b")
+    memory.store.items.drop_columns(list(FACET_COLUMNS))  # a store made before facets
+    memory.store._schema = None
+    with pytest.raises(InvalidInputError, match="maintain --facets"):
+        memory.search("x", grip="pinch")
+    assert memory.search("x", k=2)  # unfiltered questions still work
