@@ -172,14 +172,44 @@ class Window:
         return {"senses": self.sense or None, "after": self.after, "before": self.before}
 
 
+ForceMin = Annotated[
+    float | None, typer.Option("--force-min", help="Touch only: force at least this.")
+]
+ForceMax = Annotated[
+    float | None, typer.Option("--force-max", help="Touch only: force at most this.")
+]
+AreaMin = Annotated[
+    float | None, typer.Option("--area-min", help="Touch only: contact area (share) >= this.")
+]
+Regions = Annotated[
+    str | None,
+    typer.Option("--regions", help="Touch only: these regions active (e.g. thumb,index)."),
+]
+Grip = Annotated[
+    str | None,
+    typer.Option("--grip", help="Touch only: pinch, tripod, power, press, other or none."),
+]
+
+
 @dataclass(frozen=True)
 class Scope(Window):
-    """A question's scope: the window and ``--session`` (search, last, first, count)."""
+    """A question's scope: the window, ``--session`` and the touch facet filters (search,
+    last, first, count)."""
 
     session: Session = None
+    force_min: ForceMin = None
+    force_max: ForceMax = None
+    area_min: AreaMin = None
+    regions: Regions = None
+    grip: Grip = None
 
     def filters(self) -> dict[str, Any]:
-        return {**super().filters(), "session": self.session}
+        facets = ("force_min", "force_max", "area_min", "regions", "grip")
+        return {
+            **super().filters(),
+            "session": self.session,
+            **{f: getattr(self, f) for f in facets},
+        }
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,16 @@ def maintain(
             "codes already is left as it is. Stop the store's servers first.",
         ),
     ] = False,
+    facets: Annotated[
+        bool,
+        typer.Option(
+            "--facets",
+            help="Add the touch facet columns (force, area, grip, ...) to a store made before "
+            "them, computed from each stored touch window, then exit: one JSON line per store. "
+            "One commit: an interrupted run changes nothing and is run again. Stop the "
+            "store's servers first.",
+        ),
+    ] = False,
 ) -> None:
     """Maintain a store: retention (expiry, thinning), size-tiered compaction, incremental
     index refresh, version cleanup.
@@ -100,6 +110,8 @@ def maintain(
         raise typer.Exit(max(_check(s) for s in stores))
     if sense_codes:
         raise typer.Exit(max(_sense_codes(s, s is store) for s in stores))
+    if facets:
+        raise typer.Exit(max(_facets(s, s is store) for s in stores))
     typer.echo(
         f"maintaining {store.uri} every {cfg.maintain_interval:g}s "
         f"(retain {cfg.retain_seconds:g}s, fan-in {cfg.fan_in})",
@@ -179,6 +191,21 @@ def _sense_codes(store: Store, root: bool) -> int:
     return 0
 
 
+def _facets(store: Store, root: bool) -> int:
+    """``--facets``: add the facet columns to one store
+    (:mod:`tactus_memory.storage.facet_backfill`), one JSON line; 1 when it failed."""
+    from tactus_memory.storage.facet_backfill import add_facets
+
+    where = {} if root else {"tenant": store.retention.tenant}
+    try:
+        report = add_facets(store, on_batch=_Progress(store.uri))
+    except Exception as exc:  # noqa: BLE001  (reported; every store is tried)
+        typer.echo(f"{store.uri}: facets not added: {exc} (run it again)", err=True)
+        return 1
+    typer.echo(json.dumps({**where, **report.as_dict()}))
+    return 0
+
+
 class _Progress:
     """Rows coded so far, on stderr every ``PROGRESS_EVERY`` seconds."""
 
@@ -192,4 +219,4 @@ class _Progress:
     def __call__(self, rows: int) -> None:
         if time.monotonic() - self.last >= self.PROGRESS_EVERY:
             self.last = time.monotonic()
-            typer.echo(f"{self.uri}: {rows:,} rows coded", err=True)
+            typer.echo(f"{self.uri}: {rows:,} rows done", err=True)

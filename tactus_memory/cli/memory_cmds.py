@@ -141,6 +141,10 @@ def search(
     as_json: AsJson = False,
     source: Source,
     windows: Windows = False,
+    sort: Annotated[
+        str | None,
+        typer.Option(help="Order by a touch facet or time: force, -force, area, -area, t, -t."),
+    ] = None,
 ) -> None:
     """Search in plain language; each hit says whether it clears its sense's match bar; a
     touch hit is a grasp (its windows together) unless --windows.
@@ -155,13 +159,13 @@ def search(
 
     group = windows_group(windows)
     if source.url:
-        params = {"q": query, "k": k, "group": group, **dataclasses.asdict(scope)}
+        params = {"q": query, "k": k, "group": group, "sort": sort, **dataclasses.asdict(scope)}
         answer = get_json(source.url, "/search", params, source.token, source.tenant)
         hits = [Hit.model_validate(h) for h in answer["hits"]]
     else:
         try:
             memory = _open(source.data, *source.spaces, tenant=source.tenant)
-            hits = memory.search(query, k=k, group=group, **scope.filters())
+            hits = memory.search(query, k=k, group=group, sort=sort, **scope.filters())
         except TactusError as exc:
             fail(str(exc))
     _print_results(

@@ -78,6 +78,7 @@ from tactus_memory.results import (
     TimelineItem,
 )
 from tactus_memory.sense import Sense
+from tactus_memory.where import check_sort
 
 #: retry answers: overload (503, the write queue) and rate limits (429)
 RETRY_STATUSES = (429, 503)
@@ -294,11 +295,15 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         group: str | None = "auto",
         gap: float | None = None,
         pool: str = "mean",
+        sort: str | None = None,
         **scope: Unpack[ScopeKwargs],
     ) -> list[Hit] | list[Moment] | list[Grasp]:
         """Natural-language search (see :meth:`Memory.search`): touch answers are grasps by
-        default (``group="auto"``), ``group="window"`` one hit per stored window."""
+        default (``group="auto"``), ``group="window"`` one hit per stored window; ``sort``
+        orders by a touch facet or time."""
         params = {"q": query, "k": k, "pool": pool, **scope_params(Scope.of(**scope))}
+        if check_sort(sort) is not None:
+            params["sort"] = sort
         if group is not None:
             params["group"] = group
         if gap is not None:

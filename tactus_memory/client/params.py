@@ -11,7 +11,7 @@ import numpy as np
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.matching import Match
 from tactus_memory.query import Scope
-from tactus_memory.where import check_near
+from tactus_memory.where import check_grip, check_near, check_regions
 
 
 def scope_params(scope: Scope) -> dict[str, Any]:
@@ -24,7 +24,14 @@ def scope_params(scope: Scope) -> dict[str, Any]:
         "after": scope.after,
         "before": scope.before,
         "frame": scope.frame,
+        "force_min": scope.force_min,
+        "force_max": scope.force_max,
+        "area_min": scope.area_min,
+        "grip": check_grip(scope.grip),
     }
+    regions = check_regions(scope.regions)
+    if regions is not None:  # the service's ``regions=thumb,index``
+        params["regions"] = ",".join(regions)
     if scope.near is not None:  # the service's ``near=x,y,z,r``
         (x, y, z), r = check_near(scope.near)
         params["near"] = f"{x!r},{y!r},{z!r},{r!r}"

@@ -71,6 +71,11 @@ class Found(BaseModel):
         description="A touch answer is a grasp by default: the windows of that hold it pools "
         "(id is its best window, t/t_end span the hold).",
     )
+    facets: dict[str, Any] | None = Field(
+        None,
+        description="Touch: force, area, peak, centroid, spread, regions (share of the load), "
+        "grip; a grasp adds onset, release, duration, peak_time, ramp (squeeze), slip.",
+    )
 
 
 class MomentResult(BaseModel):
@@ -203,6 +208,7 @@ def found(item: Any, touch: dict[str, TouchSummary]) -> Found:
         meta_omitted=omitted,
         touch=touch.get(item.id),
         grasp_windows=getattr(item, "n", None),
+        facets=getattr(item, "facets", None),
     )
 
 

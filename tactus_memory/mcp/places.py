@@ -12,7 +12,7 @@ As the HTTP API has them (``service/routers/search.py``, ``temporal.py``, ``plac
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Annotated, Any, Literal
 
 from mcp.types import CallToolResult
@@ -37,7 +37,7 @@ from tactus_memory.query import Scope
 from tactus_memory.results import Place
 from tactus_memory.signatures import grouped
 from tactus_memory.temporal.grasps import windows_group
-from tactus_memory.where import Near, check_near
+from tactus_memory.where import Near, check_near, check_regions
 
 #: a coordinate (m), bounded as HTTP's (``limits.MAX_COORDINATE``)
 Coordinate = Annotated[Number, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
@@ -116,6 +116,43 @@ class Within:
     def keywords(self) -> dict[str, Any]:
         """As the library's keywords (``memory.at(..., **within.keywords())``)."""
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class TouchFilters:
+    """``force_min``, ``force_max``, ``area_min``, ``regions``, ``grip``, ``sort``: the touch
+    facet filters and order of ``search``, one group of arguments."""
+
+    force_min: Annotated[
+        Number | None, Field(description="Touch only: force (sum of the taxels) >= this.")
+    ] = None
+    force_max: Annotated[Number | None, Field(description="Touch only: force <= this.")] = None
+    area_min: Annotated[
+        Number | None,
+        Field(ge=0, le=1, description="Touch only: contact area (share of the taxels) >= this."),
+    ] = None
+    regions: Annotated[
+        str | None,
+        Field(max_length=400, description="Touch only: these regions active, e.g. 'thumb,index'."),
+    ] = None
+    grip: Annotated[
+        Literal["none", "power", "press", "pinch", "tripod", "other"] | None,
+        Field(description="Touch only: this grip."),
+    ] = None
+    sort: Annotated[
+        Literal["force", "-force", "area", "-area", "t", "-t"] | None,
+        Field(description="Order by a touch facet or time ('-force': the firmest first)."),
+    ] = None
+
+    def scope(self, base: Scope) -> Scope:
+        return replace(
+            base,
+            force_min=self.force_min,
+            force_max=self.force_max,
+            area_min=self.area_min,
+            regions=check_regions(self.regions),
+            grip=self.grip,
+        )
 
 
 def group_of(group: str | None, windows: bool) -> str:

@@ -68,6 +68,7 @@ from tactus_memory.mcp.places import (
     PlaceTools,
     QuestionGroupArg,
     SearchGroupArg,
+    TouchFilters,
     Within,
     group_of,
     near_of,
@@ -172,7 +173,7 @@ class MemoryTools(PlaceTools):
             self.memory.session(session)
 
     @tool_errors
-    @grouped(within=Within)
+    @grouped(within=Within, touch=TouchFilters)
     def search(
         self,
         query: QueryArg,
@@ -182,14 +183,19 @@ class MemoryTools(PlaceTools):
         group: SearchGroupArg = None,
         near: NearArg = None,
         frame: FrameArg = None,
+        touch: TouchFilters = TouchFilters(),
     ) -> SearchResult:
         """Find remembered things (touch grasps, notes, ...) that match a description, best
         first. Each hit says when (t, t_end), which sense, its score and its id; a touch hit
-        is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones.
-        ``group='moment'`` also lists the moments (hits are each moment's best item)."""
+        is a grasp of ``grasp_windows`` windows unless ``windows`` asks for single ones, with
+        its ``facets`` (force, area, regions, grip, ...), which ``force_min``, ``force_max``,
+        ``area_min``, ``regions``, ``grip`` filter and ``sort`` orders by ('-force': the
+        firmest first). ``group='moment'`` also lists the moments (hits are each moment's best
+        item)."""
         self._known(within.session)
         grouping = group_of(group, windows)
-        found = self.memory.search(query, k, group=grouping, scope=within.scope(near, frame))
+        scope = touch.scope(within.scope(near, frame))
+        found = self.memory.search(query, k, group=grouping, scope=scope, sort=touch.sort)
         if grouping == "moment":  # as HTTP: the hits are each moment's best member
             best = [next(h for h in m.hits if h.id == m.best) for m in found]
             moments = self.compactor.moments(found)

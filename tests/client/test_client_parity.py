@@ -4,15 +4,20 @@ and every error type, must be the same, so the two APIs cannot drift."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import anyio
 import httpx
 import numpy as np
 import pytest
+from mcp import Client as McpClient
 from pydantic import BaseModel
+from typer.testing import CliRunner
 
 from tactus_memory.adapters.vectors import VectorSense
+from tactus_memory.cli.app import app
 from tactus_memory.client.errors import AuthenticationError, RemoteError
 from tactus_memory.client.main import Client
 from tactus_memory.errors import (
@@ -23,7 +28,10 @@ from tactus_memory.errors import (
     OverloadedError,
     UnknownSenseError,
 )
+from tactus_memory.identity import auth_headers
+from tactus_memory.mcp.server import build_server
 from tactus_memory.memory.main import Memory
+from tactus_memory.touch.regions import STAG_REGIONS
 from tests.helpers.servers import Server
 from tests.helpers.service import window
 
@@ -241,3 +249,111 @@ def test_place_filter_goes_over_http() -> None:
     assert seen[0].url.params["frame"] == "map"
     assert seen[1].url.params["near"] == "0.0,0.0,0.0,2.0"
     assert len(seen) == 2
+
+
+# ----------------------------------------------------------------- touch facets (issue 50)
+K = 8  # the shipped encoder's frames
+GRIPS_SESSION = "grips"
+#: windows: (id, regions pressed, raw level, start time); one 1 s window each, 5 s apart
+WINDOWS = [
+    ("pinch-light", ("thumb", "index"), 620, 10.0),
+    ("pinch-firm", ("thumb", "index"), 700, 20.0),
+    ("power", ("palm", "index", "middle", "ring"), 640, 30.0),
+    ("press", ("palm",), 600, 40.0),
+    ("tripod", ("thumb", "index", "middle"), 660, 50.0),
+]
+#: (filters and order, the ids they must give, in order where sorted)
+CASES: list[tuple[dict[str, Any], list[str] | set[str]]] = [
+    ({"grip": "pinch"}, {"pinch-light", "pinch-firm"}),
+    ({"regions": "thumb,index"}, {"pinch-light", "pinch-firm", "tripod"}),
+    ({"area_min": 0.03}, {"power", "tripod"}),
+    ({"force_min": 58.0}, {"power", "tripod"}),  # forces ~52.6 55.0 64.2 47.2 60.5
+    ({"force_max": 50.0}, {"press"}),
+    ({"sort": "-force"}, ["power", "tripod", "pinch-firm", "pinch-light", "press"]),
+    ({"sort": "t", "grip": "pinch"}, ["pinch-light", "pinch-firm"]),
+]
+
+
+def glove_window(regions: tuple[str, ...], level: int, seed: int) -> np.ndarray:
+    """(K, 32, 32) raw: the glove at rest (512), 6 taxels of each region at ``level``."""
+    rng = np.random.default_rng(seed)
+    w = np.full((K, 32, 32), 512, np.int16) + rng.integers(-2, 3, (K, 32, 32))
+    for name in regions:
+        rows, cols = np.nonzero(STAG_REGIONS.taxels(name))
+        w[:, rows[:6], cols[:6]] = level
+    return w.astype(np.int16)
+
+
+def write(mem: Any) -> None:
+    wins = [glove_window(r, lvl, i) for i, (_, r, lvl, _) in enumerate(WINDOWS)]
+    t = [w[3] for w in WINDOWS]
+    mem.add_many(
+        GRIPS_SESSION, "touch", wins, t=t, t_end=[x + 1.0 for x in t], ids=[w[0] for w in WINDOWS]
+    )
+
+
+def _python(memory: Memory, kw: dict[str, Any]) -> list[str]:
+    hits = memory.search("holding something", k=10, group="window", session=GRIPS_SESSION, **kw)
+    return [h.id for h in hits]
+
+
+def _http(url: str, kw: dict[str, Any]) -> list[str]:
+    params = {"q": "holding something", "k": 10, "group": "window", "session": GRIPS_SESSION}
+    r = httpx.get(url + "/search", params={**params, **kw}, headers=auth_headers(TOKEN))
+    assert r.status_code == 200, r.text
+    return [h["id"] for h in r.json()["hits"]]
+
+
+def _client(remote: Client, kw: dict[str, Any]) -> list[str]:
+    hits = remote.search("holding something", k=10, group="window", session=GRIPS_SESSION, **kw)
+    return [h.id for h in hits]
+
+
+def _cli(url: str, kw: dict[str, Any]) -> list[str]:
+    args = ["search", "holding something", "--k", "10", "--windows", "--json"]
+    args += ["--url", url, "--token", TOKEN, "--session", GRIPS_SESSION]
+    for name, v in kw.items():
+        args += [f"--{name.replace('_', '-')}", str(v)]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    return [h["id"] for h in json.loads(res.output)]
+
+
+def _mcp(memory: Memory, cases: list[dict[str, Any]]) -> list[list[str]]:
+    """Each case's ids from the MCP ``search`` tool (one session for them all)."""
+
+    async def main() -> list[list[str]]:
+        out = []
+        async with McpClient(build_server(memory)) as client:
+            for kw in cases:
+                args = {"query": "holding something", "k": 10, "windows": True, **kw}
+                r = await client.call_tool("search", {**args, "session": GRIPS_SESSION})
+                assert not r.is_error, r.content
+                out.append([h["id"] for h in json.loads(r.content[0].text)["hits"]])
+        return out
+
+    return anyio.run(main)
+
+
+@pytest.mark.slow
+def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
+    """Issue 50: touch facet filters and order asked five ways of the same windows: Python,
+    HTTP, the CLI (``tactus search --url``), the Client and MCP (the SDK's client on the
+    local memory in process); the same ids, in the same order where sorted."""
+    write(local)
+    write(remote)
+    mcp = _mcp(local, [kw for kw, _ in CASES])
+    for (kw, want), by_mcp in zip(CASES, mcp, strict=True):
+        answers = {
+            "python": _python(local, kw),
+            "http": _http(remote.url, kw),
+            "client": _client(remote, kw),
+            "cli": _cli(remote.url, kw),
+            "mcp": by_mcp,
+        }
+        if isinstance(want, list):  # an order: every way gives it
+            assert all(a == want for a in answers.values()), (kw, answers)
+        else:
+            assert all(set(a) == want for a in answers.values()), (kw, answers)
+    hit = local.search("holding", k=1, group="window", grip="tripod", session=GRIPS_SESSION)[0]
+    assert hit.facets["grip"] == "tripod" and set(hit.facets["regions"]) == set(STAG_REGIONS.names)

@@ -4,13 +4,16 @@ same filters and order answer alike from Python and over HTTP."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from typer.testing import CliRunner
 
 from tactus_memory.adapters.touch import TactusEncoder
+from tactus_memory.cli.app import app
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
@@ -126,15 +129,30 @@ def test_filters_and_sort_answer_alike_in_python_and_over_http(stored) -> None:
 
 
 def test_facet_filters_refuse_bad_values_and_old_stores(stored, tmp_path: Path) -> None:
-    memory, _ = stored
+    memory, ids = stored
     with pytest.raises(InvalidInputError, match="sort"):
         memory.search("x", sort="hardest")
     with pytest.raises(InvalidInputError, match="force_min"):
         memory.search("x", force_min=5.0, force_max=1.0)
     with pytest.raises(InvalidInputError, match="region"):
         memory.search("x", regions="a b")
+    before = {h.id: h.facets for h in memory.search("x", k=10, group="window")}
     memory.store.items.drop_columns(list(FACET_COLUMNS))  # a store made before facets
-    memory.store._schema = None
+    memory.store.reread_layout()
     with pytest.raises(InvalidInputError, match="maintain --facets"):
         memory.search("x", grip="pinch")
-    assert memory.search("x", k=2)  # unfiltered questions still work
+    assert all(h.facets is None for h in memory.search("x", k=10, group="window"))
+    res = CliRunner().invoke(app, ["maintain", "--facets", "--data", str(tmp_path / "mem")])
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout.strip().splitlines()[-1])
+    assert report["added"] and report["touch_rows"] == len(ids)
+    memory.store.reread_layout()
+    after = {h.id: h.facets for h in memory.search("x", k=10, group="window")}
+    for i, f in after.items():  # as at write time, but for the float16 of the stored window
+        assert f["grip"] == before[i]["grip"]
+        assert f["force"] == pytest.approx(before[i]["force"], rel=1e-3)
+        assert f["area"] == before[i]["area"]
+        assert f["regions"] == pytest.approx(before[i]["regions"], abs=1e-3)
+    assert {h.id for h in memory.search("x", k=10, grip="pinch", group="window")} == set(ids[:2])
+    again = CliRunner().invoke(app, ["maintain", "--facets", "--data", str(tmp_path / "mem")])
+    assert again.exit_code == 0 and not json.loads(again.stdout.strip().splitlines()[-1])["added"]
