@@ -60,7 +60,10 @@ ACTIVE_SHARE = 0.10
 GRIPS = ("none", "power", "press", "pinch", "tripod", "other")
 #: the facet names a window has, and those a grasp adds
 WINDOW_FACETS = ("force", "area", "peak", "centroid", "spread", "regions", "grip", "load")
-GRASP_FACETS = (*WINDOW_FACETS, "onset", "release", "duration", "peak_time", "ramp", "slip")
+GRASP_FACETS = (
+    *WINDOW_FACETS,
+    *("onset", "release", "duration", "peak_time", "ramp", "slip", "caption", "caption_rule"),
+)
 
 
 def contact_level(profile: SensorProfile | None = None) -> float:
@@ -238,7 +241,7 @@ def grasp_facets(f: WindowFacets, t: np.ndarray, t_end: np.ndarray) -> dict[str,
     steps = np.linalg.norm(np.diff(path, axis=0), axis=1).sum() if len(path) > 1 else 0.0
     ramp_dt = float(mid[top] - mid[0])
     spread = f.spread[order]
-    return {
+    out: dict[str, Any] = {
         "force": float(force.max()),
         "area": float(f.area.max()),
         "peak": float(f.peak.max()),
@@ -254,6 +257,8 @@ def grasp_facets(f: WindowFacets, t: np.ndarray, t_end: np.ndarray) -> dict[str,
         "ramp": float((force[top] - force[0]) / ramp_dt) if ramp_dt > 0 else 0.0,
         "slip": float(steps / dt) if dt > 0 else 0.0,
     }
+    out["caption"], out["caption_rule"] = caption(out), CAPTION_RULE
+    return out
 
 
 def active_regions(shares: dict[str, float]) -> list[str]:
@@ -298,3 +303,49 @@ def facets_of_rows(rows: list[dict[str, Any]]) -> WindowFacets:
         load=load,
         region_names=names,
     )
+
+
+# --------------------------------------------------------------------------- captions
+#: the caption rule's version, returned beside each caption (``caption_rule``): bump it when
+#: :func:`caption` changes, so captions written by another rule can be told apart and redone
+CAPTION_RULE = 1
+#: peak (calibrated) bands of the caption's firmness word: below LIGHT_PEAK "light", from
+#: FIRM_PEAK "firm", between "steady" (the STAG glove saturates at 1; its informative band
+#: ends near raw 650 = calibrated 1, stag-format.md). Chosen, not tuned.
+LIGHT_PEAK = 0.4
+FIRM_PEAK = 0.75
+#: centroid speed (taxels per second) from which a grasp is "slipping": its load moved more
+#: than two taxel pitches a second. Chosen, not tuned.
+SLIP_SPEED = 2.0
+#: how a grip is said
+GRIP_WORDS = {
+    "pinch": "pinch",
+    "tripod": "tripod grip",
+    "power": "power grasp",
+    "press": "press",
+    "other": "grasp",
+    "none": "touch",
+}
+
+
+def _and(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
+def caption(facets: dict[str, Any]) -> str:
+    """A grasp's facets in words, deterministically (rule :data:`CAPTION_RULE`): firmness
+    from ``peak`` (light / steady / firm), the grip, the active regions most loaded first,
+    the duration, and "slipping" when ``slip`` >= :data:`SLIP_SPEED`; e.g. "a firm pinch
+    with thumb and index, 2.3 s, slipping"."""
+    peak = float(facets.get("peak") or 0.0)
+    firm = "light" if peak < LIGHT_PEAK else "firm" if peak >= FIRM_PEAK else "steady"
+    grip = facets.get("grip")
+    words = [f"a {firm} {GRIP_WORDS.get(grip or '', 'touch')}"]
+    active = active_regions(facets.get("regions") or {})
+    if active:
+        words[0] += " with " + _and(active)
+    if facets.get("duration") is not None:
+        words.append(f"{float(facets['duration']):.1f} s")
+    if float(facets.get("slip") or 0.0) >= SLIP_SPEED:
+        words.append("slipping")
+    return ", ".join(words)

@@ -9,6 +9,8 @@ import pytest
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.facets import (
     ACTIVE_SHARE,
+    CAPTION_RULE,
+    caption,
     contact_level,
     grasp_facets,
     grip_of,
@@ -162,3 +164,24 @@ def test_bad_shapes_are_refused() -> None:
         window_facets(np.zeros((16, 16)), SKIN)
     with pytest.raises(InvalidInputError, match="one span each"):
         grasp_facets(window_facets(np.zeros((2, 16, 16)), SKIN), np.zeros(2), np.zeros(2))
+
+
+def test_caption_says_firmness_grip_regions_duration_and_slip() -> None:
+    f = {"peak": 0.9, "grip": "pinch", "regions": {"thumb": 0.6, "index": 0.4, "palm": 0.0}}
+    assert caption({**f, "duration": 2.34, "slip": 3.0}) == (
+        "a firm pinch with thumb and index, 2.3 s, slipping"
+    )
+    assert caption({**f, "peak": 0.2, "duration": 1.0, "slip": 0.5}) == (
+        "a light pinch with thumb and index, 1.0 s"
+    )
+    power = {"peak": 0.5, "grip": "power", "duration": 4.0, "slip": 0.0}
+    power["regions"] = {"palm": 0.5, "index": 0.2, "middle": 0.3}
+    assert caption(power) == "a steady power grasp with palm, middle and index, 4.0 s"
+    assert caption({"peak": 0.5, "grip": None, "regions": {}}) == "a steady touch"
+
+
+def test_grasp_facets_carry_their_caption_and_rule() -> None:
+    wins = np.stack([hand_window({"thumb": 0.9, "index": 0.9}) for _ in range(3)])
+    g = grasp_facets(window_facets(wins, HAND), np.array([0.0, 0.5, 1.0]), np.array([1, 1.5, 2]))
+    assert g["caption"] == "a firm pinch with thumb and index, 2.0 s"
+    assert g["caption_rule"] == CAPTION_RULE
