@@ -57,6 +57,10 @@ class ExportSummary(BaseModel):
     skipped: dict[str, int] = {}  # reason -> items not exported
 
 
+#: the touch facets logged as scalar series beside each touch stream (facets/<stream>/<name>)
+FACET_SCALARS = ("force", "area", "peak", "spread")
+
+
 def _entity(part: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", part) or "default"
 
@@ -121,6 +125,10 @@ def export_rerun(
                     it.t_aligned,
                     rr.Image(window_rgba(window, scale=EXPORT_SCALE, profile=profile)),
                 )
+                for name in FACET_SCALARS if it.facets else ():  # the window's facets
+                    value = it.facets.get(name)
+                    if value is not None:
+                        log(f"facets/{stream}/{name}", it.t_aligned, rr.Scalars(float(value)))
             elif kind == "text" or (it.text is not None and kind != "image"):
                 log(f"text/{stream}", it.t_aligned, rr.TextLog(it.text or "", level="INFO"))
             elif kind == "image" and raw.get(it.id) is not None:

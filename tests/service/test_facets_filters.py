@@ -156,3 +156,23 @@ def test_facet_filters_refuse_bad_values_and_old_stores(stored, tmp_path: Path) 
     assert {h.id for h in memory.search("x", k=10, grip="pinch", group="window")} == set(ids[:2])
     again = CliRunner().invoke(app, ["maintain", "--facets", "--data", str(tmp_path / "mem")])
     assert again.exit_code == 0 and not json.loads(again.stdout.strip().splitlines()[-1])["added"]
+
+
+def test_rerun_export_carries_facets_as_scalars(stored, tmp_path: Path) -> None:
+    from rerun.chunk import RrdReader
+
+    from tactus_memory.recordings.rerun import export_rerun
+
+    memory, ids = stored
+    out = export_rerun(memory, "day", tmp_path / "day.rrd")
+    assert out.entities["facets/touch/force"] == len(GRASPS)
+    chunks = RrdReader(out.path).stream().to_chunks()
+    got = [
+        v
+        for c in chunks
+        if c.entity_path == "/facets/touch/force"
+        for row in c.to_record_batch().to_pydict()["Scalars:scalars"]
+        for v in row
+    ]
+    want = [memory.get_item(i).facets["force"] for i in ids]
+    assert sorted(got) == pytest.approx(sorted(want))
