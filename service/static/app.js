@@ -153,6 +153,29 @@ function metaList(meta) {
   return entries.length ? defList("meta", entries) : null;
 }
 
+// Touch facets (tactus_memory/touch/facets.py) beside the heat map: force, area, peak, grip,
+// the active regions with their share of the load; a grasp adds its duration, squeeze, slip
+// and caption.
+function facetsList(f) {
+  if (!f) return null;
+  const pct = (x) => `${(100 * x).toFixed(0)} %`;
+  const entries = [["force", Number(f.force).toFixed(1)], ["area", pct(f.area)]];
+  entries.push(["peak", Number(f.peak).toFixed(2)]);
+  if (f.grip) entries.push(["grip", f.grip]);
+  const regions = Object.entries(f.regions || {})
+    .filter(([, share]) => share >= 0.1)
+    .sort((a, b) => b[1] - a[1])
+    .map(([name, share]) => `${name} ${pct(share)}`);
+  if (regions.length) entries.push(["regions", regions.join(", ")]);
+  if (typeof f.duration === "number") {
+    entries.push(["duration", `${f.duration.toFixed(1)} s`]);
+    entries.push(["squeeze", `${Number(f.ramp).toFixed(1)} /s`]);
+    entries.push(["slip", `${Number(f.slip).toFixed(1)} taxels/s`]);
+  }
+  if (f.caption) entries.push(["in words", f.caption]);
+  return defList("meta facets", entries);
+}
+
 // ------------------------------------------------------------------------------ heat maps
 // The PNG comes from the service (tactus_memory.touch.render.draw_window_png, the renderer
 // the evaluation report uses too): frames 4 per row at 5 px per taxel, a colour bar under
@@ -539,7 +562,7 @@ async function noteHiddenTouch(shown, params, grouped) {
 function hitCard(hit, rank, inMoment = false) {
   const body = [];
   if (hit.text) body.push(h("p", { class: "hit-text" }, hit.text));
-  if (isTouch(hit)) body.push(heatmap(hit.id, touchLabel(hit)));
+  if (isTouch(hit)) body.push(heatmap(hit.id, touchLabel(hit)), facetsList(hit.facets));
   if (isImage(hit)) body.push(thumbnail(hit.id, imageLabel(hit)));
   body.push(metaList(hit.meta));
   const cls = hit.match === false ? "hit nomatch" : "hit";

@@ -41,6 +41,9 @@ def test_the_page_reads_a_hand(tmp_path, stag, windows, minilm_space):  # noqa: 
             page.wait_for_selector("#results > li.hit")
             top = first_hit(page)
             assert top["id"] == ids[3] and top["sense"] == "hand", top
+            # the window's facets beside its heat map (issue 50); this hand has no regions
+            facets = page.text_content("#results > li.hit .facets")
+            assert "force" in facets and "area" in facets and "peak" in facets, facets
             wait_heatmaps_loaded(page, "#like-preview img")
             wait_heatmaps_loaded(page, "#results img.heatmap")
             size = page.eval_on_selector(

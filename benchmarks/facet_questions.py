@@ -1,0 +1,135 @@
+"""Physical questions asked of real STAG recordings, with answers known from the frames.
+
+Each recording of a STAG file (default: the blindfolded subset) is streamed as its own session
+(``stream_eval.build_stream``: 8-frame windows every 4, idle ones not stored) into a real
+memory (MiniLM, the shipped touch encoder, LanceDB). Per session, four questions:
+
+* **firmest**: ``search(q, session=S, sort="-force", k=1)``, right when it is the stored
+  window of highest force;
+* **first contact after t** (t = the middle of the recording): ``sort="t", after=t``, right
+  when it is the earliest stored window still going on at t;
+* **pinch**: ``grip="pinch"``, right when the top hit is a pinch (sessions with one only);
+* **light touch**: ``force_max`` = the session's 25th force percentile, right when the top
+  hit's force is at most it.
+
+The known answers are computed from the raw frames by this script (a loop over the 548
+public taxel coordinates, the calibration written out), not by the facets module; the grip of
+a window is the documented rule applied to those shares. R@1 is the share of questions whose
+first hit is right; ``words_only`` asks the same of the learned touch embedding alone (a
+phrase, no facet filter or order) for contrast.
+
+    TACTUS_DATA_HOME=... nice python benchmarks/facet_questions.py   # results/facet_questions.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tactus_memory import Memory
+from tactus_memory.adapters.touch import TactusEncoder
+from tactus_memory.datasets.home import data_home
+from tactus_memory.touch.facets import grip_of
+from tactus_memory.touch.regions import STAG_REGIONS
+from tactus_memory.training import stream_eval
+from tactus_memory.training.data import load_stag
+
+OUT = Path(__file__).parent / "results" / "facet_questions.json"
+LEVEL = 1.0 / 6.0  # the contact level (touch/windows.py CONTACT_LEVEL)
+PHRASES = {
+    "firmest": "squeezing hard",
+    "first_after": "the first touch",
+    "pinch": "a pinch between thumb and finger",
+    "light": "a light touch",
+}
+
+
+def truth(window: np.ndarray, coords: list[tuple[int, int]]) -> tuple[float, str]:
+    """(force, grip) of a raw (K, 32, 32) window, from the coordinates, written out."""
+    vals = np.array([[min(max((float(f[r, c]) - 500) / 150, 0), 1) for r, c in coords]
+                     for f in window])  # fmt: skip
+    load = np.where(vals >= LEVEL, vals, 0).sum(axis=0)
+    shares: dict[str, float] = {n: 0.0 for n in STAG_REGIONS.names}
+    if load.sum() > 0:
+        for (r, c), v in zip(coords, load, strict=True):
+            shares[STAG_REGIONS.names[STAG_REGIONS.index[r, c]]] += v / load.sum()
+    return float(vals.sum(axis=1).mean()), str(grip_of(shares))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--subset", default="blindfolded_lite_train")
+    args = ap.parse_args()
+    stag = data_home().stag
+    d = load_stag(stag / args.subset / "metadata.mat")
+    cj = json.loads((stag / "sensor_coords.json").read_text())
+    coords = list(zip(cj["x"], cj["y"], strict=True))
+    tmp = tempfile.mkdtemp()
+    memory = Memory.open(str(Path(tmp) / "m"), background=False)
+    memory.add_sense(TactusEncoder())
+    known: dict[str, dict[str, tuple[float, float, float, str]]] = {}
+    t0 = time.perf_counter()
+    for r in np.unique(d.recording_id):
+        s = stream_eval.build_stream(d, [int(r)])
+        keep = np.flatnonzero(~s.idle)
+        if len(keep) < 2:
+            continue
+        session = f"rec{int(r)}"
+        ids = memory.add_many(session, "touch", list(s.frames[keep]),
+                              t=s.t[keep].tolist(), t_end=s.t_end[keep].tolist())  # fmt: skip
+        known[session] = {
+            i: (float(s.t[j]), float(s.t_end[j]), *truth(s.frames[j], coords))
+            for i, j in zip(ids, keep, strict=True)
+        }
+    ingest_s = time.perf_counter() - t0
+    right: dict[str, list[bool]] = {k: [] for k in PHRASES}
+    words: dict[str, list[bool]] = {k: [] for k in PHRASES}
+
+    def top(q: str, session: str, **kw) -> str | None:
+        hits = memory.search(q, k=1, senses=["touch"], group="window", session=session, **kw)
+        return hits[0].id if hits else None
+
+    for session, rows in known.items():
+        force = {i: v[2] for i, v in rows.items()}
+        firmest = max(force, key=force.get)
+        right["firmest"].append(top("holding something", session, sort="-force") == firmest)
+        words["firmest"].append(top(PHRASES["firmest"], session) == firmest)
+        ts = sorted(v[0] for v in rows.values())
+        t_mid = ts[len(ts) // 2]
+        on = {i: v[0] for i, v in rows.items() if v[1] >= t_mid}
+        first = min(on, key=lambda i: (on[i], i))
+        right["first_after"].append(top("touching", session, sort="t", after=t_mid) == first)
+        words["first_after"].append(top(PHRASES["first_after"], session, after=t_mid) == first)
+        pinches = {i for i, v in rows.items() if v[3] == "pinch"}
+        if pinches:
+            right["pinch"].append(top("holding something", session, grip="pinch") in pinches)
+            words["pinch"].append(top(PHRASES["pinch"], session) in pinches)
+        bar = float(np.percentile(list(force.values()), 25))
+        light = {i for i, f in force.items() if f <= bar + 1e-6}
+        right["light"].append(top("touching", session, force_max=bar + 1e-6) in light)
+        words["light"].append(top(PHRASES["light"], session) in light)
+
+    def r1(v: list[bool]) -> dict[str, float | int]:
+        return {"questions": len(v), "r@1": round(float(np.mean(v)), 3) if v else None}
+
+    result = {
+        "what": "physical questions on real STAG recordings, answers known from the frames",
+        "subset": args.subset,
+        "sessions": len(known),
+        "windows": sum(len(v) for v in known.values()),
+        "ingest_s": round(ingest_s, 1),
+        "facets": {k: r1(v) for k, v in right.items()},
+        "words_only": {k: {**r1(v), "phrase": PHRASES[k]} for k, v in words.items()},
+    }
+    OUT.parent.mkdir(exist_ok=True)
+    OUT.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
