@@ -382,7 +382,6 @@ def facet_filters(
 
 
 def stream_scope(
-    facets: Annotated[FacetFilters, Depends(facet_filters)],
     sense: SensesQ = None,
     source: SourceQ = None,
     after: AfterQ = None,
@@ -398,19 +397,26 @@ def stream_scope(
         before=before,
         near=parse_near(near),
         frame=None if frame is None else validate_frame(frame),
+    )
+
+
+def scope(
+    base: Annotated[Scope, Depends(stream_scope)],
+    facets: Annotated[FacetFilters, Depends(facet_filters)],
+    session: SessionQ = None,
+) -> Scope:
+    """``sense`` (repeated), ``session``, ``source``, ``after``, ``before``, ``near``,
+    ``frame`` and the touch facet filters -> one :class:`~tactus_memory.query.Scope`, what
+    every search and temporal route passes down."""
+    return replace(
+        base,
+        session=session,
         force_min=facets.force_min,
         force_max=facets.force_max,
         area_min=facets.area_min,
         regions=check_regions(facets.regions),
         grip=facets.grip,
     )
-
-
-def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = None) -> Scope:
-    """``sense`` (repeated), ``session``, ``source``, ``after``, ``before``, ``near``,
-    ``frame`` -> one
-    :class:`~tactus_memory.query.Scope`, what every search and temporal route passes down."""
-    return replace(base, session=session)
 
 
 ScopeDep = Annotated[Scope, Depends(scope)]

@@ -44,6 +44,10 @@ def embed_query(space: Space, query: str) -> np.ndarray:
     return as_unit_rows(space.embed_texts([text], query=True), space.dim, what="query")
 
 
+#: the Scope fields that filter touch items by their facets (tactus_memory.touch.facets)
+FACET_FILTERS = ("force_min", "force_max", "area_min", "regions", "grip")
+
+
 class ScopeKwargs(TypedDict, total=False):
     """The keyword spelling of a :class:`Scope` (``memory.search(q, session=..., ...)``)."""
 
@@ -89,10 +93,7 @@ class Scope:
     @property
     def faceted(self) -> bool:
         """Whether a facet filter is set (the store needs its facet columns)."""
-        return any(
-            v is not None
-            for v in (self.force_min, self.force_max, self.area_min, self.regions, self.grip)
-        )
+        return any(getattr(self, f) is not None for f in FACET_FILTERS)
 
     @classmethod
     def of(cls, scope: Scope | None = None, **kw: Any) -> Scope:
@@ -104,8 +105,10 @@ class Scope:
         return replace(base, **given) if given else base
 
     def keywords(self) -> dict[str, Any]:
-        """Every field but the session, as keywords (``memory.timeline(session, **kw)``)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "session"}
+        """Every field but the session and the facet filters, as keywords
+        (``memory.timeline(session, **kw)``; a timeline is not filtered by facets)."""
+        skip = {"session", *FACET_FILTERS}
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in skip}
 
     def bounds(self) -> tuple[float | None, float | None]:
         """``(after, before)`` as finite floats, checked in order."""

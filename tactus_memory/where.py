@@ -267,7 +267,7 @@ class Where:
         """Touch rows where every region of ``names`` is active (carries a share of the
         load, tactus_memory.touch.facets.ACTIVE_SHARE)."""
         for n in check_regions(names) or ():
-            self.parts.append(f"regions LIKE {_sql_str('%,' + n + ',%')}")
+            self.parts.append(f"strpos(regions, {_sql_str(',' + n + ',')}) > 0")
         return self
 
     def grip(self, grip: str | None) -> Where:

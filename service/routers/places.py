@@ -17,6 +17,7 @@ from starlette.concurrency import run_in_threadpool
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import ID_PATTERN, MAX_COORDINATE, MAX_ID_CHARS, MAX_K, SOURCE_PATTERN
 from tactus_memory.matching import DEFAULT_MOMENT_GAP
+from tactus_memory.query import FACET_FILTERS
 from tactus_memory.service.arrays import NPY_TYPES, loads_strict, read_npy
 from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId
 from tactus_memory.service.place_schemas import (
@@ -158,5 +159,8 @@ def at(
     filters = dataclasses.asdict(scope)
     if filters.pop("near") is not None:
         raise InvalidInputError("/at takes the place as x, y, z and r; drop near")
+    for name in FACET_FILTERS:  # /at lists items in time order, not filtered by facets
+        if filters.pop(name) is not None:
+            raise InvalidInputError(f"/at does not filter by touch facets; drop {name}")
     items = memory.at((x, y, z), r, **filters)
     return AtOut(position=(x, y, z), radius=r, items=items)

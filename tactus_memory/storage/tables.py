@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 #: columns returned by searches (everything except the vector and raw bytes)
 #: a touch row's facets (:mod:`tactus_memory.touch.facets`), computed at write time; null on
 #: other senses' rows. ``regions``: the active regions as ``",thumb,index,"`` (a filter asks
-#: ``regions LIKE '%,thumb,%'``); ``facets``: every facet of the window as JSON
+#: ``strpos(regions, ',thumb,') > 0``); ``facets``: every facet of the window as JSON
 FACET_COLUMNS = ("force", "area", "peak", "grip", "regions", "facets")
 HIT_COLUMNS = [
     *("id", "session", "sense", "t", "t_end", "meta", "text", "source", "episode"),

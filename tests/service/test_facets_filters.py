@@ -122,6 +122,10 @@ def test_filters_and_sort_answer_alike_in_python_and_over_http(stored) -> None:
             seen = {e["id"] for m in moments for e in m["hits"]}
             assert seen <= {ids[0], ids[1]}, route  # only the pinches are asked of
             assert client.get(route, params={"q": "x", "grip": "fist"}).status_code == 422
+        timeline = client.get("/sessions/day/timeline")  # takes no facet filter, still serves
+        assert timeline.status_code == 200 and len(timeline.json()["items"]) == len(ids)
+        at = client.get("/at", params={"x": 0, "y": 0, "z": 0, "r": 1, "grip": "pinch"})
+        assert at.status_code == 422 and "facets" in at.text
         bad = client.get("/search", params={"q": "x", "grip": "fist"})
         assert bad.status_code == 422
         bad = client.get("/search", params={"q": "x", "regions": "thumb;drop"})
