@@ -12,7 +12,7 @@ from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatc
 from tactus_memory.storage.codes import vector_array
 from tactus_memory.storage.connect import normalise_uri
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.tables import place_fields
+from tactus_memory.storage.tables import facet_fields, place_fields
 from tactus_memory.where import Where, finite_float, validate_id
 
 HOSTILE = [
@@ -123,6 +123,7 @@ def _rows(store: Store, items: list[tuple[str, str, str, float, float]]) -> pa.T
             "episode": [None] * n,
             "created": [0.0] * n,
             **{f.name: pa.nulls(n, f.type) for f in place_fields()},  # unplaced
+            **{f.name: pa.nulls(n, f.type) for f in facet_fields()},  # no touch facets
         },
         schema=schema,
     )
