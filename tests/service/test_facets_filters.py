@@ -44,15 +44,20 @@ def glove_window(regions: tuple[str, ...], level: int, seed: int) -> np.ndarray:
     return w.astype(np.int16)
 
 
-@pytest.fixture
-def stored(tmp_path: Path, checkpoint: Path):
-    memory = make_memory(tmp_path / "mem", touch=False)
+def fill(path: Path, checkpoint: Path):
+    memory = make_memory(path, touch=False)
     memory.add_sense(TactusEncoder(checkpoint))
     ids = []
     for i, (_, regions, level, t) in enumerate(GRASPS):
         win = glove_window(regions, level, i)
         ids.append(memory.add("day", "touch", win, t=t, t_end=t + 1.0))
     return memory, ids
+
+
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory, checkpoint: Path):
+    """The memory the read-only tests share (the old-store test makes its own)."""
+    return fill(tmp_path_factory.mktemp("facets") / "mem", checkpoint)
 
 
 def test_facets_are_stored_at_write_time_and_returned(stored) -> None:
@@ -132,8 +137,8 @@ def test_filters_and_sort_answer_alike_in_python_and_over_http(stored) -> None:
         assert bad.status_code == 422 and "region" in bad.text
 
 
-def test_facet_filters_refuse_bad_values_and_old_stores(stored, tmp_path: Path) -> None:
-    memory, ids = stored
+def test_facet_filters_refuse_bad_values_and_old_stores(checkpoint: Path, tmp_path: Path) -> None:
+    memory, ids = fill(tmp_path / "mem", checkpoint)
     with pytest.raises(InvalidInputError, match="sort"):
         memory.search("x", sort="hardest")
     with pytest.raises(InvalidInputError, match="force_min"):
