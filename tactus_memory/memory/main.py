@@ -350,7 +350,7 @@ class Memory(AbstractContextManager["Memory"]):
         ``sort`` (``force``, ``-force``, ``area``, ``-area``, ``t``, ``-t``) orders the
         question's best candidates by that facet (:mod:`tactus_memory.search.ordering`)."""
         where, g = Scope.of(**scope), check_group(group)
-        if where.faceted or sort is not None:
+        if where.faceted or (sort is not None and sort.lstrip("-") != "t"):
             check_facet_columns(self.store.schema)
         kk = candidates(check_k(k), sort)
         if g == "moment":  # embeds the query itself, once

@@ -151,6 +151,8 @@ def test_facet_filters_refuse_bad_values_and_old_stores(checkpoint: Path, tmp_pa
     with pytest.raises(InvalidInputError, match="maintain --facets"):
         memory.search("x", grip="pinch")
     assert all(h.facets is None for h in memory.search("x", k=10, group="window"))
+    by_time = [h.id for h in memory.search("x", k=10, group="window", sort="t")]
+    assert by_time == ids  # time order needs no facet column
     res = CliRunner().invoke(app, ["maintain", "--facets", "--data", str(tmp_path / "mem")])
     assert res.exit_code == 0, res.output
     report = json.loads(res.stdout.strip().splitlines()[-1])
