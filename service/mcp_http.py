@@ -9,8 +9,9 @@ root's (``app.key_store``), whichever tenant is served, so a store with keys is 
 here. A key of another tenant is refused like a wrong one; a key whose scope falls short
 (``read`` where ``--allow-writes`` offers the ``remember`` tool) gets a 403. A request body is
 read whole before the SDK sees it: larger than :data:`MAX_MCP_BODY` is a 413, JSON nested
-deeper than ``limits.MAX_JSON_DEPTH`` a 400, both at once. Every ``remember`` is written to
-the store's audit log like an HTTP write (route :data:`MCP_WRITE_ROUTE`). It sits in the
+deeper than ``limits.MAX_JSON_DEPTH`` a 400, both at once. Every ``remember`` and ``teach``
+is written to the store's audit log like an HTTP write (route :data:`MCP_WRITE_ROUTE`:
+``MCP remember``, ``MCP teach``). It sits in the
 service because the library never imports the service, and the token check is the
 service's.
 """
