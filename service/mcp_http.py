@@ -48,6 +48,7 @@ PRINCIPAL_STATE = "tactus_principal"
 #: the audit log's route for an MCP write: ``MCP remember``, ``MCP teach``
 MCP_WRITE_ROUTE = "MCP {tool}"
 
+
 async def read_body(receive: Receive, limit: int) -> bytes | None:
     """The whole request body, or None once it passes ``limit`` bytes."""
     chunks, size = [], 0
