@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tactus_memory.memory.main import Memory
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.datasets.home import data_home
+from tactus_memory.memory.main import Memory
 from tactus_memory.touch.facets import grip_of
 from tactus_memory.touch.regions import STAG_REGIONS
 from tactus_memory.training import stream_eval
