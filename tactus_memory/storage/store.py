@@ -319,24 +319,33 @@ class Store(StoreIndexes):
                 _upsert(self.items, "id", data)
         self._committed(ITEMS)
 
-    def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
-        """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
+    def owned_rows(
+        self, ids: Sequence[str], session: str, sense: str, columns: Sequence[str] = ()
+    ) -> dict[str, dict[str, Any]]:
+        """The stored rows an upsert of ``ids`` into (``session``, ``sense``) replaces, by id,
+        with ``columns`` (those the table has) beside ``id``, ``session`` and ``sense``.
 
         Raises IdConflictError, naming the first offending id, when any id already belongs to
         another session or another sense: an upsert never overwrites or moves another
         session's row. Call it under the memory's commit lock, just before :meth:`write`.
         """
         if self._items is None or not ids:
-            return 0
+            return {}
+        wanted = ["id", "session", "sense", *(c for c in columns if c not in ("id", "session"))]
         with sessions_under(None):  # ids are the tenant's: a prefix key may not reuse one
-            rows = self.scan(Where().ids(ids).sql(), ["id", "session", "sense"]).to_pylist()
+            rows = self.scan(Where().ids(ids).sql(), list(dict.fromkeys(wanted))).to_pylist()
         for row in rows:
             if row["session"] != session or row["sense"] != sense:
                 raise IdConflictError(
                     f"item id {row['id']!r} already belongs to another session or sense (not "
                     f"{sense!r} in session {session!r}); use another id, or delete that item first"
                 )
-        return len(rows)
+        return {row["id"]: row for row in rows}
+
+    def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
+        """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces
+        (:meth:`owned_rows`, which raises IdConflictError for another session's id)."""
+        return len(self.owned_rows(ids, session, sense))
 
     def delete(self, where: str) -> None:
         self.integrity.require()
