@@ -195,6 +195,12 @@ class SenseRegistry:
             self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
             self._live[name], self._live_prov[name] = sense, provenance
 
+    def stored_provenance(self, name: str) -> dict[str, Any] | None:
+        """The provenance the store records for sense ``name`` (the encoder its stored
+        vectors were embedded by), or None when it records no such sense."""
+        stored = self._stored.get(name)
+        return None if stored is None else stored.provenance()
+
     def restore(self, skip: Collection[str] = ()) -> dict[str, str]:
         """Rebuild the live senses the store records (each not live yet, but those in
         ``skip``) through the plug-in registry; returns why each sense that could not be
