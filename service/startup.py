@@ -25,6 +25,20 @@ class StartupError(Exception):
     """A configuration or store problem found at startup; ``str()`` is the one line."""
 
 
+def check_space_options(space_path: str | None, onnx: str | None) -> None:
+    """What the space and model options can be checked for before anything loads (``tactus
+    serve --workers N`` checks it once, before the workers start, so a mistake is one line,
+    not one per worker): a ``--space-path`` that is not a folder, an ``--onnx`` folder that is
+    a file. (Nothing here imports numpy or a model: the workers are forked after it.)"""
+    if space_path is not None and not Path(space_path).expanduser().is_dir():
+        raise StartupError(
+            f"--space-path {space_path!r} is not a folder; pass --space-path DIR (or set "
+            "TACTUS_SPACE_PATH) with a local model folder"
+        )
+    if onnx is not None and Path(onnx).exists() and not Path(onnx).is_dir():
+        raise StartupError(f"--onnx {onnx!r} is a file; give the folder `tactus export-onnx` wrote")
+
+
 def check_location(data: str) -> None:
     """Refuse a local ``--data`` that cannot be a memory directory (before opening it)."""
     if is_remote_uri(data):

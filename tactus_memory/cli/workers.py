@@ -57,6 +57,13 @@ class Workers:
         tmp.write_text(str(os.getpid()))
         os.replace(tmp, self.folder / str(self.index))
 
+    def failed(self, line: str) -> None:
+        """Leave this worker's startup error (one line) for the parent, which prints the
+        first one once: every worker fails alike, and each printing it raced."""
+        tmp = self.folder / f".error-{self.index}.tmp"
+        tmp.write_text(line)
+        os.replace(tmp, self.folder / f"error-{self.index}")
+
     def not_ready(self) -> list[int]:
         """The workers whose models are not loaded (or that are being replaced)."""
         return [i for i in range(self.count) if not (self.folder / str(i)).is_file()]
@@ -86,9 +93,13 @@ def _worker(
     load_app, run_server = server
     try:
         from tactus_memory.service.startup import explain
+        from tactus_memory.storage.store import set_maintainer
+
+        set_maintainer(f"worker {group.index}")
 
         def line(text: str) -> None:
-            say(f"[worker {group.index}] {text}")
+            if group.index == 0:  # the group's progress, once (every worker loads alike)
+                say(text)
 
         try:
             application = load_app(settings, say=line, on_ready=group.mark_ready)
@@ -99,12 +110,12 @@ def _worker(
         except Exception as exc:  # noqa: BLE001  (startup: one line, the group stops)
             if debug:
                 raise
-            say(f"tactus serve: {explain(exc, settings.data)}")
+            group.failed(f"tactus serve: {explain(exc, settings.data)}")
             status = STARTUP_FAILED
         else:
             failed = getattr(application.state.tactus, "load_error", None)
             if failed is not None:
-                say(f"tactus serve: {explain(failed, settings.data)}")
+                group.failed(f"tactus serve: {explain(failed, settings.data)}")
                 status = STARTUP_FAILED
     except BaseException:  # noqa: BLE001
         import traceback
@@ -169,6 +180,12 @@ def serve_workers(
                 if exit_status == STARTUP_FAILED:
                     status = STARTUP_FAILED
                     stop(signal.SIGTERM, None)  # the others would fail alike
+                    error = folder / f"error-{index}"
+                    say(
+                        error.read_text()
+                        if error.is_file()
+                        else f"tactus serve: worker {index} failed to start"
+                    )
                     continue
                 say(f"tactus serve: worker {index} (pid {pid}) exited ({exit_status}); replaced")
                 start(index)

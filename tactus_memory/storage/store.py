@@ -36,11 +36,14 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
+from dataclasses import dataclass
 from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
@@ -82,6 +85,30 @@ def pinned_version(name: str, table: Any) -> int:
     if key not in seen:
         seen[key] = int(table.version)
     return seen[key]
+
+
+#: maintenance passes each store remembers (``Store.passes``: the latest, start and end)
+PASSES_KEPT = 64
+#: who runs this process's maintenance passes, in their log lines and records (``tactus serve
+#: --workers N`` names its worker: :func:`set_maintainer`)
+_MAINTAINER: list[str] = [""]
+
+
+def set_maintainer(label: str) -> None:
+    """Name this process in its maintenance passes' records and log lines ("worker 0")."""
+    _MAINTAINER[0] = label
+
+
+@dataclass(frozen=True)
+class MaintenancePass:
+    """One maintenance pass of a store: unix times it started and ended, by whom (process id
+    and its label), and whether it did anything."""
+
+    start: float
+    end: float
+    pid: int
+    by: str
+    ran: bool
 
 
 ITEMS = "items"
@@ -136,6 +163,8 @@ class Store(StoreIndexes):
         self._last_cleanup = -math.inf
         #: what the last maintenance run did, per table
         self.last_maintenance: list[TableReport] = []
+        #: the latest maintenance passes of this process, oldest first
+        self.passes: deque[MaintenancePass] = deque(maxlen=PASSES_KEPT)
         self._items: Any = None
         self._senses: Any = None
         self._meta: Any = None
@@ -436,43 +465,61 @@ class Store(StoreIndexes):
         if not self._maintenance.acquire(blocking=force):
             return False
         self._busy = threading.get_ident()
+        start = time.time()
+        ran = False
         try:
-            cfg = self.index
-            n = self.count()
-            if cfg.scalar_threshold <= n < cfg.threshold and not self.has_scalar_indexes():
-                self.build_scalar_indexes()
-            if n >= cfg.threshold:
-                info = json.loads(self.get_meta("index") or "{}")
-                grown = n >= cfg.retrain_growth * int(info.get("rows", n))
-                if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
-                    self.build_indexes()
-            self._commits = {}
-            try:
-                self.retention.run()  # its deletes are compacted away just below
-            except Exception:  # noqa: BLE001  (retried next pass; compaction goes on)
-                log.exception("retention failed; it will be retried")
-            deletes = self.erasure.deletes
-            maintainer = self.maintainer()
-            reports = maintainer.run(cleanup=False)
-            if self._items is not None and self.maintenance.erase_deleted:  # else never erased
-                left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
-                self.erasure.note_compacted(deletes, left)
-            for tbl in (self._items, self._senses, self._meta):
-                if tbl is not None:  # our handles must not stay on versions cleanup removes
-                    tbl.checkout_latest()
-            if wait:
-                self.wait_for_cleanup()
-                self._cleanup(reports)
-                self._last_cleanup = time.monotonic()
-            else:
-                self._start_cleanup()
-            self.last_maintenance = reports
-            for report in reports:
-                log.debug("maintenance: %s", report)
-            return True
+            ran = self._maintain_pass(wait)
+            return ran
         finally:
             self._busy = None
+            self._note_pass(start, ran)
             self._maintenance.release()
+
+    def _note_pass(self, start: float, ran: bool) -> None:
+        """Record and log one pass (under the maintenance lock: passes here never overlap;
+        a test checks that none of several workers' do either)."""
+        done = MaintenancePass(start, time.time(), os.getpid(), _MAINTAINER[0], ran)
+        self.passes.append(done)
+        log.info(
+            "maintenance pass by %s pid %d: %.3f to %.3f (%.2f s)",
+            done.by or "this process", done.pid, done.start, done.end, done.end - done.start,
+        )  # fmt: skip
+
+    def _maintain_pass(self, wait: bool) -> bool:
+        """One maintenance pass (:meth:`maintain`'s body, under its lock)."""
+        cfg = self.index
+        n = self.count()
+        if cfg.scalar_threshold <= n < cfg.threshold and not self.has_scalar_indexes():
+            self.build_scalar_indexes()
+        if n >= cfg.threshold:
+            info = json.loads(self.get_meta("index") or "{}")
+            grown = n >= cfg.retrain_growth * int(info.get("rows", n))
+            if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
+                self.build_indexes()
+        self._commits = {}
+        try:
+            self.retention.run()  # its deletes are compacted away just below
+        except Exception:  # noqa: BLE001  (retried next pass; compaction goes on)
+            log.exception("retention failed; it will be retried")
+        deletes = self.erasure.deletes
+        maintainer = self.maintainer()
+        reports = maintainer.run(cleanup=False)
+        if self._items is not None and self.maintenance.erase_deleted:  # else never erased
+            left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
+            self.erasure.note_compacted(deletes, left)
+        for tbl in (self._items, self._senses, self._meta):
+            if tbl is not None:  # our handles must not stay on versions cleanup removes
+                tbl.checkout_latest()
+        if wait:
+            self.wait_for_cleanup()
+            self._cleanup(reports)
+            self._last_cleanup = time.monotonic()
+        else:
+            self._start_cleanup()
+        self.last_maintenance = reports
+        for report in reports:
+            log.debug("maintenance: %s", report)
+        return True
 
     def _start_cleanup(self) -> None:
         busy = self._cleanup_thread is not None and self._cleanup_thread.is_alive()
