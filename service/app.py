@@ -35,6 +35,7 @@ from tactus_memory.service.middleware import (
     BodyLimitMiddleware,
     ReadOnlyMiddleware,
     StartingMiddleware,
+    WorkerHeaderMiddleware,
 )
 from tactus_memory.service.openapi import install_openapi
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
@@ -359,6 +360,10 @@ def create_app(
     app.add_middleware(AuditMiddleware)
     app.add_middleware(AllowMiddleware)
     app.add_middleware(StartingMiddleware, starting=lambda: state.starting)
+    app.add_middleware(
+        WorkerHeaderMiddleware,
+        worker=lambda: None if state.workers is None else state.workers.index,
+    )
     install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 
     auth = [Depends(authorize)]

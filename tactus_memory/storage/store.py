@@ -94,6 +94,25 @@ PASSES_KEPT = 64
 _MAINTAINER: list[str] = [""]
 
 
+#: called after every commit this process makes to any table of any store (``tactus serve
+#: --workers N`` tells the other workers, so each request reads its client's writes)
+_ON_ANY_COMMIT: list[Callable[[], None]] = []
+
+
+def on_any_commit(listener: Callable[[], None]) -> None:
+    """Call ``listener`` after each commit of this process (before it is acknowledged)."""
+    _ON_ANY_COMMIT.append(listener)
+
+
+def announce_commit() -> None:
+    """Tell the listeners (:func:`on_any_commit`) that a commit landed; never raises."""
+    for listener in _ON_ANY_COMMIT:
+        try:
+            listener()
+        except Exception:  # noqa: BLE001  (a notice: the commit stands either way)
+            log.exception("a commit listener failed")
+
+
 def set_maintainer(label: str) -> None:
     """Name this process in its maintenance passes' records and log lines ("worker 0")."""
     _MAINTAINER[0] = label
@@ -318,6 +337,7 @@ class Store(StoreIndexes):
         self._committed(SENSES)
 
     def _committed(self, table: str) -> None:
+        announce_commit()
         self._commits[table] = self._commits.get(table, 0) + 1
         if self.on_commit is not None and self._busy != threading.get_ident():
             self.on_commit()  # (not from maintenance's own commits: it would wait for itself)
@@ -432,6 +452,13 @@ class Store(StoreIndexes):
     def meta_version(self) -> int:
         """The meta table's version (caches of meta records key on it)."""
         return 0 if self._meta is None else int(self._meta.version)
+
+    def read_latest(self) -> None:
+        """Every table at its latest version now (another process's commits, not only within
+        the read consistency interval): read-your-writes across ``--workers``."""
+        for table in (self._items, self._senses, self._meta):
+            if table is not None:
+                table.checkout_latest()
 
     def read_latest_registry(self) -> None:
         """The senses and meta tables at their latest version now (other processes' commits,
