@@ -258,33 +258,40 @@ _COMPARED_OUT = frozenset({"vector", "created", "episode"})
 def claim_ids(
     store: Store, writes: Sequence[PreparedWrite], isolate: bool, schema: Any = None
 ) -> dict[int, int]:
-    """Rows each upsert replaces (of its own session and sense), by ``id(write)``. An id of
-    another session or sense raises IdConflictError (``isolate``: that write's ``error``).
-    With ``schema`` (the items table's; the writes embedded and placed), an item whose id
-    the store already holds with exactly this content is marked ``unchanged``: acknowledged,
-    not written again (two clients re-sending one note cost no commit).
+    """Rows each upsert replaces (of its own session and sense), by ``id(write)``, read in
+    ONE scan for every upsert of the commit. An id of another session or sense raises
+    IdConflictError (``isolate``: that write's ``error``). With ``schema`` (the items table's;
+    the writes embedded and placed), an item whose id the store already holds with exactly
+    this content is marked ``unchanged``: acknowledged, not written again (two clients
+    re-sending one note cost no commit).
     Call it under the memory's commit lock, just before the store write."""
     replaced: dict[int, int] = {}
-    for w in writes:
-        if w.batch.upsert and w.error is None:
-            w.unchanged.clear()
-            columns = [] if schema is None else [n for n in schema.names if n not in _COMPARED_OUT]
-            try:
-                rows = store.owned_rows(w.ids, w.session, w.sense.name, columns)
-            except IdConflictError as exc:
-                if not isolate:
-                    raise
-                w.error = exc
-                resolve_shared_ids(writes)  # a repeat of its ids is no longer a repeat
-                continue
-            if rows and schema is not None:
-                mine = writes_table(schema, [_whole(w)]).select(columns).to_pylist()
-                for i, row in enumerate(mine):
-                    if rows.get(row["id"]) == row:
-                        w.unchanged.add(i)
-            replaced[id(w)] = sum(
-                1 for i, item_id in enumerate(w.ids) if item_id in rows and i not in w.left_out
-            )
+    upserts = [w for w in writes if w.batch.upsert and w.error is None]
+    if not upserts:
+        return replaced
+    columns = [] if schema is None else [n for n in schema.names if n not in _COMPARED_OUT]
+    stored = store.rows_by_id(sorted({i for w in upserts for i in w.ids}), columns)
+    for w in upserts:
+        if w.error is not None:  # (a write failed meanwhile: resolved again below)
+            continue
+        w.unchanged.clear()
+        rows = {i: stored[i] for i in w.ids if i in stored}
+        try:
+            store.check_owned(list(rows.values()), w.session, w.sense.name)
+        except IdConflictError as exc:
+            if not isolate:
+                raise
+            w.error = exc
+            resolve_shared_ids(writes)  # a repeat of its ids is no longer a repeat
+            continue
+        if rows and schema is not None:
+            mine = writes_table(schema, [_whole(w)]).select(columns).to_pylist()
+            for i, row in enumerate(mine):
+                if rows.get(row["id"]) == row:
+                    w.unchanged.add(i)
+        replaced[id(w)] = sum(
+            1 for i, item_id in enumerate(w.ids) if item_id in rows and i not in w.left_out
+        )
     return replaced
 
 

@@ -368,28 +368,39 @@ class Store(StoreIndexes):
                 _upsert(self.items, "id", data)
         self._committed(ITEMS)
 
-    def owned_rows(
-        self, ids: Sequence[str], session: str, sense: str, columns: Sequence[str] = ()
+    def rows_by_id(
+        self, ids: Sequence[str], columns: Sequence[str] = ()
     ) -> dict[str, dict[str, Any]]:
-        """The stored rows an upsert of ``ids`` into (``session``, ``sense``) replaces, by id,
-        with ``columns`` (those the table has) beside ``id``, ``session`` and ``sense``.
-
-        Raises IdConflictError, naming the first offending id, when any id already belongs to
-        another session or another sense: an upsert never overwrites or moves another
-        session's row. Call it under the memory's commit lock, just before :meth:`write`.
-        """
+        """The stored rows of ``ids`` (every session's: ids are the tenant's), by id, with
+        ``id``, ``session``, ``sense`` and ``columns``: one scan for all of them."""
         if self._items is None or not ids:
             return {}
-        wanted = ["id", "session", "sense", *(c for c in columns if c not in ("id", "session"))]
+        wanted = list(dict.fromkeys(["id", "session", "sense", *columns]))
         with sessions_under(None):  # ids are the tenant's: a prefix key may not reuse one
-            rows = self.scan(Where().ids(ids).sql(), list(dict.fromkeys(wanted))).to_pylist()
+            rows = self.scan(Where().ids(list(ids)).sql(), wanted).to_pylist()
+        return {row["id"]: row for row in rows}
+
+    @staticmethod
+    def check_owned(rows: Sequence[dict[str, Any]], session: str, sense: str) -> None:
+        """Raise IdConflictError, naming the first offending id, when a stored row of an
+        upsert's ids belongs to another session or another sense: an upsert never overwrites
+        or moves another session's row."""
         for row in rows:
             if row["session"] != session or row["sense"] != sense:
                 raise IdConflictError(
                     f"item id {row['id']!r} already belongs to another session or sense (not "
                     f"{sense!r} in session {session!r}); use another id, or delete that item first"
                 )
-        return {row["id"]: row for row in rows}
+
+    def owned_rows(
+        self, ids: Sequence[str], session: str, sense: str, columns: Sequence[str] = ()
+    ) -> dict[str, dict[str, Any]]:
+        """The stored rows an upsert of ``ids`` into (``session``, ``sense``) replaces, by id
+        (:meth:`rows_by_id`; :meth:`check_owned` raises for another session's or sense's).
+        Call it under the memory's commit lock, just before :meth:`write`."""
+        rows = self.rows_by_id(ids, columns)
+        self.check_owned(list(rows.values()), session, sense)
+        return rows
 
     def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
         """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces

@@ -441,27 +441,6 @@ def test_writes_that_waited_past_the_bound_are_refused_not_acknowledged_late(mem
     assert gc.stats.late == 4 and gc.pending == 0
 
 
-def test_the_wait_bound_refuses_what_the_measured_rate_cannot_commit_in_time(memory):
-    """A write is refused at once when the items queued ahead of it would take longer than
-    the bound at the rate the last batches were committed (no timing: the rate is set)."""
-    touch = GatedTouch(memory.space.dim)
-    memory.add_sense(touch)
-    gc = GroupCommitter(memory, tick=0.0, max_wait=1.0, clock=Clock())
-    try:
-        gc.submit("g0", "touch", [window(seed=0)], t=[0.0])
-        assert touch.entered.wait(30)
-        gc._rate = 2.0  # items per second, as if measured
-        ok = gc.submit("g1", "text", ["one"], t=[0.0])  # 1 item ahead: 0.5 s
-        with pytest.raises(OverloadedError, match="queued ahead"):
-            gc.submit("g2", "text", ["two", "three"], t=[0.0, 0.0])  # 3 items: 1.5 s
-        touch.gate.set()
-        assert len(ok.result(timeout=30)) == 1
-    finally:
-        touch.gate.set()
-        gc.close(timeout=30)
-    assert gc.stats.late == 1
-
-
 def test_the_wait_bound_must_exceed_the_tick(memory):
     with pytest.raises(ValueError, match="longer than tick"):
         GroupCommitter(memory, tick=0.5, max_wait=0.5)
