@@ -4,10 +4,10 @@ clients keep writing the same ids inside the group commit's ticks.
 In one process on a real LanceDB store (pre-filled with ``--rows`` text rows, so a
 merge-insert's join over every stored ``id`` costs what it does in a store in use), a
 :class:`GroupCommitter` (tick 25 ms, the server's) takes writes from ``--writers`` threads,
-each submitting one touch window at a time (the stand-in touch sense and the hashing text
-space of the tests: the embedding is not under test, the commit path is) and from two pairs
+each submitting one vector of a vector sense at a time (a 384-d stand-in space,
+``memory.BenchSpace``: the embedding is not under test, the commit path is) and from two pairs
 of racer threads, each pair re-sending one note with one explicit id. Measured: the other
-writers' windows/s over ``--seconds``, alone and with the racers, in interleaved rounds
+writers' writes/s over ``--seconds``, alone and with the racers, in interleaved rounds
 (alone, racing, alone, racing ...); reported the per-round ratio racing/alone and its mean
 with a 95 % t interval, and the store commits of each kind the racing runs made.
 
@@ -37,9 +37,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from load import run_header  # noqa: E402
+from memory import DIM, BenchSpace  # noqa: E402
+from tactus_memory.adapters.vectors import VectorSense  # noqa: E402
 from tactus_memory.errors import TactusError  # noqa: E402
 from tactus_memory.memory.group_commit import GroupCommitter  # noqa: E402
-from tests.helpers.service import make_memory, window  # noqa: E402
+from tactus_memory.memory.main import Memory  # noqa: E402
 
 
 def run(memory: Any, writers: int, racers: bool, seconds: float) -> dict[str, Any]:
@@ -53,13 +55,14 @@ def run(memory: Any, writers: int, racers: bool, seconds: float) -> dict[str, An
         real(data, upsert=upsert)
 
     memory.store.write = counted
-    wins = [window(seed=s) for s in range(16)]
+    rng = np.random.default_rng(0)
+    vecs = rng.standard_normal((16, DIM)).astype(np.float32)
     with GroupCommitter(memory, tick=0.025) as gc:
 
         def writer(i: int) -> None:
             n = 0
             while not stop.is_set():
-                gc.submit(f"w{i}", "touch", [wins[n % 16]], t=[float(n)]).result()
+                gc.submit(f"w{i}", "motion", [vecs[n % 16]], t=[float(n)]).result()
                 n += 1
                 done[i] += 1
 
@@ -95,7 +98,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "racing_ids.json"))
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="tactus-racing-") as tmp:
-        memory = make_memory(Path(tmp) / "mem")
+        memory = Memory.open(str(Path(tmp) / "mem"), space=BenchSpace())
+        memory.add_sense(VectorSense("motion", dim=DIM))
         for b in range(0, args.rows, 2500):
             n = min(2500, args.rows - b)
             memory.add_many("bulk", "text", [f"note {b + i}" for i in range(n)], t=[0.0] * n)

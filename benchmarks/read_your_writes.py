@@ -9,8 +9,9 @@ and once after the worker's per-request step (:meth:`Workers.refresh`: the other
 counts compared, and the tables read at their latest version when they moved), so each pair
 is one paired difference. Reported: search latency p50 of each, the mean paired difference
 with a 95 % t interval, and how often the step found another worker's commit (then it reads
-the latest versions; otherwise it costs a comparison of a few bytes). The hashing text space
-of the tests keeps the embedding cheap, so the step's share is larger than with MiniLM.
+the latest versions; otherwise it costs a comparison of a few bytes). A 384-d stand-in space
+(``memory.BenchSpace``) keeps the embedding cheap, so the step's share is larger than with
+MiniLM.
 
     python benchmarks/read_your_writes.py --queries 300
 
@@ -36,15 +37,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from load import queries, run_header  # noqa: E402
+from memory import BenchSpace  # noqa: E402
 from tactus_memory.cli.workers import COMMITS_FILE, COUNTER_BYTES, Workers  # noqa: E402
 from tactus_memory.memory.main import Memory  # noqa: E402
-from tests.helpers.fakes import HashingSpace  # noqa: E402
 
 
 def other_worker(path: str, folder: str, interval: float, stop: Any) -> None:
     group = Workers(1, 2, Path(folder))
     group.open_counters()
-    memory = Memory.open(path, space=HashingSpace(), background=False)
+    memory = Memory.open(path, space=BenchSpace(), background=False)
     n = 0
     while not stop.is_set():
         memory.add("other", "text", f"note from the other worker {n}", t=float(n))
@@ -63,7 +64,7 @@ def main() -> None:
         path, folder = str(Path(tmp) / "mem"), Path(tmp) / "workers"
         folder.mkdir()
         (folder / COMMITS_FILE).write_bytes(bytes(COUNTER_BYTES * 2))
-        memory = Memory.open(path, space=HashingSpace(), background=False)
+        memory = Memory.open(path, space=BenchSpace(), background=False)
         for b in range(0, args.rows, 2500):
             n = min(2500, args.rows - b)
             memory.add_many("bulk", "text", [f"note {b + i}" for i in range(n)], t=[0.0] * n)

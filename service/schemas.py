@@ -391,7 +391,6 @@ class MaintenancePassOut(BaseModel):
     end: float = Field(description="Unix time the pass ended.")
     pid: int = Field(description="The process that ran it.")
     by: str = Field(description="Who that process is (e.g. 'worker 0'; empty: a lone server).")
-    ran: bool = Field(description="Whether the pass did anything (false: nothing was due).")
 
 
 class RetentionOut(BaseModel):

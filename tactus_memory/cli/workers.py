@@ -72,7 +72,7 @@ class Workers:
     def open_counters(self) -> None:
         """Map the group's commit counters (in the worker, after the fork) and count this
         worker's commits there from now on."""
-        from tactus_memory.storage.store import on_any_commit
+        from tactus_memory.storage.passes import on_any_commit
 
         with (self.folder / COMMITS_FILE).open("r+b") as fh:
             self._counters = mmap.mmap(fh.fileno(), COUNTER_BYTES * self.count)
@@ -141,7 +141,7 @@ def _worker(
     load_app, run_server = server
     try:
         from tactus_memory.service.startup import explain
-        from tactus_memory.storage.store import set_maintainer
+        from tactus_memory.storage.passes import set_maintainer
 
         set_maintainer(f"worker {group.index}")
         group.open_counters()

@@ -277,7 +277,7 @@ def claim_ids(
         w.unchanged.clear()
         rows = {i: stored[i] for i in w.ids if i in stored}
         try:
-            store.check_owned(list(rows.values()), w.session, w.sense.name)
+            check_owned(list(rows.values()), w.session, w.sense.name)
         except IdConflictError as exc:
             if not isolate:
                 raise
@@ -293,6 +293,18 @@ def claim_ids(
             1 for i, item_id in enumerate(w.ids) if item_id in rows and i not in w.left_out
         )
     return replaced
+
+
+def check_owned(rows: Sequence[dict[str, Any]], session: str, sense: str) -> None:
+    """Raise IdConflictError, naming the first offending id, when a stored row of an
+    upsert's ids belongs to another session or another sense: an upsert never overwrites or
+    moves another session's row."""
+    for row in rows:
+        if row["session"] != session or row["sense"] != sense:
+            raise IdConflictError(
+                f"item id {row['id']!r} already belongs to another session or sense (not "
+                f"{sense!r} in session {session!r}); use another id, or delete that item first"
+            )
 
 
 def _whole(w: PreparedWrite) -> PreparedWrite:

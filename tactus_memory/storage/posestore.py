@@ -15,8 +15,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactus_memory.storage.passes import announce_commit
 from tactus_memory.storage.places import Placement, Trajectory
-from tactus_memory.storage.store import POSES, Store, announce_commit
+from tactus_memory.storage.store import POSES, Store
 from tactus_memory.storage.tables import place_fields, poses_schema
 from tactus_memory.where import Where
 

@@ -36,20 +36,18 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
-from dataclasses import dataclass
 from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.errors import IdConflictError, SpaceMismatchError
+from tactus_memory.errors import SpaceMismatchError
 from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S
 from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.storage.codes import CODE_DIMS, codes_of, strip_table
@@ -58,6 +56,7 @@ from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
 from tactus_memory.storage.integrity import IntegrityWatch, check_store
+from tactus_memory.storage.passes import PASSES_KEPT, MaintenancePass, announce_commit, record_pass
 from tactus_memory.storage.retention import Erasure, Retention
 from tactus_memory.storage.tables import IndexConfig, items_schema, meta_schema, senses_schema
 from tactus_memory.storage.threads import start_background
@@ -85,49 +84,6 @@ def pinned_version(name: str, table: Any) -> int:
     if key not in seen:
         seen[key] = int(table.version)
     return seen[key]
-
-
-#: maintenance passes each store remembers (``Store.passes``: the latest, start and end)
-PASSES_KEPT = 64
-#: who runs this process's maintenance passes, in their log lines and records (``tactus serve
-#: --workers N`` names its worker: :func:`set_maintainer`)
-_MAINTAINER: list[str] = [""]
-
-
-#: called after every commit this process makes to any table of any store (``tactus serve
-#: --workers N`` tells the other workers, so each request reads its client's writes)
-_ON_ANY_COMMIT: list[Callable[[], None]] = []
-
-
-def on_any_commit(listener: Callable[[], None]) -> None:
-    """Call ``listener`` after each commit of this process (before it is acknowledged)."""
-    _ON_ANY_COMMIT.append(listener)
-
-
-def announce_commit() -> None:
-    """Tell the listeners (:func:`on_any_commit`) that a commit landed; never raises."""
-    for listener in _ON_ANY_COMMIT:
-        try:
-            listener()
-        except Exception:  # noqa: BLE001  (a notice: the commit stands either way)
-            log.exception("a commit listener failed")
-
-
-def set_maintainer(label: str) -> None:
-    """Name this process in its maintenance passes' records and log lines ("worker 0")."""
-    _MAINTAINER[0] = label
-
-
-@dataclass(frozen=True)
-class MaintenancePass:
-    """One maintenance pass of a store: unix times it started and ended, by whom (process id
-    and its label), and whether it did anything."""
-
-    start: float
-    end: float
-    pid: int
-    by: str
-    ran: bool
 
 
 ITEMS = "items"
@@ -182,7 +138,6 @@ class Store(StoreIndexes):
         self._last_cleanup = -math.inf
         #: what the last maintenance run did, per table
         self.last_maintenance: list[TableReport] = []
-        #: the latest maintenance passes of this process, oldest first
         self.passes: deque[MaintenancePass] = deque(maxlen=PASSES_KEPT)
         self._items: Any = None
         self._senses: Any = None
@@ -368,44 +323,15 @@ class Store(StoreIndexes):
                 _upsert(self.items, "id", data)
         self._committed(ITEMS)
 
-    def rows_by_id(
-        self, ids: Sequence[str], columns: Sequence[str] = ()
-    ) -> dict[str, dict[str, Any]]:
-        """The stored rows of ``ids`` (every session's: ids are the tenant's), by id, with
-        ``id``, ``session``, ``sense`` and ``columns``: one scan for all of them."""
+    def rows_by_id(self, ids: Sequence[str], columns: Sequence[str] = ()) -> dict[str, Any]:
+        """The stored rows of ``ids`` (any session's: ids are the tenant's) by id: ``id``,
+        ``session``, ``sense`` and ``columns``, in one scan."""
         if self._items is None or not ids:
             return {}
         wanted = list(dict.fromkeys(["id", "session", "sense", *columns]))
         with sessions_under(None):  # ids are the tenant's: a prefix key may not reuse one
             rows = self.scan(Where().ids(list(ids)).sql(), wanted).to_pylist()
         return {row["id"]: row for row in rows}
-
-    @staticmethod
-    def check_owned(rows: Sequence[dict[str, Any]], session: str, sense: str) -> None:
-        """Raise IdConflictError, naming the first offending id, when a stored row of an
-        upsert's ids belongs to another session or another sense: an upsert never overwrites
-        or moves another session's row."""
-        for row in rows:
-            if row["session"] != session or row["sense"] != sense:
-                raise IdConflictError(
-                    f"item id {row['id']!r} already belongs to another session or sense (not "
-                    f"{sense!r} in session {session!r}); use another id, or delete that item first"
-                )
-
-    def owned_rows(
-        self, ids: Sequence[str], session: str, sense: str, columns: Sequence[str] = ()
-    ) -> dict[str, dict[str, Any]]:
-        """The stored rows an upsert of ``ids`` into (``session``, ``sense``) replaces, by id
-        (:meth:`rows_by_id`; :meth:`check_owned` raises for another session's or sense's).
-        Call it under the memory's commit lock, just before :meth:`write`."""
-        rows = self.rows_by_id(ids, columns)
-        self.check_owned(list(rows.values()), session, sense)
-        return rows
-
-    def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
-        """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces
-        (:meth:`owned_rows`, which raises IdConflictError for another session's id)."""
-        return len(self.owned_rows(ids, session, sense))
 
     def delete(self, where: str) -> None:
         self.integrity.require()
@@ -465,8 +391,7 @@ class Store(StoreIndexes):
         return 0 if self._meta is None else int(self._meta.version)
 
     def read_latest(self) -> None:
-        """Every table at its latest version now (another process's commits, not only within
-        the read consistency interval): read-your-writes across ``--workers``."""
+        """Every table at its latest version now: read-your-writes across ``--workers``."""
         for table in (self._items, self._senses, self._meta):
             if table is not None:
                 table.checkout_latest()
@@ -504,60 +429,44 @@ class Store(StoreIndexes):
             return False
         self._busy = threading.get_ident()
         start = time.time()
-        ran = False
         try:
-            ran = self._maintain_pass(wait)
-            return ran
+            cfg = self.index
+            n = self.count()
+            if cfg.scalar_threshold <= n < cfg.threshold and not self.has_scalar_indexes():
+                self.build_scalar_indexes()
+            if n >= cfg.threshold:
+                info = json.loads(self.get_meta("index") or "{}")
+                grown = n >= cfg.retrain_growth * int(info.get("rows", n))
+                if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
+                    self.build_indexes()
+            self._commits = {}
+            try:
+                self.retention.run()  # its deletes are compacted away just below
+            except Exception:  # noqa: BLE001  (retried next pass; compaction goes on)
+                log.exception("retention failed; it will be retried")
+            deletes = self.erasure.deletes
+            maintainer = self.maintainer()
+            reports = maintainer.run(cleanup=False)
+            if self._items is not None and self.maintenance.erase_deleted:  # else never erased
+                left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
+                self.erasure.note_compacted(deletes, left)
+            for tbl in (self._items, self._senses, self._meta):
+                if tbl is not None:  # our handles must not stay on versions cleanup removes
+                    tbl.checkout_latest()
+            if wait:
+                self.wait_for_cleanup()
+                self._cleanup(reports)
+                self._last_cleanup = time.monotonic()
+            else:
+                self._start_cleanup()
+            self.last_maintenance = reports
+            for report in reports:
+                log.debug("maintenance: %s", report)
+            return True
         finally:
             self._busy = None
-            self._note_pass(start, ran)
+            record_pass(self.passes, start)  # under the lock: this process's never overlap
             self._maintenance.release()
-
-    def _note_pass(self, start: float, ran: bool) -> None:
-        """Record and log one pass (under the maintenance lock: passes here never overlap;
-        a test checks that none of several workers' do either)."""
-        done = MaintenancePass(start, time.time(), os.getpid(), _MAINTAINER[0], ran)
-        self.passes.append(done)
-        log.info(
-            "maintenance pass by %s pid %d: %.3f to %.3f (%.2f s)",
-            done.by or "this process", done.pid, done.start, done.end, done.end - done.start,
-        )  # fmt: skip
-
-    def _maintain_pass(self, wait: bool) -> bool:
-        """One maintenance pass (:meth:`maintain`'s body, under its lock)."""
-        cfg = self.index
-        n = self.count()
-        if cfg.scalar_threshold <= n < cfg.threshold and not self.has_scalar_indexes():
-            self.build_scalar_indexes()
-        if n >= cfg.threshold:
-            info = json.loads(self.get_meta("index") or "{}")
-            grown = n >= cfg.retrain_growth * int(info.get("rows", n))
-            if not self.has_vector_index() or grown or self.vector_deltas() > cfg.max_deltas:
-                self.build_indexes()
-        self._commits = {}
-        try:
-            self.retention.run()  # its deletes are compacted away just below
-        except Exception:  # noqa: BLE001  (retried next pass; compaction goes on)
-            log.exception("retention failed; it will be retried")
-        deletes = self.erasure.deletes
-        maintainer = self.maintainer()
-        reports = maintainer.run(cleanup=False)
-        if self._items is not None and self.maintenance.erase_deleted:  # else never erased
-            left = sum(f.deleted for f in fragment_infos(self.items.to_lance()))
-            self.erasure.note_compacted(deletes, left)
-        for tbl in (self._items, self._senses, self._meta):
-            if tbl is not None:  # our handles must not stay on versions cleanup removes
-                tbl.checkout_latest()
-        if wait:
-            self.wait_for_cleanup()
-            self._cleanup(reports)
-            self._last_cleanup = time.monotonic()
-        else:
-            self._start_cleanup()
-        self.last_maintenance = reports
-        for report in reports:
-            log.debug("maintenance: %s", report)
-        return True
 
     def _start_cleanup(self) -> None:
         busy = self._cleanup_thread is not None and self._cleanup_thread.is_alive()

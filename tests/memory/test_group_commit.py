@@ -444,3 +444,24 @@ def test_writes_that_waited_past_the_bound_are_refused_not_acknowledged_late(mem
 def test_the_wait_bound_must_exceed_the_tick(memory):
     with pytest.raises(ValueError, match="longer than tick"):
         GroupCommitter(memory, tick=0.5, max_wait=0.5)
+
+
+def test_with_a_wait_bound_a_batch_holds_what_commits_within_it(memory):
+    """A batch under a wait bound takes no more items than the committer commits within the
+    bound at its measured rate (a 256-item batch embedding for seconds made acks late even
+    with the queue bounded). The committer is held while 20 writes queue; the rate is set."""
+    touch = GatedTouch(memory.space.dim)
+    memory.add_sense(touch)
+    gc = GroupCommitter(memory, tick=0.0, max_wait=1.0, clock=Clock())
+    try:
+        held = gc.submit("g", "touch", [window(seed=0)], t=[0.0])
+        assert touch.entered.wait(30)
+        gc._rate = 10.0  # items per second, as if measured: 10 items fit in the 1 s bound
+        futures = [gc.submit(f"s{i}", "text", [f"note {i}"], t=[0.0]) for i in range(20)]
+        touch.gate.set()
+        assert len(held.result(timeout=30)) == 1
+        assert all(len(f.result(timeout=30)) == 1 for f in futures)  # all in time: stored
+    finally:
+        touch.gate.set()
+        gc.close(timeout=30)
+    assert gc.stats.largest_batch <= 10 and gc.stats.commits >= 3 and gc.stats.late == 0
