@@ -236,7 +236,10 @@ def get_tenant(state: StateDep, principal: PrincipalDep) -> Tenant:
     """The caller's tenant: its memory and committer (every data route reaches the memory
     through here, so no route can read or write outside the caller's tenant)."""
     assert state.tenants is not None
-    return state.tenants.get(principal.tenant)
+    tenant = state.tenants.get(principal.tenant)
+    if state.workers is not None:  # read-your-writes: another worker's acknowledged commits
+        state.workers.refresh(tenant.memory)
+    return tenant
 
 
 TenantDep = Annotated[Tenant, Depends(get_tenant)]

@@ -393,6 +393,15 @@ class HealthOut(BaseModel):
     read_only: bool = Field(False, description="The store cannot be written: writes get 503.")
 
 
+class MaintenancePassOut(BaseModel):
+    """One maintenance pass this process ran (compaction, retention, cleanup scheduling)."""
+
+    start: float = Field(description="Unix time the pass started.")
+    end: float = Field(description="Unix time the pass ended.")
+    pid: int = Field(description="The process that ran it.")
+    by: str = Field(description="Who that process is (e.g. 'worker 0'; empty: a lone server).")
+
+
 class RetentionOut(BaseModel):
     """The store's retention policy and what maintenance did with it (README "Retention and
     deletion"): counts of the last pass and since this process started; none where another
@@ -422,6 +431,11 @@ class RetentionOut(BaseModel):
     erasure_pending: bool | None = Field(
         description="Rows this process deleted may still be in the files (null: another "
         "process maintains the store, ask it: `tactus maintain`)."
+    )
+    passes: list[MaintenancePassOut] = Field(
+        default_factory=list,
+        description="This process's latest maintenance passes, oldest first (none where "
+        "another process maintains): with `--workers N` only worker 0's, never overlapping.",
     )
 
 

@@ -292,6 +292,13 @@ class Memory(AbstractContextManager["Memory"]):
                 drop_orphaned_teachings(self.store)
         return deleted
 
+    def read_latest(self) -> None:
+        """Every table of the store at its latest version now, whoever committed it (another
+        process of ``tactus serve --workers N``): the next read sees every write acknowledged
+        before it (read-your-writes); the caches keyed by table versions follow."""
+        self.store.read_latest()
+        self.places.poses.read_latest()
+
     def delete_session(self, session: str) -> int:
         """Delete every item of a session, its poses, clock offsets and teachings; returns the
         item rows removed."""
