@@ -78,7 +78,7 @@ from tactus_memory.storage.retention import drop_orphaned_teachings
 from tactus_memory.storage.rows import options_for, summarise
 from tactus_memory.storage.scheduler import Background
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.tables import HIT_COLUMNS, IndexConfig, check_facet_columns
+from tactus_memory.storage.tables import HIT_COLUMNS, IndexConfig
 from tactus_memory.storage.tenants import tenant_uri
 from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, check_group, grasp_hits
 from tactus_memory.temporal.operators import Temporal
@@ -357,14 +357,10 @@ class Memory(AbstractContextManager["Memory"]):
         (or one ``scope=`` :class:`Scope`). ``group``: ``"auto"`` (default) answers touch with
         grasps, one Hit each (``temporal.grasps.grasp_hits``); ``"window"`` (or None) one Hit per
         stored item; ``"grasp"`` one Grasp per grasp of every sense; ``"moment"`` Moments
-        (:meth:`search_moments`). The query is embedded once. Touch facet filters
-        (``force_min``, ``force_max``, ``area_min``, ``regions``, ``grip``) are scope filters;
-        ``sort`` (``force``, ``-force``, ``area``, ``-area``, ``t``, ``-t``) orders the
-        question's best candidates by that facet (:mod:`tactus_memory.search.ordering`)."""
+        (:meth:`search_moments`). The query is embedded once. The touch facet filters are
+        scope filters; ``sort`` orders by a facet (:mod:`tactus_memory.search.ordering`)."""
         where, g = Scope.of(**scope), check_group(group)
-        if where.faceted or (sort is not None and sort.lstrip("-") != "t"):
-            check_facet_columns(self.store.schema)
-        kk = candidates(check_k(k), sort)
+        kk = candidates(check_k(k), sort, where, self.store.schema)
         if g == "moment":  # embeds the query itself, once
             gap = DEFAULT_MOMENT_GAP if gap is None else gap
             return sort_hits(self.search_moments(query, kk, gap=gap, scope=where), sort, k)

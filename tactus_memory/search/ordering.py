@@ -9,10 +9,15 @@ their score order; ``t``/``-t`` order by start time (aligned when the hit has it
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from tactus_memory.limits import MAX_K
+from tactus_memory.query import Scope
+from tactus_memory.storage.tables import check_facet_columns
 from tactus_memory.where import check_sort
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 #: how many best hits a sorted search orders by the facet (the question's candidates)
 SORT_CANDIDATES = MAX_K // 4
@@ -20,9 +25,13 @@ SORT_CANDIDATES = MAX_K // 4
 H = TypeVar("H")
 
 
-def candidates(k: int, sort: str | None) -> int:
-    """How many hits to ask for: ``k``, or :data:`SORT_CANDIDATES` (at least k) when sorted."""
-    return k if check_sort(sort) is None else max(k, SORT_CANDIDATES)
+def candidates(k: int, sort: str | None, scope: Scope, schema: pa.Schema) -> int:
+    """How many hits to ask for: ``k``, or :data:`SORT_CANDIDATES` (at least k) when sorted.
+    A facet filter or order on a store without facet columns (``schema``, the items table's)
+    raises InvalidInputError (``storage.tables.check_facet_columns``)."""
+    if scope.faceted or (check_sort(sort) or "t").lstrip("-") != "t":
+        check_facet_columns(schema)
+    return k if sort is None else max(k, SORT_CANDIDATES)
 
 
 def _key(hit: Any, sort: str) -> tuple[int, float]:
