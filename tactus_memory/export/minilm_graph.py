@@ -104,7 +104,7 @@ def build_minilm(model_path: str | os.PathLike[str]) -> Any:
     for i in range(int(cfg["num_hidden_layers"])):
         p = f"encoder.layer.{i}."
 
-        def heads_of(name: str, perm: list[int], p: str = p) -> str:
+        def heads_of(name: str, perm: list[int], p: str = p, x: str = x) -> str:
             y = g.linear(x, w[p + name + ".weight"], w[p + name + ".bias"], p + name)
             return g.op("Transpose", g.op("Reshape", y, split), perm=perm)
 
