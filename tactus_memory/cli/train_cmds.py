@@ -34,6 +34,7 @@ from tactus_memory.cli.common import (
     Threads,
     TrainHoldout,
     WeightDecay,
+    output_folder,
     set_threads,
 )
 from tactus_memory.cli.sensor_opts import SensorData
@@ -60,6 +61,7 @@ def pretrain_cmd(
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
+    output_folder(out)
     from tactus_memory.training.pretrain import PretrainConfig, pretrain, recipe_warmup
     from tactus_memory.training.train import _resolve_device, holdout_recordings
 
@@ -130,6 +132,7 @@ def training_run(r: Recipe, source: SensorData) -> tuple[Any, Any, Any, int]:
         if value not in choices:
             raise typer.BadParameter(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
     set_threads(r.threads)
+    output_folder(r.out)
     sp = resolve_or_exit(r.space, r.space_path, r.space_dim)
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.training.pretrain import recipe_warmup
