@@ -27,6 +27,16 @@ PANELS: dict[str, tuple[str, ...]] = {
     "Data sets": ("data",),
     "Touch encoder: train and evaluate": ("pretrain", "train", "eval", "baseline", "ablate"),
 }
+#: what a command may raise that the command line answers itself (usage errors, exits): Typer's
+#: own click (its ClickException, the base of typer.BadParameter) and click's
+KEPT: tuple[type[BaseException], ...] = (
+    typer.Exit,
+    typer.Abort,
+    *(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"),
+    click.exceptions.ClickException,
+    click.exceptions.Exit,
+    click.exceptions.Abort,
+)
 #: the exit status of a command that failed (click's usage errors also exit 2)
 EXIT_FAILED = 2
 _ORDER = {name: i for i, name in enumerate(n for names in PANELS.values() for n in names)}
@@ -58,7 +68,7 @@ class TactusGroup(TyperGroup):
         traceback (``TACTUS_DEBUG=1`` shows it); click's own errors and exits are kept."""
         try:
             return super().invoke(ctx)
-        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+        except KEPT:
             raise
         except Exception as exc:
             if os.environ.get("TACTUS_DEBUG"):
