@@ -56,8 +56,7 @@ REQUEST_BODY: dict[str, Any] = {
         "another shape is a 422 naming both, an unknown sense a 404. Frames are RAW sensor "
         "units unless `calibrated` is true. Idle windows (no contact) are skipped and listed "
         "in `skipped` (201, the rest stored), in a batch and alone alike (one idle window "
-        'alone: 201 with `"ids": []` and `"skipped": [{"index": 0, "reason": "idle"}]`). '
-        + NPY_DOC
+        'alone: 201 with `"ids": []` and `"skipped": [{"index": 0, "reason": "idle"}]`). ' + NPY_DOC
     ),
     response_model=StoredOut,
     responses=problem_responses(404, 413, 415, 422, 503),

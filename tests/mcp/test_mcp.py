@@ -171,7 +171,8 @@ def test_tools_answer_loading_until_the_models_are_in(tmp_path) -> None:
             r = await client.call_tool("timeline", {"session": "kitchen"})
             assert not r.is_error
             r = await client.call_tool("search", {"query": "mug"})
-            assert r.is_error and "loading: the memory is still loading" in r.content[0].text, r.content
+            said = r.content[0].text
+            assert r.is_error and "loading: the memory is still loading" in said, said
             gate.set()
             r = await call_when_loaded(client, "search", {"query": "put the mug on the shelf"})
             assert not r.is_error
