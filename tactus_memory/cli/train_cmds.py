@@ -41,6 +41,11 @@ from tactus_memory.cli.sensor_opts import SensorData
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
 from tactus_memory.signatures import grouped
 
+#: MAE pretraining's frames per step: the shipped recipe's on a GPU; on a CPU a quarter of it
+#: (a step of 128 took 13-25 s on a loaded 2-core machine, issue 47)
+PRETRAIN_BATCH_GPU = 128
+PRETRAIN_BATCH_CPU = 32
+
 
 @app.command("pretrain")
 @grouped(source=SensorData)
@@ -50,7 +55,12 @@ def pretrain_cmd(
     out: Path = typer.Option(..., "--out", help="MAE checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="trunk architecture"),
     steps: int = typer.Option(400, "--steps", help="optimizer steps (shipped recipe: 400)"),
-    batch: int = typer.Option(128, "--batch", help="frames per step"),
+    batch: int | None = typer.Option(
+        None,
+        "--batch",
+        help=f"frames per step (default {PRETRAIN_BATCH_GPU} on a GPU, the shipped recipe; "
+        f"{PRETRAIN_BATCH_CPU} on a CPU)",
+    ),
     lr: LearningRate = 1.5e-3,
     seed: Seed = 0,
     holdout: TrainHoldout = "none",
@@ -69,6 +79,9 @@ def pretrain_cmd(
     d.check_dynamic_range(profile)  # per source file; raises DynamicRangeError
     excl = holdout_recordings(d, holdout)
     warmup = recipe_warmup(steps)
+    device = _resolve_device(device)
+    if batch is None:
+        batch = PRETRAIN_BATCH_GPU if device.startswith("cuda") else PRETRAIN_BATCH_CPU
     cfg = PretrainConfig(model=model, steps=steps, batch=batch, lr=lr, seed=seed, warmup=warmup)
     summary = pretrain(
         d.calibrated(profile),
@@ -77,7 +90,7 @@ def pretrain_cmd(
         out,
         cfg,
         fingerprint=d.fingerprint(),
-        device=_resolve_device(device),
+        device=device,
         resume=resume,
     )
     summary.pop("history", None)
