@@ -146,7 +146,7 @@ def around_args(side: str) -> type:
 
 #: the tools that embed a text (the others read the store only and answer while models load)
 MODEL_TOOLS = frozenset(
-    {"search", "last", "first", "count", "before", "after", "remember", "teach"}
+    {"search", "last", "first", "count", "before", "after", "where", "remember", "teach"}
 )
 #: how long a tool call waits for models still loading before it answers "loading"
 LOADING_WAIT_S = 3.0
@@ -179,7 +179,7 @@ class Loading:
             took = time.monotonic() - self.started
             raise ToolError(
                 f"loading: the memory is still loading its models ({took:.0f} s so far); "
-                "ask again in a few seconds (sessions, timeline, where and at answer now)"
+                "ask again in a few seconds (sessions, timeline and at answer now)"
             )
         if self.error is not None:
             raise ToolError(f"the models failed to load: {self.error}")
