@@ -35,6 +35,7 @@ from tactus_memory.service.middleware import (
     BodyLimitMiddleware,
     ReadOnlyMiddleware,
     StartingMiddleware,
+    WorkerHeaderMiddleware,
 )
 from tactus_memory.service.openapi import install_openapi
 from tactus_memory.service.problems import install_problem_handlers, problem_responses
@@ -56,7 +57,7 @@ from tactus_memory.service.routers import (
     touch_stream,
     ui,
 )
-from tactus_memory.service.startup import StartupError
+from tactus_memory.service.startup import StartupError, check_named_checkpoint, recorded_checkpoint
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
@@ -146,14 +147,21 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     checkpoint, on torch) are registered first, as the glove's named checkpoint is. Returns
     why touch is unavailable, or None."""
     onnx = {"onnx": settings.onnx} if settings.onnx else {}
-    if settings.touch and (settings.touch_checkpoint or onnx) and "touch" not in memory.senses:
-        # asked for by name: it wins over the store's record, and a failure stops the start
+    if settings.touch and settings.touch_checkpoint and "touch" not in memory.senses:
+        # asked for by name: it must be the store's own (one encoder per sense), and a failure
+        # stops the start
+        check_named_checkpoint(memory, "touch", settings.touch_checkpoint)
         memory.add_sense(
             create_sense("touch", memory.space, checkpoint=settings.touch_checkpoint, **onnx)
         )
+    elif settings.touch and onnx and "touch" not in memory.senses and _shipped_or_none(memory):
+        # the shipped checkpoint on ONNX Runtime, where the store records it (or no touch):
+        # a store re-embedded to another checkpoint is opened with that one (restored below)
+        memory.add_sense(create_sense("touch", memory.space, **onnx))
     for name, checkpoint in settings.touch_senses.items():
         # touch senses beside the glove (--touch NAME=CKPT), each with its checkpoint's sensor
         # profile; asked for by name, like the glove's checkpoint: a failure stops the start
+        check_named_checkpoint(memory, name, checkpoint)
         memory.add_sense(create_sense("touch", memory.space, checkpoint=checkpoint, name=name))
     for name, reason in memory.restore_senses(skip=() if settings.touch else ("touch",)).items():
         log.warning("sense %r is searchable but not rebuilt: %s", name, reason)
@@ -169,6 +177,15 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
     if "image" not in memory.senses and memory.space.has_vision:
         memory.add_sense(create_sense("image", memory.space))
     return why
+
+
+def _shipped_or_none(memory: Any) -> bool:
+    """Whether the store records the shipped touch checkpoint, or no touch sense at all."""
+    from tactus_memory.hashing import file_sha256
+    from tactus_memory.touch.checkpoint import default_checkpoint_path
+
+    recorded = recorded_checkpoint(memory, "touch")
+    return recorded is None or recorded[1] == file_sha256(default_checkpoint_path())
 
 
 async def _load_in_background(state: ServiceState, loader: Loader) -> None:
@@ -343,6 +360,10 @@ def create_app(
     app.add_middleware(AuditMiddleware)
     app.add_middleware(AllowMiddleware)
     app.add_middleware(StartingMiddleware, starting=lambda: state.starting)
+    app.add_middleware(
+        WorkerHeaderMiddleware,
+        worker=lambda: None if state.workers is None else state.workers.index,
+    )
     install_openapi(app, int(memory.space.dim), bool(getattr(memory.space, "has_vision", False)))
 
     auth = [Depends(authorize)]

@@ -67,12 +67,24 @@ class RedactSecrets(logging.Filter):
         return True
 
 
-def log_config() -> dict[str, Any]:
-    """uvicorn's default logging config with :class:`RedactSecrets` on every handler."""
+#: the logger whose lines ``tactus serve`` prints at its log level (beside uvicorn's): each
+#: maintenance pass, with who ran it (``storage.store.set_maintainer``) and its pid
+MAINTENANCE_LOGGER = "tactus_memory.storage.store"
+
+
+def log_config(level: str | None = None) -> dict[str, Any]:
+    """uvicorn's default logging config with :class:`RedactSecrets` on every handler; with
+    ``level`` (the server's), the store's lines (maintenance passes) at that level too."""
     from uvicorn.config import LOGGING_CONFIG
 
     config = copy.deepcopy(LOGGING_CONFIG)
     config.setdefault("filters", {})["redact_secrets"] = {"()": f"{__name__}.RedactSecrets"}
     for handler in config["handlers"].values():
         handler.setdefault("filters", []).append("redact_secrets")
+    if level is not None:
+        config["loggers"][MAINTENANCE_LOGGER] = {
+            "handlers": ["default"],
+            "level": level.upper(),
+            "propagate": False,
+        }
     return config

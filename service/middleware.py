@@ -335,3 +335,27 @@ class AuditMiddleware:
                 principal, route = marked
                 count = _audit_count(bytes(body), status[0])
                 audit.record(principal.key_id, principal.tenant, route, status[0], count)
+
+
+class WorkerHeaderMiddleware:
+    """``tactus serve --workers N``: every HTTP answer says which worker gave it
+    (``X-Tactus-Worker: i``), for the operator and for the read-your-writes test."""
+
+    def __init__(self, app: ASGIApp, worker: Callable[[], int | None]) -> None:
+        self.app = app
+        self.worker = worker
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        index = self.worker() if scope["type"] == "http" else None
+        if index is None:
+            await self.app(scope, receive, send)
+            return
+
+        async def tagged(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                headers = list(message.get("headers", []))
+                headers.append((b"x-tactus-worker", str(index).encode()))
+                message = {**message, "headers": headers}
+            await send(message)
+
+        await self.app(scope, receive, tagged)

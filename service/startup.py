@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 from pydantic import ValidationError
 
@@ -22,6 +23,20 @@ from tactus_memory.storage.connect import is_remote_uri, normalise_uri
 
 class StartupError(Exception):
     """A configuration or store problem found at startup; ``str()`` is the one line."""
+
+
+def check_space_options(space_path: str | None, onnx: str | None) -> None:
+    """What the space and model options can be checked for before anything loads (``tactus
+    serve --workers N`` checks it once, before the workers start, so a mistake is one line,
+    not one per worker): a ``--space-path`` that is not a folder, an ``--onnx`` folder that is
+    a file. (Nothing here imports numpy or a model: the workers are forked after it.)"""
+    if space_path is not None and not Path(space_path).expanduser().is_dir():
+        raise StartupError(
+            f"--space-path {space_path!r} is not a folder; pass --space-path DIR (or set "
+            "TACTUS_SPACE_PATH) with a local model folder"
+        )
+    if onnx is not None and Path(onnx).exists() and not Path(onnx).is_dir():
+        raise StartupError(f"--onnx {onnx!r} is a file; give the folder `tactus export-onnx` wrote")
 
 
 def check_location(data: str) -> None:
@@ -114,3 +129,33 @@ def explain(exc: BaseException, data: str) -> str:
             "from a backup, or point --data at another directory"
         )
     return f"could not start ({type(exc).__name__}: {short(exc, 200)}); rerun with --debug"
+
+
+def recorded_checkpoint(memory: Any, sense: str) -> tuple[str, str] | None:
+    """(file name, sha256) of the checkpoint the store records for touch sense ``sense`` (the
+    one its stored vectors were embedded by), or None when it records none."""
+    prov = memory.registry.stored_provenance(sense) or {}
+    sha = prov.get("checkpoint_sha256")
+    return None if not sha else (str(prov.get("checkpoint", "?")), str(sha))
+
+
+def check_named_checkpoint(memory: Any, sense: str, checkpoint: str | Path) -> None:
+    """A checkpoint named for ``sense`` (``--touch-checkpoint``, ``--touch NAME=CKPT``) must be
+    the one the store records: a store never holds two encoders' vectors for one sense
+    (issue 48: a server restarted with the shipped checkpoint after ``tactus reembed`` wrote
+    its vectors beside the re-embedded ones). Raises StartupError naming both."""
+    from tactus_memory.hashing import file_sha256
+
+    recorded = recorded_checkpoint(memory, sense)
+    if recorded is None:
+        return
+    name, sha = recorded
+    given = file_sha256(checkpoint)
+    if given != sha:
+        raise StartupError(
+            f"the store's {sense!r} vectors were embedded by checkpoint {name} (sha256 "
+            f"{sha[:12]}), but {Path(checkpoint).name} (sha256 {given[:12]}) was named for it: "
+            "serve it without naming a checkpoint (the store's own is used), or move the "
+            f"store to the new one with `tactus reembed --sense {sense} --checkpoint "
+            f"{Path(checkpoint).name}`"
+        )

@@ -45,6 +45,7 @@ class Tenant:
                     tick=self.settings.commit_tick_ms / 1000.0,
                     max_batch=self.settings.commit_max_batch,
                     max_pending=self.settings.commit_max_pending,
+                    max_wait=self.settings.commit_max_wait_ms / 1000.0,
                     # torch threads; an ONNX server never imports torch
                     encode_threads=None if self.settings.onnx else self.settings.torch_threads,
                     nice=self.settings.commit_nice,

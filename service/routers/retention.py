@@ -12,7 +12,7 @@ from dataclasses import asdict
 from fastapi import APIRouter
 
 from tactus_memory.service.deps import MemoryDep, StateDep
-from tactus_memory.service.schemas import RetentionOut
+from tactus_memory.service.schemas import MaintenancePassOut, RetentionOut
 from tactus_memory.storage.retention import POLICY_FIELDS
 
 router = APIRouter(tags=["health"])
@@ -35,4 +35,5 @@ def retention(memory: MemoryDep, state: StateDep) -> RetentionOut:
         maintained_here=cfg.maintain,
         worker=None if state.workers is None else state.workers.index,
         erasure_pending=store.erasure.pending() if cfg.maintain else None,
+        passes=[MaintenancePassOut(**asdict(p)) for p in list(store.passes)],
     )  # fmt: skip

@@ -106,6 +106,7 @@ def serve(
     from tactus_memory.service.startup import (
         check_checkpoint,
         check_location,
+        check_space_options,
         check_touch_senses,
         explain,
         parse_touch_senses,
@@ -145,6 +146,7 @@ def serve(
         check_location(settings.data)
         check_checkpoint(settings.touch_checkpoint if settings.touch else None)
         check_touch_senses(settings.touch_senses)
+        check_space_options(settings.space_path, settings.onnx)
         settings = default_onnx(settings)
         if settings.workers > 1:  # forked before anything heavy is imported
             from tactus_memory.cli.workers import serve_workers, worker_torch_threads
@@ -297,7 +299,7 @@ def run_server(
         host=settings.host,
         port=settings.port,
         log_level=settings.log_level,
-        log_config=log_config(),
+        log_config=log_config(settings.log_level),
         ws_max_size=settings.max_ws_message_bytes,
         ws_per_message_deflate=False,  # noisy sensor frames hardly compress; save the CPU
         timeout_graceful_shutdown=5,
@@ -311,7 +313,14 @@ def run_server(
 
         async def startup(self, sockets: Any = None) -> None:
             await super().startup(sockets=sockets)
-            if self.started:
+            if self.started and worker is not None and worker.index != 0:
+                # one banner for the group (worker 0's); the others say only who they are
+                typer.echo(
+                    f"  worker:         {worker.index} of {worker.count}, pid {os.getpid()}: "
+                    "serving",
+                    err=True,
+                )
+            elif self.started:
                 bound = [s.getsockname() for srv in self.servers for s in (srv.sockets or [])]
                 port = bound[0][1] if bound else settings.port  # --port 0: the one it got
                 url = page_url(settings, port)

@@ -16,6 +16,7 @@ lost. SIGTERM or Ctrl+C stops them all (each commits what it queued).
 from __future__ import annotations
 
 import contextlib
+import mmap
 import os
 import shutil
 import signal
@@ -24,7 +25,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,18 +45,72 @@ def worker_torch_threads(settings: Any) -> Any:
     return settings.model_copy(update={"torch_threads": share})
 
 
+#: bytes per worker in the group's commit counters (one unsigned 64-bit count each)
+COUNTER_BYTES = 8
+COMMITS_FILE = "commits"
+
+
 @dataclass
 class Workers:
-    """What a worker knows of its group: its index, how many, and the markers' folder."""
+    """What a worker knows of its group: its index, how many, and the markers' folder.
+
+    Read-your-writes across workers (issue 48): each worker counts its commits in its own
+    slot of a file the group shares (``commits``, mapped into memory: a write and a read are
+    a few bytes, no system call); before each request a worker compares the others' slots
+    with what it saw when it last read the latest versions of that store, and reads them
+    again when they moved (:meth:`refresh`). A write is counted before it is acknowledged,
+    so a request sent after an acknowledgement sees that write, whichever worker it reaches.
+    """
 
     index: int
     count: int
     folder: Path
+    _counters: Any = None
+    _mine: int = 0
+    _seen: dict[int, bytes] = field(default_factory=dict)
+
+    def open_counters(self) -> None:
+        """Map the group's commit counters (in the worker, after the fork) and count this
+        worker's commits there from now on."""
+        from tactus_memory.storage.passes import on_any_commit
+
+        with (self.folder / COMMITS_FILE).open("r+b") as fh:
+            self._counters = mmap.mmap(fh.fileno(), COUNTER_BYTES * self.count)
+        on_any_commit(self.count_commit)
+
+    def count_commit(self) -> None:
+        self._mine += 1
+        at = self.index * COUNTER_BYTES
+        self._counters[at : at + COUNTER_BYTES] = self._mine.to_bytes(COUNTER_BYTES, "little")
+
+    def others(self) -> bytes:
+        """The other workers' commit counts, as bytes (equal: nobody else committed)."""
+        at = self.index * COUNTER_BYTES
+        mm = self._counters
+        return mm[:at] + mm[at + COUNTER_BYTES :] if mm is not None else b""
+
+    def refresh(self, memory: Any) -> bool:
+        """Read ``memory``'s tables at their latest version when another worker committed
+        since this one last did for it; True when it did."""
+        now = self.others()
+        key = id(memory)
+        if self._seen.get(key) == now:
+            return False
+        memory.read_latest()  # after the counts were read: a later commit is seen next time
+        self._seen[key] = now
+        return True
 
     def mark_ready(self) -> None:
         tmp = self.folder / f".{self.index}.tmp"
         tmp.write_text(str(os.getpid()))
         os.replace(tmp, self.folder / str(self.index))
+
+    def failed(self, line: str) -> None:
+        """Leave this worker's startup error (one line) for the parent, which prints the
+        first one once: every worker fails alike, and each printing it raced."""
+        tmp = self.folder / f".error-{self.index}.tmp"
+        tmp.write_text(line)
+        os.replace(tmp, self.folder / f"error-{self.index}")
 
     def not_ready(self) -> list[int]:
         """The workers whose models are not loaded (or that are being replaced)."""
@@ -86,9 +141,14 @@ def _worker(
     load_app, run_server = server
     try:
         from tactus_memory.service.startup import explain
+        from tactus_memory.storage.passes import set_maintainer
+
+        set_maintainer(f"worker {group.index}")
+        group.open_counters()
 
         def line(text: str) -> None:
-            say(f"[worker {group.index}] {text}")
+            if group.index == 0:  # the group's progress, once (every worker loads alike)
+                say(text)
 
         try:
             application = load_app(settings, say=line, on_ready=group.mark_ready)
@@ -99,12 +159,12 @@ def _worker(
         except Exception as exc:  # noqa: BLE001  (startup: one line, the group stops)
             if debug:
                 raise
-            say(f"tactus serve: {explain(exc, settings.data)}")
+            group.failed(f"tactus serve: {explain(exc, settings.data)}")
             status = STARTUP_FAILED
         else:
             failed = getattr(application.state.tactus, "load_error", None)
             if failed is not None:
-                say(f"tactus serve: {explain(failed, settings.data)}")
+                group.failed(f"tactus serve: {explain(failed, settings.data)}")
                 status = STARTUP_FAILED
     except BaseException:  # noqa: BLE001
         import traceback
@@ -126,6 +186,7 @@ def serve_workers(
     port = reserve.getsockname()[1]
     settings = settings.model_copy(update={"port": port})
     folder = Path(tempfile.mkdtemp(prefix="tactus-workers-"))
+    (folder / COMMITS_FILE).write_bytes(bytes(COUNTER_BYTES * count))
     pids: dict[int, int] = {}
     stopping = False
 
@@ -169,6 +230,12 @@ def serve_workers(
                 if exit_status == STARTUP_FAILED:
                     status = STARTUP_FAILED
                     stop(signal.SIGTERM, None)  # the others would fail alike
+                    error = folder / f"error-{index}"
+                    say(
+                        error.read_text()
+                        if error.is_file()
+                        else f"tactus serve: worker {index} failed to start"
+                    )
                     continue
                 say(f"tactus serve: worker {index} (pid {pid}) exited ({exit_status}); replaced")
                 start(index)

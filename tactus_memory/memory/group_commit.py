@@ -26,6 +26,15 @@ The queue is bounded by ``max_pending`` items (queued or being
 committed); beyond it :meth:`submit` raises :class:`~tactus_memory.errors.OverloadedError`
 with a ``retry_after`` hint (the service answers 503 + ``Retry-After``).
 
+The WAIT is bounded too (``max_wait`` seconds, issue 48): a write still queued ``max_wait``
+after it arrived is not embedded or committed but refused with OverloadedError when the
+committer reaches it, and :meth:`submit` refuses at once while the oldest queued write has
+waited longer than that (the committer is that far behind); and a batch takes no more items
+than the committer embeds and commits in about ``max_wait`` at its measured rate. So every
+write is either acknowledged within about three times ``max_wait`` (its wait, its batch, and
+the one batch ahead of it in the pipeline), or refused: none is answered late, and each gets
+an answer.
+
 Why: with one commit per glove window, 64 gloves at 30 Hz (240 windows/s) paid 240 encoder
 calls and 240 LanceDB commits per second and acknowledgements fell seconds behind; batched,
 they pay about ``1 / tick`` of each.
@@ -39,9 +48,9 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from typing_extensions import Unpack
@@ -60,6 +69,10 @@ from tactus_memory.storage.rows import PreparedWrite
 
 log = logging.getLogger(__name__)
 
+#: the smallest batch a wait bound lets the committer take (the rate measured on small
+#: batches is mostly their fixed cost: the cap grows back from here as batches grow)
+MIN_BOUNDED_BATCH = 8
+
 
 @dataclass
 class CommitStats:
@@ -72,6 +85,8 @@ class CommitStats:
     failed_writes: int = 0
     batch_retries: int = 0
     rejected: int = 0
+    #: writes refused because they waited (or would wait) longer than ``max_wait``
+    late: int = 0
     largest_batch: int = 0
     commit_seconds: float = 0.0
 
@@ -80,7 +95,7 @@ class CommitStats:
 class _Queued:
     write: PreparedWrite
     future: Future[list[str]]
-    arrived: float = field(default_factory=time.monotonic)
+    arrived: float
     released: bool = False  # no longer counted as pending
 
 
@@ -116,9 +131,19 @@ class GroupCommitter:
         encode_threads: int | None = None,
         nice: int = 0,
         encoder: EncoderProcess | None = None,
+        max_wait: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if tick < 0 or max_batch < 1 or max_pending < 1:
             raise ValueError("tick must be >= 0, max_batch and max_pending >= 1")
+        if max_wait is not None and max_wait <= tick:
+            raise ValueError("max_wait must be longer than tick (or None: unbounded)")
+        self.max_wait = None if max_wait is None else float(max_wait)
+        self.clock = clock
+        #: items per second the committer embedded and committed, over the last batches (an
+        #: average; None: none measured yet): with ``max_wait``, a batch takes at most what
+        #: it commits in about that long (:meth:`_batch_cap`)
+        self._rate: float | None = None
         self.memory = memory
         self.tick = float(tick)
         self.max_batch = int(max_batch)
@@ -170,11 +195,37 @@ class GroupCommitter:
                     f"{self.max_pending}); retry after {self.retry_after:g} s",
                     retry_after=self.retry_after,
                 )
-            self._queue.append(_Queued(write, fut))
+            now = self.clock()
+            late = self._would_wait(now)
+            if late is not None:
+                self.stats.rejected += 1
+                self.stats.late += 1
+                raise self._too_late(late)
+            self._queue.append(_Queued(write, fut, now))
             self._queued_items += n
             self._pending_items += n
             self._cond.notify()
         return fut
+
+    def _would_wait(self, now: float) -> str | None:
+        """Why a write queued ``now`` would wait longer than ``max_wait`` (None: not known to):
+        the oldest queued write already has, so the committer is that far behind. (A rate
+        estimate would not do: a batch of 6 windows costs about what one costs, so items/s
+        measured on small batches refused writes that were committed in time.) Under the
+        condition's lock."""
+        if self.max_wait is None or not self._queue:
+            return None
+        waited = now - self._queue[0].arrived
+        if waited > self.max_wait:
+            return f"the oldest queued write has waited {waited:.2f} s"
+        return None
+
+    def _too_late(self, why: str) -> OverloadedError:
+        return OverloadedError(
+            f"writes would wait longer than the commit wait bound ({self.max_wait:g} s, "
+            f"TACTUS_COMMIT_MAX_WAIT_MS): {why}; not stored, retry after {self.retry_after:g} s",
+            retry_after=self.retry_after,
+        )
 
     def add_many(self, session: str, sense: str, items: Sequence[Any], **kw: Any) -> list[str]:
         """Blocking form of :meth:`submit`: returns the ids once committed."""
@@ -218,21 +269,41 @@ class GroupCommitter:
                 self._cond.wait()
             deadline = self._queue[0].arrived + self.tick
             while not self._closing and self._queued_items < self.max_batch:
-                left = deadline - time.monotonic()
+                left = deadline - self.clock()
                 if left <= 0:
                     break
                 self._cond.wait(left)
             batch: list[_Queued] = []
             n = 0
-            while self._queue and (not batch or n + len(self._queue[0].write) <= self.max_batch):
+            now = self.clock()
+            cap = self._batch_cap()
+            while self._queue and (not batch or n + len(self._queue[0].write) <= cap):
                 q = self._queue.popleft()
                 self._queued_items -= len(q.write)
-                if q.future.set_running_or_notify_cancel():
+                if not q.future.set_running_or_notify_cancel():
+                    # the caller gave up before the commit: not stored, not counted
+                    self._pending_items -= len(q.write)
+                elif self.max_wait is not None and now - q.arrived > self.max_wait:
+                    # waited past the bound: refused now, never acknowledged late
+                    q.released = True
+                    self._pending_items -= len(q.write)
+                    self.stats.rejected += 1
+                    self.stats.late += 1
+                    q.future.set_exception(self._too_late(f"it waited {now - q.arrived:.2f} s"))
+                else:
                     batch.append(q)
                     n += len(q.write)
-                else:  # the caller gave up before the commit: not stored, not counted
-                    self._pending_items -= len(q.write)
             return batch
+
+    def _batch_cap(self) -> int:
+        """Most items in the next batch: ``max_batch``, and with a wait bound no more than the
+        committer embeds and commits within it at its measured rate (at least
+        :data:`MIN_BOUNDED_BATCH`), so an acknowledged write waits at most about the bound
+        in the queue and as long again for its batch (a 256-item batch took ~12 s on a
+        loaded 2-core machine: acks came 18 s late with only the queue bounded)."""
+        if self.max_wait is None or self._rate is None:
+            return self.max_batch
+        return max(MIN_BOUNDED_BATCH, min(self.max_batch, int(self._rate * self.max_wait)))
 
     def _run(self) -> None:
         """The committer thread: take each due batch and embed it, then hand it on."""
@@ -333,3 +404,6 @@ class GroupCommitter:
         s.items += items
         s.largest_batch = max(s.largest_batch, items)
         s.commit_seconds += seconds
+        if items and seconds > 0:  # the committer's rate: an average over the last batches
+            rate = items / seconds
+            self._rate = rate if self._rate is None else 0.7 * self._rate + 0.3 * rate

@@ -195,6 +195,12 @@ class SenseRegistry:
             self._stored[name] = StoredSense(name, sense.modality, sense.dim, provenance, centroid)
             self._live[name], self._live_prov[name] = sense, provenance
 
+    def stored_provenance(self, name: str) -> dict[str, Any] | None:
+        """The provenance the store records for sense ``name`` (the encoder its stored
+        vectors were embedded by), or None when it records no such sense."""
+        stored = self._stored.get(name)
+        return None if stored is None else stored.provenance()
+
     def restore(self, skip: Collection[str] = ()) -> dict[str, str]:
         """Rebuild the live senses the store records (each not live yet, but those in
         ``skip``) through the plug-in registry; returns why each sense that could not be
@@ -351,11 +357,11 @@ class SenseRegistry:
             self._counts = None
         self._seen_versions = seen
 
-    def note_commit(self, before: int) -> None:
-        """After this process committed on top of table version ``before``: the count cache
-        stays exact when nobody else committed in between, else it is dropped."""
-        if self._seen_versions[0] == before == self.store.version() - 1:
-            self._seen_versions = (before + 1, self._seen_versions[1])
+    def note_commit(self, before: int, commits: int = 1) -> None:
+        """After this process made ``commits`` commits on top of table version ``before``: the
+        count cache stays exact when nobody else committed in between, else it is dropped."""
+        if self._seen_versions[0] == before == self.store.version() - commits:
+            self._seen_versions = (before + commits, self._seen_versions[1])
         else:
             self._counts = None
 
@@ -444,17 +450,17 @@ class SenseRegistry:
                 names.append(name)
         return names
 
-    def note_writes(self, before: int, writes: Sequence[Any], replaced: dict[int, int]) -> None:
+    def note_writes(
+        self, before: int, writes: Sequence[Any], replaced: dict[int, int], commits: int = 1
+    ) -> None:
         """After this process committed ``writes`` (``PreparedWrite``; ``replaced``: rows each
-        upsert replaced, by ``id(write)``) on top of items version ``before``. Never raises:
-        the rows are stored and will be acknowledged; a failure here is logged and the counts
-        are re-read when next asked (repaired, not re-committed)."""
+        upsert replaced, by ``id(write)``) in ``commits`` commits on top of items version
+        ``before``. Never raises: the rows are stored and will be acknowledged; a failure here
+        is logged and the counts are re-read when next asked (repaired, not re-committed)."""
         try:
-            self.note_commit(before)
-            if any(w.dup for w in writes):  # an idempotent repeat: recount
-                self.forget_counts()
-            for w in writes:
-                self.note_write(w.sense.name, len(w) - replaced.get(id(w), 0))
+            self.note_commit(before, commits)
+            for w in writes:  # rows written (repeats and unchanged rows are not) less replaced
+                self.note_write(w.sense.name, w.written - replaced.get(id(w), 0))
         except Exception:  # noqa: BLE001  (a cache: dropped and rebuilt)
             log.exception("bookkeeping after a commit failed; the row counts will be re-read")
             self._counts = None

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactus_memory.storage.passes import announce_commit
 from tactus_memory.storage.places import Placement, Trajectory
 from tactus_memory.storage.store import POSES, Store
 from tactus_memory.storage.tables import place_fields, poses_schema
@@ -67,6 +68,13 @@ class PoseStore:
     def version(self) -> int:
         return 0 if self._table is None else int(self._table.version)
 
+    def read_latest(self) -> None:
+        """The poses table at its latest version now (opened if another process made it)."""
+        if self._table is None and POSES in self.store._table_names():
+            self._table = self.store.db.open_table(POSES)
+        if self._table is not None:
+            self._table.checkout_latest()
+
     def write(
         self,
         session: str,
@@ -101,6 +109,7 @@ class PoseStore:
         )
         table = self._create()
         table.add(data)
+        announce_commit()
         self._writes += 1
         if self.store.maintenance.maintain and self._writes % self.store.index.compact_every == 0:
             table.optimize()  # small appends (a stream of pose batches) into few fragments

@@ -84,7 +84,8 @@ class PreparedWrite:
     ``vectors`` ((n, D) unit rows) is filled in when the write is embedded; ``error`` when a
     group commit left this write out (its embedding failed, or its id clashed), ``dup`` the
     rows an earlier write of the same commit already stores (same id, session, sense and
-    payload: an idempotent repeat, written once).
+    payload: an idempotent repeat, written once), ``unchanged`` the rows the store already
+    holds exactly (same id, session, sense and payload: acknowledged, not written again).
     """
 
     session: str
@@ -95,6 +96,7 @@ class PreparedWrite:
     vectors: np.ndarray | None = None
     error: Exception | None = None
     dup: set[int] = field(default_factory=set)
+    unchanged: set[int] = field(default_factory=set)
     #: (index in the caller's items, reason) of each item skipped, not stored
     skipped: list[tuple[int, str]] = field(default_factory=list)
     #: the sense's stored columns per item (``Sense.to_row``), filled in with ``vectors`` by
@@ -105,6 +107,16 @@ class PreparedWrite:
     @property
     def ids(self) -> list[str]:
         return self.batch.ids
+
+    @property
+    def left_out(self) -> set[int]:
+        """The rows not written: repeats within the commit and rows stored as they are."""
+        return self.dup | self.unchanged
+
+    @property
+    def written(self) -> int:
+        """Rows this write adds to the commit."""
+        return len(self) - len(self.left_out)
 
     def __len__(self) -> int:
         return len(self.canon)
@@ -169,13 +181,13 @@ def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table
             for w in writes
         ]
     )
-    return table.take(_row_numbers(writes)) if any(w.dup for w in writes) else table
+    return table.take(_row_numbers(writes)) if any(w.left_out for w in writes) else table
 
 
 def _row_numbers(writes: Sequence[PreparedWrite]) -> list[int]:
     out, at = [], 0
     for w in writes:
-        out.extend(at + i for i in range(len(w)) if i not in w.dup)
+        out.extend(at + i for i in range(len(w)) if i not in w.left_out)
         at += len(w)
     return out
 

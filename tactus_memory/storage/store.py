@@ -38,6 +38,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -46,7 +47,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactus_memory.errors import IdConflictError, SpaceMismatchError
+from tactus_memory.errors import SpaceMismatchError
 from tactus_memory.limits import DEFAULT_READ_CONSISTENCY_S
 from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.storage.codes import CODE_DIMS, codes_of, strip_table
@@ -55,6 +56,7 @@ from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.connect import read_consistency_interval as consistency_from
 from tactus_memory.storage.indexes import StoreIndexes
 from tactus_memory.storage.integrity import IntegrityWatch, check_store
+from tactus_memory.storage.passes import PASSES_KEPT, MaintenancePass, announce_commit, record_pass
 from tactus_memory.storage.retention import Erasure, Retention
 from tactus_memory.storage.tables import IndexConfig, items_schema, meta_schema, senses_schema
 from tactus_memory.storage.threads import start_background
@@ -136,6 +138,7 @@ class Store(StoreIndexes):
         self._last_cleanup = -math.inf
         #: what the last maintenance run did, per table
         self.last_maintenance: list[TableReport] = []
+        self.passes: deque[MaintenancePass] = deque(maxlen=PASSES_KEPT)
         self._items: Any = None
         self._senses: Any = None
         self._meta: Any = None
@@ -289,6 +292,7 @@ class Store(StoreIndexes):
         self._committed(SENSES)
 
     def _committed(self, table: str) -> None:
+        announce_commit()
         self._commits[table] = self._commits.get(table, 0) + 1
         if self.on_commit is not None and self._busy != threading.get_ident():
             self.on_commit()  # (not from maintenance's own commits: it would wait for itself)
@@ -319,24 +323,15 @@ class Store(StoreIndexes):
                 _upsert(self.items, "id", data)
         self._committed(ITEMS)
 
-    def owned_count(self, ids: Sequence[str], session: str, sense: str) -> int:
-        """How many rows an upsert of ``ids`` into (``session``, ``sense``) replaces.
-
-        Raises IdConflictError, naming the first offending id, when any id already belongs to
-        another session or another sense: an upsert never overwrites or moves another
-        session's row. Call it under the memory's commit lock, just before :meth:`write`.
-        """
+    def rows_by_id(self, ids: Sequence[str], columns: Sequence[str] = ()) -> dict[str, Any]:
+        """The stored rows of ``ids`` (any session's: ids are the tenant's) by id: ``id``,
+        ``session``, ``sense`` and ``columns``, in one scan."""
         if self._items is None or not ids:
-            return 0
+            return {}
+        wanted = list(dict.fromkeys(["id", "session", "sense", *columns]))
         with sessions_under(None):  # ids are the tenant's: a prefix key may not reuse one
-            rows = self.scan(Where().ids(ids).sql(), ["id", "session", "sense"]).to_pylist()
-        for row in rows:
-            if row["session"] != session or row["sense"] != sense:
-                raise IdConflictError(
-                    f"item id {row['id']!r} already belongs to another session or sense (not "
-                    f"{sense!r} in session {session!r}); use another id, or delete that item first"
-                )
-        return len(rows)
+            rows = self.scan(Where().ids(list(ids)).sql(), wanted).to_pylist()
+        return {row["id"]: row for row in rows}
 
     def delete(self, where: str) -> None:
         self.integrity.require()
@@ -395,6 +390,12 @@ class Store(StoreIndexes):
         """The meta table's version (caches of meta records key on it)."""
         return 0 if self._meta is None else int(self._meta.version)
 
+    def read_latest(self) -> None:
+        """Every table at its latest version now: read-your-writes across ``--workers``."""
+        for table in (self._items, self._senses, self._meta):
+            if table is not None:
+                table.checkout_latest()
+
     def read_latest_registry(self) -> None:
         """The senses and meta tables at their latest version now (other processes' commits,
         not only within the read consistency interval): a sense swap check."""
@@ -427,6 +428,7 @@ class Store(StoreIndexes):
         if not self._maintenance.acquire(blocking=force):
             return False
         self._busy = threading.get_ident()
+        start = time.time()
         try:
             cfg = self.index
             n = self.count()
@@ -463,6 +465,7 @@ class Store(StoreIndexes):
             return True
         finally:
             self._busy = None
+            record_pass(self.passes, start)  # under the lock: this process's never overlap
             self._maintenance.release()
 
     def _start_cleanup(self) -> None:

@@ -168,7 +168,9 @@ def test_full_queue_pushes_back(memory):
     assert len(memory) == 4
 
 
-def test_upserts_and_appends_in_one_commit(memory):
+def test_upserts_and_appends_in_one_batch(memory):
+    """One batch: the generated id appended, the explicit one merged on ``id`` (its own
+    commit, issue 48: the append never pays the merge-insert's join)."""
     first = memory.add("s", "text", "old text", t=1.0, id="note-1")
     assert first == "note-1"
     before = versions(memory)
@@ -176,7 +178,7 @@ def test_upserts_and_appends_in_one_commit(memory):
         a = gc.submit("s", "text", ["new text"], t=[1.0], ids=["note-1"])
         b = gc.submit("s", "text", ["another"], t=[2.0])
         assert a.result(timeout=30) == ["note-1"] and len(b.result(timeout=30)) == 1
-    assert versions(memory) - before == 1
+    assert versions(memory) - before == 2 and gc.stats.commits == 1
     assert memory.get_item("note-1").text == "new text" and len(memory) == 2
     assert {s.name: s.rows for s in memory.sense_info()}["text"] == 2
 
@@ -198,7 +200,9 @@ def test_http_writes_share_commits(tmp_path):
     n = 12
     # the longest tick the settings allow, and a batch due at n items: writes share commits
     # however slowly a loaded machine runs the threads
-    app = create_app(Settings(commit_tick_ms=1000, commit_max_batch=n), memory=memory)
+    app = create_app(
+        Settings(commit_tick_ms=1000, commit_max_wait_ms=60_000, commit_max_batch=n), memory=memory
+    )
     with TestClient(app) as c:
         results: list[Any] = [None] * n
         start = threading.Barrier(n)
@@ -259,7 +263,9 @@ def test_websocket_streams_go_through_the_group_committer(tmp_path):
     memory = make_memory(tmp_path / "mem")
     before = versions(memory)
     gloves, windows_each = 4, 3
-    settings = Settings(commit_tick_ms=1000, commit_max_batch=gloves * windows_each)
+    settings = Settings(
+        commit_tick_ms=1000, commit_max_wait_ms=60_000, commit_max_batch=gloves * windows_each
+    )
     app = create_app(settings, memory=memory)
     with TestClient(app) as c:
         streams = [
@@ -386,3 +392,76 @@ def test_app_restart_gets_a_fresh_committer(tmp_path):
             assert c.post("/sessions/s/text", json={"text": f"n{i}", "t": 0}).status_code == 201
         assert app.state.tactus.committer.closed
     assert len(memory) == 2
+
+
+# ----------------------------------------------------------------------------- wait bound
+class Clock:
+    """A monotonic clock the test moves (the committer's waits are measured on it)."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_writes_that_waited_past_the_bound_are_refused_not_acknowledged_late(memory):
+    """Issue 48, defect 12: under overload acks came a median 24 s late. With a wait bound
+    (``max_wait``, the server's ``commit_max_wait_ms``) a write still queued past it is
+    refused with a Retry-After when the committer reaches it, a write submitted while the
+    oldest queued one has waited past it is refused at once, and every write gets an
+    answer. The committer is held in the encoder and the clock is the test's: no timing."""
+    touch = GatedTouch(memory.space.dim)
+    memory.add_sense(touch)
+    clock = Clock()
+    gc = GroupCommitter(memory, tick=0.0, max_wait=1.0, retry_after=2.0, clock=clock)
+    try:
+        held = gc.submit("g0", "touch", [window(seed=0)], t=[0.0])
+        assert touch.entered.wait(30), "the first write never reached the encoder"
+        queued = [gc.submit(f"g{i}", "touch", [window(seed=i)], t=[0.0]) for i in (1, 2)]
+        clock.now = 0.4  # within the bound when it arrives
+        within = gc.submit("g3", "text", ["in time"], t=[0.0])
+        clock.now = 1.5  # the queued ones have now waited 1.5 s > 1 s
+        with pytest.raises(OverloadedError, match="wait bound") as refused:
+            gc.submit("g4", "text", ["at once"], t=[0.0])
+        assert refused.value.retry_after == 2.0
+        touch.gate.set()
+        assert len(held.result(timeout=30)) == 1  # taken in time: acknowledged
+        for fut in [*queued, within]:
+            with pytest.raises(OverloadedError, match="waited") as late:
+                fut.result(timeout=30)
+            assert late.value.retry_after == 2.0
+        after = gc.submit("g5", "text", ["after the backlog"], t=[0.0])
+        assert len(after.result(timeout=30)) == 1
+    finally:
+        touch.gate.set()
+        gc.close(timeout=30)
+    sessions = {s.id for s in memory.sessions()}
+    assert sessions == {"g0", "g5"}  # the refused were never stored
+    assert gc.stats.late == 4 and gc.pending == 0
+
+
+def test_the_wait_bound_must_exceed_the_tick(memory):
+    with pytest.raises(ValueError, match="longer than tick"):
+        GroupCommitter(memory, tick=0.5, max_wait=0.5)
+
+
+def test_with_a_wait_bound_a_batch_holds_what_commits_within_it(memory):
+    """A batch under a wait bound takes no more items than the committer commits within the
+    bound at its measured rate (a 256-item batch embedding for seconds made acks late even
+    with the queue bounded). The committer is held while 20 writes queue; the rate is set."""
+    touch = GatedTouch(memory.space.dim)
+    memory.add_sense(touch)
+    gc = GroupCommitter(memory, tick=0.0, max_wait=1.0, clock=Clock())
+    try:
+        held = gc.submit("g", "touch", [window(seed=0)], t=[0.0])
+        assert touch.entered.wait(30)
+        gc._rate = 10.0  # items per second, as if measured: 10 items fit in the 1 s bound
+        futures = [gc.submit(f"s{i}", "text", [f"note {i}"], t=[0.0]) for i in range(20)]
+        touch.gate.set()
+        assert len(held.result(timeout=30)) == 1
+        assert all(len(f.result(timeout=30)) == 1 for f in futures)  # all in time: stored
+    finally:
+        touch.gate.set()
+        gc.close(timeout=30)
+    assert gc.stats.largest_batch <= 10 and gc.stats.commits >= 3 and gc.stats.late == 0

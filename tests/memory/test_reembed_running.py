@@ -133,3 +133,46 @@ def test_a_running_server_refuses_then_embeds_with_the_new_checkpoint(
     old, new = _distances(_stored_vector(memory, new_id), batch[3], encoders)
     assert new < 1e-5 < old, (old, new)
     assert memory.session("g").counts["touch"] == 4
+
+
+def test_a_restarted_server_never_brings_back_the_old_checkpoint(
+    tmp_path, encoders, second_checkpoint, minilm_space
+) -> None:
+    """Issue 48, defect 5: after ``tactus reembed`` moved the store to checkpoint B, a server
+    started again with the shipped checkpoint A re-registered A and stored A's vectors
+    beside B's. Now naming A refuses the start with one line naming both checkpoints (and
+    writes nothing), and a server naming none (the default ONNX server included) opens with
+    the store's own B: its writes are B's embeddings."""
+    from tactus_memory.service.app import register_default_senses
+    from tactus_memory.service.startup import StartupError, explain
+
+    path = tmp_path / "mem"
+    memory = Memory.open(str(path), space=minilm_space)
+    memory.add_sense(encoders[0])
+    batch = windows(4, idle=set())
+    memory.add_many("g", "touch", list(batch[:2]), t=[0.0, 1.0])
+    _reembed(path, second_checkpoint)
+    sha_a = file_sha256(default_checkpoint_path())
+    sha_b = file_sha256(second_checkpoint)
+
+    restarted = Memory.open(str(path), space=minilm_space)
+    named_a = Settings(touch_checkpoint=str(default_checkpoint_path()))
+    with pytest.raises(StartupError) as refused:
+        register_default_senses(restarted, named_a)
+    line = explain(refused.value, str(path))
+    assert "\n" not in line and second_checkpoint.name in line
+    assert default_checkpoint_path().name in line and sha_a[:12] in line and sha_b[:12] in line
+    assert restarted.registry.stored_provenance("touch")["checkpoint_sha256"] == sha_b
+
+    # none named, on the default ONNX server's settings: the store's own checkpoint
+    again = Memory.open(str(path), space=minilm_space)
+    assert register_default_senses(again, Settings(onnx=str(tmp_path / "no-onnx"))) is None
+    assert again.senses["touch"].provenance()["checkpoint_sha256"] == sha_b
+    with serve_app(create_app(Settings(), memory=again)) as base:
+        one = {"frames": batch[2].tolist(), "t": 2.0}
+        r = httpx.post(f"{base}/sessions/g/touch", json=one, timeout=120)
+        assert r.status_code == 201, r.text
+        listed = httpx.get(f"{base}/senses", timeout=60).json()["senses"]
+    assert {s["name"]: s for s in listed}["touch"]["provenance"]["checkpoint_sha256"] == sha_b
+    old, new = _distances(_stored_vector(again, r.json()["ids"][0]), batch[2], encoders)
+    assert new < 1e-5 < old, (old, new)

@@ -79,29 +79,77 @@ def _ordinary(n: int) -> list[tuple[str, dict[str, Any]]]:
     return [(f"/sessions/w{i}/text", {"text": f"ordinary note {i}", "t": 1.0}) for i in range(n)]
 
 
-def test_same_id_twice_in_one_commit_is_written_once_and_the_rest_commits_once(tmp_path):
+def record_commits(memory: Any, monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, int]]:
+    """Every store commit of items from now on, as (``append``/``merge``, rows)."""
+    seen: list[tuple[str, int]] = []
+    real = memory.store.write
+
+    def write(data: Any, *, upsert: bool) -> None:
+        seen.append(("merge" if upsert else "append", data.num_rows))
+        real(data, upsert=upsert)
+
+    monkeypatch.setattr(memory.store, "write", write)
+    return seen
+
+
+def test_same_id_twice_in_one_commit_is_written_once_and_the_rest_commits_once(
+    tmp_path, monkeypatch
+):
     memory, touch = gated_memory(tmp_path / "mem")
     app = create_app(Settings(commit_tick_ms=0), memory=memory)
     repeat = ("/sessions/att0/text", {"text": "x", "t": 1, "id": "a0-1"})
-    before = versions(memory)
+    commits = record_commits(memory, monkeypatch)
     with serve_app(app) as base:
         gate, answers = queued_together(app, base, touch, [repeat, *_ordinary(4), repeat])
         stats = app.state.tactus.committer.stats
     assert gate.status_code == 201
     assert [r.status_code for r in answers] == [201] * 6, [r.text for r in answers]
     assert answers[0].json()["ids"] == answers[-1].json()["ids"] == ["a0-1"]
-    assert versions(memory) - before == 2  # the gate's commit, then ONE for all six
-    assert stats.commits == 2 and stats.failed_writes == 0
+    # the gate's commit, then the batch: the four ordinary notes appended, the id once merged
+    assert commits == [("append", 1), ("append", 4), ("merge", 1)]
+    assert stats.commits == 2 and stats.failed_writes == 0 and stats.batch_retries == 0
     assert len(memory) == 1 + 5 and memory.get_item("a0-1").text == "x"
     assert {s.id: s.n for s in memory.sessions()}["att0"] == 1
 
 
-def test_same_id_with_other_content_fails_alone_with_409(tmp_path):
+def test_racing_ids_never_make_the_other_writers_rows_a_merge_insert(tmp_path, monkeypatch):
+    """Issue 48, defect 3: two pairs of clients re-sending the same ids tick after tick slowed
+    every other writer to 0.33-0.46x: each such tick was ONE merge-insert of every row of
+    the tick (a join over every stored id). Now the other writers' rows are one append; an
+    id re-sent with the content it is stored with is acknowledged and not written again (no
+    merge-insert at all), and the row counts stay exact without a recount."""
+    memory, touch = gated_memory(tmp_path / "mem")
+    app = create_app(Settings(commit_tick_ms=0), memory=memory)
+    pairs = [
+        ("/sessions/att0/text", {"text": "x", "t": 1, "id": "a0-1"}),
+        ("/sessions/att1/text", {"text": "y", "t": 2, "id": "a1-1"}),
+    ]
+    commits = record_commits(memory, monkeypatch)
+    with serve_app(app) as base:
+        for _round in range(3):
+            touch.gate.clear()  # each round queued behind a held commit again
+            touch.entered.clear()
+            racers = [pairs[0], pairs[1], pairs[0], pairs[1]]
+            gate, answers = queued_together(app, base, touch, [*racers, *_ordinary(4)])
+            assert [r.status_code for r in [gate, *answers]] == [201] * 9, [r.text for r in answers]
+        stats = app.state.tactus.committer.stats
+        listed = httpx.get(base + "/sessions", timeout=30).json()["sessions"]
+    merged = [rows for kind, rows in commits if kind == "merge"]
+    appended = [rows for kind, rows in commits if kind == "append"]
+    assert merged == [2]  # the two ids once, the first time; never the other writers' rows
+    assert sum(appended) == 3 + 3 * 4  # the gates' windows and the ordinary notes, appended
+    assert stats.batch_retries == 0 and stats.failed_writes == 0
+    counts = {s["id"]: s["n"] for s in listed}
+    assert counts["att0"] == counts["att1"] == 1 and sum(counts.values()) == 3 + 3 * 4 + 2
+    assert memory.get_item("a0-1").text == "x" and memory.get_item("a1-1").text == "y"
+
+
+def test_same_id_with_other_content_fails_alone_with_409(tmp_path, monkeypatch):
     memory, touch = gated_memory(tmp_path / "mem")
     app = create_app(Settings(commit_tick_ms=0), memory=memory)
     one = ("/sessions/att0/text", {"text": "x", "t": 1, "id": "a0-1"})
     other = ("/sessions/att1/text", {"text": "y", "t": 1, "id": "a0-1"})
-    before = versions(memory)
+    commits = record_commits(memory, monkeypatch)
     with serve_app(app) as base:
         _, answers = queued_together(app, base, touch, [one, *_ordinary(4), other])
     pair = [answers[0], answers[-1]]  # which of them queued first is the threads' business
@@ -109,7 +157,8 @@ def test_same_id_with_other_content_fails_alone_with_409(tmp_path):
     assert [r.status_code for r in answers[1:-1]] == [201] * 4
     (lost,) = [r for r in pair if r.status_code == 409]
     assert lost.json()["type"].endswith("id-conflict")
-    assert versions(memory) - before == 2  # no write-by-write retries
+    # no write-by-write retries: the gate, the four notes, the winner of the id
+    assert commits == [("append", 1), ("append", 4), ("merge", 1)]
     stored = memory.get_item("a0-1")
     winner = "att0" if answers[0].status_code == 201 else "att1"
     assert len(memory) == 1 + 5 and stored.session == winner

@@ -4,7 +4,12 @@ worker 0 alone maintains; ``kill -9`` of a worker while its glove streams loses 
 acknowledged, and the worker is replaced. Frames go as binary ``.npy`` messages of several
 frames (parsed and windowed as one array); an HTTP ``.npy`` body of several windows is stored
 by the group too. "Worker 0 alone maintains" is read from the workers' banners and from what
-each worker's ``/retention`` says it ran."""
+each worker's ``/retention`` says it ran.
+
+Issue 48 on the same server: read-your-writes across the workers (defect 2: 20 write-then-read
+and 20 delete-then-read pairs, each request on a fresh connection, every answer naming its
+worker in ``X-Tactus-Worker``), the startup lines printed once, and each maintenance pass
+recorded and logged with its worker, none overlapping another (defect 13)."""
 
 from __future__ import annotations
 
@@ -107,6 +112,52 @@ def retention_by_worker(base: str) -> dict[int, float | None]:
     return seen
 
 
+PAIRS = 20  # write-then-read and delete-then-read pairs (issue 48, defect 2)
+
+
+def worker_of(r: httpx.Response) -> int:
+    return int(r.headers["x-tactus-worker"])
+
+
+def read_your_writes(base: str) -> None:
+    """Each pair on fresh connections (the kernel spreads them over the workers): a note
+    acknowledged 201 is in the next ``GET /sessions``, a deleted session's clock is 404 at
+    once, whichever worker answers; some pairs must have crossed workers."""
+    crossed = {"write": 0, "delete": 0}
+    for i in range(PAIRS):
+        w = httpx.post(f"{base}/sessions/n{i}/text", json={"text": f"n {i}", "t": 1.0}, timeout=60)
+        assert w.status_code == 201, w.text
+        r = httpx.get(f"{base}/sessions", timeout=60)
+        listed = {s["id"] for s in r.json()["sessions"]}
+        assert f"n{i}" in listed, (i, worker_of(w), worker_of(r))  # its own write, seen
+        crossed["write"] += worker_of(w) != worker_of(r)
+
+        put = httpx.put(
+            f"{base}/sessions/c{i}/clock", json={"sense": "text", "offset": 2.0}, timeout=60
+        )
+        assert put.status_code == 200, put.text
+        d = httpx.delete(f"{base}/sessions/c{i}", timeout=60)
+        assert d.status_code == 200, d.text
+        g = httpx.get(f"{base}/sessions/c{i}/clock", timeout=60)
+        assert g.status_code == 404, (i, worker_of(d), worker_of(g), g.text)  # gone at once
+        crossed["delete"] += worker_of(d) != worker_of(g)
+    assert min(crossed.values()) >= 1, crossed  # the pairs did cross workers
+
+
+def maintenance_passes(base: str) -> list[dict]:
+    """Worker 0's recorded maintenance passes, by start (``GET /retention`` on fresh
+    connections until both workers answered; worker 1's list must be empty)."""
+    seen: dict[int, list[dict]] = {}
+    deadline = time.monotonic() + STARTUP_S
+    while set(seen) != {0, 1} or not seen[0]:
+        assert time.monotonic() < deadline, seen  # a liveness bound only
+        r = httpx.get(base + "/retention", timeout=10)
+        seen[worker_of(r)] = r.json()["passes"]
+        time.sleep(0.05)
+    assert seen[1] == [], seen[1]
+    return sorted(seen[0], key=lambda p: p["start"])
+
+
 def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
     port = free_port()
     base = f"http://127.0.0.1:{port}"
@@ -114,7 +165,7 @@ def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
     data = tmp_path / "mem"
     # a retention policy that expires nothing but makes every maintenance pass visible
     maintained = {"TACTUS_RETAIN_DAYS": "3650", "TACTUS_RETENTION_INTERVAL": "0.5"}
-    env = {"TACTUS_LOG_LEVEL": "warning", "TACTUS_MAINTAIN_INTERVAL": "0.5", **maintained}
+    env = {"TACTUS_LOG_LEVEL": "info", "TACTUS_MAINTAIN_INTERVAL": "0.5", **maintained}
     proc = start_serve(port, data, log, "--workers", "2", env=env)
     gloves = ExitStack()
     try:
@@ -122,12 +173,18 @@ def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
         started = log.read_text()
         assert "2 workers on port" in started
         assert started.count("maintenance:    on") == 1, started  # worker 0's only
-        assert started.count("maintenance:    off (worker 0 maintains)") == 1, started
+        # the startup lines once, not once per worker (issue 48, defect 13)
+        assert started.count("tactus-memory is serving") == 1, started  # one banner
+        assert started.count("opening the memory at") == 2, started  # "..." and "done", once
+        assert started.count("ready: GET /ready") == 1, started
+        assert started.count("of 2, pid") == 2, started  # each worker says who it is, once
         pids = worker_pids(log)
         assert set(pids) == {0, 1} and len(set(pids.values())) == 2
         for pid in pids.values():
             maps = Path(f"/proc/{pid}/maps").read_text()
             assert "onnxruntime" in maps and "libtorch" not in maps  # the light server, each
+
+        read_your_writes(base)
 
         # gloves until each worker holds one (the kernel spreads connections: SO_REUSEPORT)
         held: dict[int, object] = {}
@@ -180,11 +237,18 @@ def test_two_workers_one_port_one_store(tmp_path: Path) -> None:
         passes = retention_by_worker(base)
         assert passes[0] is not None  # worker 0 maintains: its retention passes ran
         assert passes[1] is None  # worker 1 (and its replacement) never ran one
+        ran = maintenance_passes(base)  # worker 0's, each with start and end
+        assert {p["by"] for p in ran} == {"worker 0"} and {p["pid"] for p in ran} == {pids[0]}
+        for a, b in zip(ran, ran[1:], strict=False):
+            assert a["start"] <= a["end"] <= b["start"], (a, b)  # never overlapping
     finally:
         with contextlib.suppress(Exception):  # the killed worker's glove is closed already
             gloves.close()
         stop_process(proc)
     assert proc.returncode == 0, log.read_text()[-3000:]
+    text = log.read_text()
+    assert f"maintenance pass by worker 0 pid {pids[0]}" in text  # each pass logged
+    assert "maintenance pass by worker 1" not in text
     mem = Memory.open(str(data))
     stored = set(mem.store.scan(None, ["id"])["id"].to_pylist())
     assert set(acked[0]) | set(acked[1]) | set(after) <= stored  # nothing acknowledged lost
