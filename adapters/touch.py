@@ -80,7 +80,8 @@ class CalibratedWindow(np.ndarray):
 
 @register("touch")
 class TactusEncoder(Sense):
-    """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``)."""
+    """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``; on
+    ONNX Runtime with ``onnx``, or by default where torch is not installed)."""
 
     modality = "touch"
     validate_options = frozenset({"calibrated", "keep_idle"})
@@ -100,6 +101,11 @@ class TactusEncoder(Sense):
         from tactus_memory.touch.profile import SensorProfile
 
         self.name = validate_sense_name(name)
+        if onnx is None:
+            from tactus_memory.spaces.onnx_runtime import default_onnx_folder, has_torch
+
+            if not has_torch():  # served without the train extra: ONNX Runtime
+                onnx = default_onnx_folder(checkpoint)
         path = Path(checkpoint) if checkpoint is not None else default_checkpoint_path()
         self.ckpt = load_checkpoint(path, device=device, weights=onnx is None)
         #: the torch model, or (``onnx``: a folder of tactus_memory.export.onnx) the ONNX

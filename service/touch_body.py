@@ -52,9 +52,10 @@ def touch_write(
 ) -> tuple[np.ndarray, WriteKwargs]:
     """One touch POST (JSON window, JSON batch or ``.npy`` body) for the touch sense ``sense``
     whose frames are ``shape`` -> (windows (B, K, H, W) float32, the write's keywords for
-    ``GroupCommitter.submit``). A batch (JSON ``windows``,
-    a 4-D ``.npy``) skips its idle windows and names them; one window alone that is idle is
-    refused (422 idle-window), as ``Memory.add`` refuses it."""
+    ``GroupCommitter.submit``). Idle windows are skipped and named (201 with ``skipped``), a
+    batch's (JSON ``windows``, a 4-D ``.npy``) and one window alone alike: a robot that posts
+    one window at a time gets no error for a resting hand, as the stream acknowledges it
+    ``idle``. (``Memory.add`` in Python raises ``IdleWindowError`` for it.)"""
     if ctype in NPY_TYPES:
         arr = load_npy(raw, "npy body")
         h, w = shape
@@ -66,7 +67,7 @@ def touch_write(
         if not t:
             raise InvalidInputError("query parameter 't' is required with an npy body")
         windows = arr[None] if arr.ndim == 3 else arr
-        kw: WriteKwargs = {"t": t, "t_end": t_end, "skip_idle": arr.ndim == 4}
+        kw: WriteKwargs = {"t": t, "t_end": t_end, "skip_idle": True}
         return windows, {**kw, "options": {"calibrated": calibrated}}
     if ctype not in ("application/json", "") and not ctype.endswith("+json"):
         raise HTTPException(
@@ -92,5 +93,5 @@ def touch_write(
         "meta": one.meta,
         "ids": None if one.id is None else [one.id],
         "options": {"calibrated": one.calibrated},
-        "skip_idle": False,
+        "skip_idle": True,
     }

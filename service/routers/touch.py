@@ -55,9 +55,9 @@ REQUEST_BODY: dict[str, Any] = {
         "times], ...}`; H x W is the frame shape of the touch sense `sense` names (default "
         "`touch`, the 32x32 glove; `GET /senses` lists each one's `shape`): a window of "
         "another shape is a 422 naming both, an unknown sense a 404. Frames are RAW sensor "
-        "units unless `calibrated` is true. A batch's "
-        "idle windows (no contact) are skipped and listed in `skipped` (201, the rest "
-        "stored); one window alone that is idle is refused (422 idle-window). " + NPY_DOC
+        "units unless `calibrated` is true. Idle windows (no contact) are skipped and listed "
+        "in `skipped` (201, the rest stored), in a batch and alone alike (one idle window "
+        'alone: 201 with `"ids": []` and `"skipped": [{"index": 0, "reason": "idle"}]`). ' + NPY_DOC
     ),
     response_model=StoredOut,
     responses=problem_responses(404, 413, 415, 422, 503),

@@ -3,8 +3,11 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from typing import Any
 
+import click
 import typer
 from typer.core import TyperGroup
 
@@ -24,6 +27,18 @@ PANELS: dict[str, tuple[str, ...]] = {
     "Data sets": ("data",),
     "Touch encoder: train and evaluate": ("pretrain", "train", "eval", "baseline", "ablate"),
 }
+#: what a command may raise that the command line answers itself (usage errors, exits): Typer's
+#: own click (its ClickException, the base of typer.BadParameter) and click's
+KEPT: tuple[type[BaseException], ...] = (
+    typer.Exit,
+    typer.Abort,
+    *(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"),
+    click.exceptions.ClickException,
+    click.exceptions.Exit,
+    click.exceptions.Abort,
+)
+#: the exit status of a command that failed (click's usage errors also exit 2)
+EXIT_FAILED = 2
 _ORDER = {name: i for i, name in enumerate(n for names in PANELS.values() for n in names)}
 
 
@@ -47,6 +62,20 @@ class TactusGroup(TyperGroup):
                 if name in self.commands:
                     self.commands[name].rich_help_panel = panel
         _plain_flags(self)
+
+    def invoke(self, ctx: Any) -> Any:
+        """A command that fails says so in one line on stderr and exits 2, never with a
+        traceback (``TACTUS_DEBUG=1`` shows it); click's own errors and exits are kept."""
+        try:
+            return super().invoke(ctx)
+        except KEPT:
+            raise
+        except Exception as exc:
+            if os.environ.get("TACTUS_DEBUG"):
+                raise
+            message = " ".join(str(exc).split()) or type(exc).__name__
+            print(f"error: {message} ({type(exc).__name__})", file=sys.stderr)
+            raise typer.Exit(EXIT_FAILED) from exc
 
     def list_commands(self, ctx: Any) -> list[str]:
         names = super().list_commands(ctx)

@@ -319,6 +319,12 @@ Split = Annotated[
 ]
 
 
+def output_folder(path: Path) -> Path:
+    """``path`` with its folder made (``--out runs/x.safetensors`` where runs/ is new)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
 def set_threads(n: int) -> None:
     """Cap torch's CPU threads at ``n`` (0: torch's default)."""
     import torch

@@ -18,6 +18,7 @@ from tactus_memory.cli.common import (
     Split,
     StagFiles,
     Threads,
+    output_folder,
     set_threads,
 )
 from tactus_memory.cli.sensor_opts import SensorData
@@ -210,6 +211,7 @@ def baseline_train_cmd(
     model selection). With --holdout, the held-out recordings are scored afterwards."""
     logging.basicConfig(level=logging.WARNING)
     set_threads(threads)
+    output_folder(out)
     from tactus_memory.training.baseline import BaselineConfig
     from tactus_memory.training.eval_runs import train_baseline_run
 

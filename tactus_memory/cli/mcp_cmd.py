@@ -75,7 +75,9 @@ def mcp(
     if settings is None:
         from tactus_memory.mcp.stdio import serve_stdio
 
-        server = build_server(memory, allow_writes=allow_writes)
+        # initialize is answered at once: the models load behind (a tool that needs one says
+        # "loading" until they are in)
+        server = build_server(memory, allow_writes=allow_writes, load_in_background=True)
         serve_stdio(server)  # stdout is the protocol's: nothing else may print there
         return
     from tactus_memory.service.mcp_http import run_mcp_http

@@ -181,6 +181,7 @@ def export_rerun_cmd(
 
     memory = _open(data)  # exits when there is no memory there
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         summary = export_rerun(memory, session, out, query=query)
     except (TactusError, ImportError) as exc:
         fail(str(exc))  # exits

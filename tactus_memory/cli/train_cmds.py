@@ -34,11 +34,17 @@ from tactus_memory.cli.common import (
     Threads,
     TrainHoldout,
     WeightDecay,
+    output_folder,
     set_threads,
 )
 from tactus_memory.cli.sensor_opts import SensorData
 from tactus_memory.cli.space_opts import SpaceDim, SpaceName, SpacePath, resolve_or_exit
 from tactus_memory.signatures import grouped
+
+#: MAE pretraining's frames per step: the shipped recipe's on a GPU; on a CPU a quarter of it
+#: (a step of 128 took 13-25 s on a loaded 2-core machine, issue 47)
+PRETRAIN_BATCH_GPU = 128
+PRETRAIN_BATCH_CPU = 32
 
 
 @app.command("pretrain")
@@ -49,7 +55,12 @@ def pretrain_cmd(
     out: Path = typer.Option(..., "--out", help="MAE checkpoint to write (.safetensors)"),
     model: str = typer.Option("tactus-lite", "--model", help="trunk architecture"),
     steps: int = typer.Option(400, "--steps", help="optimizer steps (shipped recipe: 400)"),
-    batch: int = typer.Option(128, "--batch", help="frames per step"),
+    batch: int | None = typer.Option(
+        None,
+        "--batch",
+        help=f"frames per step (default {PRETRAIN_BATCH_GPU} on a GPU, the shipped recipe; "
+        f"{PRETRAIN_BATCH_CPU} on a CPU)",
+    ),
     lr: LearningRate = 1.5e-3,
     seed: Seed = 0,
     holdout: TrainHoldout = "none",
@@ -60,6 +71,7 @@ def pretrain_cmd(
     """MAE-pretrain a trunk on ALL frames of the files (valid or not), minus --holdout."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     set_threads(threads)
+    output_folder(out)
     from tactus_memory.training.pretrain import PretrainConfig, pretrain, recipe_warmup
     from tactus_memory.training.train import _resolve_device, holdout_recordings
 
@@ -67,6 +79,9 @@ def pretrain_cmd(
     d.check_dynamic_range(profile)  # per source file; raises DynamicRangeError
     excl = holdout_recordings(d, holdout)
     warmup = recipe_warmup(steps)
+    device = _resolve_device(device)
+    if batch is None:
+        batch = PRETRAIN_BATCH_GPU if device.startswith("cuda") else PRETRAIN_BATCH_CPU
     cfg = PretrainConfig(model=model, steps=steps, batch=batch, lr=lr, seed=seed, warmup=warmup)
     summary = pretrain(
         d.calibrated(profile),
@@ -75,7 +90,7 @@ def pretrain_cmd(
         out,
         cfg,
         fingerprint=d.fingerprint(),
-        device=_resolve_device(device),
+        device=device,
         resume=resume,
     )
     summary.pop("history", None)
@@ -130,6 +145,7 @@ def training_run(r: Recipe, source: SensorData) -> tuple[Any, Any, Any, int]:
         if value not in choices:
             raise typer.BadParameter(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
     set_threads(r.threads)
+    output_folder(r.out)
     sp = resolve_or_exit(r.space, r.space_path, r.space_dim)
     from tactus_memory.touch.targets import build_targets, target_report
     from tactus_memory.training.pretrain import recipe_warmup

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
@@ -145,12 +146,58 @@ def around_args(side: str) -> type:
     )
 
 
+#: the tools that embed a text (the others read the store only and answer while models load)
+MODEL_TOOLS = frozenset(
+    {"search", "last", "first", "count", "before", "after", "where", "remember", "teach"}
+)
+#: how long a tool call waits for models still loading before it answers "loading"
+LOADING_WAIT_S = 3.0
+
+
+class Loading:
+    """The models loading in a background thread: ``tactus mcp`` over stdio answers
+    ``initialize`` (and ``tools/list``, and the tools that need no model) at once; a tool that
+    embeds a text waits up to :data:`LOADING_WAIT_S` for them, then is a tool error that says
+    it is loading."""
+
+    def __init__(self, memory: Memory) -> None:
+        self.done = threading.Event()
+        self.error: BaseException | None = None
+        self.started = time.monotonic()
+        threading.Thread(target=self._run, args=(memory,), name="mcp-warm", daemon=True).start()
+
+    def _run(self, memory: Memory) -> None:
+        try:
+            warm(memory)
+        except Exception as exc:  # noqa: BLE001  (told to every tool call that needs a model)
+            self.error = exc
+            log.warning("loading the models failed: %s", exc)
+        finally:
+            self.done.set()
+
+    def check(self) -> None:
+        """Return once the models are loaded; else a tool error naming the state."""
+        if not self.done.wait(LOADING_WAIT_S):
+            took = time.monotonic() - self.started
+            raise ToolError(
+                f"loading: the memory is still loading its models ({took:.0f} s so far); "
+                "ask again in a few seconds (sessions, timeline and at answer now)"
+            )
+        if self.error is not None:
+            raise ToolError(f"the models failed to load: {self.error}")
+
+
 def tool_errors(fn: Callable[..., R]) -> Callable[..., R]:
     """The library's typed errors become tool errors with its message (anything else is the
-    SDK's unexpected-error path: logged with its traceback, the server keeps serving)."""
+    SDK's unexpected-error path: logged with its traceback, the server keeps serving). A tool
+    that embeds a text first waits for the models (:class:`Loading`) when they load behind."""
+    needs_model = fn.__name__ in MODEL_TOOLS
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> R:
+        loading = getattr(args[0], "loading", None) if args else None
+        if needs_model and loading is not None:
+            loading.check()
         try:
             return fn(*args, **kwargs)
         except TactusError as exc:
@@ -166,6 +213,8 @@ class MemoryTools(PlaceTools):
         self.memory = memory
         self.compactor = Compactor(memory.store)
         self.on_write = on_write
+        #: the models loading behind (build_server's ``load_in_background``), or None
+        self.loading: Loading | None = None
 
     def _known(self, session: str | None) -> None:
         """An unknown session is a tool error (``no session 'ID'``), as HTTP answers 404,
@@ -383,14 +432,22 @@ def warm(memory: Memory) -> None:
 
 
 def build_server(
-    memory: Memory, *, allow_writes: bool = False, on_write: WriteHook | None = None
+    memory: Memory,
+    *,
+    allow_writes: bool = False,
+    on_write: WriteHook | None = None,
+    load_in_background: bool = False,
 ) -> MCPServer:
     """An MCP server whose tools read (and with ``allow_writes``, add notes to) ``memory``;
-    ``on_write`` is told of every write (:data:`WriteHook`: the audit log)."""
+    ``on_write`` is told of every write (:data:`WriteHook`: the audit log).
+    ``load_in_background``: the models start loading now, in a thread (:class:`Loading`), and
+    the server answers at once (``tactus mcp`` over stdio)."""
     server = MCPServer(
         "tactus-memory", instructions=INSTRUCTIONS, version=tactus_memory.__version__
     )
     tools = MemoryTools(memory, on_write)
+    if load_in_background:
+        tools.loading = Loading(memory)
     read_only = ToolAnnotations(read_only_hint=True, open_world_hint=False)
     for name in READ_TOOLS:
         server.add_tool(getattr(tools, name), name=name, annotations=read_only)

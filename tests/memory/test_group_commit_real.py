@@ -23,8 +23,13 @@ pytestmark = pytest.mark.slow
 GLOVES = 8
 HZ = 30.0  # STAG glove frame rate (frames per second)
 K = 8  # frames per window (the shipped encoder's window)
+#: acknowledgements asked for before the kill; a busy machine gives fewer in KILL_WINDOW_S, and
+#: the kill comes then: every acknowledgement given must survive, however many there are
 ACKED_WINDOWS_BEFORE_KILL = 80
 ACKED_NOTES_BEFORE_KILL = 10
+#: how long the writes run once both kinds have been acknowledged at least once (not a pass/fail
+#: bound: it only decides when the SIGKILL comes)
+KILL_WINDOW_S = 60
 
 
 @pytest.mark.parametrize(
@@ -43,10 +48,14 @@ def test_real_server_group_commit_survives_sigkill(tmp_path, env):
     notes: list[str] = []
     lock = threading.Lock()
     enough = threading.Event()
+    started = threading.Event()  # a window and a note acknowledged: the kill window opens
     errors: list[str] = []
-    failures = ThreadErrors(on_error=enough.set)  # what a worker raised: re-raised after join
+    # what a worker raised: re-raised after join
+    failures = ThreadErrors(on_error=lambda: (enough.set(), started.set()))
 
     def check() -> None:
+        if sum(map(len, windows.values())) >= 1 and notes:
+            started.set()
         if (
             sum(map(len, windows.values())) >= ACKED_WINDOWS_BEFORE_KILL
             and len(notes) >= ACKED_NOTES_BEFORE_KILL
@@ -103,7 +112,11 @@ def test_real_server_group_commit_survives_sigkill(tmp_path, env):
     try:
         for th in threads:
             th.start()
-        assert enough.wait(240), f"too few acks: {sum(map(len, windows.values()))}, {len(notes)}"
+        # wait on progress: the first acknowledgements of both kinds, as long as the server
+        # lives (however slowly a busy machine loads the models), then as many as it gives
+        while not started.wait(5):
+            assert server.proc.poll() is None, server.log.read_text()[-3000:]
+        enough.wait(KILL_WINDOW_S)
     finally:
         server.kill()  # SIGKILL mid-stream: no shutdown hooks, no flush
     assert server.proc.returncode == -signal.SIGKILL
@@ -114,6 +127,7 @@ def test_real_server_group_commit_survives_sigkill(tmp_path, env):
     with lock:
         acked = {s: list(ids) for s, ids in windows.items()}
         acked_notes = list(notes)
+    assert sum(map(len, acked.values())) >= 1 and len(acked_notes) >= 1  # the kill came mid-write
 
     server = Server(data, tmp_path / "server.log", env=env)
     try:

@@ -1,7 +1,8 @@
 """Issue 36, defect 7: idle windows (no contact) in a batch are skipped and named, not a
 refusal of the whole batch, from Python (``add_many``) and over HTTP (JSON and .npy batches
 on a real uvicorn), with the real Tactus encoder, MiniLM and a real LanceDB store; one idle window
-posted alone is still refused (422 idle-window, ``Memory.add``: IdleWindowError)."""
+posted alone is skipped the same way (201, ``skipped: [0]``; issue 47), while ``Memory.add``
+raises IdleWindowError."""
 
 from __future__ import annotations
 
@@ -61,9 +62,10 @@ def test_http_batches_answer_201_with_skipped(tmp_path, encoder, minilm_space) -
                        headers=headers, timeout=120)  # fmt: skip
         assert r.status_code == 201, r.text
         assert [s["index"] for s in r.json()["skipped"]] == [2, 5] and r.json()["count"] == 4
-        one = {"frames": batch[2].tolist(), "t": 1.0}  # one window alone: refused
+        one = {"frames": batch[2].tolist(), "t": 1.0}  # one window alone: skipped, as in a batch
         r = httpx.post(f"{base}/sessions/one/touch", json=one, timeout=60)
-        assert r.status_code == 422 and "idle" in r.json()["detail"], r.text
+        assert r.status_code == 201 and r.json()["ids"] == [], r.text
+        assert r.json()["skipped"] == [{"index": 0, "reason": "idle"}]
         r = httpx.post(f"{base}/sessions/one/touch", json={"frames": batch[0].tolist(), "t": 1.0},
                        timeout=60)  # fmt: skip
         assert r.status_code == 201 and r.json()["skipped"] == []

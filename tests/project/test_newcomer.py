@@ -30,6 +30,7 @@ gate file, so nothing depends on timing.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -195,6 +196,7 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
         sessions = {s["id"] for s in httpx.get(base + "/sessions").json()["sessions"]}
         assert {"run1", "tour", "kitchen", "walk", "yard", "desk"} <= sessions, sessions
         assert not {"s1", "s2"} & sessions, sessions  # both deleted
+        agent_calls(clone, env)
         where = httpx.get(base + "/where", params={"q": "picked up the drill", "session": "yard"})
         assert where.json()["places"][0]["position"][0] == pytest.approx(6.0, abs=0.1), where.text
         page_search(base, tmp_path)
@@ -210,6 +212,60 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
     checks += [f"tests/project/{name}" for name in CHECKOUT_TESTS]
     done = subprocess.run(checks, cwd=clone, env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
+
+
+#: the MCP Inspector's CLI's read limit per request: what an agent's client grants a call
+AGENT_TIMEOUT_S = 30
+#: the Inspector's calls, over stdio: tools/list, then a search and a where (the places guide
+#: made session "yard"); a search may say "loading" while the models load behind initialize
+INSPECTOR = """
+import json, sys
+import anyio
+from mcp import Client, StdioServerParameters
+
+async def ask(agent, name, args, said):
+    while True:  # each request answered within the limit: an answer, or "loading: ..."
+        r = await agent.call_tool(name, args)
+        if not (r.is_error and "loading:" in r.content[0].text):
+            return [r.is_error, r.content[0].text]
+        said.append(r.content[0].text)
+        await anyio.sleep(1.0)
+
+async def main():
+    server = StdioServerParameters(command="tactus", args=["mcp", "--data", "./memory"])
+    said = []
+    async with Client(server, read_timeout_seconds=float(sys.argv[1])) as agent:
+        tools = [t.name for t in (await agent.list_tools()).tools]
+        search = await ask(agent, "search", {"query": "picked up the drill", "k": 3}, said)
+        where = await ask(agent, "where", {"query": "picked up the drill", "session": "yard"}, said)
+    print(json.dumps({"tools": tools, "search": search, "where": where, "loading": said}))
+
+anyio.run(main)
+"""
+
+
+def agent_calls(clone: Path, env: dict[str, str]) -> None:
+    """``examples/mcp_client.py`` and the Inspector's calls against ``tactus mcp`` over stdio,
+    each request within the Inspector's limit: initialize answers at once, the models load
+    behind it."""
+    python = str(VENV / "bin" / "python")
+    limit = str(AGENT_TIMEOUT_S)
+    done = subprocess.run(
+        [python, "examples/mcp_client.py", "--timeout", limit],
+        cwd=clone, env=env, capture_output=True, text=True, timeout=BLOCK_S,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.startswith("tools: ") and "where " in done.stdout, done.stdout
+    done = subprocess.run(
+        [python, "-c", INSPECTOR, limit],
+        cwd=clone, env=env, capture_output=True, text=True, timeout=BLOCK_S,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    got = json.loads(done.stdout.splitlines()[-1])
+    assert {"search", "where", "at", "sessions"} <= set(got["tools"]), got
+    assert not got["search"][0] and json.loads(got["search"][1])["hits"], got
+    assert not got["where"][0] and json.loads(got["where"][1])["places"], got
+    assert all("loading: the memory is still loading" in s for s in got["loading"]), got
 
 
 def serving_processes(session: int) -> list[int]:

@@ -709,24 +709,28 @@ def test_stream_idle_windows_are_acknowledged_not_stored(memory):
     assert [it.sense for it in memory.timeline("idle")] == ["touch"]
 
 
-def test_idle_windows_are_refused_the_same_way_from_every_entry_point(memory):
-    """The idle rule is the touch sense's: the same resting window is refused over HTTP
-    (JSON and .npy: 422 idle-window), from Python (IdleWindowError) and on the stream (an
-    "idle" ack, above); nothing is stored, and a window with contact is."""
+def test_idle_windows_are_skipped_the_same_way_from_every_entry_point(memory):
+    """The idle rule is the touch sense's: the same resting window alone is skipped over HTTP
+    (JSON and .npy: 201 with ``skipped: [{index 0, idle}]``, as in a batch) and acknowledged
+    "idle" on the stream (above); Python's ``Memory.add`` raises IdleWindowError. Nothing is
+    stored, and a window with contact is."""
     rest = np.full((2, 32, 32), 512, np.int16)  # raw resting reading, no taxel in contact
     with pytest.raises(IdleWindowError):
         memory.add("py", "touch", rest, t=1.0)
     app = create_app(Settings(), memory=memory)
+    skipped = [{"index": 0, "reason": "idle"}]
     with TestClient(app) as c:
         r = c.post("/sessions/http/touch", json={"frames": rest.tolist(), "t": 1.0})
-        assert_problem(r, 422, "idle")["type"].endswith("idle-window")
+        assert r.status_code == 201 and r.json() == {"ids": [], "count": 0, "skipped": skipped}
         headers = {"content-type": "application/x-npy"}
         r = c.post("/sessions/http/touch?t=1", content=npy_bytes(rest), headers=headers)
-        assert_problem(r, 422, "idle")
+        assert r.status_code == 201 and r.json()["skipped"] == skipped, r.text
+        r = c.post("/sessions/http/touch", json={"windows": [rest.tolist()], "t": [1.0]})
+        assert r.status_code == 201 and r.json()["skipped"] == skipped, r.text
         press = rest.copy()
         press[:, :4, :4] = 620
         r = c.post("/sessions/http/touch", json={"frames": press.tolist(), "t": 2.0})
-        assert r.status_code == 201, r.text
+        assert r.status_code == 201 and r.json()["skipped"] == [], r.text
     assert {s.id: s.n for s in memory.sessions()} == {"http": 1}
 
 

@@ -1,0 +1,135 @@
+"""Serving needs no PyTorch: torch, sentence-transformers and the torch export are the ``train``
+extra; the server, a search and a touch write run on ONNX Runtime without them.
+
+Two halves, each cheap:
+
+* what ``pip install tactus-memory[recordings,mcp]`` would pull: the package's own base and
+  serving requirements, followed through the installed distributions' metadata as pip's resolver
+  walks them, never reach torch (a full ``pip install --dry-run`` into a fresh venv gives the
+  same answer but takes over a minute on 2 cores: see the closing note of the issue);
+* a real interpreter in which torch is NOT installed: a fresh venv whose site folder holds the
+  test venv's packages less torch, sentence-transformers and transformers (links, no copy). Its
+  ``tactus serve`` exports MiniLM from the safetensors weights into an empty user cache (no
+  torch anywhere), then answers the README tour's touch write, note and search.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata as md
+import os
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from packaging.requirements import Requirement
+
+from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
+
+#: what only the train extra may bring
+TORCH_SIDE = {"torch", "sentence-transformers", "transformers", "triton"}
+#: the extras `make run` installs (Makefile), besides the base
+SERVING_EXTRAS = ("recordings", "mcp")
+#: how long a server may take to answer /ready here (only a server that never starts fails)
+READY_S = 600
+
+
+def _norm(name: str) -> str:
+    return name.lower().replace("_", "-")
+
+
+def _pulled(extras: tuple[str, ...]) -> set[str]:
+    """Every distribution the package's base (and ``extras``) requires, transitively, through
+    the installed metadata; markers are evaluated as pip does (extras of dependencies only as
+    they are asked for)."""
+    seen: set[str] = set()
+    todo: list[tuple[str, frozenset[str]]] = [("tactus-memory", frozenset(extras))]
+    while todo:
+        name, wanted = todo.pop()
+        try:
+            reqs = md.requires(name) or []
+        except md.PackageNotFoundError:
+            continue  # not installed here (a platform marker's package): nothing to follow
+        for line in reqs:
+            req = Requirement(line)
+            envs = [{"extra": e} for e in wanted] or [{"extra": ""}]
+            if req.marker is not None and not any(req.marker.evaluate(env) for env in envs):
+                continue
+            dep = _norm(req.name)
+            key = f"{dep}[{','.join(sorted(req.extras))}]"
+            if key in seen:
+                continue
+            seen.add(key)
+            todo.append((dep, frozenset(req.extras)))
+    return {k.split("[")[0] for k in seen}
+
+
+def test_the_serving_install_never_pulls_torch() -> None:
+    serving = _pulled(SERVING_EXTRAS)
+    assert {"lancedb", "onnxruntime", "tokenizers", "mcp", "fastapi"} <= serving
+    assert serving.isdisjoint(TORCH_SIDE), serving & TORCH_SIDE
+    # and the train extra (which make test installs) is where they are
+    assert {"torch", "sentence-transformers"} <= _pulled(("train",))
+
+
+@pytest.fixture(scope="module")
+def torchless_python(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A fresh venv's interpreter that sees this venv's packages less the torch side."""
+    root = tmp_path_factory.mktemp("torchless")
+    venv = root / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    shadow = root / "site"
+    shadow.mkdir()
+    here = Path(sysconfig.get_paths()["purelib"])
+    for entry in here.iterdir():
+        top = _norm(entry.name.split("-")[0] if entry.name.endswith("-info") else entry.name)
+        if top in TORCH_SIDE or top in {"functorch", "torchgen"}:
+            continue
+        (shadow / entry.name).symlink_to(entry)
+    python = venv / "bin" / "python"
+    site = subprocess.run(
+        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    # addsitedir, not a plain path line: the editable install's own .pth in there runs too
+    (Path(site) / "shadow.pth").write_text(f"import site; site.addsitedir({str(shadow)!r})\n")
+    check = "import importlib.util as u; print(u.find_spec('torch'), u.find_spec('tactus_memory'))"
+    out = subprocess.run([str(python), "-c", check], capture_output=True, text=True, check=True)
+    assert out.stdout.startswith("None ") and "tactus_memory" in out.stdout, out
+    return str(python)
+
+
+@pytest.mark.slow
+def test_the_tour_server_runs_without_torch(torchless_python: str, tmp_path: Path) -> None:
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    log = tmp_path / "serve.log"
+    env = {"TACTUS_CACHE": str(tmp_path / "cache"), "HF_HUB_OFFLINE": "1"}
+    proc = start_serve(port, tmp_path / "memory", log, env=env, python=torchless_python)
+    try:
+        assert wait_ok(proc, base + "/ready", READY_S, interval=0.2) is not None, log.read_text()
+        raw = np.full((8, 32, 32), 512, np.int16)
+        raw[:, 10:22, 8:20] = 700
+        with httpx.Client(base_url=base, timeout=60) as c:
+            touch = c.post("/sessions/a/touch", json={"frames": raw.tolist(), "t": 1.0})
+            assert touch.status_code == 201, touch.text
+            note = c.post("/sessions/a/text", json={"text": "holding a red mug", "t": 2.0})
+            assert note.status_code == 201, note.text
+            hits = c.get("/search", params={"q": "red mug", "k": 5}).json()["hits"]
+            touch_hits = c.get("/search", params={"q": "grasp", "sense": "touch"}).json()["hits"]
+        assert hits and hits[0]["text"] == "holding a red mug"
+        assert touch_hits and touch_hits[0]["sense"] == "touch"
+        maps = Path(f"/proc/{proc.pid}/maps").read_text()
+        assert "onnxruntime" in maps and "libtorch" not in maps
+    finally:
+        stop_process(proc)
+    # the export wrote its check: MiniLM against the shipped reference vectors, no torch
+    checked = list((tmp_path / "cache").rglob("checked.json"))
+    assert len(checked) == 1 and '"torch": false' in checked[0].read_text()
+    assert "Traceback" not in log.read_text()
+    assert os.path.getsize(checked[0].parent / "minilm.onnx.data") > 80_000_000
