@@ -65,6 +65,7 @@ from tactus_memory.service.deps import (
     StateDep,
     TenantDep,
     Writable,
+    Write,
 )
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.service.touch_senses import TouchSenseDep, frame_shape
@@ -135,7 +136,9 @@ def stream_params(websocket: WebSocket, settings: SettingsDep) -> StreamParams:
     return StreamParams(websocket.query_params, settings.window, settings.stride)
 
 
-@router.websocket("/sessions/{session}/touch/stream", name="touch_stream", dependencies=[Writable])
+@router.websocket(
+    "/sessions/{session}/touch/stream", name="touch_stream", dependencies=[Write, Writable]
+)
 async def touch_stream(
     websocket: WebSocket,
     session: SessionId,
