@@ -243,7 +243,7 @@ def group_moments(
     them in time order (t, t_end, session)."""
     by_key: dict[tuple[str, ...], list[Evidence]] = {}
     for e in evidence:
-        key = (e.session, e.sense, e.source) if per_stream else (e.session,)
+        key: tuple[str, ...] = (e.session, e.sense, e.source) if per_stream else (e.session,)
         by_key.setdefault(key, []).append(e)
     out: list[Moment] = []
     for key in sorted(by_key):

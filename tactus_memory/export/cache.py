@@ -151,7 +151,7 @@ def export(folder: Path, touch_checkpoint: str | None = None) -> dict[str, objec
         touch = _max_diff(
             OnnxTouch(tmp, checkpoint_sha256=enc.ckpt.sha256).embed(calibrated), enc.embed(raw)
         )
-        record = {"minilm_max_abs_diff": minilm, "touch_max_abs_diff": touch}
+        record: dict[str, object] = {"minilm_max_abs_diff": minilm, "touch_max_abs_diff": touch}
         if not (minilm < TOLERANCE and touch < TOLERANCE):
             raise RuntimeError(f"the ONNX graphs do not give torch's vectors: {record}")
         (tmp / CHECKED).write_text(json.dumps(record, indent=2) + "\n")

@@ -76,7 +76,9 @@ class EncoderProcess:
 
     def embed(self, sense: Sense, items: Sequence[Any]) -> np.ndarray:
         """``sense.embed(items)`` in the worker: N items -> (N, D)."""
-        record = (registered_name(sense), json.dumps(sense.config(), sort_keys=True))
+        kind = registered_name(sense)
+        assert kind is not None  # only served senses come here (serves)
+        record = (kind, json.dumps(sense.config(), sort_keys=True))
         return self._pool.submit(_embed, record, list(items)).result(EMBED_TIMEOUT_S)
 
     def embed_writes(self, writes: Sequence[PreparedWrite], dim: int) -> None:
@@ -88,7 +90,7 @@ class EncoderProcess:
         try:
             embed_groups(served, dim, embed=self.embed)
         except Exception as exc:  # noqa: BLE001  (the committer's own thread embeds them)
-            if self._pool._broken:  # type: ignore[attr-defined]  (the worker died)
+            if self._pool._broken:  # the worker died
                 self.broken = True
             log.warning("embedding in the encoder process failed (%s); embedding in-thread", exc)
 

@@ -80,7 +80,8 @@ def export_rerun(
     from tactus_memory.touch.render import window_rgba
 
     session = validate_id(session, "session id")
-    items = memory.timeline(session)  # NotFoundError for an unknown session; aligned times
+    # NotFoundError for an unknown session; aligned times
+    items: list[Any] = memory.timeline(session)
     infos = memory.sense_info()
     modality = {s.name: s.modality for s in infos}
     # each touch sense's sensor (its frame shape and taxel layout), as its provenance recorded

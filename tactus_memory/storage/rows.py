@@ -173,7 +173,8 @@ def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table
 
 
 def _row_numbers(writes: Sequence[PreparedWrite]) -> list[int]:
-    out, at = [], 0
+    out: list[int] = []
+    at = 0
     for w in writes:
         out.extend(at + i for i in range(len(w)) if i not in w.dup)
         at += len(w)

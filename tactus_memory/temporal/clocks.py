@@ -132,9 +132,11 @@ class Clocks:
         """Every recorded clock offset (of one session: its one meta row), sorted."""
         if session is not None:
             streams = session_clock(self.store, validate_id(session, "session id"))
-            offsets = {(session, *k.split("/", 1)): float(v) for k, v in streams.items()}
+            offsets: dict[tuple[str, ...], float] = {
+                (session, *k.split("/", 1)): float(v) for k, v in streams.items()
+            }
         else:
-            offsets = self.offsets()
+            offsets = {k: v for k, v in self.offsets().items()}
         return [
             ClockOffset(session=s, sense=sense, source=source, offset=v)
             for (s, sense, source), v in sorted(offsets.items())

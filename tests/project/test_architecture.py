@@ -156,6 +156,7 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
             "tactus_memory.batches",
             "tactus_memory.query",
             "tactus_memory.matching",
+            "tactus_memory.contract",
         ),
     ),
     ("models", ("tactus_memory.spaces", "tactus_memory.touch", "tactus_memory.datasets")),
