@@ -46,8 +46,8 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.registry import register
-from tactus_memory.sense import Sense, array_to_bytes, validate_sense_name
+from tactus_memory.senses.base import Sense, array_to_bytes, validate_sense_name
+from tactus_memory.senses.plugins import register
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.touch.windows import (

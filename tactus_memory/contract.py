@@ -33,7 +33,7 @@ from tactus_memory.results import (
     Teaching,
     Timeline,
 )
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
 
 
 @runtime_checkable

@@ -78,7 +78,7 @@ from tactus_memory.results import (
     Timeline,
     TimelineItem,
 )
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
 
 #: retry answers: overload (503, the write queue) and rate limits (429)
 RETRY_STATUSES = (429, 503)

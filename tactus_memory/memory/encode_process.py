@@ -10,7 +10,7 @@ process instead, which has its own interpreter lock: the committer's thread only
 validated items and waits (without the lock) for the ``(n, D)`` rows.
 
 The worker rebuilds each sense from its registration (registered name and ``config()``, as
-a reopened store does, :mod:`tactus_memory.registry`), so only a sense that ``create`` can
+a reopened store does, :mod:`tactus_memory.senses.plugins`), so only a sense that ``create`` can
 rebuild without the memory's space is served here (the touch sense: its checkpoint). Until
 the worker has started, or if it dies, :meth:`EncoderProcess.embed_writes` leaves the writes
 alone and the memory embeds them in the committer's thread as before: nothing waits for the
@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.memory.writes import embed_groups
-from tactus_memory.registry import lookup, registered_name
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
+from tactus_memory.senses.plugins import lookup, registered_name
 from tactus_memory.storage.rows import PreparedWrite
 
 log = logging.getLogger(__name__)

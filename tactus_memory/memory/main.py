@@ -24,7 +24,7 @@ without its live object: its query transform is rebuilt from the stored centroid
 (``q - c``, renormalised).
 
 Where the parts live: results in :mod:`tactus_memory.results`, the sense registry in
-:mod:`tactus_memory.search.senses`, the ranked search in :mod:`tactus_memory.search.ranking`,
+:mod:`tactus_memory.senses.stored`, the ranked search in :mod:`tactus_memory.search.ranking`,
 ``Scope`` in :mod:`tactus_memory.query`, ``memory.count``/``last``/... (the methods of
 ``memory.temporal``, named in the class body) in :mod:`tactus_memory.temporal.operators`,
 the places (``memory.where``/``at``/...) in :mod:`tactus_memory.memory.places`.
@@ -70,9 +70,9 @@ from tactus_memory.results import (
 )
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.scoring import Calibration
-from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.search.teaching import Teachings
-from tactus_memory.sense import Sense, bytes_to_array, validate_sense_name
+from tactus_memory.senses.base import Sense, bytes_to_array, validate_sense_name
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.settings import DEFAULT_MEMORY, Settings
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.rows import options_for, summarise
@@ -212,7 +212,7 @@ class Memory(AbstractContextManager["Memory"]):
             space = resolve_space(choice, recorded_space(store.get_meta("space")))
         return cls(store, space, background=background, tenant=tenant)
 
-    # ----------------------------------------------------------- senses (registry.py)
+    # ----------------------------------------------------------- senses (senses/stored.py)
     @property
     def senses(self) -> dict[str, Sense]:
         """Live senses (can embed new items), name -> Sense."""
@@ -225,7 +225,7 @@ class Memory(AbstractContextManager["Memory"]):
 
     def restore_senses(self, skip: Collection[str] = ()) -> dict[str, str]:
         """Rebuild the live senses this store records (all but ``skip``) from their records
-        (:mod:`tactus_memory.registry`); returns why each that could not be was not."""
+        (:mod:`tactus_memory.senses.plugins`); returns why each that could not be was not."""
         return self.registry.restore(skip)
 
     def sense_info(self) -> list[SenseInfo]:

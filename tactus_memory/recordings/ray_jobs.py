@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     import pyarrow as pa
 
     from tactus_memory.recordings.decoding import DecodeSpec
-    from tactus_memory.sense import Sense
+    from tactus_memory.senses.base import Sense
 
 #: ``--ray`` without an address: a Ray instance started on this machine
 LOCAL = "local"

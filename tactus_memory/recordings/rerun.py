@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel
 
-from tactus_memory.sense import bytes_to_array
+from tactus_memory.senses.base import bytes_to_array
 from tactus_memory.where import Where, validate_id
 
 if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them

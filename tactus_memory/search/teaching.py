@@ -42,7 +42,7 @@ from typing_extensions import Unpack
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.query import TeachSpan, teach_span
 from tactus_memory.results import Teaching, label_key
-from tactus_memory.search.senses import SenseRegistry
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
 from tactus_memory.where import Where, session_visible, validate_id

@@ -25,7 +25,7 @@ class Space(ABC):
     has_vision: bool = False
     #: whether the space needs a local model folder (``path``) to be built
     needs_path: bool = False
-    #: what ``tactus_memory.registry.register`` files it under
+    #: what ``tactus_memory.senses.plugins.register`` files it under
     plugin_kind = "space"
 
     @classmethod

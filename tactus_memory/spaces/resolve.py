@@ -21,7 +21,7 @@ from pydantic import ValidationError
 
 from tactus_memory import spaces as registry
 from tactus_memory.errors import SpaceConfigError
-from tactus_memory.registry import lookup
+from tactus_memory.senses.plugins import lookup
 from tactus_memory.settings import Settings
 from tactus_memory.spaces.base import Space
 

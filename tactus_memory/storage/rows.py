@@ -14,7 +14,7 @@ import numpy as np
 
 from tactus_memory.batches import check_ids, check_times, meta_json, per_item
 from tactus_memory.results import SessionSummary, Stored
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
 from tactus_memory.storage.codes import vector_array
 from tactus_memory.storage.places import Placement, given_placement
 from tactus_memory.where import DEFAULT_FRAME, validate_frame

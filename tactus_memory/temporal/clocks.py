@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_CLOCK_OFFSET
 from tactus_memory.results import ClockOffset
-from tactus_memory.sense import validate_sense_name
+from tactus_memory.senses.base import validate_sense_name
 from tactus_memory.storage.store import Store
 from tactus_memory.where import finite_float, validate_id, validate_source
 

@@ -66,7 +66,7 @@ from tactus_memory.results import (
     row_fields,
 )
 from tactus_memory.search.ranking import Ranker
-from tactus_memory.search.senses import SenseRegistry
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
 from tactus_memory.storage.tables import HIT_COLUMNS

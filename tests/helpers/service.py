@@ -12,7 +12,7 @@ import numpy as np
 
 from tactus_memory.adapters.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.errors import IdleWindowError, InvalidInputError
-from tactus_memory.sense import Sense, array_to_bytes
+from tactus_memory.senses.base import Sense, array_to_bytes
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import WindowStream, calibrated_frames, window_idle
 from tactus_memory.vectors import as_unit_rows

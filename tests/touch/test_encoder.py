@@ -13,7 +13,7 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.sense import bytes_to_array
+from tactus_memory.senses.base import bytes_to_array
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.touch.profile import STAG_GLOVE
 from tests.helpers.fakes import HashingSpace

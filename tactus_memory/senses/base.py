@@ -7,7 +7,7 @@ The memory never branches on a sense's name; everything sense-specific lives in 
 
 The implementations live in ``tactus_memory.adapters``, one file each (text, image, vectors,
 touch). Every sense class registers under a name (``@register("text")``,
-:mod:`tactus_memory.registry`); ``config()`` is what a store records to rebuild it with
+:mod:`tactus_memory.senses.plugins`); ``config()`` is what a store records to rebuild it with
 ``create(space, **config)``.
 """
 
@@ -67,7 +67,7 @@ class Sense(ABC):
     #: keyword options ``validate`` takes (``Memory.add(..., options=...)`` passes these on;
     #: e.g. the touch sense's ``calibrated``); options a sense does not declare are not its own
     validate_options: frozenset[str] = frozenset()
-    #: what ``tactus_memory.registry.register`` files it under
+    #: what ``tactus_memory.senses.plugins.register`` files it under
     plugin_kind = "sense"
     #: ROS 2 message types a recording topic of this sense may carry (``from_message``)
     message_types: tuple[str, ...] = ()
