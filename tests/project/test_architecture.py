@@ -238,7 +238,7 @@ def test_layers_import_only_downwards() -> None:
 
 def test_recordings_cut_windows_through_the_sense() -> None:
     """Ingest asks the mapped sense to decode and to window (``Sense.from_message``,
-    ``Sense.window_stream``): it imports no touch module and no sense adapter (the ROS 2
+    ``WindowedSense.window_stream``): it imports no touch module and no sense adapter (the ROS 2
     message helpers of ``adapters/decode.py`` serve every sense)."""
     g = graph()
     deps = g["tactus_memory.recordings.ingest"] | g["tactus_memory.recordings.decoding"]
