@@ -1,25 +1,13 @@
-"""The windowed-sense contract (``senses/windowed.py``): the touch sense implements it, and
-what it promises (frame shape, window parsing, the idle rule, stream cutting) holds."""
+"""The windowed-sense contract (``senses/windowed.py``): what it promises (window parsing,
+stream cutting) holds (the touch sense's own: tests/touch/test_encoder.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tactus_memory.errors import IdleWindowError, InvalidInputError
-from tactus_memory.senses.windowed import WindowedSense
+from tactus_memory.errors import InvalidInputError
 from tests.helpers.service import StandInTouch
-
-
-def test_the_touch_sense_is_a_windowed_sense(enc) -> None:
-    assert isinstance(enc, WindowedSense) and enc.windowed
-    assert enc.frame_shape == (32, 32)
-    idle = np.zeros((4, 32, 32), np.float32)  # calibrated, nobody touching
-    pressed = idle.copy()
-    pressed[:, 8:16, 8:16] = 1.0
-    assert enc.is_idle(idle) and not enc.is_idle(pressed)
-    with pytest.raises(IdleWindowError):  # validate applies the same rule
-        enc.validate(idle, calibrated=True)
 
 
 def test_parse_window_names_the_shape_it_needs() -> None:
