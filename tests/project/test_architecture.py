@@ -154,6 +154,7 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
             "tactus_memory.senses",
             "tactus_memory.vectors",
             "tactus_memory.where",
+            "tactus_memory.times",
             "tactus_memory.spaces.base",
             "tactus_memory.policies",
             "tactus_memory.identity",
