@@ -62,6 +62,7 @@ run: setup
 lint: setup-test
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy -p tactus_memory
 
 test: setup-test lint
 	$(VENV)/bin/pytest -q

@@ -1,5 +1,5 @@
 """The sense adapters, installed as ``tactus_memory.adapters``: one file per sense, each an
-implementation of the contract in :mod:`tactus_memory.sense` registered under its name
+implementation of the contract in :mod:`tactus_memory.senses.base` registered under its name
 (``text``, ``image``, ``vector``, ``touch``), plus ``decode`` for the ROS 2 messages they
 read from recordings. ``touch.TactusEncoder`` imports torch; the others need no model of their own.
 """

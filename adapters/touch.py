@@ -46,8 +46,9 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.registry import register
-from tactus_memory.sense import Sense, array_to_bytes, validate_sense_name
+from tactus_memory.senses.base import array_to_bytes, validate_sense_name
+from tactus_memory.senses.plugins import register
+from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.touch.windows import (
@@ -79,14 +80,13 @@ class CalibratedWindow(np.ndarray):
 
 
 @register("touch")
-class TactusEncoder(Sense):
+class TactusEncoder(WindowedSense):
     """Touch sense backed by a Tactus checkpoint (CPU by default, ``torch.inference_mode``; on
     ONNX Runtime with ``onnx``, or by default where torch is not installed)."""
 
     modality = "touch"
     validate_options = frozenset({"calibrated", "keep_idle"})
     message_types = (IMAGE, *ARRAYS)
-    windowed = True
 
     def __init__(
         self,
@@ -172,10 +172,20 @@ class TactusEncoder(Sense):
         """One recorded touch message -> one (32, 32) frame (``recordings.decode``)."""
         return touch_frame(msg, msgtype, self.profile.shape, where)
 
+    @property
+    def frame_shape(self) -> tuple[int, ...]:
+        """(H, W) of one frame: the checkpoint's sensor profile's."""
+        return tuple(self.profile.shape)
+
     def window_stream(self, window: int, stride: int) -> WindowStream:
         """Raw frames (n, H, W) -> raw windows (K, H, W); no profile: :meth:`validate`
         calibrates each window and judges it idle."""
         return WindowStream(window, stride, profile=None)
+
+    def is_idle(self, window: np.ndarray) -> bool:
+        """A calibrated window (K, H, W) with no frame in contact
+        (:func:`~tactus_memory.touch.windows.window_idle`)."""
+        return window_idle(window)
 
     def validate(
         self, item: Any, *, calibrated: bool | None = None, keep_idle: bool = False

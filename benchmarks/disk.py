@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 from memory import DIM, BenchSpace  # noqa: E402
 from tactus_memory.memory.main import Memory  # noqa: E402
 from tactus_memory.policies import MaintenanceConfig  # noqa: E402
-from tactus_memory.sense import Sense, array_to_bytes  # noqa: E402
+from tactus_memory.senses.base import Sense, array_to_bytes  # noqa: E402
 from tactus_memory.storage.disk import dir_bytes, footprint  # noqa: E402
 
 WINDOW = (8, 32, 32)  # K frames x 32 x 32 taxels, int16 STAG units (a touch row's raw bytes)

@@ -196,7 +196,7 @@ def child_main(data: str, port: int, touch: str) -> None:
 
 
 def ProjectionTouch(dim: int) -> Any:  # noqa: N802  (a factory; keeps imports lazy)
-    from tactus_memory.sense import Sense
+    from tactus_memory.senses.base import Sense
     from tactus_memory.vectors import as_unit_rows
 
     class _Projection(Sense):

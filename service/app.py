@@ -26,7 +26,7 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.errors import UnknownTenantError
-from tactus_memory.registry import create_sense
+from tactus_memory.senses.plugins import create_sense
 from tactus_memory.service.auth import Gate
 from tactus_memory.service.deps import ServiceState, authorize
 from tactus_memory.service.middleware import (
@@ -141,7 +141,7 @@ def open_memory(settings: Settings) -> tuple[Any, str | None]:
 
 def register_default_senses(memory: Any, settings: Settings) -> str | None:
     """The senses the store records, rebuilt from their records (``memory.restore_senses``),
-    then the defaults still missing, by registered name (:mod:`tactus_memory.registry`): touch
+    then the defaults still missing, by registered name (:mod:`tactus_memory.senses.plugins`): touch
     (``settings.touch_checkpoint`` or the shipped checkpoint) and image (vision spaces); text
     comes with the memory. The extra touch senses of ``settings.touch_senses`` (name ->
     checkpoint, on torch) are registered first, as the glove's named checkpoint is. Returns

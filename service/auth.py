@@ -7,30 +7,32 @@ says (:mod:`tactus_memory.storage.keys`); with neither a token nor any key, ever
 the anonymous admin of the default tenant (a local memory, as before keys). Once the store has
 a key, a request without a valid one is refused (401).
 
-:func:`needed_scope` says what a route needs: reads (GET, and the POSTs that only search or
-render) ``read``; writes ``write``; deleting a session and registering a sense ``admin``.
+:func:`needs` is how a route says what it needs, where the route is declared
+(``dependencies=[needs("read")]``, ``deps.Read``/``Write``/``Admin``/``Open``): reads (GET, and
+the POSTs that only search or render) ``read``; writes ``write``; deleting and registering a
+sense ``admin``; the health probes, the static page and the API docs ``open``.
+:func:`declared_scope` reads it back from the route (``deps.authorize``, and the test that
+fails when a route declares none).
 """
 
 from __future__ import annotations
 
 import hmac
 from dataclasses import dataclass
+from typing import Any
 
+from fastapi import Depends
+from fastapi.params import Depends as DependsParam
 from starlette.requests import HTTPConnection
 
 from tactus_memory.identity import DEFAULT_TENANT, TENANT_HEADER, validate_tenant
 from tactus_memory.settings import Settings
-from tactus_memory.storage.keys import KeyStore
+from tactus_memory.storage.keys import KeyStore, check_scope
 
 #: key ids of the principals that are not keys
 OPERATOR, ANONYMOUS = "operator", "anonymous"
-#: routes (by name) whose method says write but which only read: a search by example, a
-#: rendering of the posted window
-READ_POSTS = frozenset({"search_like", "search_like_image", "render_touch_png"})
-#: routes (by name) that only an admin key may call
-ADMIN_ROUTES = frozenset({"delete_session", "add_sense"})
-#: what each method needs, unless the route is named above (a WebSocket stream writes)
-METHOD_SCOPE = {"GET": "read", "HEAD": "read", "DELETE": "admin", "WS": "write"}
+#: the scope of a route anyone may call, with no key (a health probe, the page, the API docs)
+OPEN = "open"
 
 
 @dataclass(frozen=True)
@@ -44,13 +46,33 @@ class Principal:
     sessions: str | None = None
 
 
-def needed_scope(method: str, route_name: str | None) -> str:
-    """The scope a request to the route ``route_name`` with ``method`` needs."""
-    if route_name in ADMIN_ROUTES:
-        return "admin"
-    if route_name in READ_POSTS:
-        return "read"
-    return METHOD_SCOPE.get(method, "write")
+@dataclass(frozen=True)
+class RouteScope:
+    """The scope a route declares, as one of its dependencies (:func:`needs`). Calling it
+    checks nothing: ``deps.authorize`` (which every route but the open ones runs) reads the
+    declared scope from the route and refuses a key whose scope falls short."""
+
+    scope: str
+
+    def __call__(self) -> str:
+        return self.scope
+
+
+def needs(scope: str) -> Any:
+    """The dependency by which a route declares the scope it needs (``read``, ``write``,
+    ``admin``, or :data:`OPEN`)."""
+    if scope != OPEN:
+        check_scope(scope)
+    return Depends(RouteScope(scope))
+
+
+def declared_scope(route: object) -> str | None:
+    """The scope ``route`` declares (None: it declares none). The app's routes carry the
+    dependencies of their router and of their own decorator."""
+    for dep in getattr(route, "dependencies", None) or ():
+        if isinstance(dep, DependsParam) and isinstance(dep.dependency, RouteScope):
+            return dep.dependency.scope
+    return None
 
 
 def bearer(authorization: str | None) -> str | None:

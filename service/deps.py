@@ -33,7 +33,7 @@ from tactus_memory.limits import (
 from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
-from tactus_memory.service.auth import Gate, Principal, needed_scope
+from tactus_memory.service.auth import OPEN, Gate, Principal, declared_scope, needs
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.service.tenancy import Tenant, Tenants
 from tactus_memory.service.write_threads import WriteThreads
@@ -197,9 +197,10 @@ def _caller(
 async def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
     """Every route but the open ones: the caller (``auth.Gate``: the operator's token, a key,
     or anyone on a store with neither; a WebSocket may pass ``?token=``) and whether its
-    scope covers the route (``auth.needed_scope``). 401 for no or a wrong key, 403 for a key
-    whose scope falls short. A write, delete or key change is marked for the audit log
-    (``middleware.AuditMiddleware``), refused or not.
+    scope covers the one the route declares (``auth.needs``: ``Read``, ``Write``, ``Admin``
+    below). 401 for no or a wrong key, 403 for a key whose scope falls short. A write,
+    delete or key change is marked for the audit log (``middleware.AuditMiddleware``),
+    refused or not.
 
     A key limited to sessions (``--sessions PREFIX``) is walled in here, for every route: a
     session in the path outside the prefix is a 404 like a missing session's, and the
@@ -211,7 +212,9 @@ async def authorize(conn: HTTPConnection, state: StateDep) -> Principal:
         how = " or ?token=" if websocket else ""
         raise HTTPException(401, TOKEN_REFUSED + how, headers=BEARER_CHALLENGE)
     route = conn.scope.get("route")
-    need = needed_scope("WS" if websocket else conn.scope["method"], getattr(route, "name", None))
+    need = declared_scope(route)
+    if need is None or need == OPEN:  # the app is built wrong (tests/service: every route)
+        raise RuntimeError(f"route {getattr(route, 'path', conn.url.path)} declares no scope")
     if need != "read":
         conn.state.audit = (principal, f"{'WS' if websocket else conn.scope['method']} "
                             f"{getattr(route, 'path', conn.url.path)}")  # fmt: skip
@@ -268,6 +271,9 @@ def require_touch(state: StateDep, memory: MemoryDep) -> None:
 
 
 Authorized = Depends(authorize)
+#: the scope each route declares, in its decorator (``dependencies=[Read]``): a key of a
+#: weaker scope is refused 403 (``authorize``); ``Open`` routes ask no key at all
+Read, Write, Admin, Open = needs("read"), needs("write"), needs("admin"), needs(OPEN)
 TouchAvailable = Depends(require_touch)
 Writable = Depends(require_writable)
 

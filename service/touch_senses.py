@@ -21,6 +21,7 @@ from fastapi import Depends, Query
 
 from tactus_memory.errors import InvalidInputError, UnknownSenseError
 from tactus_memory.limits import SENSE_NAME_PATTERN
+from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.service.deps import MemoryDep, StateDep
 from tactus_memory.service.problems import ServiceUnavailable
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
@@ -50,7 +51,7 @@ def resolve_touch_sense(memory: Any, name: str, why_default_missing: str | None 
             f"no touch sense {name!r} in this memory; touch senses here: "
             f"{touch_sense_names(memory) or 'none'}"
         )
-    if not getattr(sense, "windowed", False):
+    if not isinstance(sense, WindowedSense):
         raise InvalidInputError(
             f"sense {name!r} is a {sense.modality} sense, not touch: touch windows go to "
             f"{touch_sense_names(memory) or 'no sense here'}"
@@ -58,9 +59,11 @@ def resolve_touch_sense(memory: Any, name: str, why_default_missing: str | None 
     return sense
 
 
-def frame_shape(sense: Any) -> tuple[int, int]:
-    """(H, W) of one frame of ``sense`` (its checkpoint's sensor profile)."""
-    return tuple(sense_profile(sense).shape)  # type: ignore[return-value]
+def frame_shape(sense: WindowedSense) -> tuple[int, int]:
+    """(H, W) of one frame of the touch ``sense`` (the windowed-sense contract's
+    ``frame_shape``: the touch sense's checkpoint's sensor profile)."""
+    h, w = sense.frame_shape
+    return int(h), int(w)
 
 
 def sense_profile(sense: Any) -> SensorProfile:

@@ -13,7 +13,7 @@ _LAZY = {
     "Memory": "tactus_memory.memory.main",
     "Client": "tactus_memory.client.main",
     "Hit": "tactus_memory.results",
-    "Sense": "tactus_memory.sense",
+    "Sense": "tactus_memory.senses.base",
     "TextSense": "tactus_memory.adapters.text",
     "ImageSense": "tactus_memory.adapters.image",
     "VectorSense": "tactus_memory.adapters.vectors",

@@ -69,7 +69,7 @@ from typing import Any
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.results import Evidence, Hit, Moment
-from tactus_memory.sense import validate_sense_name
+from tactus_memory.senses.base import validate_sense_name
 from tactus_memory.signatures import reject_unknown
 from tactus_memory.where import finite_float
 
@@ -243,7 +243,7 @@ def group_moments(
     them in time order (t, t_end, session)."""
     by_key: dict[tuple[str, ...], list[Evidence]] = {}
     for e in evidence:
-        key = (e.session, e.sense, e.source) if per_stream else (e.session,)
+        key: tuple[str, ...] = (e.session, e.sense, e.source) if per_stream else (e.session,)
         by_key.setdefault(key, []).append(e)
     out: list[Moment] = []
     for key in sorted(by_key):

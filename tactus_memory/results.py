@@ -96,7 +96,7 @@ class Item(Span):
     facets: FacetsField = None
 
 
-class Stored(list):  # type: ignore[type-arg]
+class Stored(list[str]):
     """What a write returns: the ids of the items stored, in input order (a list, as
     before), and ``skipped``: ``(index, reason)`` of each input item the sense skipped
     rather than stored (``"idle"``: a touch window with no contact)."""

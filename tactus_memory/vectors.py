@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,7 +18,7 @@ MAX_COMPONENT = 1e15
 
 
 def as_unit_rows(
-    x: np.ndarray | list, dim: int | None = None, *, what: str = "vector"
+    x: np.ndarray | Sequence[float] | list[Any], dim: int | None = None, *, what: str = "vector"
 ) -> np.ndarray:
     """Validate and L2-normalise vectors.
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError
 from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_COORDINATE
-from tactus_memory.sense import validate_sense_name
+from tactus_memory.senses.base import validate_sense_name
 
 
 # --------------------------------------------------------------------------- validation

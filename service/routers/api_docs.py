@@ -15,6 +15,8 @@ from fastapi.openapi.docs import (
 )
 from fastapi.responses import FileResponse, HTMLResponse
 
+from tactus_memory.service.deps import Open
+
 #: Swagger UI's and ReDoc's own builds, as the package ships them
 ASSETS = Path(fastapi_offline.__file__).resolve().parent / "static"
 ASSET_TYPES = {
@@ -39,7 +41,7 @@ def _page(root: str, viewer: str) -> dict[str, str]:
     return {"openapi_url": root + OPENAPI_URL, "title": f"tactus-memory - {viewer}"}
 
 
-@router.get("/docs", response_class=HTMLResponse)
+@router.get("/docs", dependencies=[Open], response_class=HTMLResponse)
 def swagger_ui(request: Request) -> HTMLResponse:
     root = _root(request)
     return get_swagger_ui_html(
@@ -51,12 +53,12 @@ def swagger_ui(request: Request) -> HTMLResponse:
     )
 
 
-@router.get(OAUTH2_REDIRECT_URL, response_class=HTMLResponse)
+@router.get(OAUTH2_REDIRECT_URL, dependencies=[Open], response_class=HTMLResponse)
 def swagger_ui_redirect() -> HTMLResponse:
     return get_swagger_ui_oauth2_redirect_html()
 
 
-@router.get("/redoc", response_class=HTMLResponse)
+@router.get("/redoc", dependencies=[Open], response_class=HTMLResponse)
 def redoc(request: Request) -> HTMLResponse:
     root = _root(request)
     return get_redoc_html(
@@ -67,7 +69,7 @@ def redoc(request: Request) -> HTMLResponse:
     )
 
 
-@router.get(ASSET_PREFIX + "/{name}")
+@router.get(ASSET_PREFIX + "/{name}", dependencies=[Open])
 def asset(name: str) -> FileResponse:
     if name not in ASSET_TYPES or not (ASSETS / name).is_file():
         raise HTTPException(404, f"no API docs asset {name!r}")

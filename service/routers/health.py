@@ -18,7 +18,7 @@ from fastapi import APIRouter
 from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
-from tactus_memory.service.deps import StateDep
+from tactus_memory.service.deps import Open, StateDep
 from tactus_memory.service.problems import ServiceUnavailable, problem_responses
 from tactus_memory.service.readiness import no_paths, service_problem
 from tactus_memory.service.schemas import HealthOut, LiveOut, ReadyOut
@@ -26,13 +26,16 @@ from tactus_memory.service.schemas import HealthOut, LiveOut, ReadyOut
 router = APIRouter(tags=["health"])
 
 
-@router.get("/live", summary="Liveness: the process answers", response_model=LiveOut)
+@router.get(
+    "/live", dependencies=[Open], summary="Liveness: the process answers", response_model=LiveOut
+)
 async def live() -> LiveOut:
     return LiveOut()
 
 
 @router.get(
     "/health",
+    dependencies=[Open],
     summary="Health: the store is readable, and the configuration",
     responses=problem_responses(503),
 )
@@ -57,6 +60,7 @@ async def health(state: StateDep) -> HealthOut:
 
 @router.get(
     "/ready",
+    dependencies=[Open],
     summary="Readiness: the store is readable and the text model is loaded",
     response_model=ReadyOut,
     responses=problem_responses(503),

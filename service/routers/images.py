@@ -18,7 +18,7 @@ from tactus_memory.adapters.image import THUMBNAIL_SIDE
 from tactus_memory.errors import CapabilityError, InvalidInputError
 from tactus_memory.limits import ID_PATTERN, MAX_ID_CHARS, MAX_K
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
-from tactus_memory.service.deps import ItemIdPath, MemoryDep
+from tactus_memory.service.deps import ItemIdPath, MemoryDep, Read
 from tactus_memory.service.images import decode_image, encode_png, is_image_array
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import HitOut, SearchOut
@@ -38,6 +38,7 @@ def _item_image(memory: Any, item_id: str, size: int) -> bytes:
 
 @router.get(
     "/items/{item_id}/image.png",
+    dependencies=[Read],
     summary="A stored image item's thumbnail (PNG)",
     description=(
         f"The thumbnail the item keeps (longest side <= {THUMBNAIL_SIDE} px), shrunk to "
@@ -62,6 +63,7 @@ async def image_png(
 
 @router.post(
     "/search/like/image",
+    dependencies=[Read],
     summary="Find items similar to an uploaded image",
     description=(
         "Multipart: `file` (PNG/JPEG/WebP), optional `k`, `sense` (the image sense, default "

@@ -23,6 +23,7 @@ from tactus_memory.service.deps import (
     SessionId,
     StateDep,
     TenantDep,
+    Write,
     WriteThreadsDep,
 )
 from tactus_memory.service.images import decode_image
@@ -35,6 +36,7 @@ router = APIRouter(prefix="/sessions/{session}", tags=["items"])
 
 @router.post(
     "/text",
+    dependencies=[Write],
     status_code=201,
     summary="Store a note or caption",
     response_model=StoredOut,
@@ -60,6 +62,7 @@ async def add_text(
 
 @router.post(
     "/vectors",
+    dependencies=[Write],
     status_code=201,
     summary="Store precomputed vectors of a registered sense",
     description="For senses whose encoder runs elsewhere (register one with `POST /senses`). "
@@ -88,6 +91,7 @@ async def add_vectors(
 
 @router.post(
     "/image",
+    dependencies=[Write],
     status_code=201,
     summary="Store a camera image (spaces with vision only)",
     description="Multipart upload (`file`: PNG/JPEG/WebP, at most 64 M pixels, sides >= 8 px; "

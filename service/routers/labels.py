@@ -11,7 +11,7 @@ from starlette.concurrency import run_in_threadpool
 
 from tactus_memory.errors import NotFoundError
 from tactus_memory.limits import SENSE_NAME_PATTERN
-from tactus_memory.service.deps import MemoryDep, SessionId
+from tactus_memory.service.deps import Admin, MemoryDep, Read, SessionId, Write
 from tactus_memory.service.label_schemas import ForgottenOut, LabelIn, TaughtListOut, TaughtOut
 from tactus_memory.service.problems import problem_responses
 
@@ -20,6 +20,7 @@ router = APIRouter(tags=["labels"])
 
 @router.post(
     "/sessions/{session}/labels",
+    dependencies=[Write],
     status_code=201,
     summary="Teach an object: this span was a grasp of <label>",
     description=(
@@ -42,6 +43,7 @@ async def teach(session: SessionId, body: LabelIn, memory: MemoryDep) -> TaughtO
 
 @router.get(
     "/labels",
+    dependencies=[Read],
     summary="The objects taught to this memory",
     response_model=TaughtListOut,
     responses=problem_responses(422),
@@ -57,6 +59,7 @@ def list_labels(
 
 @router.delete(
     "/labels/{teaching}",
+    dependencies=[Admin],
     summary="Forget one teaching",
     response_model=ForgottenOut,
     responses=problem_responses(404, 422),

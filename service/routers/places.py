@@ -21,7 +21,15 @@ from tactus_memory.limits import ID_PATTERN, MAX_COORDINATE, MAX_ID_CHARS, MAX_K
 from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.query import FACET_FILTERS
 from tactus_memory.service.arrays import NPY_TYPES, loads_strict, read_npy
-from tactus_memory.service.deps import MemoryDep, PlaceScopeDep, QueryText, ScopeDep, SessionId
+from tactus_memory.service.deps import (
+    MemoryDep,
+    PlaceScopeDep,
+    QueryText,
+    Read,
+    ScopeDep,
+    SessionId,
+    Write,
+)
 from tactus_memory.service.place_schemas import (
     AtOut,
     PlacesOut,
@@ -74,6 +82,7 @@ def _poses(ctype: str, raw: bytes, frame: str, source: str) -> PosesIn | tuple[n
 
 @router.post(
     "/sessions/{session}/poses",
+    dependencies=[Write],
     status_code=201,
     summary="Store a session's poses (its trajectory)",
     description=(
@@ -107,6 +116,7 @@ async def add_poses(
 
 @router.get(
     "/sessions/{session}/poses",
+    dependencies=[Read],
     summary="A session's trajectory, one per frame",
     description="404 for a session with neither items nor poses.",
     response_model=TrajectoriesOut,
@@ -125,6 +135,7 @@ def get_poses(
 
 @router.get(
     "/where",
+    dependencies=[Read],
     summary="Where did something happen?",
     description=(
         "The places where moments matching `q` happened, best first: each with its position "
@@ -146,6 +157,7 @@ def where(
 
 @router.get(
     "/at",
+    dependencies=[Read],
     summary="What happened near a place?",
     description="Items placed within `r` metres of (`x`, `y`, `z`), in time order.",
     responses=problem_responses(404, 422),

@@ -17,7 +17,7 @@ from fastapi import APIRouter, BackgroundTasks, Query
 from fastapi.responses import FileResponse
 
 from tactus_memory.recordings.rerun import export_rerun
-from tactus_memory.service.deps import MemoryDep, SessionId
+from tactus_memory.service.deps import MemoryDep, Read, SessionId
 from tactus_memory.service.problems import ServiceUnavailable, problem_responses
 
 router = APIRouter(prefix="/sessions", tags=["sessions"])
@@ -29,6 +29,7 @@ MAX_QUERY_CHARS = 1000
 
 @router.get(
     "/{session}/export.rrd",
+    dependencies=[Read],
     summary="The session as a Rerun recording (.rrd)",
     response_class=FileResponse,
     responses={

@@ -11,7 +11,7 @@ from dataclasses import asdict
 
 from fastapi import APIRouter
 
-from tactus_memory.service.deps import MemoryDep, StateDep
+from tactus_memory.service.deps import MemoryDep, Read, StateDep
 from tactus_memory.service.schemas import MaintenancePassOut, RetentionOut
 from tactus_memory.storage.retention import POLICY_FIELDS
 
@@ -23,6 +23,7 @@ POLICY = {*POLICY_FIELDS, "erase_deleted", "retain_seconds"}
 
 @router.get(
     "/retention",
+    dependencies=[Read],
     summary="Retention: expiry and thinning policy, items removed, erasure pending",
     response_model=RetentionOut,
 )

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Response
 from tactus_memory.limits import MAX_K
 from tactus_memory.query import Scope
 from tactus_memory.service.arrays import as_touch_array
-from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, ScopeDep
+from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, Read, ScopeDep
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import HitOut, SearchLikeIn, SearchOut
 from tactus_memory.service.touch_senses import frame_shape
@@ -31,6 +31,7 @@ def _out(hits: list) -> SearchOut:
 
 @router.get(
     "",
+    dependencies=[Read],
     summary="Search every sense in natural language",
     description=(
         "Embeds `q` once in the memory's space and searches the chosen senses (default: every "
@@ -89,6 +90,7 @@ def search(
 
 @router.post(
     "/like",
+    dependencies=[Read],
     summary="Find moments similar to an example",
     description=(
         "Give one example: a touch window `frames` (raw sensor units unless `calibrated`), a "

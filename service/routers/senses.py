@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from tactus_memory.adapters.vectors import VectorSense
-from tactus_memory.service.deps import MemoryDep
+from tactus_memory.service.deps import Admin, MemoryDep, Read
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SenseIn, SenseOut, SensesOut
 
@@ -17,7 +17,10 @@ def _senses(memory: object) -> list[SenseOut]:
 
 
 @router.get(
-    "", summary="Registered senses with provenance and row counts", response_model=SensesOut
+    "",
+    dependencies=[Read],
+    summary="Registered senses with provenance and row counts",
+    response_model=SensesOut,
 )
 def list_senses(memory: MemoryDep) -> SensesOut:
     return SensesOut(senses=_senses(memory))
@@ -25,6 +28,7 @@ def list_senses(memory: MemoryDep) -> SensesOut:
 
 @router.post(
     "",
+    dependencies=[Admin],
     status_code=201,
     summary="Register a vector sense (precomputed embeddings, e.g. motion)",
     description=(

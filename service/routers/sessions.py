@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from tactus_memory.errors import NotFoundError
-from tactus_memory.service.deps import MemoryDep, SessionId
+from tactus_memory.service.deps import Admin, MemoryDep, Read, SessionId
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import DeletedOut, SessionOut, SessionsOut
 
@@ -16,13 +16,19 @@ def _out(summary: object) -> SessionOut:
     return SessionOut.model_validate(summary, from_attributes=True)
 
 
-@router.get("", summary="List sessions with counts per sense", response_model=SessionsOut)
+@router.get(
+    "",
+    dependencies=[Read],
+    summary="List sessions with counts per sense",
+    response_model=SessionsOut,
+)
 def list_sessions(memory: MemoryDep) -> SessionsOut:
     return SessionsOut(sessions=[_out(s) for s in memory.sessions()])
 
 
 @router.get(
     "/{session}",
+    dependencies=[Read],
     summary="One session: counts per sense and time span",
     response_model=SessionOut,
     responses=problem_responses(404, 422),
@@ -33,6 +39,7 @@ def get_session(session: SessionId, memory: MemoryDep) -> SessionOut:
 
 @router.delete(
     "/{session}",
+    dependencies=[Admin],
     summary="Delete a session and everything keyed by it (items, clock offsets)",
     description="200 when anything was removed, whether or not the session held items (a "
     "session with only clock offsets is a session too); 404 when nothing was there.",

@@ -28,9 +28,11 @@ from tactus_memory.service.deps import (
     GraspPool,
     MemoryDep,
     QueryText,
+    Read,
     ScopeDep,
     SessionId,
     StreamScopeDep,
+    Write,
 )
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.temporal_schemas import (
@@ -133,6 +135,7 @@ OccurrenceDep = Annotated[Occurrence, Depends()]
 
 @router.get(
     "/last",
+    dependencies=[Read],
     summary="The most recent occurrence of something",
     description="Matching items (per-sense calibrated threshold), merged into occurrences; the "
     "one that started last. `moment` is null when nothing matches; an unknown `session` is "
@@ -146,6 +149,7 @@ def last(question: OccurrenceDep) -> MomentOut:
 
 @router.get(
     "/first",
+    dependencies=[Read],
     summary="The earliest occurrence of something",
     response_model=MomentOut,
 )
@@ -156,6 +160,7 @@ def first(question: OccurrenceDep) -> MomentOut:
 
 @router.get(
     "/count",
+    dependencies=[Read],
     summary="How many distinct times something happened",
     description="Matching items within `merge_gap` seconds of each other (same session) are "
     "one occurrence. `capped` is true when the count is a lower bound.",
@@ -223,6 +228,7 @@ AROUND_ROUTES = {
 for _side, _window_doc in AROUND_ROUTES.items():
     router.get(
         f"/{_side}",
+        dependencies=[Read],
         summary=f"What happened {_side} something",
         description="The best match of `anchor`, then every item of its session (of `sense`) "
         "that " + _window_doc,
@@ -232,6 +238,7 @@ for _side, _window_doc in AROUND_ROUTES.items():
 
 @router.get(
     "/moments",
+    dependencies=[Read],
     summary="Search, grouped into moments (every sense's evidence together)",
     description="Hits of one session whose spans overlap or lie within `gap` seconds (aligned "
     "clocks) form one moment; score = best member + a bonus per other matching sense. The "
@@ -254,6 +261,7 @@ def moments(
 
 @router.get(
     "/sessions/{session}/timeline",
+    dependencies=[Read],
     summary="A session in time order: items, or episodes",
     description="Items (or, with `episodes=true`, episodes: stretches of one stream whose "
     "embeddings stay coherent) in aligned time order. Times filter by overlap. A read: "
@@ -276,6 +284,7 @@ def timeline(
 
 @router.post(
     "/sessions/{session}/episodes",
+    dependencies=[Write],
     summary="Segment a session's streams into episodes (stored)",
     response_model=SegmentOut,
 )
@@ -291,6 +300,7 @@ def segment_episodes(
 
 @router.get(
     "/sessions/{session}/clock",
+    dependencies=[Read],
     summary="The session's clock offsets",
     response_model=ClockOut,
 )
@@ -303,6 +313,7 @@ def get_clock(session: SessionId, memory: MemoryDep) -> ClockOut:
 
 @router.put(
     "/sessions/{session}/clock",
+    dependencies=[Write],
     summary="Set a stream's clock offset (t_aligned = t + offset)",
     response_model=ClockOut,
 )

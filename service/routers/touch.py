@@ -12,7 +12,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 
-from tactus_memory.service.deps import SessionId, StateDep, TenantDep
+from tactus_memory.service.deps import SessionId, StateDep, TenantDep, Write
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SkippedOut, StoredOut, TouchBatchIn, TouchWindowIn
 from tactus_memory.service.touch_body import touch_write
@@ -47,6 +47,7 @@ REQUEST_BODY: dict[str, Any] = {
 
 @router.post(
     "/touch",
+    dependencies=[Write],
     status_code=201,
     summary="Store touch windows (raw sensor units by default)",
     description=(

@@ -57,6 +57,7 @@ from fastapi import APIRouter, Depends, WebSocket, WebSocketDisconnect
 from tactus_memory.errors import IdleWindowError, InvalidInputError, OverloadedError, TactusError
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.memory.group_commit import GroupCommitter
+from tactus_memory.senses.windowed import WindowCutter
 from tactus_memory.service.arrays import as_touch_array, load_npy, loads_strict
 from tactus_memory.service.deps import (
     PrincipalDep,
@@ -65,11 +66,11 @@ from tactus_memory.service.deps import (
     StateDep,
     TenantDep,
     Writable,
+    Write,
 )
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.service.touch_senses import TouchSenseDep, frame_shape
 from tactus_memory.times import check_time
-from tactus_memory.touch.windows import Windows, WindowStream
 
 log = logging.getLogger("tactus_memory.service")
 
@@ -133,7 +134,9 @@ def stream_params(websocket: WebSocket, settings: SettingsDep) -> StreamParams:
     return StreamParams(websocket.query_params, settings.window, settings.stride)
 
 
-@router.websocket("/sessions/{session}/touch/stream", name="touch_stream", dependencies=[Writable])
+@router.websocket(
+    "/sessions/{session}/touch/stream", name="touch_stream", dependencies=[Write, Writable]
+)
 async def touch_stream(
     websocket: WebSocket,
     session: SessionId,
@@ -156,9 +159,9 @@ async def touch_stream(
     await websocket.accept()
 
     stream_id = "ws-" + uuid.uuid4().hex[:16]
-    # the library's stream windowing, without a profile: the touch sense calibrates each
-    # window once (its own profile) and refuses an idle one (IdleWindowError)
-    windower = WindowStream(params.window, params.stride, profile=None)
+    # the sense's own stream cutter (the windowed-sense contract), raw windows: the sense
+    # calibrates each window once (its own profile) and refuses an idle one (IdleWindowError)
+    windower = sense.window_stream(params.window, params.stride)
     # windows handed to the group committer, waiting for their commit (bounded: when full,
     # the receive loop stops reading and TCP pushes back on the glove)
     acks: asyncio.Queue[tuple[int, float, float, asyncio.Future[list[str]]] | None]
@@ -293,7 +296,7 @@ class _Ingested:
     refused it (idle included)."""
 
     frames: int
-    completed: Windows | None = None
+    completed: Any = None  # the cutter's completed windows (``.frames``, ``.t``...)
     windows: list[tuple[float, float, Future[list[str]] | TactusError]] = field(
         default_factory=list
     )
@@ -312,7 +315,7 @@ def _ingest(
     index: int,
     params: StreamParams,
     max_bytes: int,
-    windower: WindowStream,
+    windower: WindowCutter,
     committer: GroupCommitter,
     session: str,
     stream_id: str,

@@ -23,7 +23,7 @@ from starlette.concurrency import run_in_threadpool
 from tactus_memory.errors import InvalidInputError, UnknownSenseError
 from tactus_memory.limits import SENSE_NAME_PATTERN
 from tactus_memory.service.arrays import as_touch_array
-from tactus_memory.service.deps import ItemIdPath, MemoryDep
+from tactus_memory.service.deps import ItemIdPath, MemoryDep, Open, Read
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
 from tactus_memory.service.touch_senses import DEFAULT_TOUCH_SENSE, sense_profile
@@ -67,12 +67,12 @@ LayoutDep = Annotated[View, Depends(_layout)]
 
 
 # ----------------------------------------------------------------------------- the page
-@page_router.get("/", response_class=HTMLResponse)
+@page_router.get("/", dependencies=[Open], response_class=HTMLResponse)
 def index() -> Response:
     return _static_file("index.html")
 
 
-@page_router.get("/static/{name}")
+@page_router.get("/static/{name}", dependencies=[Open])
 def static_file(name: str) -> Response:
     return _static_file(name)
 
@@ -153,6 +153,7 @@ def _item_values(memory: Any, item_id: str, layout: View) -> dict[str, Any]:
 
 @router.get(
     "/items/{item_id}/touch.png",
+    dependencies=[Read],
     summary="A stored touch window as a pressure heat map (PNG)",
     description=(
         "One image per frame (one row, or `columns` per row): calibrated pressure on the "
@@ -177,6 +178,7 @@ async def touch_png(
 
 @router.get(
     "/items/{item_id}/touch.json",
+    dependencies=[Read],
     summary="The numbers behind a stored touch window's heat map",
     description=(
         "For the same query as `touch.png`: `values` (K', H, W) calibrated pressure of the "
@@ -212,6 +214,7 @@ class RenderIn(Strict):
 
 @router.post(
     "/render/touch.png",
+    dependencies=[Read],
     summary="Draw a touch window as a pressure heat map (PNG)",
     description="The same picture as `GET /items/{id}/touch.png`, for a window in the body.",
     response_class=Response,

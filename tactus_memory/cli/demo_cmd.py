@@ -117,7 +117,7 @@ def demo(
     few notes, then five questions whose right answers are known (hit, score, match, right)."""
     from tactus_memory.datasets.home import data_home
     from tactus_memory.memory.main import Memory
-    from tactus_memory.registry import create_sense
+    from tactus_memory.senses.plugins import create_sense
 
     stag = Path(stag_from).expanduser() if stag_from else data_home().stag
     have_stag = (stag / SUBSET / "metadata.mat").is_file()

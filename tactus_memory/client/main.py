@@ -51,6 +51,7 @@ from tactus_memory.client.errors import problem_error
 from tactus_memory.client.params import match_params, npy, scope_params
 from tactus_memory.client.stream import TouchStream
 from tactus_memory.client.teach import TeachingCalls
+from tactus_memory.contract import MemoryAPI
 from tactus_memory.errors import InvalidInputError, NotFoundError, TactusError
 from tactus_memory.identity import auth_headers, validate_tenant
 from tactus_memory.matching import (
@@ -77,7 +78,7 @@ from tactus_memory.results import (
     Timeline,
     TimelineItem,
 )
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
 from tactus_memory.where import check_sort
 
 #: retry answers: overload (503, the write queue) and rate limits (429)
@@ -229,9 +230,10 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         if sense == "touch" or any(i.name == sense and i.modality == "touch"
                                    for i in self.sense_info()):  # fmt: skip
             calibrated = bool((kw.get("options") or {}).get("calibrated", False))
-            base, params = base + "/touch", {"sense": sense}
+            base = base + "/touch"
+            params: dict[str, Any] = {"sense": sense}
             if ids is None and all(m is None for m in metas):  # binary: any batch, exact
-                params.update(t=times, t_end=ends, calibrated=calibrated)
+                params |= {"t": times, "t_end": ends, "calibrated": calibrated}
                 arr = np.stack([np.asarray(w) for w in items]) if items else np.zeros((0,))
                 r = self.request(
                     "POST",
@@ -319,8 +321,9 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
     ) -> list[Moment]:
         """Search grouped into moments (see :meth:`Memory.search_moments`)."""
-        params = {"q": query, "k": k, "gap": gap, **grasp_params(kw := dict(kw))}
-        scope, match = split_match(kw)
+        rest: dict[str, Any] = dict(kw)
+        params = {"q": query, "k": k, "gap": gap, **grasp_params(rest)}
+        scope, match = split_match(rest)
         params.update(scope_params(scope), **match_params(match))
         return [Moment.model_validate(m) for m in self._get("/moments", params)["moments"]]
 
@@ -352,17 +355,14 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         return [Hit.model_validate(h) for h in hits]
 
     # ----------------------------------------------------------------- temporal questions
-    def occurrences(
-        self,
-        query: str,
-        *,
-        merge_gap: float = DEFAULT_MERGE_GAP,
-        per_stream: bool = False,
-        **kw: Unpack[MatchKwargs],
-    ) -> Occurrences:
-        """Distinct occurrences of ``query`` (see :meth:`Memory.occurrences`)."""
-        extra = grasp_params(kw)
-        scope, match = split_match(kw)
+    def occurrences(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> Occurrences:
+        """Distinct occurrences of ``query`` (see :meth:`Memory.occurrences`): the keywords
+        ``merge_gap``, ``per_stream``, ``group``, ``pool`` and the scope's and match's."""
+        rest: dict[str, Any] = dict(kw)
+        merge_gap = rest.pop("merge_gap", DEFAULT_MERGE_GAP)
+        per_stream = rest.pop("per_stream", False)
+        extra = grasp_params(rest)
+        scope, match = split_match(rest)
         params = {"q": query, "merge_gap": merge_gap, "per_stream": per_stream, **extra}
         params.update(scope_params(scope), **match_params(match))
         return Occurrences.model_validate(self._get("/count", params))
@@ -371,28 +371,26 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         """How many distinct times ``query`` happened."""
         return self.occurrences(query, **kw).count
 
-    def _one(self, path: str, query: str, merge_gap: float, kw: MatchKwargs) -> Moment | None:
-        extra = grasp_params(kw := dict(kw))
-        scope, match = split_match(kw)
+    def _one(self, path: str, query: str, kw: OccurrenceKwargs) -> Moment | None:
+        rest: dict[str, Any] = dict(kw)
+        merge_gap = rest.pop("merge_gap", DEFAULT_MERGE_GAP)
+        extra = grasp_params(rest)
+        scope, match = split_match(rest)
         params = {"q": query, "merge_gap": merge_gap, **scope_params(scope), **extra}
         params.update(match_params(match))
         moment = self._get(path, params)["moment"]
         return None if moment is None else Moment.model_validate(moment)
 
-    def last(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
-    ) -> Moment | None:
+    def last(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> Moment | None:
         """The most recent occurrence of ``query``, or None."""
-        return self._one("/last", query, merge_gap, kw)
+        return self._one("/last", query, kw)
 
-    def first(
-        self, query: str, *, merge_gap: float = DEFAULT_MERGE_GAP, **kw: Unpack[MatchKwargs]
-    ) -> Moment | None:
+    def first(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> Moment | None:
         """The earliest occurrence of ``query``, or None."""
-        return self._one("/first", query, merge_gap, kw)
+        return self._one("/first", query, kw)
 
     def _around(self, side: str, anchor: str, window: float, kw: AroundKwargs) -> Context | None:
-        rest = dict(kw)
+        rest: dict[str, Any] = dict(kw)
         anchor_senses = rest.pop("anchor_senses", None)
         scope, match = split_match(rest)
         params = {"anchor": anchor, "window": window, **scope_params(scope)}
@@ -462,3 +460,7 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
     def sense_info(self) -> list[SenseInfo]:
         """Every sense the store knows, with row counts and calibration."""
         return [SenseInfo.model_validate(s) for s in self._get("/senses")["senses"]]
+
+
+#: checked by the type checker (``make lint``): Client implements the memory's contract
+_CONTRACT: type[MemoryAPI] = Client

@@ -18,6 +18,7 @@ import json
 import os
 import shutil
 from pathlib import Path
+from typing import Any
 
 from tactus_memory.spaces.onnx_runtime import (
     MINILM_ONNX,
@@ -31,16 +32,16 @@ from tactus_memory.spaces.onnx_runtime import (
 OPSET = 17
 
 
-def _export(module: object, args: tuple[object, ...], path: Path, names: dict[str, object]) -> None:
+def _export(module: object, args: tuple[object, ...], path: Path, names: dict[str, Any]) -> None:
     import torch
 
     torch.onnx.export(
-        module,  # type: ignore[arg-type]
+        module,
         args,
         str(path),
-        input_names=list(names["inputs"]),  # type: ignore[call-overload]
+        input_names=list(names["inputs"]),
         output_names=["embedding"],
-        dynamic_axes=names["axes"],  # type: ignore[arg-type]
+        dynamic_axes=names["axes"],
         opset_version=OPSET,
         dynamo=False,  # the TorchScript exporter: one self-contained file, no onnxscript
     )
@@ -113,6 +114,7 @@ def export_touch(
     from tactus_memory.touch.checkpoint import default_checkpoint_path, load_checkpoint
 
     ckpt = load_checkpoint(checkpoint or default_checkpoint_path())
+    assert ckpt.model is not None  # load_checkpoint builds the model
     model = ckpt.model.eval()
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from tactus_memory.results import Moment, Place, SessionSummary
-from tactus_memory.sense import bytes_to_array
+from tactus_memory.senses.base import bytes_to_array
 from tactus_memory.storage.store import Store
 from tactus_memory.touch.windows import contact_taxels
 from tactus_memory.where import Where

@@ -27,7 +27,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, TypeVar, cast
 
 from mcp.server.mcpserver import Context, MCPServer
 from mcp.server.mcpserver.exceptions import ToolError
@@ -78,6 +78,7 @@ from tactus_memory.mcp.places import (
 )
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
+from tactus_memory.results import Moment
 from tactus_memory.signatures import grouped
 
 log = logging.getLogger(__name__)
@@ -247,12 +248,13 @@ class MemoryTools(PlaceTools):
         scope = touch.scope(within.scope(near, frame))
         found = self.memory.search(query, k, group=grouping, scope=scope, sort=touch.sort)
         if grouping == "moment":  # as HTTP: the hits are each moment's best member
-            best = [next(h for h in m.hits if h.id == m.best) for m in found]
-            moments = self.compactor.moments(found)
+            moments_found = cast(list[Moment], found)  # group="moment" answers moments
+            best = [next(h for h in m.hits if h.id == m.best) for m in moments_found]
+            moments = self.compactor.moments(moments_found)
             result = SearchResult(query=query, hits=self.compactor.items(best), moments=moments)
         else:
             result = SearchResult(query=query, hits=self.compactor.items(found))
-        return compact(result)  # type: ignore[return-value]
+        return compact(result)
 
     def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
         memory, query = self.memory, ask.query
@@ -269,7 +271,7 @@ class MemoryTools(PlaceTools):
     @grouped(ask=ASK)
     def last(self, ask: Question) -> OccurrenceResult:
         """When did this last happen? The most recent occurrence (found: false if never)."""
-        return compact(self._occurrence(-1, ask))  # type: ignore[return-value]
+        return compact(self._occurrence(-1, ask))
 
     @tool_errors
     @grouped(ask=ASK)
@@ -283,13 +285,13 @@ class MemoryTools(PlaceTools):
         result = CountResult(
             query=ask.query, count=occ.count, capped=occ.capped, occurrences=moments
         )
-        return compact(result)  # type: ignore[return-value]
+        return compact(result)
 
     @tool_errors
     @grouped(ask=ASK)
     def first(self, ask: Question) -> OccurrenceResult:
         """When did this first happen? The earliest occurrence (found: false if never)."""
-        return compact(self._occurrence(0, ask))  # type: ignore[return-value]
+        return compact(self._occurrence(0, ask))
 
     def _around(self, side: str, ask: Any) -> CallToolResult:
         fn = self.memory.before if side == "before" else self.memory.after
@@ -307,14 +309,14 @@ class MemoryTools(PlaceTools):
     def before(self, ask: Any) -> ContextResult:
         """What happened just before something? The anchor's best match, then the items of its
         session that start in the `window` seconds before it."""
-        return self._around("before", ask)  # type: ignore[return-value]
+        return self._around("before", ask)
 
     @tool_errors
     @grouped(ask=around_args("after"))
     def after(self, ask: Any) -> ContextResult:
         """What happened just after something? The anchor's best match, then the items of its
         session that start in the `window` seconds after it ends."""
-        return self._around("after", ask)  # type: ignore[return-value]
+        return self._around("after", ask)
 
     @tool_errors
     def timeline(
@@ -342,12 +344,12 @@ class MemoryTools(PlaceTools):
             frame=frame,
         )
         result = TimelineResult(session=session, items=self.compactor.items(items))
-        return compact(result)  # type: ignore[return-value]
+        return compact(result)
 
     @tool_errors
     def sessions(self) -> SessionsResult:
         """Every session: its id, item counts per sense, and its time span (t_min, t_max)."""
-        return compact(SessionsResult(sessions=self.memory.sessions()))  # type: ignore[return-value]
+        return compact(SessionsResult(sessions=self.memory.sessions()))
 
     @tool_errors
     def remember(
@@ -373,7 +375,7 @@ class MemoryTools(PlaceTools):
             self._written(ctx, "remember", 422, 0)
             raise
         self._written(ctx, "remember", 201, 1)
-        return compact(Remembered(id=item_id, session=session, t=t))  # type: ignore[return-value]
+        return compact(Remembered(id=item_id, session=session, t=t))
 
     def _written(self, ctx: Context | None, tool: str, status: int, count: int) -> None:
         """Tell the write hook (the audit log of ``tactus mcp --http``) about one write."""
@@ -409,7 +411,7 @@ class MemoryTools(PlaceTools):
             raise
         self._written(ctx, "teach", 201, got.windows)
         out = Taught(**{k: v for k, v in got.to_dict().items() if k in Taught.model_fields})
-        return compact(out)  # type: ignore[return-value]
+        return compact(out)
 
     #: the place tools (:class:`~tactus_memory.mcp.places.PlaceTools`), as the others
     where = tool_errors(PlaceTools.where)

@@ -86,7 +86,7 @@ async def run_stdio(server: MCPServer) -> None:
     stdin = anyio.wrap_file(open(0, encoding="utf-8", errors="replace", closefd=False))  # noqa: SIM115
     guard = DepthGuard(stdin)
     lowlevel = server._lowlevel_server  # what MCPServer.run_stdio_async runs
-    async with stdio_server(stdin=guard) as (read_stream, write_stream):  # type: ignore[arg-type]
+    async with stdio_server(stdin=guard) as (read_stream, write_stream):
         guard.reply = write_stream
         guard.ready.set()
         await lowlevel.run(read_stream, write_stream, lowlevel.create_initialization_options())

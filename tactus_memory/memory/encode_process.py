@@ -10,7 +10,7 @@ process instead, which has its own interpreter lock: the committer's thread only
 validated items and waits (without the lock) for the ``(n, D)`` rows.
 
 The worker rebuilds each sense from its registration (registered name and ``config()``, as
-a reopened store does, :mod:`tactus_memory.registry`), so only a sense that ``create`` can
+a reopened store does, :mod:`tactus_memory.senses.plugins`), so only a sense that ``create`` can
 rebuild without the memory's space is served here (the touch sense: its checkpoint). Until
 the worker has started, or if it dies, :meth:`EncoderProcess.embed_writes` leaves the writes
 alone and the memory embeds them in the committer's thread as before: nothing waits for the
@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.memory.writes import embed_groups
-from tactus_memory.registry import lookup, registered_name
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
+from tactus_memory.senses.plugins import lookup, registered_name
 from tactus_memory.storage.rows import PreparedWrite
 
 log = logging.getLogger(__name__)
@@ -76,7 +76,9 @@ class EncoderProcess:
 
     def embed(self, sense: Sense, items: Sequence[Any]) -> np.ndarray:
         """``sense.embed(items)`` in the worker: N items -> (N, D)."""
-        record = (registered_name(sense), json.dumps(sense.config(), sort_keys=True))
+        kind = registered_name(sense)
+        assert kind is not None  # only served senses come here (serves)
+        record = (kind, json.dumps(sense.config(), sort_keys=True))
         return self._pool.submit(_embed, record, list(items)).result(EMBED_TIMEOUT_S)
 
     def embed_writes(self, writes: Sequence[PreparedWrite], dim: int) -> None:
@@ -88,7 +90,7 @@ class EncoderProcess:
         try:
             embed_groups(served, dim, embed=self.embed)
         except Exception as exc:  # noqa: BLE001  (the committer's own thread embeds them)
-            if self._pool._broken:  # type: ignore[attr-defined]  (the worker died)
+            if self._pool._broken:  # the worker died
                 self.broken = True
             log.warning("embedding in the encoder process failed (%s); embedding in-thread", exc)
 

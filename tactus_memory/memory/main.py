@@ -24,10 +24,10 @@ without its live object: its query transform is rebuilt from the stored centroid
 (``q - c``, renormalised).
 
 Where the parts live: results in :mod:`tactus_memory.results`, the sense registry in
-:mod:`tactus_memory.search.senses`, the ranked search in :mod:`tactus_memory.search.ranking`,
+:mod:`tactus_memory.senses.stored`, the ranked search in :mod:`tactus_memory.search.ranking`,
 ``Scope`` in :mod:`tactus_memory.query`, ``memory.count``/``last``/... (the methods of
-``memory.temporal``) in :mod:`tactus_memory.temporal.operators`, the places
-(``memory.where``/``at``/...) in :mod:`tactus_memory.memory.places`.
+``memory.temporal``, named in the class body) in :mod:`tactus_memory.temporal.operators`,
+the places (``memory.where``/``at``/...) in :mod:`tactus_memory.memory.places`.
 
 Extension points (temporal operators and the service build on these, not on LanceDB):
 ``Where`` (validated filter builder: session/senses/ids/source/episode/overlaps/t_range),
@@ -49,9 +49,11 @@ from typing_extensions import Unpack
 
 from tactus_memory.adapters.text import TextSense
 from tactus_memory.batches import AddKwargs, WriteKwargs, one_item
+from tactus_memory.contract import MemoryAPI
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.identity import DEFAULT_TENANT
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
+from tactus_memory.memory.parts import Part
 from tactus_memory.memory.places import Places
 from tactus_memory.memory.writes import WritePath
 from tactus_memory.policies import MaintenanceConfig
@@ -69,9 +71,9 @@ from tactus_memory.results import (
 from tactus_memory.search.ordering import candidates, sort_hits
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.scoring import Calibration
-from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.search.teaching import Teachings
-from tactus_memory.sense import Sense, bytes_to_array, validate_sense_name
+from tactus_memory.senses.base import Sense, bytes_to_array, validate_sense_name
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.settings import DEFAULT_MEMORY, Settings
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.retention import drop_orphaned_teachings
@@ -89,29 +91,6 @@ log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- memory
-#: the temporal questions Memory answers: ``memory.count(q, session=...)`` IS
-#: ``memory.temporal.count`` (one implementation, one docstring; see the end of this module)
-TEMPORAL_QUESTIONS = (
-    "matches", "occurrences", "count", "last", "first", "before", "after", "search_moments",
-    "timeline", "segment_episodes", "episodes", "set_clock_offset", "clock_offsets",
-)  # fmt: skip
-
-
-#: the write calls: ``memory.commit_writes`` IS ``memory.write_path.commit_writes``
-WRITE_CALLS = ("prepare_write", "commit_writes", "validate_item")
-#: the place questions: ``memory.where(q)`` IS ``memory.places.where``
-PLACE_QUESTIONS = ("add_poses", "place_items", "trajectory", "where", "at")
-#: objects you teach: ``memory.teach("drill", session=...)`` IS ``memory.teachings.teach``
-TEACH_CALLS = ("teach", "taught", "forget")
-
-
-def _delegate(part: str, owner: type, name: str) -> Any:
-    """``memory.<name>`` is ``memory.<part>.<name>``."""
-    return property(
-        lambda self: getattr(getattr(self, part), name), doc=getattr(owner, name).__doc__
-    )
-
-
 class Memory(AbstractContextManager["Memory"]):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 
@@ -140,6 +119,38 @@ class Memory(AbstractContextManager["Memory"]):
         self.teachings = Teachings(store, self.registry, space, self.lock)
         self.ranker.steer = self.teachings.steer
         self.add_sense(TextSense(space))
+
+    # ----------------------------------------------------------- the parts' methods
+    # ``memory.count(q, ...)`` IS ``memory.temporal.count``: one implementation and one
+    # docstring, the part's (:class:`~tactus_memory.memory.parts.Part`)
+    # the temporal questions (:mod:`tactus_memory.temporal.operators`)
+    matches = Part("temporal", Temporal.matches)
+    occurrences = Part("temporal", Temporal.occurrences)
+    count = Part("temporal", Temporal.count)
+    last = Part("temporal", Temporal.last)
+    first = Part("temporal", Temporal.first)
+    before = Part("temporal", Temporal.before)
+    after = Part("temporal", Temporal.after)
+    search_moments = Part("temporal", Temporal.search_moments)
+    timeline = Part("temporal", Temporal.timeline)
+    segment_episodes = Part("temporal", Temporal.segment_episodes)
+    episodes = Part("temporal", Temporal.episodes)
+    set_clock_offset = Part("temporal", Temporal.set_clock_offset)
+    clock_offsets = Part("temporal", Temporal.clock_offsets)
+    # the write calls (:mod:`tactus_memory.memory.writes`)
+    prepare_write = Part("write_path", WritePath.prepare_write)
+    commit_writes = Part("write_path", WritePath.commit_writes)
+    validate_item = Part("write_path", WritePath.validate_item)
+    # the place questions (:mod:`tactus_memory.memory.places`)
+    add_poses = Part("places", Places.add_poses)
+    place_items = Part("places", Places.place_items)
+    trajectory = Part("places", Places.trajectory)
+    where = Part("places", Places.where)
+    at = Part("places", Places.at)
+    # objects taught by example (:mod:`tactus_memory.search.teaching`)
+    teach = Part("teachings", Teachings.teach)
+    taught = Part("teachings", Teachings.taught)
+    forget = Part("teachings", Teachings.forget)
 
     # ----------------------------------------------------------- construction
     @classmethod
@@ -187,6 +198,7 @@ class Memory(AbstractContextManager["Memory"]):
             if isinstance(read_consistency_interval, str):
                 read_consistency_interval = settings.read_consistency
             maintenance = maintenance or settings.maintenance()
+        assert not isinstance(read_consistency_interval, str)  # "env" read above
         store = Store(
             tenant_uri(str(path), tenant),
             storage_options=storage_options,
@@ -202,7 +214,7 @@ class Memory(AbstractContextManager["Memory"]):
             space = resolve_space(choice, recorded_space(store.get_meta("space")))
         return cls(store, space, background=background, tenant=tenant)
 
-    # ----------------------------------------------------------- senses (registry.py)
+    # ----------------------------------------------------------- senses (senses/stored.py)
     @property
     def senses(self) -> dict[str, Sense]:
         """Live senses (can embed new items), name -> Sense."""
@@ -215,7 +227,7 @@ class Memory(AbstractContextManager["Memory"]):
 
     def restore_senses(self, skip: Collection[str] = ()) -> dict[str, str]:
         """Rebuild the live senses this store records (all but ``skip``) from their records
-        (:mod:`tactus_memory.registry`); returns why each that could not be was not."""
+        (:mod:`tactus_memory.senses.plugins`); returns why each that could not be was not."""
         return self.registry.restore(skip)
 
     def sense_info(self) -> list[SenseInfo]:
@@ -254,7 +266,7 @@ class Memory(AbstractContextManager["Memory"]):
         :class:`~tactus_memory.errors.IdConflictError` (nothing is written). ``position``
         ``(x, y, z)`` in ``frame`` says where it happened (default: from the session's
         poses, :mod:`tactus_memory.memory.places`)."""
-        batch = one_item(kw)
+        batch: dict[str, Any] = dict(one_item(kw))
         return self.add_many(
             session,
             sense,
@@ -312,7 +324,7 @@ class Memory(AbstractContextManager["Memory"]):
         with self.lock:
             self.store.integrity.require()  # before counting: a damaged store may not count
             n = self.store.count(where)
-            if n:
+            if n and where is not None:  # None (every row): never asked by delete()
                 self.store.delete(where)
                 self.registry.forget_counts()
             return n
@@ -489,11 +501,5 @@ class Memory(AbstractContextManager["Memory"]):
         return reembed(self, sense, encoder, **kw)
 
 
-for _name in TEMPORAL_QUESTIONS:
-    setattr(Memory, _name, _delegate("temporal", Temporal, _name))
-for _name in WRITE_CALLS:
-    setattr(Memory, _name, _delegate("write_path", WritePath, _name))
-for _name in PLACE_QUESTIONS:
-    setattr(Memory, _name, _delegate("places", Places, _name))
-for _name in TEACH_CALLS:
-    setattr(Memory, _name, _delegate("teachings", Teachings, _name))
+#: checked by the type checker (``make lint``): Memory implements the memory's contract
+_CONTRACT: type[MemoryAPI] = Memory

@@ -47,7 +47,7 @@ from tactus_memory.where import (
 )
 
 if TYPE_CHECKING:
-    from tactus_memory.search.senses import SenseRegistry
+    from tactus_memory.senses.stored import SenseRegistry
     from tactus_memory.spaces.base import Space
     from tactus_memory.storage.rows import PreparedWrite
     from tactus_memory.storage.store import Store

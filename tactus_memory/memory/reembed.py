@@ -48,7 +48,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from tactus_memory.errors import InvalidInputError, SenseConflictError
-from tactus_memory.sense import Sense, validate_sense_name
+from tactus_memory.senses.base import Sense, validate_sense_name
 from tactus_memory.storage.codes import code_batches
 from tactus_memory.storage.rows import options_for
 from tactus_memory.storage.tables import items_schema
@@ -60,7 +60,7 @@ if TYPE_CHECKING:
 
     import pyarrow as pa
 
-    from tactus_memory.search.senses import SenseRegistry
+    from tactus_memory.senses.stored import SenseRegistry
     from tactus_memory.spaces.base import Space
     from tactus_memory.storage.store import Store
 

@@ -22,8 +22,8 @@ import numpy as np
 from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.memory.places import Places
 from tactus_memory.results import Stored
-from tactus_memory.search.senses import SenseRegistry
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.rows import PreparedWrite, check_batch, options_for, writes_table
 from tactus_memory.storage.store import Store

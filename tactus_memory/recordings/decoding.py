@@ -16,6 +16,7 @@ from typing import Any
 import tactus_memory.adapters.decode as decode
 from tactus_memory.errors import IdleWindowError, TactusError
 from tactus_memory.recordings.reader import Recording
+from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.storage.rows import options_for
 
 NS = 1_000_000_000
@@ -110,7 +111,7 @@ class DecodeSpec:
             meta = {"topic": m.topic, "type": m.msgtype, "recording": name}
             sense = senses[topic.sense]
             raw = sense.from_message(m.msg, m.msgtype, where)  # the sense decodes its own
-            if not sense.windowed:
+            if not isinstance(sense, WindowedSense):
                 item = accept(sense, raw, self.keep_idle, tally)
                 if item is not None:
                     iid = item_id(self.session, digest, m.topic, ns, i)

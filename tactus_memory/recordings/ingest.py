@@ -46,7 +46,7 @@ from tactus_memory.recordings.poses import (
     tf_ns,
 )
 from tactus_memory.recordings.reader import Recording, TopicInfo, open_recording
-from tactus_memory.registry import lookup
+from tactus_memory.senses.plugins import lookup
 from tactus_memory.where import Where, validate_id
 
 if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them

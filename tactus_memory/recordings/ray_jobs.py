@@ -26,7 +26,7 @@ from __future__ import annotations
 import os
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     import pyarrow as pa
 
     from tactus_memory.recordings.decoding import DecodeSpec
-    from tactus_memory.sense import Sense
+    from tactus_memory.senses.base import Sense
 
 #: ``--ray`` without an address: a Ray instance started on this machine
 LOCAL = "local"
@@ -167,7 +167,7 @@ class _IngestWorker:
                 | {f"skipped:{k}": v for k, v in tally.skipped.items()}
             )
 
-    def _rows(self, stored: Any, chunk: list[Any]) -> Iterator[pa.Table]:
+    def _rows(self, stored: Any, chunk: list[Any]) -> Generator[pa.Table, None, int]:
         """The items table rows of ``chunk`` less the ids already stored; returns how many
         were stored before."""
         ids = [d.id for d in chunk]

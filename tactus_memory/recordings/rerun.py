@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel
 
-from tactus_memory.sense import bytes_to_array
+from tactus_memory.senses.base import bytes_to_array
 from tactus_memory.where import Where, validate_id
 
 if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them
@@ -84,7 +84,8 @@ def export_rerun(
     from tactus_memory.touch.render import window_rgba
 
     session = validate_id(session, "session id")
-    items = memory.timeline(session)  # NotFoundError for an unknown session; aligned times
+    # NotFoundError for an unknown session; aligned times
+    items: list[Any] = memory.timeline(session)
     infos = memory.sense_info()
     modality = {s.name: s.modality for s in infos}
     # each touch sense's sensor (its frame shape and taxel layout), as its provenance recorded

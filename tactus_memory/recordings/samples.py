@@ -109,7 +109,7 @@ def _multi_array(topic: str, log_ns: int, frame: np.ndarray, msgtype: str, dtype
     h, w = frame.shape
     layout = {"dim": [{"label": "rows", "size": h, "stride": h * w},
                       {"label": "cols", "size": w, "stride": w}], "data_offset": 0}  # fmt: skip
-    values = np.asarray(frame, dtype).reshape(-1).tolist()  # Python ints / floats
+    values: list[Any] = np.asarray(frame, dtype).reshape(-1).tolist()  # Python ints / floats
     return Msg(topic, msgtype, log_ns, {"layout": layout, "data": values})
 
 

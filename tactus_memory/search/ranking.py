@@ -16,7 +16,7 @@ import numpy as np
 
 from tactus_memory.results import Hit, hit_from_row
 from tactus_memory.search.scoring import Calibration
-from tactus_memory.search.senses import SenseRegistry
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.storage.spans import Spans
 from tactus_memory.storage.store import Store
 from tactus_memory.vectors import as_unit_rows

@@ -43,7 +43,7 @@ from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import FORMAT_CHARS
 from tactus_memory.query import TeachSpan, teach_span
 from tactus_memory.results import Teaching, label_key
-from tactus_memory.search.senses import SenseRegistry
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.retention import TAUGHT_PREFIX
 from tactus_memory.storage.store import Store
@@ -117,9 +117,9 @@ class Teachings:
             rows = self.store.scan(where.sql(), ["t", "t_end"]).to_pylist()
             if not rows:
                 lo, hi = ("-inf" if after is None else after), ("inf" if before is None else before)
-                span = f"[{lo}, {hi}]"
+                shown = f"[{lo}, {hi}]"
                 raise NotFoundError(
-                    f"no {sense!r} items of session {session!r} overlap {span}: nothing to teach"
+                    f"no {sense!r} items of session {session!r} overlap {shown}: nothing to teach"
                 )
             t = float(after) if after is not None else min(r["t"] for r in rows)
             t_end = float(before) if before is not None else max(r["t_end"] for r in rows)

@@ -1,5 +1,5 @@
 """Embedding spaces. ``get_space(name, path=None, dim=None)`` builds one by its registered
-name (:mod:`tactus_memory.registry`: ``@register("minilm", "minilm-l6")`` on the class).
+name (:mod:`tactus_memory.senses.plugins`: ``@register("minilm", "minilm-l6")`` on the class).
 
 Built in: ``"minilm"`` / ``"minilm-l6"`` (default, 384-d, offline, text only) and
 ``"qwen3vl"`` / ``"qwen3-vl-embedding-2b"`` (2048-d or a Matryoshka prefix, text + images,
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 
-from tactus_memory.registry import lookup
+from tactus_memory.senses.plugins import lookup
 from tactus_memory.spaces.base import Space
 
 

@@ -25,7 +25,7 @@ class Space(ABC):
     has_vision: bool = False
     #: whether the space needs a local model folder (``path``) to be built
     needs_path: bool = False
-    #: what ``tactus_memory.registry.register`` files it under
+    #: what ``tactus_memory.senses.plugins.register`` files it under
     plugin_kind = "space"
 
     @classmethod
@@ -34,7 +34,7 @@ class Space(ABC):
         ValueError names an option the space cannot take."""
         if dim is not None and dim != cls.dim:
             raise ValueError(f"space {cls.name!r} has dim {cls.dim}; dim={dim} is not possible")
-        return cls(path) if path is not None else cls()
+        return cls(path) if path is not None else cls()  # type: ignore[call-arg]  # subclasses take a path
 
     @abstractmethod
     def embed_texts(self, texts: Sequence[str], *, query: bool = False) -> np.ndarray:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.registry import register
+from tactus_memory.senses.plugins import register
 from tactus_memory.spaces.base import Space, check_texts
 from tactus_memory.vectors import as_unit_rows
 

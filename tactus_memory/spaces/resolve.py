@@ -21,7 +21,7 @@ from pydantic import ValidationError
 
 from tactus_memory import spaces as registry
 from tactus_memory.errors import SpaceConfigError
-from tactus_memory.registry import lookup
+from tactus_memory.senses.plugins import lookup
 from tactus_memory.settings import Settings
 from tactus_memory.spaces.base import Space
 
@@ -90,7 +90,7 @@ def resolve_space(
     name = choice.name or (recorded or {}).get("name") or "minilm"
     dim = choice.dim
     same_base = recorded and _base_name(name) == _base_name(str(recorded["name"]))
-    if dim is None and same_base and needs_path(name):
+    if dim is None and same_base and needs_path(name) and recorded is not None:
         dim = int(recorded["dim"])  # the store's Matryoshka dim, e.g. "...@512"
     where = f"{owner}'s space {recorded['name']!r} (dim {recorded['dim']})" if recorded else ""
     if recorded and not same_base:  # say so before asking for a folder it would not use
@@ -109,7 +109,7 @@ def resolve_space(
         )
     try:
         # looked up on the module at call time (tests swap the registry function)
-        given = {"path": choice.path, "dim": dim}
+        given: dict[str, Any] = {"path": choice.path, "dim": dim}
         space = registry.get_space(name, **{k: v for k, v in given.items() if v is not None})
     except SpaceConfigError:
         raise

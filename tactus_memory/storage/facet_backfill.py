@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import NotFoundError
-from tactus_memory.sense import bytes_to_array
+from tactus_memory.senses.base import bytes_to_array
 from tactus_memory.storage.tables import FACET_COLUMNS, facet_fields
 from tactus_memory.touch.facets import facet_columns, window_facets
 from tactus_memory.touch.profile import SensorProfile

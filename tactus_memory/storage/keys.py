@@ -215,7 +215,7 @@ class KeyStore:
 
     @staticmethod
     def _info(row: dict[str, Any]) -> KeyInfo:
-        return KeyInfo(**{f: row.get(f) for f in KeyInfo.__dataclass_fields__})
+        return KeyInfo(**{f: row.get(f) for f in KeyInfo.__dataclass_fields__})  # type: ignore[arg-type]  # the record's columns
 
     # ----------------------------------------------------------- checks
     def verify(self, presented: str) -> KeyInfo | None:

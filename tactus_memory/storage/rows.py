@@ -14,7 +14,7 @@ import numpy as np
 
 from tactus_memory.batches import check_ids, check_times, meta_json, per_item
 from tactus_memory.results import SessionSummary, Stored
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
 from tactus_memory.storage.codes import vector_array
 from tactus_memory.storage.places import Placement, given_placement
 from tactus_memory.storage.tables import FACET_COLUMNS
@@ -189,7 +189,8 @@ def writes_table(schema: pa.Schema, writes: Sequence[PreparedWrite]) -> pa.Table
 
 
 def _row_numbers(writes: Sequence[PreparedWrite]) -> list[int]:
-    out, at = [], 0
+    out: list[int] = []
+    at = 0
     for w in writes:
         out.extend(at + i for i in range(len(w)) if i not in w.left_out)
         at += len(w)

@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_CLOCK_OFFSET
 from tactus_memory.results import ClockOffset
-from tactus_memory.sense import validate_sense_name
+from tactus_memory.senses.base import validate_sense_name
 from tactus_memory.storage.store import Store
 from tactus_memory.where import finite_float, validate_id, validate_source
 
@@ -132,9 +132,11 @@ class Clocks:
         """Every recorded clock offset (of one session: its one meta row), sorted."""
         if session is not None:
             streams = session_clock(self.store, validate_id(session, "session id"))
-            offsets = {(session, *k.split("/", 1)): float(v) for k, v in streams.items()}
+            offsets: dict[tuple[str, ...], float] = {
+                (session, *k.split("/", 1)): float(v) for k, v in streams.items()
+            }
         else:
-            offsets = self.offsets()
+            offsets = {k: v for k, v in self.offsets().items()}
         return [
             ClockOffset(session=s, sense=sense, source=source, offset=v)
             for (s, sense, source), v in sorted(offsets.items())

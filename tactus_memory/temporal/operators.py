@@ -66,7 +66,7 @@ from tactus_memory.results import (
     row_fields,
 )
 from tactus_memory.search.ranking import Ranker
-from tactus_memory.search.senses import SenseRegistry
+from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
 from tactus_memory.storage.tables import HIT_COLUMNS
@@ -164,7 +164,7 @@ class Temporal:
             ]
             floor = bars[name]
             if grasp is not None and grasp.applies(self.registry.search_sense(name).modality):
-                evs = pool_grasps(self.ranker, q, name, evs, grasp)
+                evs = [*pool_grasps(self.ranker, q, name, evs, grasp)]  # Grasp is Evidence
                 if match.threshold is None and grasp.pool != "max":  # pooled: their own bar
                     floor = GRASP_MATCH_Z.get(name, floor)
             bar = sense_bar([e.score for e in evs], floor, relative)

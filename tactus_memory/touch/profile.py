@@ -94,13 +94,13 @@ class SensorProfile:
             )
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "pads", tuple(self.pads))
-        check_layout(self.pads, shape)  # type: ignore[arg-type]
+        check_layout(self.pads, shape)
         mask = self.mask
         if mask is None and self.pads:
-            mask = layout_mask(self.pads, shape)  # type: ignore[arg-type]
-        object.__setattr__(self, "mask", _grid("mask", mask, shape, bool))  # type: ignore[arg-type]
+            mask = layout_mask(self.pads, shape)  # type: ignore[assignment]  # an array as the field
+        object.__setattr__(self, "mask", _grid("mask", mask, shape, bool))
         for f in ("taxel_offset", "taxel_gain"):
-            object.__setattr__(self, f, _grid(f, getattr(self, f), shape, float))  # type: ignore[arg-type]
+            object.__setattr__(self, f, _grid(f, getattr(self, f), shape, float))
         if self.taxel_gain is not None and np.any(np.asarray(self.taxel_gain) <= 0):
             raise InvalidInputError(f"profile {self.name!r}: taxel_gain must be > 0")
 

@@ -20,6 +20,7 @@ from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.cli.app import app
 from tactus_memory.client.errors import AuthenticationError, RemoteError
 from tactus_memory.client.main import Client
+from tactus_memory.contract import MemoryAPI
 from tactus_memory.errors import (
     IdConflictError,
     InvalidIdError,
@@ -158,6 +159,10 @@ def test_memory_and_client_answer_alike(local, remote) -> None:
     assert want["e_group"] == "raised InvalidInputError"
     for key in want:
         assert got[key] == want[key], key
+    # both implement the one contract (checked statically by mypy in `make lint`; at run time
+    # the Protocol sees that every method it names is there)
+    assert isinstance(local, MemoryAPI) and isinstance(remote, MemoryAPI)
+    assert not isinstance(object(), MemoryAPI)
 
 
 @pytest.mark.slow

@@ -12,18 +12,19 @@ import numpy as np
 
 from tactus_memory.adapters.decode import ARRAYS, IMAGE, touch_frame
 from tactus_memory.errors import IdleWindowError, InvalidInputError
-from tactus_memory.sense import Sense, array_to_bytes
+from tactus_memory.senses.base import array_to_bytes
+from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.touch.windows import WindowStream, calibrated_frames, window_idle
 from tactus_memory.vectors import as_unit_rows
 
 
-class StandInTouch(Sense):
+class StandInTouch(WindowedSense):
     """A touch sense for tests: a fixed random projection of the flattened window mean."""
 
     modality = "touch"
     message_types = (IMAGE, *ARRAYS)  # reads recorded touch topics as the touch sense does
-    windowed = True
+    frame_shape = FRAME_SHAPE
     validate_options = frozenset({"keep_idle"})
 
     def __init__(self, dim: int, name: str = "touch", seed: int = 0) -> None:
@@ -38,13 +39,16 @@ class StandInTouch(Sense):
     def window_stream(self, window: int, stride: int) -> WindowStream:
         return WindowStream(window, stride, profile=None)  # raw windows, as the touch sense
 
+    def is_idle(self, window: np.ndarray) -> bool:
+        return window_idle(calibrated_frames(window))  # the touch sense's rule
+
     def validate(self, item: Any, *, keep_idle: bool = False) -> np.ndarray:
         arr = np.asarray(item, dtype=np.float32)
         if arr.ndim != 3 or arr.shape[1:] != (32, 32):
             raise InvalidInputError(f"touch window has shape {arr.shape}, expected (K, 32, 32)")
         if not np.isfinite(arr).all():
             raise InvalidInputError("touch window contains NaN or inf")
-        if not keep_idle and window_idle(calibrated_frames(arr)):  # the touch sense's rule
+        if not keep_idle and self.is_idle(arr):
             raise IdleWindowError("idle touch window: no contact")
         return arr
 

@@ -24,8 +24,8 @@ from tactus_memory.errors import (
     UnknownSenseError,
 )
 from tactus_memory.memory.main import Memory
-from tactus_memory.registry import register
-from tactus_memory.sense import Sense
+from tactus_memory.senses.base import Sense
+from tactus_memory.senses.plugins import register
 from tactus_memory.spaces.base import Space
 from tests.helpers.fakes import HashingSpace
 from tests.helpers.motion import MOTION_DIM, motion_memory

@@ -131,6 +131,11 @@ PACKAGE_LAYERS = (
     "client", "mcp", "service", "cli"
 )  # fmt: skip
 
+#: modules that live in another layer's package (a package that holds one contract whose
+#: parts sit at different heights: ``senses/`` has the Sense contract and the plug-in registry
+#: in the base, the store's sense registry in search)
+LAYER_EXTRA: dict[str, tuple[str, ...]] = {"search": ("tactus_memory.senses.stored",)}
+
 #: The layer map, bottom to top (docs/architecture.md draws it). A module belongs to the layer
 #: whose entry names it most precisely (``tactus_memory.spaces.base`` is base, the rest of
 #: ``tactus_memory.spaces`` is models); it may import its own layer and the layers below, never
@@ -144,10 +149,9 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
             "tactus_memory.limits",
             "tactus_memory.results",
             "tactus_memory.settings",
-            "tactus_memory.registry",
             "tactus_memory.hashing",
             "tactus_memory.signatures",
-            "tactus_memory.sense",
+            "tactus_memory.senses",
             "tactus_memory.vectors",
             "tactus_memory.where",
             "tactus_memory.times",
@@ -157,11 +161,13 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
             "tactus_memory.batches",
             "tactus_memory.query",
             "tactus_memory.matching",
+            "tactus_memory.contract",
         ),
     ),
     ("models", ("tactus_memory.spaces", "tactus_memory.touch", "tactus_memory.datasets")),
-    # every layer above the models is the one package of its name
-    *((name, (f"tactus_memory.{name}",)) for name in PACKAGE_LAYERS),
+    # every layer above the models is the one package of its name (and the modules named
+    # in LAYER_EXTRA: the store's sense registry, in senses/ beside the contract, is search's)
+    *((name, (f"tactus_memory.{name}", *LAYER_EXTRA.get(name, ()))) for name in PACKAGE_LAYERS),
 )
 #: layers that may import only some of the layers below them (the remote client needs no
 #: store, search or model code: it speaks HTTP and shares the base's vocabulary)
@@ -233,7 +239,7 @@ def test_layers_import_only_downwards() -> None:
 
 def test_recordings_cut_windows_through_the_sense() -> None:
     """Ingest asks the mapped sense to decode and to window (``Sense.from_message``,
-    ``Sense.window_stream``): it imports no touch module and no sense adapter (the ROS 2
+    ``WindowedSense.window_stream``): it imports no touch module and no sense adapter (the ROS 2
     message helpers of ``adapters/decode.py`` serve every sense)."""
     g = graph()
     deps = g["tactus_memory.recordings.ingest"] | g["tactus_memory.recordings.decoding"]

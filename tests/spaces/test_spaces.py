@@ -13,7 +13,7 @@ import pytest
 from tactus_memory.adapters.image import ImageSense
 from tactus_memory.adapters.text import TextSense
 from tactus_memory.errors import CapabilityError, InvalidInputError
-from tactus_memory.registry import known
+from tactus_memory.senses.plugins import known
 from tactus_memory.spaces import get_space
 from tactus_memory.spaces.minilm import MiniLMSpace, default_model_path
 

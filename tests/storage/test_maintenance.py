@@ -15,7 +15,7 @@ import pytest
 
 from tactus_memory.memory.main import Memory
 from tactus_memory.policies import MaintenanceConfig
-from tactus_memory.sense import Sense, array_to_bytes
+from tactus_memory.senses.base import Sense, array_to_bytes
 from tactus_memory.settings import Settings
 from tactus_memory.storage.compaction import FragmentInfo, fragment_infos, plan_compaction, tier_of
 from tactus_memory.storage.disk import footprint

@@ -13,7 +13,8 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.sense import bytes_to_array
+from tactus_memory.senses.base import bytes_to_array
+from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.touch.checkpoint import default_checkpoint_path
 from tactus_memory.touch.profile import STAG_GLOVE
 from tests.helpers.fakes import HashingSpace
@@ -216,3 +217,14 @@ def test_the_idle_rule_belongs_to_the_touch_sense(enc) -> None:
     assert enc.embed([rest]).shape == (1, enc.dim)
     rest[:, 3, 5] = 700  # two taxels at contact level in a frame: touching
     assert enc.validate(rest).shape == (8, 32, 32)
+
+
+def test_the_touch_sense_is_a_windowed_sense(enc) -> None:
+    assert isinstance(enc, WindowedSense) and enc.windowed
+    assert enc.frame_shape == (32, 32)
+    idle = np.zeros((4, 32, 32), np.float32)  # calibrated, nobody touching
+    pressed = idle.copy()
+    pressed[:, 8:16, 8:16] = 1.0
+    assert enc.is_idle(idle) and not enc.is_idle(pressed)
+    with pytest.raises(IdleWindowError):  # validate applies the same rule
+        enc.validate(idle, calibrated=True)

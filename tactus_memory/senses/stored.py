@@ -2,7 +2,7 @@
 searched: their vectors and query transform are stored), row counts per sense and each
 sense's score calibration. ``Memory`` owns one; nothing else writes the senses table.
 
-Each live sense of a registered class (:mod:`tactus_memory.registry`) also leaves a record in
+Each live sense of a registered class (:mod:`tactus_memory.senses.plugins`) also leaves a record in
 the store's meta table (``sense_config:<name>``: its registered name and ``config()``), from
 which :meth:`SenseRegistry.restore` rebuilds it after a reopen.
 """
@@ -25,10 +25,10 @@ from tactus_memory.errors import (
     SenseSwappedError,
     UnknownSenseError,
 )
-from tactus_memory.registry import lookup, registered_name
 from tactus_memory.results import SenseInfo
 from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, estimate
-from tactus_memory.sense import Sense, array_to_bytes, bytes_to_array, validate_sense_name
+from tactus_memory.senses.base import Sense, array_to_bytes, bytes_to_array, validate_sense_name
+from tactus_memory.senses.plugins import lookup, registered_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
 from tactus_memory.vectors import as_unit_rows, vector_column

@@ -7,7 +7,7 @@ The memory never branches on a sense's name; everything sense-specific lives in 
 
 The implementations live in ``tactus_memory.adapters``, one file each (text, image, vectors,
 touch). Every sense class registers under a name (``@register("text")``,
-:mod:`tactus_memory.registry`); ``config()`` is what a store records to rebuild it with
+:mod:`tactus_memory.senses.plugins`); ``config()`` is what a store records to rebuild it with
 ``create(space, **config)``.
 """
 
@@ -67,23 +67,18 @@ class Sense(ABC):
     #: keyword options ``validate`` takes (``Memory.add(..., options=...)`` passes these on;
     #: e.g. the touch sense's ``calibrated``); options a sense does not declare are not its own
     validate_options: frozenset[str] = frozenset()
-    #: what ``tactus_memory.registry.register`` files it under
+    #: what ``tactus_memory.senses.plugins.register`` files it under
     plugin_kind = "sense"
     #: ROS 2 message types a recording topic of this sense may carry (``from_message``)
     message_types: tuple[str, ...] = ()
-    #: whether items are windows cut from a stream of messages (touch: frames -> windows)
+    #: whether items are windows cut from a stream of frames: True exactly for a
+    #: :class:`~tactus_memory.senses.windowed.WindowedSense` (touch: frames -> windows)
     windowed: bool = False
 
     def from_message(self, msg: Any, msgtype: str, where: str) -> Any:
         """One decoded ROS 2 message of a recording -> this sense's raw input (a windowed
         sense: one frame). ``where`` names the message in errors (RecordingError)."""
         raise InvalidInputError(f"{where}: sense {self.name!r} does not read recordings")
-
-    def window_stream(self, window: int, stride: int) -> Any:
-        """A windowed sense's cutter for one stream of raw messages: ``push(frames, times)``
-        returns the windows completed, ``pending`` counts the frames waiting. Recordings cut
-        through this, so they need no sense's own module."""
-        raise InvalidInputError(f"sense {self.name!r} is not cut into windows")
 
     @classmethod
     def create(cls, space: Space, /, **config: Any) -> Sense:
