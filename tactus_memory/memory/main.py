@@ -122,8 +122,7 @@ class Memory(AbstractContextManager["Memory"]):
 
     # ----------------------------------------------------------- the parts' methods
     # ``memory.count(q, ...)`` IS ``memory.temporal.count``: one implementation and one
-    # docstring, the part's (:class:`~tactus_memory.memory.parts.Part`)
-    # the temporal questions (:mod:`tactus_memory.temporal.operators`)
+    # docstring, the part's (:class:`~tactus_memory.memory.parts.Part`); the temporal questions
     matches = Part("temporal", Temporal.matches)
     occurrences = Part("temporal", Temporal.occurrences)
     count = Part("temporal", Temporal.count)
@@ -363,14 +362,10 @@ class Memory(AbstractContextManager["Memory"]):
         sort: str | None = None,
         **scope: Unpack[ScopeKwargs],
     ) -> list[Hit] | list[Moment] | list[Grasp]:
-        """Natural-language search over the scope's senses (default: every sense with rows).
-
-        Filters: ``session``, ``senses``, ``source``, ``after``/``before``, ``near``/``frame``
-        (or one ``scope=`` :class:`Scope`). ``group``: ``"auto"`` (default) answers touch with
-        grasps, one Hit each (``temporal.grasps.grasp_hits``); ``"window"`` (or None) one Hit per
-        stored item; ``"grasp"`` one Grasp per grasp of every sense; ``"moment"`` Moments
-        (:meth:`search_moments`). The query is embedded once. The touch facet filters are
-        scope filters; ``sort`` orders by a facet (:mod:`tactus_memory.search.ordering`)."""
+        """Natural-language search over the scope's senses (default: every sense with rows;
+        filters: the scope's, touch facets included). ``sort``: ``search.ordering``.
+        ``group``: ``"auto"`` (default) touch as grasps, ``"window"`` (or None) one Hit per
+        item, ``"grasp"`` grasps of every sense, ``"moment"`` Moments. Embeds the query once."""
         where, g = Scope.of(**scope), check_group(group)
         kk = candidates(check_k(k), sort, where, self.store.schema)
         if g == "moment":  # embeds the query itself, once
