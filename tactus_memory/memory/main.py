@@ -121,8 +121,7 @@ class Memory(AbstractContextManager["Memory"]):
 
     # ----------------------------------------------------------- the parts' methods
     # ``memory.count(q, ...)`` IS ``memory.temporal.count``: one implementation and one
-    # docstring, the part's (:class:`~tactus_memory.memory.parts.Part`)
-    # the temporal questions (:mod:`tactus_memory.temporal.operators`)
+    # docstring, the part's (:class:`~tactus_memory.memory.parts.Part`); the temporal questions
     matches = Part("temporal", Temporal.matches)
     occurrences = Part("temporal", Temporal.occurrences)
     count = Part("temporal", Temporal.count)
