@@ -357,6 +357,14 @@ class TactusEncoder(Sense):
         arr = super().from_row(row)
         return None if arr is None else np.asarray(arr, dtype=np.float32)
 
+    def calibration_prior(self) -> dict[str, float] | None:
+        """The prior score calibration (``{"mu", "sigma"}``) shipped for this checkpoint; None
+        when none is shipped for its sha256
+        (:func:`tactus_memory.touch.checkpoint.calibration_prior`)."""
+        from tactus_memory.touch.checkpoint import calibration_prior
+
+        return calibration_prior(self.ckpt.sha256)
+
     def provenance(self) -> dict[str, Any]:
         m = self.ckpt.meta
         return {

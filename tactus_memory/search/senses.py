@@ -27,7 +27,14 @@ from tactus_memory.errors import (
 )
 from tactus_memory.registry import lookup, registered_name
 from tactus_memory.results import SenseInfo
-from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, estimate
+from tactus_memory.search.scoring import (
+    PROBES,
+    SAMPLE,
+    Calibration,
+    blend,
+    estimate,
+    self_null,
+)
 from tactus_memory.sense import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
@@ -110,6 +117,7 @@ class SenseRegistry:
         self._live_prov: dict[str, dict[str, Any]] = {}  # each live sense's provenance
         self._stored: dict[str, StoredSense] = {}
         self._calib: dict[str, Calibration] = {}
+        self._text_prior: tuple[np.ndarray, Calibration] | None = None  # (probes, their null)
         self._counts: dict[str, int] | None = None
         #: the last exact counts plus this process's writes since, and when they were read:
         #: what a search goes by for up to the store's read consistency interval after
@@ -407,8 +415,27 @@ class SenseRegistry:
             self._probes = as_unit_rows(arr, self.space.dim)
         return self._probes
 
+    def prior(self, sense: str) -> Calibration | None:
+        """A sense's prior calibration (``scoring`` module docstring): a text sense's is the
+        probes' own null in this space; another's is what its sense ships
+        (``calibration_prior()``, e.g. a touch checkpoint's), None when it ships none."""
+        s = self.search_sense(sense)
+        if s.modality == "text":
+            probes = self.probe_vectors()
+            if self._text_prior is None or self._text_prior[0] is not probes:
+                self._text_prior = (probes, self_null(probes))
+            return self._text_prior[1]
+        shipped = getattr(s, "calibration_prior", None)
+        row = shipped() if callable(shipped) else None  # {"mu", "sigma"} or None
+        return None if row is None else Calibration(float(row["mu"]), float(row["sigma"]), 0)
+
     def calibration(self, sense: str) -> Calibration:
-        """The null statistics of a sense, re-estimated when its row count has doubled."""
+        """The null statistics of a sense (its own estimate, re-estimated when its row count
+        has doubled, blended with its prior until final: ``scoring.blend``)."""
+        return blend(self.own_calibration(sense), self.prior(sense))
+
+    def own_calibration(self, sense: str) -> Calibration:
+        """The sense's own estimate (no prior), re-estimated when its row count has doubled."""
         rows = self.counts(exact=False).get(sense, 0)
         calib = self._calib.get(sense, Calibration())
         if not calib.stale(rows):
