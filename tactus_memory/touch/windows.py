@@ -93,16 +93,26 @@ def calibrated_frames(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -
     return profile.scale(arr)  # no frame-shape check: windowing takes any H x W
 
 
+def contact_level(profile: SensorProfile | None = None) -> float:
+    """The calibrated level at which a taxel of ``profile``'s sensor counts as touching: the
+    profile's own ``contact_level`` when it sets one (a checkpoint records it, a sensor file
+    may set it), else the glove's :data:`CONTACT_LEVEL`. The one place the level is read."""
+    if profile is None or profile.contact_level is None:
+        return CONTACT_LEVEL
+    return float(profile.contact_level)
+
+
 def contact_taxels(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
-    """(..., H, W) frames -> (...) int64 taxels at or above :data:`CONTACT_LEVEL`."""
+    """(..., H, W) frames -> (...) int64 taxels at or above ``contact_level(profile)``."""
     cal = calibrated_frames(frames, profile)
-    return (cal >= np.float32(CONTACT_LEVEL)).sum(axis=(-2, -1)).astype(np.int64)
+    return (cal >= np.float32(contact_level(profile))).sum(axis=(-2, -1)).astype(np.int64)
 
 
-def window_idle(calibrated: np.ndarray) -> bool:
+def window_idle(calibrated: np.ndarray, level: float = CONTACT_LEVEL) -> bool:
     """Whether a calibrated window (K, H, W) in [0, 1] is idle: no frame has
-    :data:`CONTACT_MIN_TAXELS` taxels at :data:`CONTACT_LEVEL` (no calibration here)."""
-    peak = (np.asarray(calibrated) >= np.float32(CONTACT_LEVEL)).sum(axis=(-2, -1)).max()
+    :data:`CONTACT_MIN_TAXELS` taxels at ``level`` (default :data:`CONTACT_LEVEL`; a sensor's
+    own: :func:`contact_level`; no calibration here)."""
+    peak = (np.asarray(calibrated) >= np.float32(level)).sum(axis=(-2, -1)).max()
     return int(peak) < CONTACT_MIN_TAXELS
 
 
