@@ -37,3 +37,12 @@ def test_a_soft_sensors_grasp_is_kept_at_its_own_level() -> None:
     w = cut_windows(raw, np.arange(8) / 30.0, window=8, stride=4, profile=SOFT)
     assert not w.idle.any()
     assert cut_windows(raw, np.arange(8) / 30.0, window=8, stride=4, profile=STAG_GLOVE).idle.all()
+
+
+def test_a_sensor_file_sets_the_level() -> None:
+    from tactus_memory.touch.sensor_file import profile_from_toml_dict
+
+    d = {"name": "soft", "shape": [16, 16], "span": 100.0, "contact_level": 0.05}
+    assert contact_level(profile_from_toml_dict(d)) == 0.05
+    with pytest.raises(InvalidInputError, match="contact_level"):
+        profile_from_toml_dict(d | {"contact_level": 0.0})
