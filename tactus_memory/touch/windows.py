@@ -50,6 +50,11 @@ from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 CONTACT_LEVEL = 1.0 / 6.0
 #: a window is idle when none of its frames has this many taxels at CONTACT_LEVEL
 CONTACT_MIN_TAXELS = 2
+#: a sensor's own contact level is this quantile, over its labelled (grasp) frames, of each
+#: frame's CONTACT_MIN_TAXELS-th highest calibrated taxel (:func:`estimate_contact_level`):
+#: on the glove's labelled frames (weights_lite + blindfolded_lite_train, 2,561) that quantile
+#: is 0.167, the glove's measured CONTACT_LEVEL (1/6), so the rule reproduces it
+CONTACT_QUANTILE = 0.10
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,18 @@ def contact_level(profile: SensorProfile | None = None) -> float:
     if profile is None or profile.contact_level is None:
         return CONTACT_LEVEL
     return float(profile.contact_level)
+
+
+def estimate_contact_level(labelled: np.ndarray) -> float:
+    """(N, H, W) calibrated labelled (grasp) frames of one sensor -> its contact level: the
+    :data:`CONTACT_QUANTILE` quantile of each frame's :data:`CONTACT_MIN_TAXELS`-th highest
+    taxel (so that share of grasp frames has fewer taxels in contact), kept inside (0, 1)."""
+    frames = np.asarray(labelled, np.float32)
+    if frames.ndim != 3 or len(frames) == 0:
+        raise InvalidInputError(f"need (N, H, W) labelled frames, got shape {frames.shape}")
+    flat = frames.reshape(len(frames), -1)
+    kth = np.partition(flat, flat.shape[1] - CONTACT_MIN_TAXELS, axis=1)[:, -CONTACT_MIN_TAXELS]
+    return float(np.clip(np.quantile(kth, CONTACT_QUANTILE), 1e-3, 1.0 - 1e-3))
 
 
 def contact_taxels(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
