@@ -27,17 +27,17 @@ Method (two steps, both per sense):
 
 **A prior for a young sense.** Estimated on a few rows, ``mu_s`` and ``sigma_s`` move with
 every doubling, so a young memory's scores moved with unrelated data (+43 % for one note after
-150 unrelated notes in another session, issue 46). Each sense therefore has a *prior*
-calibration, and the estimate used is the blend
+150 unrelated notes in another session, issue 46). A sense therefore may have a *prior*
+calibration where one is shipped, and the estimate used is the blend
 
     mu = w * mu_own + (1 - w) * mu_prior     (sigma likewise),  w = min(1, n / FINAL_ROWS)
 
 so the store's own estimate takes over as it grows and is alone once final. The priors: a
-text sense's is the null of the probe bank against itself (:func:`self_null`: the probes
-embedded by the memory's own space, off-diagonal cosines), for every space; a touch sense's is
-shipped beside its checkpoint (``touch/checkpoints/calibration-priors.json``, keyed by the
-checkpoint's sha256, measured by ``benchmarks/calibration_prior.py``); a sense without one
-uses its own estimate alone, as before. Measured: the docs' touch guide, "Scores that stay put".
+touch sense's is shipped beside its checkpoint (``touch/checkpoints/calibration-priors.json``,
+keyed by the checkpoint's sha256, measured by ``benchmarks/calibration_prior.py``); a sense
+without one (a text sense: the probe bank's null against itself was tried and lowered young
+notes' scores below the bar: the docs' touch guide, "Scores that stay put") uses its own
+estimate alone, as before.
 
 ``search_vector`` / ``search_like`` use the same statistics: their scores rank hits of one
 sense exactly like cosine, and are comparable across senses to the extent the query looks
@@ -160,14 +160,6 @@ def blend(own: Calibration, prior: Calibration | None) -> Calibration:
         sigma=max(w * own.sigma + (1.0 - w) * prior.sigma, MIN_SIGMA),
         n=own.n,
     )
-
-
-def self_null(probes: np.ndarray) -> Calibration:
-    """probes: (P, D) unit probe vectors -> the null of the probes against each other (the
-    P x (P - 1) off-diagonal cosines): a text sense's prior (the module docstring)."""
-    cos = probes.astype(np.float64) @ probes.astype(np.float64).T
-    off = cos[~np.eye(len(probes), dtype=bool)]
-    return Calibration(mu=float(off.mean()), sigma=max(float(off.std()), MIN_SIGMA), n=0)
 
 
 def estimate(probes: np.ndarray, items: np.ndarray, rows: int) -> Calibration:

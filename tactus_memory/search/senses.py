@@ -27,14 +27,7 @@ from tactus_memory.errors import (
 )
 from tactus_memory.registry import lookup, registered_name
 from tactus_memory.results import SenseInfo
-from tactus_memory.search.scoring import (
-    PROBES,
-    SAMPLE,
-    Calibration,
-    blend,
-    estimate,
-    self_null,
-)
+from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, blend, estimate
 from tactus_memory.sense import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
@@ -117,7 +110,6 @@ class SenseRegistry:
         self._live_prov: dict[str, dict[str, Any]] = {}  # each live sense's provenance
         self._stored: dict[str, StoredSense] = {}
         self._calib: dict[str, Calibration] = {}
-        self._text_prior: tuple[np.ndarray, Calibration] | None = None  # (probes, their null)
         self._counts: dict[str, int] | None = None
         #: the last exact counts plus this process's writes since, and when they were read:
         #: what a search goes by for up to the store's read consistency interval after
@@ -329,6 +321,7 @@ class SenseRegistry:
                     sigma=c.sigma if c else None,
                     calib_n=c.n if c and c.n else None,
                     calib_final=bool(c and c.final),
+                    precision_at_bar=_shipped(self._live.get(name, s), "match_precision"),
                 )
             )
         return out
@@ -416,26 +409,17 @@ class SenseRegistry:
         return self._probes
 
     def prior(self, sense: str) -> Calibration | None:
-        """A sense's prior calibration (``scoring`` module docstring): a text sense's is the
-        probes' own null in this space; another's is what its sense ships
-        (``calibration_prior()``, e.g. a touch checkpoint's), None when it ships none."""
-        s = self.search_sense(sense)
-        if s.modality == "text":
-            probes = self.probe_vectors()
-            if self._text_prior is None or self._text_prior[0] is not probes:
-                self._text_prior = (probes, self_null(probes))
-            return self._text_prior[1]
-        shipped = getattr(s, "calibration_prior", None)
-        row = shipped() if callable(shipped) else None  # {"mu", "sigma"} or None
+        """A sense's prior calibration (``scoring`` docstring): what the sense ships
+        (``calibration_prior()``, a touch checkpoint's), else None (a text sense: none)."""
+        row = _shipped(self.search_sense(sense), "calibration_prior")  # {"mu", "sigma"}
         return None if row is None else Calibration(float(row["mu"]), float(row["sigma"]), 0)
 
     def calibration(self, sense: str) -> Calibration:
-        """The null statistics of a sense (its own estimate, re-estimated when its row count
-        has doubled, blended with its prior until final: ``scoring.blend``)."""
+        """The null statistics of a sense: its own estimate blended with its prior until final."""
         return blend(self.own_calibration(sense), self.prior(sense))
 
     def own_calibration(self, sense: str) -> Calibration:
-        """The sense's own estimate (no prior), re-estimated when its row count has doubled."""
+        """Its own estimate (no prior), re-estimated when the row count has doubled."""
         rows = self.counts(exact=False).get(sense, 0)
         calib = self._calib.get(sense, Calibration())
         if not calib.stale(rows):
@@ -502,3 +486,8 @@ class SenseRegistry:
     def forget_counts(self) -> None:
         """After a delete (or a write whose count is unknown): recount before the next use."""
         self._counts = self._recent = None
+
+
+def _shipped(sense: Any, method: str) -> Any:
+    """``sense.<method>()`` when the sense has that method (a shipped measurement), else None."""
+    return getattr(sense, method, lambda: None)()

@@ -83,6 +83,20 @@ def calibration_prior(sha256: str) -> dict[str, float] | None:
     return None if row is None else {"mu": float(row["mu"]), "sigma": float(row["sigma"])}
 
 
+#: the measured precision of a touch match at the grasp bar, keyed by checkpoint sha256;
+#: written by ``benchmarks/touch_demo.py`` (held-out recordings of the protocol's fold A)
+MATCH_PRECISION = "match-precision.json"
+
+
+def match_precision(sha256: str) -> dict[str, Any] | None:
+    """The measured precision at the match bar of the checkpoint of ``sha256`` (None: none)."""
+    path = Path(str(resources.files("tactus_memory.touch") / "checkpoints" / MATCH_PRECISION))
+    if not path.is_file():
+        return None
+    row = json.loads(path.read_text()).get("precision_at_bar", {}).get(sha256)
+    return None if row is None else dict(row)
+
+
 def heldout_recordings(meta: dict[str, Any]) -> list[str]:
     """The recordings a checkpoint was trained WITHOUT, as its metadata records them (the
     ``--holdout`` of ``tactus train``; empty for a checkpoint trained on everything)."""
