@@ -40,6 +40,7 @@ from tactus_memory.service.write_threads import WriteThreads
 from tactus_memory.settings import Settings
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import allows
+from tactus_memory.times import Seconds
 from tactus_memory.where import (
     SESSION_PREFIX,
     Near,
@@ -294,11 +295,11 @@ SourceQ = Annotated[
     ),
 ]
 AfterQ = Annotated[
-    float | None,
+    Seconds | None,
     Query(description="Items still going on at or after (aligned); must be <= before (422)."),
 ]
 BeforeQ = Annotated[
-    float | None,
+    Seconds | None,
     Query(description="Items started at or before (aligned); must be >= after (422)."),
 ]
 
@@ -362,7 +363,22 @@ def scope(base: Annotated[Scope, Depends(stream_scope)], session: SessionQ = Non
     return replace(base, session=session)
 
 
+def place_scope(
+    sense: SensesQ = None,
+    session: SessionQ = None,
+    source: SourceQ = None,
+    after: AfterQ = None,
+    before: BeforeQ = None,
+    frame: FrameQ = None,
+) -> Scope:
+    """The scope of a route that takes its place in its own parameters (``GET /at``): as
+    :func:`scope` without ``near``, so the schema offers only what the route takes."""
+    frame = None if frame is None else validate_frame(frame)
+    return Scope(session, sense, source, after, before, None, frame)
+
+
 ScopeDep = Annotated[Scope, Depends(scope)]
+PlaceScopeDep = Annotated[Scope, Depends(place_scope)]
 StreamScopeDep = Annotated[Scope, Depends(stream_scope)]
 
 

@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from typing import Annotated
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from tactus_memory.limits import SENSE_NAME_PATTERN
 from tactus_memory.results import Teaching
-from tactus_memory.search.teaching import LABEL_PATTERN, MAX_LABEL_CHARS
+from tactus_memory.search.teaching import LABEL_PATTERN, MAX_LABEL_CHARS, validate_label
 from tactus_memory.service.schemas import Strict
+from tactus_memory.times import Seconds
+
+
+def _label(value: str) -> str:
+    validate_label(value)
+    return value
 
 
 class LabelIn(Strict):
@@ -17,16 +25,18 @@ class LabelIn(Strict):
         json_schema_extra={"examples": [{"label": "drill", "t": 12.0, "t_end": 15.5}]}
     )
 
-    label: str = Field(
+    # the pattern is stated in the schema and checked by the library's validate_label, whose
+    # 422 names the problem (an invisible format character: its code point)
+    label: Annotated[str, AfterValidator(_label)] = Field(
         min_length=1,
         max_length=MAX_LABEL_CHARS,
-        pattern=LABEL_PATTERN,
-        description="What was held, in words.",
+        description="What was held, in words (no control or format characters).",
+        json_schema_extra={"pattern": LABEL_PATTERN},
     )
-    t: float | None = Field(
+    t: Seconds | None = Field(
         None, description="Start of the span (seconds, the session clock); none: from the start."
     )
-    t_end: float | None = Field(
+    t_end: Seconds | None = Field(
         None, description="End of the span (>= t); none: to the end of the session."
     )
     sense: str = Field(

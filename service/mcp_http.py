@@ -9,8 +9,9 @@ root's (``app.key_store``), whichever tenant is served, so a store with keys is 
 here. A key of another tenant is refused like a wrong one; a key whose scope falls short
 (``read`` where ``--allow-writes`` offers the ``remember`` tool) gets a 403. A request body is
 read whole before the SDK sees it: larger than :data:`MAX_MCP_BODY` is a 413, JSON nested
-deeper than ``limits.MAX_JSON_DEPTH`` a 400, both at once. Every ``remember`` is written to
-the store's audit log like an HTTP write (route :data:`MCP_WRITE_ROUTE`). It sits in the
+deeper than ``limits.MAX_JSON_DEPTH`` a 400, both at once. Every ``remember`` and ``teach``
+is written to the store's audit log like an HTTP write (route :data:`MCP_WRITE_ROUTE`:
+``MCP remember``, ``MCP teach``). It sits in the
 service because the library never imports the service, and the token check is the
 service's.
 """
@@ -18,7 +19,6 @@ service's.
 from __future__ import annotations
 
 import math
-import re
 from typing import Any
 
 from mcp.server.mcpserver import MCPServer
@@ -26,6 +26,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from tactus_memory.batches import json_depth
 from tactus_memory.errors import ThrottledError
 from tactus_memory.limits import MAX_JSON_DEPTH
 from tactus_memory.service.auth import Gate, Principal, bearer
@@ -44,22 +45,8 @@ LIVE_PATH = "/live"
 MAX_MCP_BODY = 1 << 20
 #: where the gate leaves the caller for the tools (``scope["state"]``, read by the audit hook)
 PRINCIPAL_STATE = "tactus_principal"
-#: the audit log's route for an MCP ``remember``
-MCP_WRITE_ROUTE = "MCP remember"
-
-_JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
-_NOT_BRACKET = re.compile(rb"[^\[\]{}]")
-
-
-def json_depth(body: bytes) -> int:
-    """How deep arrays and objects nest in the JSON text ``body`` (strings skipped; no
-    parse, so no recursion however deep it is)."""
-    brackets = _NOT_BRACKET.sub(b"", _JSON_STRING.sub(b"", body))
-    depth = deepest = 0
-    for c in brackets:
-        depth += 1 if c in b"[{" else -1
-        deepest = max(deepest, depth)
-    return deepest
+#: the audit log's route for an MCP write: ``MCP remember``, ``MCP teach``
+MCP_WRITE_ROUTE = "MCP {tool}"
 
 
 async def read_body(receive: Receive, limit: int) -> bytes | None:
@@ -180,13 +167,15 @@ def mcp_http_app(
 
 def audit_hook(audit: Any) -> Any:
     """The ``on_write`` of :func:`~tactus_memory.mcp.server.build_server` that writes
-    each ``remember`` to ``audit`` (an ``AuditLog``) under the caller the gate let in."""
+    each write tool's call (``remember``, ``teach``) to ``audit`` (an ``AuditLog``) under the
+    caller the gate let in, route ``MCP <tool>``."""
 
-    def on_write(request: Any, status: int, count: int) -> None:
+    def on_write(request: Any, tool: str, status: int, count: int) -> None:
         state = getattr(request, "scope", {}).get("state", {}) if request is not None else {}
         who = state.get(PRINCIPAL_STATE)
         if isinstance(who, Principal):
-            audit.record(who.key_id, who.tenant, MCP_WRITE_ROUTE, status, count)
+            route = MCP_WRITE_ROUTE.format(tool=tool)
+            audit.record(who.key_id, who.tenant, route, status, count)
 
     return on_write
 

@@ -9,6 +9,7 @@ from tactus_memory.limits import ID_PATTERN, MAX_ID_CHARS, SOURCE_PATTERN
 from tactus_memory.results import Place, Position, TimelineItem, TrajectoryOut
 from tactus_memory.service.schemas import Point, Quaternion, Strict
 from tactus_memory.storage.places import MAX_POSES
+from tactus_memory.times import Seconds
 from tactus_memory.where import DEFAULT_FRAME
 
 
@@ -29,7 +30,7 @@ class PosesIn(Strict):
         }
     )
 
-    t: list[float] = Field(min_length=1, max_length=MAX_POSES, description="(N,) seconds.")
+    t: list[Seconds] = Field(min_length=1, max_length=MAX_POSES, description="(N,) seconds.")
     position: list[Point] = Field(
         min_length=1, max_length=MAX_POSES, description="(N, 3) metres in `frame`."
     )

@@ -12,8 +12,10 @@ from tactus_memory.limits import (
     MAX_COORDINATE,
     MAX_ID_CHARS,
     MAX_K,
+    MAX_SECONDS,
     MAX_TEXT_CHARS,
     MAX_WINDOW_FRAMES,
+    NAME_PATTERN,
     SOURCE_PATTERN,
 )
 from tactus_memory.limits import SENSE_NAME_PATTERN as SENSE_PATTERN
@@ -24,6 +26,7 @@ from tactus_memory.results import (
     SenseInfo,
 )
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
+from tactus_memory.times import Seconds
 from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.vectors import MAX_COMPONENT
 from tactus_memory.where import DEFAULT_FRAME
@@ -82,7 +85,10 @@ Point = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
 Quaternion = Annotated[list[Annotated[float, Field(ge=-1.001, le=1.001)]],
                        Field(min_length=4, max_length=4)]  # fmt: skip
 
-T_DESC = "Start time in seconds (any clock, e.g. Unix or seconds since session start)."
+T_DESC = (
+    "Start time in seconds (any clock, e.g. Unix or seconds since session start), "
+    f"|t| <= {MAX_SECONDS:g} (tactus_memory/times.py)."
+)
 T_END_DESC = "End time in seconds (>= t); defaults to t."
 
 
@@ -111,8 +117,8 @@ class TouchWindowIn(Strict):
         "(GET /senses: shape). RAW sensor units (e.g. 500-700 for the STAG glove) unless "
         "calibrated=true.",
     )
-    t: float = Field(description=T_DESC)
-    t_end: float | None = Field(None, description=T_END_DESC)
+    t: Seconds = Field(description=T_DESC)
+    t_end: Seconds | None = Field(None, description=T_END_DESC)
     meta: Meta | None = Field(None, description="Free JSON metadata stored with the window.")
     calibrated: bool = Field(
         False, description="true when frames are already calibrated (0-1); default raw units."
@@ -129,10 +135,10 @@ class TouchBatchIn(Strict):
         min_length=1,
         max_length=MAX_JSON_WINDOWS,
     )
-    t: list[float] = Field(
+    t: list[Seconds] = Field(
         description="B start times (one per window).", min_length=1, max_length=MAX_JSON_WINDOWS
     )
-    t_end: list[float] | None = Field(None, description="B end times (default: t).")
+    t_end: list[Seconds] | None = Field(None, description="B end times (default: t).")
     meta: Meta | list[Meta] | None = Field(
         None, description="One metadata object for all, or one per window."
     )
@@ -156,8 +162,8 @@ class TextIn(Strict):
     )
 
     text: str = Field(min_length=1, max_length=MAX_TEXT_CHARS, description="A note or caption.")
-    t: float = Field(description=T_DESC)
-    t_end: float | None = Field(None, description=T_END_DESC)
+    t: Seconds = Field(description=T_DESC)
+    t_end: Seconds | None = Field(None, description=T_END_DESC)
     meta: Meta | None = None
     id: str | None = Field(None, pattern=ID_PATTERN, description="Item id. " + ID_DESCRIPTION)
     position: Point | None = Field(
@@ -188,10 +194,10 @@ class VectorsIn(Strict):
             description="(N, D) vectors, D = the space's dim.",
         )
     )
-    t: list[float] = Field(
+    t: list[Seconds] = Field(
         min_length=1, max_length=MAX_JSON_ITEMS, description="One start time per vector (422 else)."
     )
-    t_end: list[float] | None = Field(None, description="One end time (>= t) per vector.")
+    t_end: list[Seconds] | None = Field(None, description="One end time (>= t) per vector.")
     meta: Meta | list[Meta] | None = None
     ids: list[ItemId] | None = Field(
         None, min_length=1, max_length=MAX_JSON_ITEMS, json_schema_extra={"uniqueItems": True}
@@ -209,9 +215,12 @@ class SenseIn(Strict):
 
     name: str = Field(pattern=SENSE_PATTERN, description="1-32 chars of [a-z0-9_].")
     dim: int = Field(ge=1, le=65536, description="Vector dimension; must equal the space's.")
-    space: str | None = Field(None, max_length=128, description="Space the encoder targets.")
-    encoder: str = Field("external", max_length=256)
-    version: str = Field("", max_length=128)
+    # names a person reads (GET /senses): no control or format characters (issue 48)
+    space: str | None = Field(
+        None, max_length=128, pattern=NAME_PATTERN, description="Space the encoder targets."
+    )
+    encoder: str = Field("external", max_length=256, pattern=NAME_PATTERN)
+    version: str = Field("", max_length=128, pattern=NAME_PATTERN)
     checkpoint_sha256: str = Field("", max_length=128)
 
 
@@ -320,8 +329,8 @@ class SearchLikeIn(Strict):
     source: str | None = Field(
         None, max_length=MAX_ID_CHARS, pattern=SOURCE_PATTERN, description="Only this stream."
     )
-    after: float | None = Field(None, description="Only items at or after; <= before (422).")
-    before: float | None = Field(None, description="Only items at or before; >= after (422).")
+    after: Seconds | None = Field(None, description="Only items at or after; <= before (422).")
+    before: Seconds | None = Field(None, description="Only items at or before; >= after (422).")
 
     @model_validator(mode="after")
     def _one_example(self) -> SearchLikeIn:

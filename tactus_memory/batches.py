@@ -5,6 +5,7 @@ a batch before it sends it, so both refuse the same batches with the same messag
 from __future__ import annotations
 
 import json
+import re
 import time
 import uuid
 from collections.abc import Mapping, Sequence
@@ -15,7 +16,8 @@ import numpy as np
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
 from tactus_memory.signatures import reject_unknown
-from tactus_memory.where import finite_float, validate_id
+from tactus_memory.times import check_time
+from tactus_memory.where import validate_id
 
 
 class BatchKwargs(TypedDict, total=False):
@@ -88,6 +90,22 @@ def nesting_depth(value: Any, limit: int) -> int:
     return deepest
 
 
+_JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
+_NOT_BRACKET = re.compile(rb"[^\[\]{}]")
+
+
+def json_depth(body: bytes) -> int:
+    """How deep arrays and objects nest in the JSON text ``body`` (strings skipped; no
+    parse, so no recursion however deep it is): the MCP doors refuse a request deeper than
+    ``limits.MAX_JSON_DEPTH`` before any parser sees it."""
+    brackets = _NOT_BRACKET.sub(b"", _JSON_STRING.sub(b"", body))
+    depth = deepest = 0
+    for c in brackets:
+        depth += 1 if c in b"[{" else -1
+        deepest = max(deepest, depth)
+    return deepest
+
+
 def meta_json(meta: Any) -> str:
     if meta is None:
         return "{}"
@@ -125,9 +143,9 @@ def check_times(
     if n > MAX_BATCH:
         raise InvalidInputError(f"{n} items in one call; limit {MAX_BATCH}")
     now = time.time()
-    ts = [now if x is None else finite_float(x, "t") for x in per_item(t, n, "t")]
+    ts = [now if x is None else check_time(x, "t") for x in per_item(t, n, "t")]
     ends = [
-        ts[i] if x is None else finite_float(x, "t_end")
+        ts[i] if x is None else check_time(x, "t_end")
         for i, x in enumerate(per_item(t_end, n, "t_end"))
     ]
     for a, b in zip(ts, ends, strict=True):

@@ -49,3 +49,27 @@ NEAR_PATTERN = rf"^-?{_DECIMAL},-?{_DECIMAL},-?{_DECIMAL},{_DECIMAL}$"
 MAX_CLOCK_OFFSET = 1e10
 #: the default staleness bound between replicas (issue 11 target: visibility <= 2 s)
 DEFAULT_READ_CONSISTENCY_S = 1.0
+#: the largest |t| in seconds any time a client sends may have (about 317 years either side of
+#: its clock's zero; Unix time reaches it in 2286): at this magnitude a float64 still resolves
+#: microseconds, so t +- a few seconds is a different number (at 1e18, +-30 s rounds back to
+#: t). A product decision, not a measurement (issue 48: tactus_memory/times.py)
+MAX_SECONDS = 1e10
+
+#: Unicode format characters (category Cf: bidi overrides such as U+202E, zero-width spaces
+#: and joiners, the BOM, tag characters), as (first, last) code points of Unicode 15.1; a
+#: unit test checks them against the interpreter's ``unicodedata``. Refused in the names a
+#: person reads (taught labels, a sense's encoder/version/space): they make a name display
+#: as another one (issue 48)
+FORMAT_CHAR_RANGES = (
+    (0x00AD, 0x00AD), (0x0600, 0x0605), (0x061C, 0x061C), (0x06DD, 0x06DD),
+    (0x070F, 0x070F), (0x0890, 0x0891), (0x08E2, 0x08E2), (0x180E, 0x180E),
+    (0x200B, 0x200F), (0x202A, 0x202E), (0x2060, 0x2064), (0x2066, 0x206F),
+    (0xFEFF, 0xFEFF), (0xFFF9, 0xFFFB), (0x110BD, 0x110BD), (0x110CD, 0x110CD),
+    (0x13430, 0x1343F), (0x1BCA0, 0x1BCA3), (0x1D173, 0x1D17A), (0xE0001, 0xE0001),
+    (0xE0020, 0xE007F),
+)  # fmt: skip
+#: the same as a regular-expression class body (the characters themselves: every regex
+#: engine of the schema's readers takes them)
+FORMAT_CHARS = "".join(chr(a) if a == b else f"{chr(a)}-{chr(b)}" for a, b in FORMAT_CHAR_RANGES)
+#: a free name a person reads: no control characters, no format characters
+NAME_PATTERN = rf"^[^\x00-\x1f\x7f-\x9f{FORMAT_CHARS}]*$"

@@ -15,8 +15,9 @@ import numpy as np
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_K, MAX_TEXT_CHARS
 from tactus_memory.signatures import reject_unknown
+from tactus_memory.times import check_time
 from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import Near, Where, finite_float
+from tactus_memory.where import Near, Where
 
 if TYPE_CHECKING:
     from tactus_memory.spaces.base import Space
@@ -88,8 +89,8 @@ class Scope:
 
     def bounds(self) -> tuple[float | None, float | None]:
         """``(after, before)`` as finite floats, checked in order."""
-        after = None if self.after is None else finite_float(self.after, "after")
-        before = None if self.before is None else finite_float(self.before, "before")
+        after = None if self.after is None else check_time(self.after, "after")
+        before = None if self.before is None else check_time(self.before, "before")
         if after is not None and before is not None and after > before:
             raise InvalidInputError(f"after ({after}) is later than before ({before})")
         return after, before
@@ -154,7 +155,12 @@ def teach_span(span: Mapping[str, Any]) -> tuple[float | None, float | None, str
     unknown = sorted(set(span) - set(TeachSpan.__annotations__))
     if unknown:
         raise InvalidInputError(f"teach takes after, before and sense, not {unknown}")
-    return span.get("after"), span.get("before"), span.get("sense", "touch")
+    after, before = span.get("after"), span.get("before")
+    return (
+        None if after is None else check_time(after, "after"),
+        None if before is None else check_time(before, "before"),
+        span.get("sense", "touch"),
+    )
 
 
 def split_scope(kw: Mapping[str, Any]) -> tuple[Scope, dict[str, Any]]:

@@ -5,6 +5,7 @@ literals are also quote-escaped; no user string reaches LanceDB any other way)."
 from __future__ import annotations
 
 import math
+import unicodedata
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -28,6 +29,19 @@ def validate_id(value: Any, what: str = "id") -> str:
             else repr(value[:60]) + "..."
         )
         raise InvalidIdError(f"invalid {what} {shown}: use {ID_DESCRIPTION.removesuffix('.')}")
+    return value
+
+
+def refuse_format_chars(value: str, what: str) -> str:
+    """``value`` unless it holds a Unicode format character (category Cf: a bidi override,
+    a zero-width space...), which makes a name a person reads display as another one."""
+    bad = [ch for ch in value if unicodedata.category(ch) == "Cf"]
+    if bad:
+        shown = ", ".join(f"U+{ord(ch):04X}" for ch in dict.fromkeys(bad))
+        raise InvalidInputError(
+            f"{what} {value!r} holds invisible format characters ({shown}: bidi overrides, "
+            "zero-width spaces); send the name without them"
+        )
     return value
 
 

@@ -22,6 +22,7 @@ from tactus_memory.service.deps import ItemIdPath, MemoryDep
 from tactus_memory.service.images import decode_image, encode_png, is_image_array
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import HitOut, SearchOut
+from tactus_memory.times import Seconds
 
 router = APIRouter(tags=["images"])
 
@@ -78,8 +79,8 @@ async def search_like_image(
     sense: Annotated[str, Form(pattern=SENSE_PATTERN)] = "image",
     senses: Annotated[list[str] | None, Form()] = None,
     session: Annotated[str | None, Form(pattern=ID_PATTERN, max_length=MAX_ID_CHARS)] = None,
-    after: Annotated[float | None, Form(allow_inf_nan=False)] = None,
-    before: Annotated[float | None, Form(allow_inf_nan=False)] = None,
+    after: Annotated[Seconds | None, Form(allow_inf_nan=False)] = None,
+    before: Annotated[Seconds | None, Form(allow_inf_nan=False)] = None,
 ) -> SearchOut:
     if sense not in memory.senses and not memory.space.has_vision:
         raise CapabilityError(

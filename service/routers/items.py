@@ -28,6 +28,7 @@ from tactus_memory.service.deps import (
 from tactus_memory.service.images import decode_image
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import StoredOut, TextIn, VectorsIn
+from tactus_memory.times import Seconds
 
 router = APIRouter(prefix="/sessions/{session}", tags=["items"])
 
@@ -103,8 +104,8 @@ async def add_image(
     state: StateDep,
     tenant: TenantDep,
     file: Annotated[UploadFile, File(description="PNG/JPEG/... image.")],
-    t: Annotated[float, Form(allow_inf_nan=False)],
-    t_end: Annotated[float | None, Form(allow_inf_nan=False)] = None,
+    t: Annotated[Seconds, Form(allow_inf_nan=False)],
+    t_end: Annotated[Seconds | None, Form(allow_inf_nan=False)] = None,
     meta: Annotated[str | None, Form(description="JSON object.", max_length=65536)] = None,
     id: Annotated[str | None, Form(pattern=ID_PATTERN)] = None,  # noqa: A002
 ) -> StoredOut:

@@ -1,6 +1,8 @@
 """Places (``tactus_memory.memory.places``): a session's poses in, ``/where`` and ``/at`` out.
 
-Every search and temporal route also takes ``near=x,y,z,r`` and ``frame=`` (``deps.ScopeDep``).
+Every search and temporal route also takes ``near=x,y,z,r`` and ``frame=`` (``deps.ScopeDep``);
+``GET /at`` takes its place as ``x``, ``y``, ``z``, ``r`` and refuses ``near``
+(``deps.PlaceScopeDep``).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import ID_PATTERN, MAX_COORDINATE, MAX_ID_CHARS, MAX_K, SOURCE_PATTERN
 from tactus_memory.matching import DEFAULT_MOMENT_GAP
 from tactus_memory.service.arrays import NPY_TYPES, loads_strict, read_npy
-from tactus_memory.service.deps import MemoryDep, QueryText, ScopeDep, SessionId
+from tactus_memory.service.deps import MemoryDep, PlaceScopeDep, QueryText, ScopeDep, SessionId
 from tactus_memory.service.place_schemas import (
     AtOut,
     PlacesOut,
@@ -148,15 +150,19 @@ def where(
     responses=problem_responses(404, 422),
 )
 def at(
+    request: Request,
     memory: MemoryDep,
-    scope: ScopeDep,
+    scope: PlaceScopeDep,
     x: Coordinate,
     y: Coordinate,
     z: Coordinate,
     r: Annotated[float, Query(gt=0.0, le=MAX_COORDINATE, description="Radius (m).")],
 ) -> AtOut:
-    filters = dataclasses.asdict(scope)
-    if filters.pop("near") is not None:
+    # the schema does not offer near (the place is x, y, z and r); one sent anyway is refused,
+    # never ignored as if the answer were filtered by it
+    if "near" in request.query_params:
         raise InvalidInputError("/at takes the place as x, y, z and r; drop near")
+    filters = dataclasses.asdict(scope)
+    filters.pop("near")
     items = memory.at((x, y, z), r, **filters)
     return AtOut(position=(x, y, z), radius=r, items=items)

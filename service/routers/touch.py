@@ -17,6 +17,7 @@ from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import SkippedOut, StoredOut, TouchBatchIn, TouchWindowIn
 from tactus_memory.service.touch_body import touch_write
 from tactus_memory.service.touch_senses import TouchSenseDep, frame_shape
+from tactus_memory.times import Seconds
 
 router = APIRouter(prefix="/sessions/{session}", tags=["touch"])
 
@@ -67,8 +68,8 @@ async def add_touch(
     request: Request,
     state: StateDep,
     tenant: TenantDep,
-    t: Annotated[list[float] | None, Query(description="npy body only: start time(s).")] = None,
-    t_end: Annotated[list[float] | None, Query(description="npy body only: end time(s).")] = None,
+    t: Annotated[list[Seconds] | None, Query(description="npy body only: start time(s).")] = None,
+    t_end: Annotated[list[Seconds] | None, Query(description="npy body only: end time(s).")] = None,
     calibrated: Annotated[bool, Query(description="npy body only.")] = False,
     *,
     sense: TouchSenseDep,

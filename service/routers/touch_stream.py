@@ -68,6 +68,7 @@ from tactus_memory.service.deps import (
 )
 from tactus_memory.service.problems import problem_body, problem_for_exception
 from tactus_memory.service.touch_senses import TouchSenseDep, frame_shape
+from tactus_memory.times import check_time
 from tactus_memory.touch.windows import Windows, WindowStream
 
 log = logging.getLogger("tactus_memory.service")
@@ -88,7 +89,7 @@ class StreamParams:
         self.hz = None if hz is None else self._float(hz, "hz")
         if self.hz is not None and self.hz <= 0:
             raise InvalidInputError(f"hz must be positive, got {hz!r}")
-        self.t0 = self._float(query.get("t0", "0"), "t0")
+        self.t0 = check_time(self._float(query.get("t0", "0"), "t0"), "t0")
 
     @staticmethod
     def _int(query: Any, name: str, default: int) -> int:
@@ -124,10 +125,7 @@ class StreamParams:
 def _frame_time(obj: Any, index: int) -> float:
     if "t" not in obj:
         raise InvalidInputError(f"frame message {index} has no 't'")
-    t = obj["t"]
-    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
-        raise InvalidInputError(f"frame message {index}: 't' must be a finite number, got {t!r}")
-    return float(t)
+    return check_time(obj["t"], f"frame message {index}: 't'")
 
 
 def stream_params(websocket: WebSocket, settings: SettingsDep) -> StreamParams:

@@ -73,8 +73,10 @@ def mcp(
     keep_out = Settings(maintain=False).maintenance()
     memory = _open(data, space, space_path, space_dim, maintenance=keep_out, tenant=tenant)
     if settings is None:
+        from tactus_memory.mcp.stdio import serve_stdio
+
         server = build_server(memory, allow_writes=allow_writes)
-        server.run("stdio")  # stdout is the protocol's: nothing else may print there
+        serve_stdio(server)  # stdout is the protocol's: nothing else may print there
         return
     from tactus_memory.service.mcp_http import run_mcp_http
 

@@ -9,6 +9,7 @@ from mcp.types import CallToolResult, TextContent
 from pydantic import BaseModel, Field, Strict
 
 from tactus_memory.limits import ID_DESCRIPTION, ID_PATTERN, MAX_ID_CHARS, MAX_TEXT_CHARS
+from tactus_memory.times import StrictSeconds
 
 #: most hits a tool returns at once (an agent reads them all; the library allows MAX_K)
 MAX_TOOL_K = 50
@@ -44,10 +45,12 @@ SensesArg = Annotated[
 AnchorSensesArg = Annotated[
     list[str] | None, Field(description="Search the anchor only in these senses.")
 ]
+#: a time argument: the one time rule (tactus_memory/times.py), strict as Number
+TimeArg = StrictSeconds
 AfterArg = Annotated[
-    Number | None, Field(description="Only items still going on at or after this time (s).")
+    TimeArg | None, Field(description="Only items still going on at or after this time (s).")
 ]
-BeforeArg = Annotated[Number | None, Field(description="Only items started at or before (s).")]
+BeforeArg = Annotated[TimeArg | None, Field(description="Only items started at or before (s).")]
 MergeGapArg = Annotated[
     Number, Field(ge=0.0, le=1e9, description="Matches this close (s) count as one occurrence.")
 ]

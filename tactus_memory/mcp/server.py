@@ -48,6 +48,7 @@ from tactus_memory.mcp.args import (
     QueryArg,
     SensesArg,
     SessionArg,
+    TimeArg,
     WindowsArg,
     compact,
 )
@@ -88,10 +89,10 @@ INSTRUCTIONS = (
     "`where` says where something happened and `at` what happened near a place (metres)."
 )
 
-#: what a server that audits writes is told after each ``remember``: the request context
-#: of the call (the HTTP request, on HTTP), the status (201 stored, 422 refused) and the
-#: number of items stored
-WriteHook = Callable[[Any, int, int], None]
+#: what a server that audits writes is told after each write (``remember``, ``teach``): the
+#: request context of the call (the HTTP request, on HTTP), the tool, the status (201
+#: stored, 422 refused) and the number of items stored
+WriteHook = Callable[[Any, str, int, int], None]
 
 R = TypeVar("R")
 
@@ -303,7 +304,7 @@ class MemoryTools(PlaceTools):
         text: Annotated[
             str, Field(min_length=1, max_length=MAX_TEXT_CHARS, description="The note.")
         ],
-        t: Annotated[Number | None, Field(description="When (s); default: now (unix).")] = None,
+        t: Annotated[TimeArg | None, Field(description="When (s); default: now (unix).")] = None,
         meta: Annotated[
             dict[str, Any] | None, Field(description="Free JSON stored with the note.")
         ] = None,
@@ -314,12 +315,12 @@ class MemoryTools(PlaceTools):
         try:
             item_id = self.memory.add(session, "text", text, t=t, meta=meta)
         except TactusError:
-            self._written(ctx, 422, 0)
+            self._written(ctx, "remember", 422, 0)
             raise
-        self._written(ctx, 201, 1)
+        self._written(ctx, "remember", 201, 1)
         return compact(Remembered(id=item_id, session=session, t=t))  # type: ignore[return-value]
 
-    def _written(self, ctx: Context | None, status: int, count: int) -> None:
+    def _written(self, ctx: Context | None, tool: str, status: int, count: int) -> None:
         """Tell the write hook (the audit log of ``tactus mcp --http``) about one write."""
         if self.on_write is not None:
             request = None
@@ -328,7 +329,7 @@ class MemoryTools(PlaceTools):
                     request = ctx.request_context.request
                 except ValueError:  # no request (called outside a session)
                     request = None
-            self.on_write(request, status, count)
+            self.on_write(request, tool, status, count)
 
     @tool_errors
     def teach(
@@ -340,12 +341,18 @@ class MemoryTools(PlaceTools):
         label: Annotated[
             str, Field(min_length=1, max_length=64, description="What was held, e.g. 'drill'.")
         ],
-        after: Annotated[float | None, Field(description="Span start (s).")] = None,
-        before: Annotated[float | None, Field(description="Span end (s).")] = None,
+        after: Annotated[TimeArg | None, Field(description="Span start (s).")] = None,
+        before: Annotated[TimeArg | None, Field(description="Span end (s).")] = None,
+        ctx: Context | None = None,
     ) -> Taught:
         """Teach an object: the touch windows of the session between after and before were a
         grasp of `label`. Afterwards `search` and `last` find that object by its name."""
-        got = self.memory.teach(label, session=session, after=after, before=before)
+        try:
+            got = self.memory.teach(label, session=session, after=after, before=before)
+        except TactusError:
+            self._written(ctx, "teach", 422, 0)
+            raise
+        self._written(ctx, "teach", 201, got.windows)
         out = Taught(**{k: v for k, v in got.to_dict().items() if k in Taught.model_fields})
         return compact(out)  # type: ignore[return-value]
 
@@ -373,7 +380,7 @@ def build_server(
     memory: Memory, *, allow_writes: bool = False, on_write: WriteHook | None = None
 ) -> MCPServer:
     """An MCP server whose tools read (and with ``allow_writes``, add notes to) ``memory``;
-    ``on_write`` is told of every ``remember`` (:data:`WriteHook`: the audit log)."""
+    ``on_write`` is told of every write (:data:`WriteHook`: the audit log)."""
     server = MCPServer(
         "tactus-memory", instructions=INSTRUCTIONS, version=tactus_memory.__version__
     )

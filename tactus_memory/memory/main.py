@@ -73,6 +73,7 @@ from tactus_memory.search.teaching import Teachings
 from tactus_memory.sense import Sense, bytes_to_array, validate_sense_name
 from tactus_memory.settings import DEFAULT_MEMORY, Settings
 from tactus_memory.spaces.base import Space
+from tactus_memory.storage.retention import drop_orphaned_teachings
 from tactus_memory.storage.rows import options_for, summarise
 from tactus_memory.storage.scheduler import Background
 from tactus_memory.storage.store import Store
@@ -284,7 +285,11 @@ class Memory(AbstractContextManager["Memory"]):
         if isinstance(ids, str):
             ids = [ids]
         where = Where().ids(list(ids)).sql()
-        return self._delete(where)
+        deleted = self._delete(where)
+        if deleted:  # a teaching whose windows are all gone goes with them
+            with self.lock:
+                drop_orphaned_teachings(self.store)
+        return deleted
 
     def delete_session(self, session: str) -> int:
         """Delete every item of a session, its poses, clock offsets and teachings; returns the

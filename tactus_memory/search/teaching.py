@@ -42,12 +42,14 @@ import numpy as np
 from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
+from tactus_memory.limits import FORMAT_CHARS
 from tactus_memory.query import TeachSpan, teach_span
 from tactus_memory.results import Teaching, label_key
 from tactus_memory.search.senses import SenseRegistry
 from tactus_memory.spaces.base import Space
+from tactus_memory.storage.retention import TAUGHT_PREFIX
 from tactus_memory.storage.store import Store
-from tactus_memory.where import Where, session_visible, validate_id
+from tactus_memory.where import Where, refuse_format_chars, session_visible, validate_id
 
 #: weight of the label's text target in the taught ranking (chosen with the benchmark,
 #: ``benchmarks/teach.py``; the docs' "Objects you teach" reports the grid)
@@ -64,10 +66,13 @@ CENTRE_PROTOTYPES = False
 #: unrelated question ~0.1-0.25)
 MIN_LABEL_COS = 0.35
 #: meta-table key prefix of a teaching
-KEY_PREFIX = "taught/"
+KEY_PREFIX = TAUGHT_PREFIX
 MAX_LABEL_CHARS = 64
-#: a label: no control characters, and not blank (the HTTP schema carries the same pattern)
-LABEL_PATTERN = r"^[^\x00-\x1f\x7f-\x9f]*[^\s\x00-\x1f\x7f-\x9f][^\x00-\x1f\x7f-\x9f]*$"
+#: a label: no control characters, no format characters (limits.FORMAT_CHARS: a bidi
+#: override or a zero-width space makes a label display as another), and not blank (the HTTP
+#: schema carries the same pattern)
+_NOT = rf"\x00-\x1f\x7f-\x9f{FORMAT_CHARS}"
+LABEL_PATTERN = rf"^[^{_NOT}]*[^\s{_NOT}][^{_NOT}]*$"
 #: the phrase of a label taught to a sense that has no phrase templates of its own
 FALLBACK_PHRASE = "a hand holding {}"
 
@@ -78,6 +83,7 @@ def validate_label(label: Any) -> str:
     if not isinstance(label, str) or not label.strip():
         raise InvalidInputError(f"a taught label must be a non-empty string, got {label!r}")
     out = label.strip()
+    refuse_format_chars(label, "a taught label")
     if len(label) > MAX_LABEL_CHARS or not re.fullmatch(LABEL_PATTERN, label):
         raise InvalidInputError(
             f"a taught label must be 1-{MAX_LABEL_CHARS} printable characters, got {label!r}"

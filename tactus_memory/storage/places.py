@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.limits import MAX_COORDINATE
+from tactus_memory.limits import MAX_COORDINATE, MAX_SECONDS
+from tactus_memory.times import check_time
 from tactus_memory.where import DEFAULT_FRAME, check_position
 
 #: an item is placed only when a pose lies within this many seconds of the middle of its
@@ -58,6 +59,9 @@ def check_poses(
     if pos.shape[0] != n:
         raise InvalidInputError(f"position has {pos.shape[0]} rows for {n} times")
     _finite(ts, "t")
+    far_t = np.flatnonzero(np.abs(ts) > MAX_SECONDS)
+    if far_t.size:  # the one time rule (tactus_memory/times.py), its message
+        check_time(float(ts[far_t[0]]), f"t[{int(far_t[0])}]")
     _finite(pos, "position")
     far = np.flatnonzero((np.abs(pos) > MAX_COORDINATE).any(axis=1))
     if far.size:
@@ -136,7 +140,9 @@ class Trajectory:
         nearest = np.minimum(np.abs(m - t_lo), np.abs(m - t_hi))
         placed = nearest <= POSE_TOLERANCE
         span = t_hi - t_lo
-        alpha = np.clip(np.divide(m - t_lo, span, out=np.zeros_like(m), where=span > 0), 0, 1)
+        with np.errstate(over="ignore"):  # a subnormal span (poses at 0 and 5e-324): clipped
+            alpha = np.divide(m - t_lo, span, out=np.zeros_like(m), where=span > 0)
+        alpha = np.clip(alpha, 0, 1)
         pos = self.position[lo] + alpha[:, None] * (self.position[hi] - self.position[lo])
         ori = np.full((m.size, 4), np.nan)
         q_lo, q_hi = self.orientation[lo], self.orientation[hi]

@@ -69,6 +69,8 @@ class RetentionStore(Protocol):
     def delete(self, where: str) -> None: ...
     def get_meta(self, key: str) -> str | None: ...
     def set_meta(self, key: str, value: str) -> None: ...
+    def meta_items(self, prefix: str) -> dict[str, str]: ...
+    def delete_meta(self, key: str) -> None: ...
 
 
 log = logging.getLogger(__name__)
@@ -77,6 +79,9 @@ DAY_S = 86_400.0
 #: the meta key of the last thinning pass's wall-clock time (rows aged past the bar since
 #: then are the ones the next pass looks at)
 THINNED_AT = "retention:thinned_at"
+#: the meta rows of taught spans (tactus_memory/search/teaching.py writes them: JSON with
+#: session, sense, t, t_end): a teaching dies with the last stored window of its span
+TAUGHT_PREFIX = "taught/"
 #: deletes name at most this many ids or (session, sense) pairs each
 _CHUNK = 256
 #: the policy fields a rule may set
@@ -191,6 +196,8 @@ class Retention:
         self._last = time.monotonic()
         rep.expired = self._expire(now)
         rep.thinned = self._thin(now)
+        if rep.expired or rep.thinned:  # as a session delete: no teaching outlives its windows
+            drop_orphaned_teachings(self.store)
         rep.expired_total += rep.expired
         rep.thinned_total += rep.thinned
         rep.last_run = now
@@ -275,6 +282,25 @@ class Retention:
         if n:
             self.store.delete(where)
         return n
+
+
+def drop_orphaned_teachings(store: RetentionStore) -> int:
+    """Delete every teaching whose span holds no stored row of its session and sense any
+    more (expired, thinned or deleted by id), as a session delete drops the session's
+    teachings (issue 48: a label taught on an expired session was still listed); returns how
+    many. One count per teaching: teachings are few, and this runs after deletes only."""
+    dropped = 0
+    for key, raw in store.meta_items(TAUGHT_PREFIX).items():
+        try:
+            rec = json.loads(raw)
+            span = Where().session(rec["session"]).sense(rec["sense"])
+            where = span.overlaps(rec["t"], rec["t_end"]).sql()
+        except (TypeError, ValueError, KeyError):
+            continue  # a record of a later version: not ours to judge
+        if store.count(where) == 0:
+            store.delete_meta(key)
+            dropped += 1
+    return dropped
 
 
 def _chunks(values: Sequence[Any]) -> Iterable[Sequence[Any]]:

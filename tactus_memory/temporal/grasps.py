@@ -62,6 +62,11 @@ GRASP_MIN_COS = 0.2
 GRASP_READ_S = 30.0
 #: the widest neighbourhood read around candidates; a longer grasp is cut at its edges
 GRASP_MAX_S = 600.0
+#: the most reads of one neighbourhood: each round doubles its width (60 s, 120, 240, 480,
+#: 600 = GRASP_MAX_S: 5 reads), so the rounds end before the width does; the bound also
+#: holds where widening cannot change a span (at |t| ~ 1e18 s, t - 30 == t: issue 48,
+#: a read span re-read forever)
+GRASP_MAX_ROUNDS = 8
 #: group values the search and temporal operators take: ``auto`` (the default) asks of grasps
 #: for touch senses and of items for the others; ``window`` of items everywhere (one hit per
 #: stored window); ``grasp`` of grasps for every sense; ``moment`` (search only) moments
@@ -259,17 +264,25 @@ def find_grasps(
         for lo, hi in _merge([(c.t - GRASP_READ_S, c.t_end + GRASP_READ_S) for c in cands])
     ]
     found: dict[str, GraspRows] = {}  # first member id -> grasp
-    while pending:
+    for round_ in range(GRASP_MAX_ROUNDS):  # bounded by rounds as well as by width
+        if not pending:
+            break
+        last = round_ == GRASP_MAX_ROUNDS - 1
         wider: list[_Span] = []
         for i in range(0, len(pending), GRASP_SPANS_PER_SCAN):
             batch = pending[i : i + GRASP_SPANS_PER_SCAN]
             rows = _read(store, dim, batch)
             for span in batch:
-                grasps = _grasps_in(span, rows, rule)
+                grasps = _grasps_in(span, rows, rule, last)
                 if grasps is None:  # a grasp reaches an edge of what was read: read wider
                     grow = min(span.hi - span.lo, GRASP_MAX_S - (span.hi - span.lo)) / 2
-                    wider.append(_Span(span.key, span.lo - grow, span.hi + grow, span.cands))
-                    continue
+                    lo, hi = span.lo - grow, span.hi + grow
+                    if (lo, hi) == (span.lo, span.hi):  # no wider in float64: cut it here
+                        grasps = _grasps_in(span, rows, rule, True)
+                    else:
+                        wider.append(_Span(span.key, lo, hi, span.cands))
+                        continue
+                assert grasps is not None  # final: never None
                 for g in grasps:
                     have = found.get(g.ids[0])
                     if have is None:
@@ -315,10 +328,13 @@ def _read(store: Store, dim: int, spans: list[_Span]) -> _Rows:
     )
 
 
-def _grasps_in(span: _Span, rows: _Rows, rule: GraspRule) -> list[GraspRows] | None:
+def _grasps_in(
+    span: _Span, rows: _Rows, rule: GraspRule, final: bool = False
+) -> list[GraspRows] | None:
     """Cut the stream's rows in [lo, hi] into grasps around the span's candidates; None when
     one of them reaches an edge of the span (it may go on outside) and the span can still
-    grow (up to GRASP_MAX_S)."""
+    grow (up to GRASP_MAX_S, and not ``final``: the last round, or a span float64 cannot
+    widen)."""
     session, sense, source = span.key
     mine = rows.code == rows.streams.get(span.key, -1)
     sel = np.flatnonzero(mine & (rows.t_end >= span.lo) & (rows.t <= span.hi))
@@ -331,7 +347,7 @@ def _grasps_in(span: _Span, rows: _Rows, rule: GraspRule) -> list[GraspRows] | N
         members = np.flatnonzero(labels == lab)
         starts_in = t[members[0]] - span.lo > rule.max_gap
         ends_in = span.hi - t_end[members].max() > rule.max_gap
-        if not (starts_in and ends_in) and span.hi - span.lo < GRASP_MAX_S:
+        if not (starts_in and ends_in) and span.hi - span.lo < GRASP_MAX_S and not final:
             return None
     out = []
     for lab in runs:

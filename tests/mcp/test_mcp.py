@@ -4,6 +4,7 @@ over streamable HTTP (real MiniLM, the shipped touch encoder, a real LanceDB sto
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -149,16 +150,38 @@ def tactus(*args: str) -> list[str]:
     return [sys.executable, "-c", "from tactus_memory.cli import main; main()", *args]
 
 
+def nested(levels: int) -> dict[str, Any]:
+    meta: dict[str, Any] = {}
+    for _ in range(levels - 1):
+        meta = {"a": meta}
+    return meta
+
+
 @pytest.mark.slow
-def test_stdio_real_store(real_store) -> None:
-    params = StdioServerParameters(
-        command=tactus()[0], args=[*tactus("mcp", "--data", str(real_store))[1:]]
-    )
+def test_stdio_real_store(real_store, tmp_path) -> None:
+    """Every tool over stdio; then (issue 48, defect 11) a ``remember`` whose meta nests 250
+    levels gets a tool error at once, and (defect 7) ``teach`` refuses non-numbers as times,
+    on a copy of the store (the writes stay out of the module's store)."""
+    store = tmp_path / "store"
+    shutil.copytree(real_store, store)
+    cmd = tactus("mcp", "--data", str(store), "--allow-writes")
+    params = StdioServerParameters(command=cmd[0], args=cmd[1:])
 
     async def main() -> dict[str, Any]:
         with anyio.fail_after(240):
             async with Client(params, read_timeout_seconds=120) as client:
-                return await drive(client)
+                results = await drive(client, writes=True)
+                deep = {"session": "hall", "text": "x", "meta": nested(250)}
+                with anyio.fail_after(60):  # before the guard: no answer at all (liveness)
+                    r = await client.call_tool("remember", deep)
+                assert r.is_error and "deeper than 64" in r.content[0].text, r.content
+                for times in ({"after": True}, {"before": "3"}, {"after": 1.7e18}):
+                    args = {"session": "kitchen", "label": "mug", **times}
+                    r = await client.call_tool("teach", args)
+                    assert r.is_error, (times, r.content)
+                r = await client.call_tool("sessions", {})  # still serving, nothing stored
+                assert [s["id"] for s in json.loads(r.content[0].text)["sessions"]] == ["kitchen"]
+                return results
 
     check_answers(anyio.run(main))
 

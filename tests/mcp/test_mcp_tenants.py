@@ -105,14 +105,14 @@ def matrix(base: str, keys: dict[str, str], expected: dict[str | None, int]) -> 
     assert seen == expected
 
 
-async def remember(base: str, key: str, args: dict[str, Any]) -> Any:
+async def remember(base: str, key: str, args: dict[str, Any], tool: str = "remember") -> Any:
     auth = {"Authorization": f"Bearer {key}"}
     with anyio.fail_after(120):
         async with (
             httpx2.AsyncClient(headers=auth, timeout=60) as http,
             Client(streamable_http_client(base + "/mcp", http_client=http)) as client,
         ):
-            return await client.call_tool("remember", args)
+            return await client.call_tool(tool, args)
 
 
 def nested(levels: int) -> dict[str, Any]:
@@ -160,6 +160,10 @@ def test_tenant_server_without_token_is_closed_to_all_but_its_keys(store, tmp_pa
         auth = {**ACCEPT, "Authorization": f"Bearer {keys['A_write']}"}
         r = httpx.post(base + "/mcp", json=deep, timeout=30, headers=auth)
         assert r.status_code == 400 and "nests deeper" in r.json()["detail"], r.text
+        # issue 48, defect 6: teach is audited like remember (refused here: no touch windows)
+        teach = {"session": "hall", "label": "drill"}
+        r = anyio.run(remember, base, keys["A_write"], teach, "teach")
+        assert r.is_error, r.content
     space = MiniLMSpace()
     with Memory.open(str(root), space, tenant="A") as a:
         assert a.get_item(note_id).text == "mcp note A"
@@ -169,6 +173,9 @@ def test_tenant_server_without_token_is_closed_to_all_but_its_keys(store, tmp_pa
     entries = [e for e in AuditLog(str(root)).entries() if e.route == "MCP remember"]
     stored = [(e.key_id, e.tenant, e.status, e.count) for e in entries]
     assert (store["ids"]["A_write"], "A", 201, 1) in stored, stored
+    taught = [(e.key_id, e.tenant, e.status) for e in AuditLog(str(root)).entries()
+              if e.route == "MCP teach"]  # fmt: skip
+    assert (store["ids"]["A_write"], "A", 422) in taught, taught
 
 
 def test_tenant_server_with_token(store, tmp_path) -> None:

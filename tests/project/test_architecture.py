@@ -150,6 +150,7 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
             "tactus_memory.sense",
             "tactus_memory.vectors",
             "tactus_memory.where",
+            "tactus_memory.times",
             "tactus_memory.spaces.base",
             "tactus_memory.policies",
             "tactus_memory.identity",

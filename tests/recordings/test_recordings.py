@@ -184,10 +184,11 @@ def test_export_rerun_reads_back(tmp_path) -> None:
 
 
 def test_export_skips_times_rerun_cannot_hold(tmp_path) -> None:
-    """Found by schemathesis: a note at t=1e300 (any finite time is a valid item) made the
-    export a 500 (OverflowError in Rerun's int64 nanoseconds); it is now skipped, with why."""
+    """Found by schemathesis: a note at t=1e300 made the export a 500 (OverflowError in Rerun's
+    int64 nanoseconds); times are now at most MAX_SECONDS (1e10 s), still beyond Rerun's 9.2e9:
+    such a note is skipped, with why."""
     mem = make_memory(tmp_path / "mem")
-    mem.add("far", "text", "a note from the far future", t=1e300)
+    mem.add("far", "text", "a note from the far future", t=9.9e9)
     mem.add("far", "text", "a note from now", t=3.0)
     out = export_rerun(mem, "far", tmp_path / "far.rrd")
     assert out.entities == {"text/text": 1}
@@ -318,3 +319,19 @@ def test_refused_windows_are_skipped_with_their_reason(tmp_path, writer: str) ->
     assert s.rows == {"touch": 2}
     assert s.skipped == {"touch: refused, InvalidInputError: touch window contains NaN or inf": 1}
     assert [it.t for it in mem.timeline("s")] == pytest.approx([0.0, 16 / 30])
+
+
+def test_a_recordings_stamps_fit_the_time_rule(tmp_path) -> None:
+    """Issue 48: a recording's stamps are int64 nanoseconds, so the largest one a file can
+    hold (2**63 - 1 ns, 9.2e9 s) is within the time rule's range (|t| <= 1e10 s): it is
+    stored in seconds, and search answers beside it."""
+    from tactus_memory.limits import MAX_SECONDS
+
+    last = 2**63 - 1
+    notes = [rf.note("/notes", 1, "the first note"), rf.note("/notes", last, "the last note")]
+    path = rf.write_mcap(tmp_path / "far.mcap", notes)
+    mem = make_memory(tmp_path / "mem")
+    ingest_recording(mem, path, session="far", topics={"/notes": "text"})
+    first, far = mem.timeline("far")
+    assert far.t - first.t == pytest.approx((last - 1) / 1e9) and abs(far.t) <= MAX_SECONDS
+    assert mem.search("the last note", 1)[0].id == far.id
