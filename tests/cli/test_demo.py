@@ -72,7 +72,7 @@ def test_demo_on_the_stag_files_asks_five_questions(stag_dir) -> None:
     assert lines[-2] == f"{right} of 5 right ({RIGHT})"
     # the held-out figures the demo prints are the measured ones (benchmarks/touch_demo.py)
     fig = json.loads(HELDOUT_FIGURES.read_text())
-    assert f"stream R@5 {fig['stream_r5']['value']:.2f}" in lines[-1], lines[-1]
+    assert f"R@5 {fig['stream_r5']['value']:.2f}" in lines[-1], lines[-1]
     assert f"tuple top-1 {fig['tuple_top1']['value']:.2f}" in lines[-1], lines[-1]
     # the session holds the three recordings' contact windows (idle ones skipped) and the notes
     counts = re.search(r"session '[^']+': (\d+) text, (\d+) touch", res.output)
