@@ -55,15 +55,16 @@ from tactus_memory.touch.windows import (
     CONTACT_LEVEL,
     CONTACT_MIN_TAXELS,
     WindowStream,
+    contact_level,
     window_idle,
 )
 from tactus_memory.vectors import as_unit_rows
 
 
-def _idle_error() -> IdleWindowError:
+def _idle_error(level: float = CONTACT_LEVEL) -> IdleWindowError:
     return IdleWindowError(
         f"idle touch window: no frame has {CONTACT_MIN_TAXELS} taxels at the contact "
-        f"level ({CONTACT_LEVEL:.3g} calibrated); an idle hand is never stored as a grasp"
+        f"level ({level:.3g} calibrated); an idle hand is never stored as a grasp"
     )
 
 
@@ -199,8 +200,9 @@ class TactusEncoder(WindowedSense):
         if isinstance(item, CalibratedWindow) and calibrated is not False:
             return item
         window = self._calibrated(item, calibrated)
-        if not keep_idle and window_idle(window):
-            raise _idle_error()
+        level = contact_level(self.profile)
+        if not keep_idle and window_idle(window, level):
+            raise _idle_error(level)
         return window
 
     def validate_many(
@@ -245,10 +247,11 @@ class TactusEncoder(WindowedSense):
         if not cal.all():
             out = out.copy() if out is arr else out
             out[~cal] = self.profile.scale(arr[~cal])
-        peak = (out >= np.float32(CONTACT_LEVEL)).sum(axis=(2, 3)).max(axis=1)  # (B,)
+        level = contact_level(self.profile)
+        peak = (out >= np.float32(level)).sum(axis=(2, 3)).max(axis=1)  # (B,)
         idle = np.zeros(arr.shape[0], bool) if keep_idle else peak < CONTACT_MIN_TAXELS
         if idle.any() and not skip_idle:
-            raise _idle_error()
+            raise _idle_error(level)
         return [out[i].view(CalibratedWindow) for i in np.flatnonzero(~idle)], [
             int(i) for i in np.flatnonzero(idle)
         ]
@@ -379,6 +382,21 @@ class TactusEncoder(WindowedSense):
     def from_row(self, row: dict[str, Any]) -> Any:
         arr = super().from_row(row)
         return None if arr is None else np.asarray(arr, dtype=np.float32)
+
+    def calibration_prior(self) -> dict[str, float] | None:
+        """The prior score calibration (``{"mu", "sigma"}``) shipped for this checkpoint; None
+        when none is shipped for its sha256
+        (:func:`tactus_memory.touch.checkpoint.calibration_prior`)."""
+        from tactus_memory.touch.checkpoint import calibration_prior
+
+        return calibration_prior(self.ckpt.sha256)
+
+    def match_precision(self) -> dict[str, Any] | None:
+        """How often this checkpoint's match is right, as measured on held-out recordings
+        (``GET /senses``' ``precision_at_bar``); None when none was measured for it."""
+        from tactus_memory.touch.checkpoint import match_precision
+
+        return match_precision(self.ckpt.sha256)
 
     def provenance(self) -> dict[str, Any]:
         m = self.ckpt.meta

@@ -142,6 +142,12 @@ class SenseInfo(BaseModel):
         default_factory=list,
         description="Labels taught to it (`POST /sessions/{id}/labels`), searchable by text.",
     )
+    precision_at_bar: dict[str, Any] | None = Field(
+        None,
+        description="How often a match is right: the precision of the top hits that pass the "
+        "sense's match bar, measured on held-out data (value, 95 % interval lo/hi, k of n, the "
+        "bar, the question set); null when none was measured for this sense's encoder.",
+    )
     shape: list[int] | None = Field(
         None,
         description="A touch sense's frame shape [H, W] (its sensor profile: [32, 32] for the "

@@ -5,7 +5,8 @@ cannot are written in the operations' descriptions and enforced by the server wi
 naming the rule: ``t_end >= t``, ``after <= before``, and one ``t`` (``t_end``, ``meta``,
 ``ids``) entry per vector or window, one K for all windows of a batch; a trajectory's times
 strictly increasing with one position (and orientation) per time, unit quaternions, a
-``near`` radius above 0, and ``/at`` given its place once. A generated
+``near`` radius above 0, ``/at`` given its place once, and a touch route's ``?sense=``
+naming a windowed sense (which names the server registered, the schema cannot know). A generated
 request that only breaks one of those is schema-valid but rightly refused, so exactly that
 failure (ST202 answered by a 422 whose detail names one of these rules) is set aside; every
 other failure counts.
@@ -30,9 +31,14 @@ CROSS_FIELD = re.compile(
     r"|t must be strictly increasing"
     r"|has \d+ rows for \d+ times"
     r"|is not a unit quaternion"
+    r"|orientation must be \(N, 4\) quaternions, got shape \(0,\)"  # [] for N > 0 times
     r"|near radius must be > 0"  # near=x,y,z,0: the pattern cannot say r > 0
     r"|/at takes the place as x, y, z and r"
     r"|near/frame select items, not episodes"  # a timeline's episodes have no place
+    # ?sense= on a touch route names a sense the server has, but not a windowed one (a
+    # vector sense such as `motion`, listed by GET /sessions): the schema cannot know which
+    # names the server registered
+    r"|sense '[^']+' is a \w+ sense, not touch"
 )
 
 

@@ -1,16 +1,21 @@
 """``tactus demo``: touch answering a question, for a newcomer, in one command.
 
-With the STAG files present (``tactus data fetch stag``, or ``--from DIR``), three held-out
-glove recordings (one per object, none seen in the shipped model's training: the
-``one-per-object@blindfolded`` split) are laid end to end as one session, cut as the stream
-cuts them, and stored with a few notes in a memory (a temporary folder, or ``--data``). Then
-five questions whose right answers the demo knows are asked (three about touch, two about the
-notes), each printed with its best hit, score, match and whether it was right. Without the
-files it says in one line how to get them and runs the notes part.
+With the STAG files present (``tactus data fetch stag``, or ``--from DIR``), three glove
+recordings are laid end to end as one session, cut as the stream cuts them, and stored with a
+few notes in a memory (a temporary folder, or ``--data``). The touch sense is the shipped DEMO
+checkpoint (:data:`~tactus_memory.touch.checkpoint.DEMO_CHECKPOINT`), trained with ``--holdout
+one-per-object@blindfolded``; the three recordings are taken from the held-out recordings its
+metadata names, so the demo asks only about recordings it never trained on (a test checks
+this). Then five questions whose right answers the demo knows are asked (three about touch, two
+about the notes), each printed with its best hit, score, match and whether it was right: right
+means the top hit is the right span (or note) AND a match. The demo ends with the checkpoint's
+measured held-out figures (:data:`HELDOUT_FIGURES`), so three answers are read against them.
+Without the files it says in one line how to get them and runs the notes part.
 """
 
 from __future__ import annotations
 
+import json
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,15 +28,19 @@ from tactus_memory.cli.space_opts import fail
 
 #: the session the demo writes
 SESSION = "demo-glove"
-#: the STAG subset the held-out recordings come from, and the split that names them
+#: the STAG subset the held-out recordings come from
 SUBSET = "blindfolded_lite_train"
-HOLDOUT = "one-per-object@blindfolded"
+#: the demo checkpoint's measured held-out figures (tuple top-1, stream R@1/R@5 with 95 %
+#: intervals), written by ``benchmarks/touch_demo.py`` (also in benchmarks/results/touch_demo.json)
+HELDOUT_FIGURES = Path(__file__).parents[1] / "touch" / "checkpoints" / "demo-heldout.json"
 #: (object, the question asked about it): the objects whose held-out recordings are stored
 TOUCH_QUESTIONS = (
     ("mug", "when was I holding a mug?"),
     ("scissors", "when was I holding the scissors?"),
     ("full_can", "grabbing an unopened can"),
 )
+#: what "right" means in the demo's count
+RIGHT = "right: the top hit is the answer and a match"
 #: (t, note) written to the session; the note questions below know which is right
 NOTES = (
     (1.0, "the operator said the charger is in the left drawer"),
@@ -53,24 +62,40 @@ class Question:
     right_text: str | None = None
 
     def judge(self, hit: Any) -> bool:
+        """Right: the hit is the right span (touch) or note (text), and a match."""
+        if not hit.match:
+            return False
         if self.right_span is not None:
             lo, hi = self.right_span
             return hit.t <= hi and hit.t_end >= lo
         return hit.text == self.right_text
 
 
-def touch_session(stag: Path, memory: Any, start: float) -> list[Question]:
-    """Store the held-out recordings of TOUCH_QUESTIONS' objects from ``start`` (s); the touch
-    questions, each knowing its recording's span."""
+def demo_recordings(data: Any, meta: dict[str, Any]) -> dict[str, int]:
+    """object -> the id (in ``data``) of a recording of it that the checkpoint of ``meta`` was
+    trained without (its recorded held-out recordings), for TOUCH_QUESTIONS' objects."""
+    from tactus_memory.touch.checkpoint import heldout_recordings
+
+    held = set(heldout_recordings(meta))
+    out: dict[str, int] = {}
+    for r, name in enumerate(data.recordings):
+        m = data.recording_id == r
+        if name not in held or not (m & data.valid).any():
+            continue
+        out.setdefault(data.objects[int(data.object_id[m][0])], r)
+    return {obj: out[obj] for obj, _ in TOUCH_QUESTIONS if obj in out}
+
+
+def touch_session(stag: Path, memory: Any, start: float, meta: dict[str, Any]) -> list[Question]:
+    """Store the held-out recordings (of the checkpoint of ``meta``) of TOUCH_QUESTIONS'
+    objects from ``start`` (s); the touch questions, each knowing its recording's span."""
     from tactus_memory.training.stream_eval import build_stream
-    from tactus_memory.training.train import holdout_recordings, load_data
+    from tactus_memory.training.train import load_data
 
     data = load_data([stag / SUBSET])
-    by_object = {
-        data.objects[int(data.object_id[data.recording_id == r][0])]: r
-        for r in holdout_recordings(data, HOLDOUT)
-    }
-    recs = [by_object[obj] for obj, _ in TOUCH_QUESTIONS if obj in by_object]
+    recs = list(demo_recordings(data, meta).values())
+    if not recs:
+        raise ValueError(f"none of the demo checkpoint's held-out recordings is in {stag}")
     stream = build_stream(data, recs)
     t, t_end = stream.t + start, stream.t_end + start
     memory.add_many(
@@ -87,6 +112,20 @@ def touch_session(stag: Path, memory: Any, start: float) -> list[Question]:
         for obj, q in TOUCH_QUESTIONS
         if obj in spans
     ]
+
+
+def heldout_line() -> str:
+    """The demo checkpoint's measured held-out figures, one line."""
+    f = json.loads(HELDOUT_FIGURES.read_text())
+
+    def fig(name: str) -> str:
+        m = f[name]
+        return f"{m['value']:.2f} [{m['lo']:.2f}, {m['hi']:.2f}]"
+
+    return (
+        f"measured on its {f['recordings']} held-out recordings: tuple top-1 {fig('tuple_top1')}, "
+        f"stream R@1 {fig('stream_r1')}, R@5 {fig('stream_r5')} (95 % intervals)"
+    )
 
 
 def ask(memory: Any, question: Question) -> str:
@@ -118,6 +157,7 @@ def demo(
     from tactus_memory.datasets.home import data_home
     from tactus_memory.memory.main import Memory
     from tactus_memory.senses.plugins import create_sense
+    from tactus_memory.touch.checkpoint import demo_checkpoint_path
 
     stag = Path(stag_from).expanduser() if stag_from else data_home().stag
     have_stag = (stag / SUBSET / "metadata.mat").is_file()
@@ -131,9 +171,13 @@ def demo(
             memory.add(SESSION, "text", note, t=t)
         questions = [Question(q, "text", right_text=NOTES[i][1]) for q, i in NOTE_QUESTIONS]
         if have_stag:
-            memory.add_sense(create_sense("touch", memory.space))
-            typer.echo(f"storing held-out glove recordings from {stag / SUBSET} ...")
-            questions = touch_session(stag, memory, start=10.0) + questions
+            sense = create_sense("touch", memory.space, checkpoint=demo_checkpoint_path())
+            memory.add_sense(sense)
+            typer.echo(
+                f"storing glove recordings from {stag / SUBSET} that the demo touch model "
+                f"({sense.ckpt.path.name}) never trained on ..."
+            )
+            questions = touch_session(stag, memory, 10.0, sense.ckpt.meta) + questions
         else:
             typer.echo(
                 f"no STAG files at {stag}: `tactus data fetch stag` gets them (or --from DIR); "
@@ -146,7 +190,11 @@ def demo(
             line = ask(memory, question)
             right += line.endswith("right: yes")
             typer.echo(line)
-        typer.echo(f"{right} of {len(questions)} right")
+        typer.echo(
+            f"{right} of {len(questions)} right (right: the top hit is the answer and a match)"
+        )
+        if have_stag:
+            typer.echo(f"the demo touch model, {heldout_line()}")
     except Exception as exc:  # noqa: BLE001  (one line, exit 2)
         fail(f"the demo failed: {type(exc).__name__}: {exc}")
     finally:

@@ -30,9 +30,13 @@ import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tactus_memory.export.user_cache import cache_root
 from tactus_memory.spaces.onnx_runtime import TOUCH_ONNX, TOUCH_SOURCE, has_torch
+
+if TYPE_CHECKING:  # annotations only: numpy is imported inside the functions that use it
+    import numpy as np
 
 #: bump when the export changes what it writes: a new cache folder, exported again
 EXPORT_VERSION = 2
@@ -126,7 +130,7 @@ def _max_diff(a: object, b: object) -> float:
     return float(np.abs(a - b).max())
 
 
-def reference_vectors() -> tuple[list[str], object]:
+def reference_vectors() -> tuple[list[str], np.ndarray]:
     """The shipped MiniLM vectors of :data:`CHECK_TEXTS` (computed on torch; checked equal to
     sentence-transformers' by tests/spaces/test_minilm_graph.py): (texts, (N, 384) array)."""
     import numpy as np
@@ -190,7 +194,11 @@ def export(folder: Path, touch_checkpoint: str | None = None) -> dict[str, objec
                 ),
                 enc.embed(raw),
             )
-        record = {"minilm_max_abs_diff": minilm, "touch_max_abs_diff": touch, "torch": torch}
+        record: dict[str, object] = {
+            "minilm_max_abs_diff": minilm,
+            "touch_max_abs_diff": touch,
+            "torch": torch,
+        }
         if not (minilm < TOLERANCE and (not isinstance(touch, float) or touch < TOLERANCE)):
             raise RuntimeError(f"the ONNX graphs do not give the expected vectors: {record}")
         (tmp / CHECKED).write_text(json.dumps(record, indent=2) + "\n")

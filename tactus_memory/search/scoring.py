@@ -25,6 +25,20 @@ Method (two steps, both per sense):
    a young sense's scores move by design: its null distribution is still being learnt.
    ``tactus reembed`` (a new encoder) starts the estimate again.
 
+**A prior for a young sense.** Estimated on a few rows, ``mu_s`` and ``sigma_s`` move with
+every doubling, so a young memory's scores moved with unrelated data (+43 % for one note after
+150 unrelated notes in another session, issue 46). A sense therefore may have a *prior*
+calibration where one is shipped, and the estimate used is the blend
+
+    mu = w * mu_own + (1 - w) * mu_prior     (sigma likewise),  w = min(1, n / FINAL_ROWS)
+
+so the store's own estimate takes over as it grows and is alone once final. The priors: a
+touch sense's is shipped beside its checkpoint (``touch/checkpoints/calibration-priors.json``,
+keyed by the checkpoint's sha256, measured by ``benchmarks/calibration_prior.py``); a sense
+without one (a text sense: the probe bank's null against itself was tried and lowered young
+notes' scores below the bar: the docs' touch guide, "Scores that stay put") uses its own
+estimate alone, as before.
+
 ``search_vector`` / ``search_like`` use the same statistics: their scores rank hits of one
 sense exactly like cosine, and are comparable across senses to the extent the query looks
 like a text query.
@@ -133,6 +147,19 @@ class Calibration:
         """Re-estimate when never estimated, or the row count has at least doubled and the
         estimate is not final yet."""
         return rows > 0 and (self.n == 0 or (rows >= 2 * self.n and not self.final))
+
+
+def blend(own: Calibration, prior: Calibration | None) -> Calibration:
+    """The calibration a search uses: ``own`` blended with ``prior`` by ``own.n / FINAL_ROWS``
+    (the module docstring); ``own`` itself when final or without a prior."""
+    if prior is None or own.final:
+        return own
+    w = own.n / FINAL_ROWS
+    return Calibration(
+        mu=w * own.mu + (1.0 - w) * prior.mu,
+        sigma=max(w * own.sigma + (1.0 - w) * prior.sigma, MIN_SIGMA),
+        n=own.n,
+    )
 
 
 def estimate(probes: np.ndarray, items: np.ndarray, rows: int) -> Calibration:

@@ -26,7 +26,7 @@ from tactus_memory.errors import (
     UnknownSenseError,
 )
 from tactus_memory.results import SenseInfo
-from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, estimate
+from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, blend, estimate
 from tactus_memory.senses.base import Sense, array_to_bytes, bytes_to_array, validate_sense_name
 from tactus_memory.senses.plugins import lookup, registered_name
 from tactus_memory.spaces.base import Space
@@ -327,6 +327,7 @@ class SenseRegistry:
                     sigma=c.sigma if c else None,
                     calib_n=c.n if c and c.n else None,
                     calib_final=bool(c and c.final),
+                    precision_at_bar=_shipped(self._live.get(name, s), "match_precision"),
                 )
             )
         return out
@@ -413,8 +414,18 @@ class SenseRegistry:
             self._probes = as_unit_rows(arr, self.space.dim)
         return self._probes
 
+    def prior(self, sense: str) -> Calibration | None:
+        """A sense's prior calibration (``scoring`` docstring): what the sense ships
+        (``calibration_prior()``, a touch checkpoint's), else None (a text sense: none)."""
+        row = _shipped(self.search_sense(sense), "calibration_prior")  # {"mu", "sigma"}
+        return None if row is None else Calibration(float(row["mu"]), float(row["sigma"]), 0)
+
     def calibration(self, sense: str) -> Calibration:
-        """The null statistics of a sense, re-estimated when its row count has doubled."""
+        """The null statistics of a sense: its own estimate blended with its prior until final."""
+        return blend(self.own_calibration(sense), self.prior(sense))
+
+    def own_calibration(self, sense: str) -> Calibration:
+        """Its own estimate (no prior), re-estimated when the row count has doubled."""
         rows = self.counts(exact=False).get(sense, 0)
         calib = self._calib.get(sense, Calibration())
         if not calib.stale(rows):
@@ -481,3 +492,8 @@ class SenseRegistry:
     def forget_counts(self) -> None:
         """After a delete (or a write whose count is unknown): recount before the next use."""
         self._counts = self._recent = None
+
+
+def _shipped(sense: Any, method: str) -> Any:
+    """``sense.<method>()`` when the sense has that method (a shipped measurement), else None."""
+    return getattr(sense, method, lambda: None)()

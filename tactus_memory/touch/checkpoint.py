@@ -41,18 +41,66 @@ if TYPE_CHECKING:
 
 FORMAT = "tactus-touch/1"
 DEFAULT_CHECKPOINT = "tactus-lite-minilm.safetensors"  # in tactus_memory/touch/checkpoints/
+#: the demo's checkpoint (``tactus demo``): trained with ``--holdout one-per-object@blindfolded``,
+#: so the recordings the demo asks about are ones it never trained on (its metadata names them)
+DEMO_CHECKPOINT = "tactus-lite-minilm-demo.safetensors"
+
+
+def _shipped(name: str) -> Path:
+    ref = resources.files("tactus_memory.touch") / "checkpoints" / name
+    path = Path(str(ref))
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"the shipped touch checkpoint {name} is missing from {path.parent}; "
+            "train one with `tactus train` and use TactusEncoder.from_pretrained(path)"
+        )
+    return path
 
 
 def default_checkpoint_path() -> Path:
     """The shipped default checkpoint (package data)."""
-    ref = resources.files("tactus_memory.touch") / "checkpoints" / DEFAULT_CHECKPOINT
+    return _shipped(DEFAULT_CHECKPOINT)
+
+
+def demo_checkpoint_path() -> Path:
+    """The shipped demo checkpoint (package data; trained without the demo's recordings)."""
+    return _shipped(DEMO_CHECKPOINT)
+
+
+#: the prior score calibrations of the shipped checkpoints (``search/scoring.py``), keyed by
+#: checkpoint sha256; written by ``benchmarks/calibration_prior.py``
+CALIBRATION_PRIORS = "calibration-priors.json"
+
+
+def calibration_prior(sha256: str) -> dict[str, float] | None:
+    """The prior score calibration (``{"mu", "sigma"}`` of the probe null) shipped for the
+    checkpoint of ``sha256`` (None: none shipped)."""
+    ref = resources.files("tactus_memory.touch") / "checkpoints" / CALIBRATION_PRIORS
     path = Path(str(ref))
     if not path.is_file():
-        raise FileNotFoundError(
-            f"the shipped touch checkpoint {DEFAULT_CHECKPOINT} is missing from {path.parent}; "
-            "train one with `tactus train` and use TactusEncoder.from_pretrained(path)"
-        )
-    return path
+        return None
+    row = json.loads(path.read_text()).get("priors", {}).get(sha256)
+    return None if row is None else {"mu": float(row["mu"]), "sigma": float(row["sigma"])}
+
+
+#: the measured precision of a touch match at the grasp bar, keyed by checkpoint sha256;
+#: written by ``benchmarks/touch_demo.py`` (held-out recordings of the protocol's fold A)
+MATCH_PRECISION = "match-precision.json"
+
+
+def match_precision(sha256: str) -> dict[str, Any] | None:
+    """The measured precision at the match bar of the checkpoint of ``sha256`` (None: none)."""
+    path = Path(str(resources.files("tactus_memory.touch") / "checkpoints" / MATCH_PRECISION))
+    if not path.is_file():
+        return None
+    row = json.loads(path.read_text()).get("precision_at_bar", {}).get(sha256)
+    return None if row is None else dict(row)
+
+
+def heldout_recordings(meta: dict[str, Any]) -> list[str]:
+    """The recordings a checkpoint was trained WITHOUT, as its metadata records them (the
+    ``--holdout`` of ``tactus train``; empty for a checkpoint trained on everything)."""
+    return list(meta.get("metrics", {}).get("heldout", {}).get("recordings_named", []))
 
 
 @dataclass

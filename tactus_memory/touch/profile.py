@@ -79,6 +79,9 @@ class SensorProfile:
     taxel_gain: Grid | None = None  # (H, W) calibrated units per raw count, replaces 1 / span
     mask: tuple[tuple[bool, ...], ...] | None = None  # (H, W) bool: real taxels
     pads: tuple[Pad, ...] = ()  # named blocks of the frame, in drawing order
+    #: calibrated level a taxel must reach to count as touching (None: the glove's,
+    #: ``touch.windows.CONTACT_LEVEL``); read it through ``touch.windows.contact_level``
+    contact_level: float | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.offset) or not np.isfinite(self.span) or self.span <= 0:
@@ -103,6 +106,11 @@ class SensorProfile:
             object.__setattr__(self, f, _grid(f, getattr(self, f), shape, float))
         if self.taxel_gain is not None and np.any(np.asarray(self.taxel_gain) <= 0):
             raise InvalidInputError(f"profile {self.name!r}: taxel_gain must be > 0")
+        if self.contact_level is not None and not 0.0 < float(self.contact_level) < 1.0:
+            raise InvalidInputError(
+                f"profile {self.name!r}: contact_level must be in (0, 1) calibrated, "
+                f"got {self.contact_level}"
+            )
 
     @property
     def per_taxel(self) -> bool:
@@ -172,6 +180,8 @@ class SensorProfile:
                 d[f] = [list(row) for row in getattr(self, f)]
         if self.pads:
             d["pads"] = [p.to_dict() for p in self.pads]
+        if self.contact_level is not None:  # only when set: old dicts stay equal
+            d["contact_level"] = float(self.contact_level)
         return d
 
     @classmethod
@@ -190,6 +200,9 @@ class SensorProfile:
                 taxel_gain=d.get("taxel_gain"),
                 mask=d.get("mask"),
                 pads=tuple(Pad.from_dict(p) for p in d.get("pads", ())),
+                contact_level=(
+                    None if d.get("contact_level") is None else float(d["contact_level"])
+                ),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"bad sensor profile dict {d!r}: {exc}") from exc

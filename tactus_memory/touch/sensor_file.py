@@ -10,6 +10,7 @@ files named relative to the TOML file)::
     span = 3000               # ... and offset + span to 1: clip((raw - offset) / span, 0, 1)
     rest = 210                # untouched reading (diagnostics; fills pixels no pad covers)
     saturation = 4095         # reading where the sensor saturates (diagnostics)
+    # contact_level = 0.08    # calibrated level of a touching taxel (default: the glove's 1/6)
     # taxel_offset = "offsets.npy"   # (H, W) per-taxel offset, replaces offset
     # taxel_gain = "gains.npy"       # (H, W) per-taxel gain (1/span), replaces span
     # mask = "mask.npy"              # (H, W) bool real taxels (default: the pads' taxels)
@@ -37,7 +38,7 @@ from tactus_memory.touch.profile import PROFILES, SensorProfile
 
 PROFILE_KEYS = frozenset(
     {"name", "shape", "offset", "span", "rest", "saturation", "taxel_offset", "taxel_gain"}
-    | {"mask", "pad"}
+    | {"mask", "pad", "contact_level"}
 )
 _SHAPE = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 
@@ -96,6 +97,7 @@ def profile_from_toml_dict(d: dict[str, Any], base: Path = Path(".")) -> SensorP
             taxel_gain=arrays["taxel_gain"],  # type: ignore[arg-type]
             mask=arrays["mask"],  # type: ignore[arg-type]
             pads=pads,
+            contact_level=None if d.get("contact_level") is None else float(d["contact_level"]),
         )
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"bad sensor profile: {exc}") from exc

@@ -50,6 +50,11 @@ from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 CONTACT_LEVEL = 1.0 / 6.0
 #: a window is idle when none of its frames has this many taxels at CONTACT_LEVEL
 CONTACT_MIN_TAXELS = 2
+#: a sensor's own contact level is this quantile, over its labelled (grasp) frames, of each
+#: frame's CONTACT_MIN_TAXELS-th highest calibrated taxel (:func:`estimate_contact_level`):
+#: on the glove's labelled frames (weights_lite + blindfolded_lite_train, 2,561) that quantile
+#: is 0.167, the glove's measured CONTACT_LEVEL (1/6), so the rule reproduces it
+CONTACT_QUANTILE = 0.10
 
 
 @dataclass(frozen=True)
@@ -93,16 +98,38 @@ def calibrated_frames(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -
     return profile.scale(arr)  # no frame-shape check: windowing takes any H x W
 
 
+def contact_level(profile: SensorProfile | None = None) -> float:
+    """The calibrated level at which a taxel of ``profile``'s sensor counts as touching: the
+    profile's own ``contact_level`` when it sets one (a checkpoint records it, a sensor file
+    may set it), else the glove's :data:`CONTACT_LEVEL`. The one place the level is read."""
+    if profile is None or profile.contact_level is None:
+        return CONTACT_LEVEL
+    return float(profile.contact_level)
+
+
+def estimate_contact_level(labelled: np.ndarray) -> float:
+    """(N, H, W) calibrated labelled (grasp) frames of one sensor -> its contact level: the
+    :data:`CONTACT_QUANTILE` quantile of each frame's :data:`CONTACT_MIN_TAXELS`-th highest
+    taxel (so that share of grasp frames has fewer taxels in contact), kept inside (0, 1)."""
+    frames = np.asarray(labelled, np.float32)
+    if frames.ndim != 3 or len(frames) == 0:
+        raise InvalidInputError(f"need (N, H, W) labelled frames, got shape {frames.shape}")
+    flat = frames.reshape(len(frames), -1)
+    kth = np.partition(flat, flat.shape[1] - CONTACT_MIN_TAXELS, axis=1)[:, -CONTACT_MIN_TAXELS]
+    return float(np.clip(np.quantile(kth, CONTACT_QUANTILE), 1e-3, 1.0 - 1e-3))
+
+
 def contact_taxels(frames: np.ndarray, profile: SensorProfile = STAG_GLOVE) -> np.ndarray:
-    """(..., H, W) frames -> (...) int64 taxels at or above :data:`CONTACT_LEVEL`."""
+    """(..., H, W) frames -> (...) int64 taxels at or above ``contact_level(profile)``."""
     cal = calibrated_frames(frames, profile)
-    return (cal >= np.float32(CONTACT_LEVEL)).sum(axis=(-2, -1)).astype(np.int64)
+    return (cal >= np.float32(contact_level(profile))).sum(axis=(-2, -1)).astype(np.int64)
 
 
-def window_idle(calibrated: np.ndarray) -> bool:
+def window_idle(calibrated: np.ndarray, level: float = CONTACT_LEVEL) -> bool:
     """Whether a calibrated window (K, H, W) in [0, 1] is idle: no frame has
-    :data:`CONTACT_MIN_TAXELS` taxels at :data:`CONTACT_LEVEL` (no calibration here)."""
-    peak = (np.asarray(calibrated) >= np.float32(CONTACT_LEVEL)).sum(axis=(-2, -1)).max()
+    :data:`CONTACT_MIN_TAXELS` taxels at ``level`` (default :data:`CONTACT_LEVEL`; a sensor's
+    own: :func:`contact_level`; no calibration here)."""
+    peak = (np.asarray(calibrated) >= np.float32(level)).sum(axis=(-2, -1)).max()
     return int(peak) < CONTACT_MIN_TAXELS
 
 

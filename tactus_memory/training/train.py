@@ -21,7 +21,7 @@ import logging
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -186,7 +186,11 @@ def prepare_data(
     every frame in contact (``touch/windows.py`` rule) of the training recordings (each
     recording is one object). Held-out scoring always uses the valid frames."""
     from tactus_memory.touch.profile import STAG_GLOVE
-    from tactus_memory.touch.windows import CONTACT_MIN_TAXELS, contact_taxels
+    from tactus_memory.touch.windows import (
+        CONTACT_MIN_TAXELS,
+        contact_taxels,
+        estimate_contact_level,
+    )
 
     if positives not in POSITIVES:
         raise ValueError(f"positives must be one of {POSITIVES}, got {positives!r}")
@@ -196,6 +200,15 @@ def prepare_data(
     data.check_dynamic_range(profile)  # raises DynamicRangeError naming the file
     cal = data.calibrated(profile)
     held = np.isin(data.recording_id, np.asarray(holdout, dtype=np.int64))
+    if (
+        profile.contact_level is None
+        and profile.name != STAG_GLOVE.name
+        and (data.valid & ~held).any()
+    ):
+        # another sensor's idle rule: its contact level from its own training grasps (the
+        # glove keeps its measured 1/6, which the same rule reproduces), in the checkpoint
+        level = estimate_contact_level(cal[data.valid & ~held])
+        profile = replace(profile, contact_level=level)
     return TrainData(
         calibrated=cal,
         labels=np.asarray(data.object_id, dtype=np.int64),

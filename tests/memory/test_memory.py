@@ -338,14 +338,14 @@ def test_calibration_persists_and_refreshes_when_rows_double(tmp_path) -> None:
     mem = Memory.open(path, space=HashingSpace())
     mem.add_many("s1", "text", ["alpha beta", "gamma delta", "mug shelf"])
     mem.search("mug", k=1)
-    first = mem.calibration("text")
+    first = mem.registry.own_calibration("text")  # the estimate (no prior blended in)
     assert first.n == 3 and first.sigma > 0
     mem.add_many("s1", "text", ["one two"])  # 4 rows: not yet doubled
-    assert mem.calibration("text") == first
+    assert mem.registry.own_calibration("text") == first
     again = Memory.open(path, space=HashingSpace())
-    assert again.calibration("text") == first  # persisted, not re-estimated
+    assert again.registry.own_calibration("text") == first  # persisted, not re-estimated
     again.add_many("s1", "text", ["three four", "five six"])  # 6 rows = 2 x 3
-    assert again.calibration("text").n == 6
+    assert again.registry.own_calibration("text").n == 6
 
 
 def test_background_index_and_compaction(tmp_path) -> None:
