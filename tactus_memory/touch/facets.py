@@ -10,7 +10,8 @@ Per window (:func:`window_facets`, vectorised over B windows of K frames, (B, K,
   floor (the STAG glove's pedestal sits near 0.07-0.10 calibrated, stag-format.md: about
   55 of force on the blindfolded recordings' held frames);
 * ``area``: per frame the share of the sensor's taxels (:func:`taxel_mask`) at or
-  above the contact level (:func:`contact_level`), averaged over the frames;
+  above the contact level (``touch.windows.contact_level``: the profile's, else the glove's
+  1/6), averaged over the frames;
 * ``peak``: the highest calibrated taxel value of the window;
 * ``centroid`` (row, col) and ``spread`` (taxels): the mean position and the RMS distance from
   it of the *contact load*, the calibrated values of the taxels at or above the contact level
@@ -50,7 +51,7 @@ import numpy as np
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.profile import SensorProfile
 from tactus_memory.touch.regions import PALM, THUMB, RegionMap, regions_of
-from tactus_memory.touch.windows import CONTACT_LEVEL
+from tactus_memory.touch.windows import contact_level
 
 #: a region carries at least this share of the contact load to count as active in the grip
 #: rule: one finger's strip of the STAG glove is 42 of its 548 taxels (7.7 %), so a tenth of
@@ -64,14 +65,6 @@ GRASP_FACETS = (
     *WINDOW_FACETS,
     *("onset", "release", "duration", "peak_time", "ramp", "slip", "caption", "caption_rule"),
 )
-
-
-def contact_level(profile: SensorProfile | None = None) -> float:
-    """The calibrated level at which a taxel of ``profile`` counts as touching. Today every
-    sensor's is the touch sense's :data:`~tactus_memory.touch.windows.CONTACT_LEVEL`; this is
-    the one place that reads it, so a per-sensor level switches here."""
-    del profile
-    return float(CONTACT_LEVEL)
 
 
 def grip_of(shares: dict[str, float]) -> str | None:

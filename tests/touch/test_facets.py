@@ -11,7 +11,6 @@ from tactus_memory.touch.facets import (
     ACTIVE_SHARE,
     CAPTION_RULE,
     caption,
-    contact_level,
     grasp_facets,
     grip_of,
     window_facets,
@@ -19,6 +18,7 @@ from tactus_memory.touch.facets import (
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 from tactus_memory.touch.regions import STAG_REGIONS, regions_of
 from tactus_memory.touch.sensor_file import load_profile_toml
+from tactus_memory.touch.windows import contact_level
 from tests.helpers.hand_synth import HAND_TOML
 
 HAND = load_profile_toml(HAND_TOML)  # thumb, index, middle, ring 4x4 in rows 0-3; palm 8x8

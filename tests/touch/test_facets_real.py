@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactus_memory.touch.facets import contact_level, grasp_facets, window_facets
+from tactus_memory.touch.facets import grasp_facets, window_facets
 from tactus_memory.touch.profile import STAG_GLOVE
 from tactus_memory.touch.regions import STAG_REGIONS, STAG_TAXELS
+from tactus_memory.touch.windows import contact_level
 from tactus_memory.training.data import StagData, load_stag
 from tests.conftest import _no_real_data
 
