@@ -194,9 +194,10 @@ class Where:
             out.parts.append(f"t >= {_sql_float(bound)}")
         return out
 
-    def _eq(self, column: str, value: str | None, check: Callable[[Any], str]) -> Where:
-        if value is not None:
-            self.parts.append(f"{column} = {_sql_str(check(value))}")
+    def _eq(self, column: str, value: str | None, check: Callable[[Any], str | None]) -> Where:
+        checked = None if value is None else check(value)
+        if checked is not None:
+            self.parts.append(f"{column} = {_sql_str(checked)}")
         return self
 
     def _in(self, column: str, values: Iterable[str] | None, check: Callable[[Any], str]) -> Where:

@@ -81,7 +81,7 @@ class RegionMap:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return tuple(self.index.shape)  # type: ignore[return-value]
+        return (int(self.index.shape[0]), int(self.index.shape[1]))
 
     def onehot(self) -> np.ndarray:
         """(H*W, R) float32: 1 where a taxel belongs to region r (for one matmul per frame)."""
