@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
@@ -165,8 +166,9 @@ def serve(
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001  (startup: one line and exit 2, unless --debug)
-        if debug:
-            raise
+        if debug:  # the full traceback, printed here: the CLI's group turns errors into a line
+            traceback.print_exc()
+            raise typer.Exit(2) from None
         typer.echo(f"tactus serve: {explain(exc, where)}", err=True)
         raise typer.Exit(2) from None
     run_server(application, settings)
@@ -175,7 +177,8 @@ def serve(
     )
     if failed is not None:  # a model loading after the socket opened failed: same line, status
         if debug:
-            raise failed
+            traceback.print_exception(failed)
+            raise typer.Exit(2)
         typer.echo(f"tactus serve: {explain(failed, where)}", err=True)
         raise typer.Exit(2)
 

@@ -80,7 +80,8 @@ def test_two_touch_senses_of_two_shapes_in_one_memory(tmp_path, skin_ckpt, windo
             mem.add("s", "touch", pooled(frames[0]), t=0.0)
         hits = mem.search("a hand holding a mug", k=50, senses=["touch", "skin"])
         assert {h.sense for h in hits} == {"touch", "skin"}
-        like = mem.search_like("skin", pooled(frames[0]), k=3)
+        # every stored window: an untrained model may tie more than a few at cosine 1
+        like = mem.search_like("skin", pooled(frames[0]), k=len(frames))
         # the same window is stored: a cosine-1 example (an untrained model may tie others)
         assert {h.sense for h in like} == {"skin"} and like[0].cosine == pytest.approx(1, abs=1e-3)
         assert skin_ids[0] in {h.id for h in like if h.cosine > 1 - 1e-3}
