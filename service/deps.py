@@ -42,6 +42,7 @@ from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import allows
 from tactus_memory.times import Seconds
 from tactus_memory.where import (
+    REGIONS_PATTERN,
     SESSION_PREFIX,
     Near,
     check_near,
@@ -360,6 +361,7 @@ RegionsQ = Annotated[
     str | None,
     Query(
         max_length=400,
+        pattern=REGIONS_PATTERN,
         description="Touch only: every one of these regions or pads active (comma-separated, "
         "e.g. `thumb,index`).",
     ),

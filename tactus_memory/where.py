@@ -73,6 +73,8 @@ GRIPS = ("none", "power", "press", "pinch", "tripod", "other")
 SORTS = ("force", "-force", "area", "-area", "t", "-t")
 #: a region or pad name in a facet filter (``regions=thumb,index``)
 REGION_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")
+#: a comma-separated list of region names, as a query string takes it (no spaces)
+REGIONS_PATTERN = r"^[A-Za-z0-9_-]{1,64}(,[A-Za-z0-9_-]{1,64})*$"
 
 
 def check_regions(value: Any) -> tuple[str, ...] | None:
@@ -80,7 +82,6 @@ def check_regions(value: Any) -> tuple[str, ...] | None:
     if value is None:
         return None
     names = value.split(",") if isinstance(value, str) else list(value)
-    names = [n.strip() if isinstance(n, str) else n for n in names]
     for n in names:
         if not isinstance(n, str) or not REGION_RE.fullmatch(n):
             raise InvalidInputError(
