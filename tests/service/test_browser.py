@@ -309,7 +309,8 @@ def test_touch_hits_show_heat_maps(page, served, tmp_path):
     bars = page.eval_on_selector_all(f"{HIT} .bar", "els => els.map(e => e.textContent)")
     assert len(bars) == len(senses) and all(re.search(r"bar \d+\.\d\d", b) for b in bars), bars
     assert re.search(r"\d+ clear the match bar", page.text_content("#search-status"))
-    assert "object" in page.text_content(f"{HIT} .meta")
+    assert "object" in page.text_content(f"{HIT} .meta:not(.facets)")  # the user's meta
+    assert "force" in page.text_content(f"{HIT} .meta.facets")  # the touch facets beside it
     # touch answers are grasps by default; "Touch as single windows" asks for windows
     grasps = page.eval_on_selector_all(f"{HIT} .grasp", "els => els.map(e => e.textContent)")
     assert grasps and all(re.fullmatch(r"grasp of \d+ windows?", g) for g in grasps), grasps
