@@ -64,8 +64,11 @@ lint: setup-test
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy -p tactus_memory
 
+# two workers (TEST_WORKERS=0: one process), whole test files per worker (--dist loadfile), so
+# a module's server, store or trained checkpoint is built once
+TEST_WORKERS ?= 2
 test: setup-test lint
-	$(VENV)/bin/pytest -q
+	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 format: setup-test
 	$(VENV)/bin/ruff format .
