@@ -45,7 +45,7 @@ from tactus_memory.service.temporal_schemas import (
     SegmentOut,
     TimelineOut,
 )
-from tactus_memory.temporal.grasps import OCCURRENCE_POOL
+from tactus_memory.search.grasps import OCCURRENCE_POOL
 
 ERRORS = problem_responses(404, 422)
 #: every temporal route answers 404 (unknown session/sense) and 422 (bad input) problems
