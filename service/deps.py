@@ -450,7 +450,7 @@ PlaceScopeDep = Annotated[Scope, Depends(place_scope)]
 StreamScopeDep = Annotated[Scope, Depends(stream_scope)]
 
 
-#: how group=grasp scores a grasp (tactus_memory.temporal.grasps.POOLS)
+#: how group=grasp scores a grasp (tactus_memory.search.grasps.POOLS)
 GraspPool = Annotated[
     Literal["mean", "top", "max"],
     Query(

@@ -215,7 +215,7 @@ class Evidence(TimelineItem):
 
 
 class Grasp(Evidence):
-    """One grasp (:mod:`tactus_memory.temporal.grasps`): contiguous items of one stream, ranked by
+    """One grasp (:mod:`tactus_memory.search.grasps`): contiguous items of one stream, ranked by
     their
     pooled vector. ``id`` is its best-scoring member among the search's candidates; ``t`` /
     ``t_end`` (and the aligned pair) span every member; ``score``/``cosine`` are the pooled

@@ -24,6 +24,7 @@ from tactus_memory.matching import (
     Match,
 )
 from tactus_memory.results import Occurrences, Side
+from tactus_memory.search.grasps import OCCURRENCE_POOL
 from tactus_memory.service.deps import (
     GraspPool,
     MemoryDep,
@@ -45,7 +46,6 @@ from tactus_memory.service.temporal_schemas import (
     SegmentOut,
     TimelineOut,
 )
-from tactus_memory.temporal.grasps import OCCURRENCE_POOL
 
 ERRORS = problem_responses(404, 422)
 #: every temporal route answers 404 (unknown session/sense) and 422 (bad input) problems

@@ -40,7 +40,7 @@ Query = typer.Argument(..., help="What happened, in natural language.")
 def _occurrences(query: str, scope: Scope, source: Source, windows: bool = False) -> Occurrences:
     """Every occurrence of ``query`` in scope, from the store (``--data``) or a server;
     touch asked of grasps unless ``windows``."""
-    from tactus_memory.temporal.grasps import windows_group
+    from tactus_memory.search.grasps import windows_group
 
     group = windows_group(windows)
     from tactus_memory.errors import TactusError

@@ -155,7 +155,7 @@ def search(
     from tactus_memory.results import Hit
 
     one_source(source.data, source.url)
-    from tactus_memory.temporal.grasps import windows_group
+    from tactus_memory.search.grasps import windows_group
 
     group = windows_group(windows)
     if source.url:

@@ -35,8 +35,8 @@ from tactus_memory.mcp.hits import Compactor, Found, MomentResult, moment_fields
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
 from tactus_memory.results import Place
+from tactus_memory.search.grasps import windows_group
 from tactus_memory.signatures import grouped
-from tactus_memory.temporal.grasps import windows_group
 from tactus_memory.where import Near, check_near, check_regions
 
 #: a coordinate (m), bounded as HTTP's (``limits.MAX_COORDINATE``)

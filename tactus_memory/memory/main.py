@@ -68,6 +68,7 @@ from tactus_memory.results import (
     Stored,
     item_from_row,
 )
+from tactus_memory.search.grasps import DEFAULT_GROUP, check_group
 from tactus_memory.search.ordering import candidates, sort_hits
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.scoring import Calibration
@@ -82,7 +83,6 @@ from tactus_memory.storage.scheduler import Background
 from tactus_memory.storage.store import Store
 from tactus_memory.storage.tables import HIT_COLUMNS, IndexConfig
 from tactus_memory.storage.tenants import tenant_uri
-from tactus_memory.temporal.grasps import DEFAULT_GROUP, GraspRule, check_group, grasp_hits
 from tactus_memory.temporal.operators import Temporal
 from tactus_memory.vectors import as_unit_rows
 from tactus_memory.where import DEFAULT_FRAME, Where
@@ -373,13 +373,11 @@ class Memory(AbstractContextManager["Memory"]):
             return sort_hits(self.search_moments(query, kk, gap=gap, scope=where), sort, k)
         q = embed_query(self.space, query)
         with self.registry.pinned():  # one view of the senses for the whole question
-            if g == "grasp":
-                return sort_hits(self.temporal.grasps(q, kk, where, GraspRule(pool=pool)), sort, k)
-            names = self.resolve_senses(where.senses)
-            hits = grasp_hits(self.temporal, q, kk, where, names, pool) if g == "auto" else None
-            if hits is None:  # no touch sense in scope, or group="window"
-                hits = self._rank_in(q, kk, where, transform=True)
-            return sort_hits(hits, sort, k)
+            grouped = self.temporal.grouped(q, kk, where, g, pool, sort, k)  # grasp; auto: touch
+            if grouped is not None:
+                return grouped
+            # group="window", or no touch sense in scope: the merged top k of one Ranker pass
+            return sort_hits(self._rank_in(q, kk, where, transform=True), sort, k)
 
     def search_vector(
         self,

@@ -1,6 +1,9 @@
 """The one ranked search path: a (1, D) unit query -> per-sense query transform, prefiltered
-ANN (or exact flat) search in the store, calibrated scores, merged top k. ``Memory.search``,
-``search_vector``, ``search_like`` and every temporal operator end here.
+ANN (or exact flat) search in the store, calibrated scores, merged top k (or, ``each=True``,
+every sense's own top k). ``Memory.search`` (every group), ``search_vector``, ``search_like``
+and every temporal question end here, each in one :meth:`Ranker.rank` call: the senses in
+scope are asked at once, in one pass (grasps are grouped after it,
+:mod:`tactus_memory.search.evidence`).
 """
 
 from __future__ import annotations
@@ -66,10 +69,14 @@ class Ranker:
         base: Where,
         *,
         transform: bool,
+        each: bool = False,
     ) -> list[Hit]:
         """The one search path: q (1, D) unit query -> per-sense query transform, prefiltered
         ANN (or exact flat) search, calibrated scores, merged top k. ``base`` holds the
         non-sense conditions (session, time, source, ...); temporal operators reuse this.
+        ``each=True``: every sense's own top k (up to ``k * len(senses)`` hits, best first),
+        each sense asked on its own (the temporal questions' candidates, a bar per sense),
+        all in the same concurrent pass.
 
         With an ANN index each sense is asked on its own, at its own probes, the senses at
         once (``split_senses``, ``parallel_groups``). Otherwise (exact flat scans) senses
@@ -92,7 +99,7 @@ class Ranker:
                     break
             else:
                 groups.append((qs, [name]))
-        if self.split_senses and self.store.has_vector_index():
+        if each or (self.split_senses and self.store.has_vector_index()):
             groups = [(vec, [name]) for vec, names in groups for name in names]
         calib = {name: self.registry.calibration(name) for name in active}
         scored: list[tuple[float, float, dict[str, Any]]] = []
@@ -116,8 +123,10 @@ class Ranker:
         else:
             for vec, names in groups:
                 scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
-        scored.sort(key=lambda x: -x[0])
-        return [hit_from_row(row, score, cos) for score, cos, row in scored[:k]]
+        scored.sort(key=lambda x: -x[0])  # stable: a sense's hits keep their order among ties
+        # each: one sense per group, each group at most k rows (its own top k)
+        top = scored if each else scored[:k]
+        return [hit_from_row(row, score, cos) for score, cos, row in top]
 
     def query_for(self, q: np.ndarray, name: str) -> np.ndarray:
         """The (1, D) text query ``q`` as sense ``name`` compares it: its query transform."""

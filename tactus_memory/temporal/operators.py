@@ -4,17 +4,18 @@ moments (hits of every sense grouped in time), episodes and per-stream clock off
 :class:`Temporal` is built from the parts it needs: the store (rows, episodes), the sense
 registry (which senses a scope covers), the ranker (the one ranked search path,
 :class:`~tactus_memory.search.ranking.Ranker`), the space (query embedding) and the write lock.
-The query is embedded once (:func:`~tactus_memory.query.embed_query`), each sense is searched
-with its query transform and scored by its calibrated z-score, then time logic runs in
-Python. What "a match" is and how matches group: :mod:`tactus_memory.matching`; clock
-offsets: :mod:`tactus_memory.temporal.clocks`.
+The query is embedded once (:func:`~tactus_memory.query.embed_query`); every sense in scope
+is ranked in one Ranker pass and grasps are grouped after it
+(:func:`~tactus_memory.search.evidence.ranked_evidence`), each sense's matches flagged by its
+bar; then time logic runs in Python. What "a match" is and how matches group:
+:mod:`tactus_memory.matching`; clock offsets: :mod:`tactus_memory.temporal.clocks`.
 
 Every question takes the scope as keywords (``session``, ``senses``, ``source``, ``after``,
 ``before``, ``near``, ``frame``, or one ``scope=``) and, where it matches, the match bar
 (``threshold``, ``relative``, or one ``match=``); ``group="grasp"`` (with ``pool``) asks it
-of grasps, not windows (:mod:`tactus_memory.temporal.grasps`). ``Memory`` answers each with the same
-method
-(``memory.count(q, session=...)`` is ``memory.temporal.count``), and so does the service.
+of grasps, not windows (:mod:`tactus_memory.search.grasps`). ``Memory`` answers each with
+the same method (``memory.count(q, session=...)`` is ``memory.temporal.count``), and so does
+the service.
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ from tactus_memory.results import (
     Episode,
     Evidence,
     Grasp,
+    Hit,
     Moment,
     Occurrences,
     Side,
@@ -65,6 +67,16 @@ from tactus_memory.results import (
     TimelineItem,
     row_fields,
 )
+from tactus_memory.search.evidence import ranked_evidence
+from tactus_memory.search.grasps import (
+    DEFAULT_GROUP,
+    GRASP_MODALITY,
+    OCCURRENCE_POOL,
+    GraspRule,
+    as_hit,
+    grasp_rule,
+)
+from tactus_memory.search.ordering import sort_hits
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
@@ -79,13 +91,6 @@ from tactus_memory.temporal.episodes import (
     check_rule,
     number_episodes,
     representative,
-)
-from tactus_memory.temporal.grasps import (
-    DEFAULT_GROUP,
-    OCCURRENCE_POOL,
-    GraspRule,
-    grasp_rule,
-    pool_grasps,
 )
 from tactus_memory.vectors import vector_column
 from tactus_memory.where import Where, validate_id
@@ -133,7 +138,7 @@ class Temporal:
     ) -> tuple[list[Evidence], bool]:
         """Every candidate of the (1, D) query ``q`` (all senses in scope), scored and flagged;
         and whether a sense was capped (``per_sense`` candidates, all matching). With a
-        ``grasp`` rule, the candidates' grasps (:mod:`tactus_memory.temporal.grasps`) instead, each
+        ``grasp`` rule, the candidates' grasps (:mod:`tactus_memory.search.grasps`) instead, each
         scored and flagged by its pooled vector. One view of the senses for the whole question
         (:meth:`SenseRegistry.pinned`), however many senses it ranks."""
         with self.registry.pinned():
@@ -150,26 +155,18 @@ class Temporal:
         bars = resolve_thresholds(match.threshold, names)
         out: list[Evidence] = []
         capped = False
-        for name in names:
-            hits = self.ranker.rank(q, per_sense, [name], base, transform=True)
-            evs = [
-                Evidence(
-                    **h.model_dump(exclude={"score", "cosine", "match", "bar"}),
-                    t_aligned=h.t + offsets.get((h.session, h.sense, h.source), 0.0),
-                    t_end_aligned=h.t_end + offsets.get((h.session, h.sense, h.source), 0.0),
-                    score=h.score,
-                    cosine=h.cosine,
-                )
-                for h in hits
-            ]
-            floor = bars[name]
-            if grasp is not None and grasp.applies(self.registry.search_sense(name).modality):
-                evs = [*pool_grasps(self.ranker, q, name, evs, grasp)]  # Grasp is Evidence
-                if match.threshold is None and grasp.pool != "max":  # pooled: their own bar
-                    floor = GRASP_MATCH_Z.get(name, floor)
+        for found in ranked_evidence(self.ranker, q, names, base, per_sense, offsets, grasp):
+            evs, floor = found.evidence, bars[found.sense]
+            if (
+                found.grouped
+                and match.threshold is None
+                and grasp is not None
+                and grasp.pool != "max"
+            ):
+                floor = GRASP_MATCH_Z.get(found.sense, floor)  # pooled grasps: their own bar
             bar = sense_bar([e.score for e in evs], floor, relative)
             flags = [e.score >= bar for e in evs]
-            capped = capped or (len(hits) >= per_sense and all(flags))
+            capped = capped or (found.ranked >= per_sense and all(flags))
             for e, flag in zip(evs, flags, strict=True):
                 e.match, e.bar = flag, bar
                 if _overlaps(e, after, before):
@@ -469,6 +466,30 @@ class Temporal:
         moments = group_moments([e for e in ev if e.match or e.score >= MOMENT_MIN_Z], gap)
         moments.sort(key=lambda m: (-m.score, m.t, m.session))
         return moments[:k]
+
+    def grouped(
+        self,
+        q: np.ndarray,
+        k: int,
+        scope: Scope,
+        group: str | None,
+        pool: str,
+        sort: str | None,
+        first: int,
+    ) -> list[Grasp] | list[Hit] | None:
+        """``search(group=...)`` of the (1, D) query ``q``, ``k`` candidates in ``sort`` order
+        (``search.ordering``), the ``first`` kept: ``"grasp"`` grasps of every sense; ``"auto"``
+        with a touch sense in scope its grasps beside the other senses' items, as Hits. None
+        for ``"window"`` or ``"auto"`` without touch (the merged top k answers)."""
+        if group == "grasp":
+            return sort_hits(self.grasps(q, k, scope, GraspRule(pool=pool)), sort, first)
+        if group != "auto":
+            return None
+        names = self.registry.resolve(scope.senses)
+        if all(self.registry.search_sense(n).modality != GRASP_MODALITY for n in names):
+            return None
+        rule = GraspRule(pool=pool, modality=GRASP_MODALITY)  # touch grasps, others items
+        return sort_hits([as_hit(e) for e in self.grasps(q, k, scope, rule)], sort, first)
 
     def grasps(self, q: np.ndarray, k: int, scope: Scope, rule: GraspRule) -> list[Grasp]:
         """Search ranked by grasp: the top max(k * MOMENT_POOL_FACTOR, MOMENT_POOL_MIN)

@@ -24,7 +24,7 @@ which is what the idle pass rate is measured on.
 
 ``groups=(None, "grasp")`` (``--group grasp``) also scores each mode grasp-grouped
 (``<mode>_grasp``; ``<mode>_grasp_<pool>`` for each other pool of ``pools``): the search,
-``last`` and ``count`` rank grasps (``group="grasp"``, :mod:`tactus_memory.temporal.grasps`); a
+``last`` and ``count`` rank grasps (``group="grasp"``, :mod:`tactus_memory.search.grasps`); a
 grasp is
 right when every window it pools comes from the queried object's recording, and the match-bar
 rates are over the grasps the search returned.
@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.temporal.grasps import POOLS
+from tactus_memory.search.grasps import POOLS
 from tactus_memory.touch.targets import class_phrases
 from tactus_memory.touch.windows import cut_windows
 

@@ -215,10 +215,10 @@ def test_the_layer_check_sees_an_upward_import() -> None:
         "tactus_memory.search.ranking": {"tactus_memory.where", "tactus_memory.memory.main"},
         "tactus_memory.temporal.clocks": {"tactus_memory.search.ranking"},
         "tactus_memory.spaces.base": {"tactus_memory.spaces.minilm"},
-        "tactus_memory.client.main": {"tactus_memory.temporal.grasps", "tactus_memory.results"},
+        "tactus_memory.client.main": {"tactus_memory.search.grasps", "tactus_memory.results"},
     }
     assert layer_violations(g) == [
-        "tactus_memory.client.main -> tactus_memory.temporal.grasps",
+        "tactus_memory.client.main -> tactus_memory.search.grasps",
         "tactus_memory.search.ranking -> tactus_memory.memory.main",
         "tactus_memory.spaces.base -> tactus_memory.spaces.minilm",
         "tactus_memory.storage.store -> tactus_memory.search.ranking",

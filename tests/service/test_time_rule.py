@@ -276,7 +276,7 @@ def test_a_store_written_before_the_rule_does_not_freeze_search(tmp_path, monkey
     """A touch window at t=1e18 in a store written before the rule (the write check stood in
     by the old finite-only one): search's grasps are read in bounded rounds and answer."""
     import tactus_memory.batches as batches
-    from tactus_memory.temporal import grasps
+    from tactus_memory.search import grasps
     from tactus_memory.where import finite_float
 
     memory = make_memory(tmp_path / "mem")

@@ -1,4 +1,6 @@
-"""Grasps: a stream's contiguous windows grouped into the moments a user asks about.
+"""Grasps: a stream's contiguous windows grouped into the moments a user asks about; the
+grouping step after the Ranker (:mod:`tactus_memory.search.evidence`: the senses a
+:class:`GraspRule` groups are answered by the grasps holding their ranked hits).
 
 A touch stream stores overlapping K-frame windows (8 frames, a new one every 4); a
 question ("when was I holding the screwdriver?") is about a grasp, seconds long. A *grasp* is
@@ -142,18 +144,6 @@ def windows_group(windows: bool) -> str:
     """The group of a ``--windows`` / ``windows: true`` flag (CLI, MCP): ``"window"`` asks of
     single windows, else the default (``"auto"``: touch asked of grasps)."""
     return "window" if windows else DEFAULT_GROUP
-
-
-def grasp_hits(
-    temporal: Any, q: np.ndarray, k: int, scope: Any, names: Sequence[str], pool: str = "mean"
-) -> list[Hit] | None:
-    """``search(group="auto")`` over the senses ``names``: touch senses answered by grasps (one
-    Hit each, spanning the grasp, pooled score, members in ``ids``/``n``), the other senses by
-    items; None when no touch sense is among them (a plain search answers alike)."""
-    if not any(temporal.registry.search_sense(n).modality == GRASP_MODALITY for n in names):
-        return None
-    rule = GraspRule(pool=pool, modality=GRASP_MODALITY)
-    return [as_hit(e) for e in temporal.grasps(q, k, scope, rule)]
 
 
 def grasp_labels(

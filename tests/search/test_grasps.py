@@ -18,8 +18,10 @@ from fastapi.testclient import TestClient
 from tactus_memory.adapters.vectors import VectorSense
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.memory.main import Memory
+from tactus_memory.query import embed_query
 from tactus_memory.results import Evidence, Grasp
-from tactus_memory.temporal.grasps import GRASP_READ_S, GraspRule, find_grasps, grasp_labels, pooled
+from tactus_memory.search.grasps import GRASP_READ_S, GraspRule, find_grasps, grasp_labels, pooled
+from tactus_memory.where import Where
 from tests.helpers.fakes import HashingSpace
 from tests.helpers.kitchen import kitchen_memory, near_caption
 
@@ -226,6 +228,61 @@ def test_touch_grasps_by_default_over_http(touch_day) -> None:
         assert win["n"] is None and win["ids"] is None and win["id"] in ids[3]
         r = c.get("/count", params={"q": FEEL["mug"], "session": S, "sense": "touch"})
         assert r.status_code == 200 and r.json()["count"] == 3
+
+
+def test_each_question_ranks_every_sense_in_one_ranker_pass(touch_day, monkeypatch) -> None:
+    """Issue 49 (one search path): ``group="auto"`` and ``group="window"``, the other groups and
+    every question that ranks make exactly one Ranker call covering every sense in scope;
+    grasps are grouped after it (``search.evidence``), not by asking the Ranker again."""
+    mem, ids, note = touch_day
+    calls: list[tuple[list[str], bool]] = []
+    rank = mem.ranker.rank
+
+    def spy(q, k, senses, base, **kw):
+        calls.append((list(senses), bool(kw.get("each", False))))
+        return rank(q, k, senses, base, **kw)
+
+    monkeypatch.setattr(mem.ranker, "rank", spy)  # memory.temporal asks the same Ranker
+    mug, sponge = FEEL["mug"], FEEL["sponge"]
+    asks = {
+        "auto": lambda: mem.search(sponge, k=3, session=S),
+        "window": lambda: mem.search(sponge, k=3, session=S, group="window"),
+        "grasp": lambda: mem.search(sponge, k=3, session=S, group="grasp"),
+        "moment": lambda: mem.search(sponge, k=3, session=S, group="moment"),
+        "last": lambda: mem.last(mug, session=S),
+        "first": lambda: mem.first(mug, session=S),
+        "count": lambda: mem.count(mug, session=S),
+        "after": lambda: mem.after(mug, 5.0, session=S),
+        "where": lambda: mem.where(mug, session=S),
+    }
+    answers = {}
+    for name, ask in asks.items():
+        calls.clear()
+        answers[name] = ask()
+        # the merged top k for window; every sense's own candidates otherwise
+        assert calls == [(["text", "touch"], name != "window")], name
+    # one pass answered both senses: the sponge grasp (whole) and the note beside it
+    auto = answers["auto"]
+    assert {h.sense for h in auto} == {"text", "touch"}
+    grasp = next(h for h in auto if h.sense == "touch")
+    assert set(grasp.ids) == set(ids[3]) and note in {h.id for h in auto}
+    assert answers["count"] >= 3 and answers["last"] is not None
+
+
+def test_one_pass_gives_each_sense_the_top_k_it_had_alone(touch_day) -> None:
+    """``Ranker.rank(each=True)``: each sense's hits, scores and order are those of ranking
+    that sense alone (what the temporal questions asked before, one sense after another);
+    their merge's first k is the merged top k (``group="window"``)."""
+    mem, _, _ = touch_day
+    q = embed_query(mem.space, FEEL["mug"])
+    base = Where().session(S)
+    each = mem.ranker.rank(q, 5, ["text", "touch"], base, transform=True, each=True)
+    for name, n in (("text", 1), ("touch", 5)):
+        alone = mem.ranker.rank(q, 5, [name], base, transform=True)
+        mine = [(h.id, h.score, h.cosine) for h in each if h.sense == name]
+        assert mine == [(h.id, h.score, h.cosine) for h in alone] and len(mine) == n
+    merged = mem.ranker.rank(q, 5, ["text", "touch"], base, transform=True)
+    assert [h.id for h in merged] == [h.id for h in each[:5]]
 
 
 def test_every_neighbourhood_of_a_question_is_read_by_one_scan(tmp_path, monkeypatch) -> None:
