@@ -185,3 +185,15 @@ class WindowedSense(Sense):
         if not np.isfinite(arr).all():
             raise InvalidInputError(f"a {self.name} window holds NaN or infinite values")
         return arr
+
+
+def described_shape(live: Sense | None, provenance: dict[str, Any]) -> list[int] | None:
+    """The frame shape ``GET /senses`` states for a sense: a live windowed sense's
+    ``frame_shape``; for one known from the store, the sensor profile its provenance records
+    (``calibration.shape``, a touch sense's); None for a sense that is not windowed."""
+    if isinstance(live, WindowedSense):
+        return [int(n) for n in live.frame_shape]
+    recorded = provenance.get("calibration")
+    if isinstance(recorded, dict) and "shape" in recorded:
+        return [int(n) for n in recorded["shape"]]
+    return None

@@ -247,6 +247,40 @@ def test_recordings_cut_windows_through_the_sense() -> None:
     assert [d for d in deps if _under(d, "tactus_memory.touch") or d in adapters] == []
 
 
+def touch_imports(g: dict[str, set[str]], under: str) -> list[str]:
+    """``module -> import`` edges from the modules under ``under`` to touch's own modules
+    (``tactus_memory.touch``) or the touch adapter (``tactus_memory.adapters.touch*``)."""
+    return sorted(
+        f"{n} -> {d}"
+        for n, deps in g.items()
+        if _under(n, under)
+        for d in deps
+        if _under(d, "tactus_memory.touch") or d.startswith("tactus_memory.adapters.touch")
+    )
+
+
+def test_the_touch_check_sees_a_touch_import() -> None:
+    g = {
+        "tactus_memory.service.routers.ui": {"tactus_memory.touch.render"},
+        "tactus_memory.service.arrays": {"tactus_memory.errors"},
+        "tactus_memory.service.app": {"tactus_memory.adapters.touch_drawing"},
+        "tactus_memory.adapters.touch": {"tactus_memory.touch.windows"},
+    }
+    assert touch_imports(g, "tactus_memory.service") == [
+        "tactus_memory.service.app -> tactus_memory.adapters.touch_drawing",
+        "tactus_memory.service.routers.ui -> tactus_memory.touch.render",
+    ]
+
+
+def test_the_service_knows_senses_not_touch() -> None:
+    """No service module imports ``tactus_memory.touch`` (or the touch adapter): windowed
+    writes, streams, drawing and search by example go through the windowed-sense contract
+    (``senses/windowed.py``) and the plug-in registry (issue 49)."""
+    g = graph()
+    assert any(_under(n, "tactus_memory.service") for n in g)
+    assert touch_imports(g, "tactus_memory.service") == []
+
+
 def test_storage_gets_its_configuration_passed_in() -> None:
     """No ``Settings`` read inside storage: the memory (or the service) reads it once."""
     g = graph()
