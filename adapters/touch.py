@@ -47,7 +47,8 @@ from tactus_memory.errors import (
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.senses.base import array_to_bytes, validate_sense_name
+from tactus_memory.names import validate_sense_name
+from tactus_memory.senses.base import array_to_bytes
 from tactus_memory.senses.plugins import register
 from tactus_memory.senses.windowed import WindowedSense, WindowLayout
 from tactus_memory.spaces.base import Space

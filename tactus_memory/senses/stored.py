@@ -25,9 +25,10 @@ from tactus_memory.errors import (
     SenseSwappedError,
     UnknownSenseError,
 )
+from tactus_memory.names import validate_sense_name
 from tactus_memory.results import SenseInfo
 from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, blend, estimate
-from tactus_memory.senses.base import Sense, array_to_bytes, bytes_to_array, validate_sense_name
+from tactus_memory.senses.base import Sense, array_to_bytes, bytes_to_array
 from tactus_memory.senses.plugins import lookup, registered_name
 from tactus_memory.senses.windowed import described_shape
 from tactus_memory.spaces.base import Space

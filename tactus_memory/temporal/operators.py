@@ -51,6 +51,7 @@ from tactus_memory.matching import (
     sense_bar,
     split_match,
 )
+from tactus_memory.names import validate_id
 from tactus_memory.query import Scope, TimelineKwargs, check_k, embed_query, timeline_scope
 from tactus_memory.results import (
     ClockOffset,
@@ -88,7 +89,7 @@ from tactus_memory.temporal.grasps import (
     pool_grasps,
 )
 from tactus_memory.vectors import vector_column
-from tactus_memory.where import Where, validate_id
+from tactus_memory.where import Where
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None

@@ -136,34 +136,46 @@ PACKAGE_LAYERS = (
 #: in the base, the store's sense registry in search)
 LAYER_EXTRA: dict[str, tuple[str, ...]] = {"search": ("tactus_memory.senses.stored",)}
 
+#: The base's inner order, bottom to top: the vocabulary (errors, limits, results, the name
+#: validators...) that imports nothing of the package above it; the contracts (a space, a
+#: sense, the plug-in registry); the query vocabulary (filters, scopes, batches, the match
+#: bar); the configuration (policies, settings); the front (the package's ``__init__`` and the
+#: Memory/Client contract). Each is a layer of LAYER_MAP, so the layer test checks the order.
+BASE_LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (
+        "base: vocabulary",
+        (
+            "tactus_memory.errors",
+            "tactus_memory.limits",
+            "tactus_memory.names",
+            "tactus_memory.results",
+            "tactus_memory.hashing",
+            "tactus_memory.signatures",
+            "tactus_memory.vectors",
+            "tactus_memory.times",
+        ),
+    ),
+    ("base: contracts", ("tactus_memory.spaces.base", "tactus_memory.senses")),
+    (
+        "base: query",
+        (
+            "tactus_memory.where",
+            "tactus_memory.identity",
+            "tactus_memory.query",
+            "tactus_memory.batches",
+            "tactus_memory.matching",
+        ),
+    ),
+    ("base: configuration", ("tactus_memory.policies", "tactus_memory.settings")),
+    ("base: front", ("tactus_memory", "tactus_memory.contract")),
+)
+
 #: The layer map, bottom to top (docs/architecture.md draws it). A module belongs to the layer
 #: whose entry names it most precisely (``tactus_memory.spaces.base`` is base, the rest of
 #: ``tactus_memory.spaces`` is models); it may import its own layer and the layers below, never
 #: one above. ``tactus_memory`` alone is the package's ``__init__``.
 LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
-    (
-        "base",
-        (
-            "tactus_memory",
-            "tactus_memory.errors",
-            "tactus_memory.limits",
-            "tactus_memory.results",
-            "tactus_memory.settings",
-            "tactus_memory.hashing",
-            "tactus_memory.signatures",
-            "tactus_memory.senses",
-            "tactus_memory.vectors",
-            "tactus_memory.where",
-            "tactus_memory.times",
-            "tactus_memory.spaces.base",
-            "tactus_memory.policies",
-            "tactus_memory.identity",
-            "tactus_memory.batches",
-            "tactus_memory.query",
-            "tactus_memory.matching",
-            "tactus_memory.contract",
-        ),
-    ),
+    *BASE_LAYERS,
     ("models", ("tactus_memory.spaces", "tactus_memory.touch", "tactus_memory.datasets")),
     # every layer above the models is the one package of its name (and the modules named
     # in LAYER_EXTRA: the store's sense registry, in senses/ beside the contract, is search's)
@@ -171,7 +183,7 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 #: layers that may import only some of the layers below them (the remote client needs no
 #: store, search or model code: it speaks HTTP and shares the base's vocabulary)
-ONLY: dict[str, tuple[str, ...]] = {"client": ("base",)}
+ONLY: dict[str, tuple[str, ...]] = {"client": tuple(name for name, _ in BASE_LAYERS)}
 
 
 def _under(name: str, pkg: str) -> bool:
@@ -216,12 +228,17 @@ def test_the_layer_check_sees_an_upward_import() -> None:
         "tactus_memory.temporal.clocks": {"tactus_memory.search.ranking"},
         "tactus_memory.spaces.base": {"tactus_memory.spaces.minilm"},
         "tactus_memory.client.main": {"tactus_memory.temporal.grasps", "tactus_memory.results"},
+        # inside the base: the vocabulary below the filters, the filters below the settings
+        "tactus_memory.errors": {"tactus_memory.where"},
+        "tactus_memory.where": {"tactus_memory.senses.base", "tactus_memory.settings"},
     }
     assert layer_violations(g) == [
         "tactus_memory.client.main -> tactus_memory.temporal.grasps",
+        "tactus_memory.errors -> tactus_memory.where",
         "tactus_memory.search.ranking -> tactus_memory.memory.main",
         "tactus_memory.spaces.base -> tactus_memory.spaces.minilm",
         "tactus_memory.storage.store -> tactus_memory.search.ranking",
+        "tactus_memory.where -> tactus_memory.settings",
     ]
 
 
