@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from fastapi import HTTPException
 from fastapi.exceptions import RequestValidationError
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from tactus_memory.batches import WriteKwargs
 from tactus_memory.errors import InvalidInputError
@@ -32,7 +32,7 @@ from tactus_memory.service.arrays import (
 from tactus_memory.service.schemas import TouchBatchIn, TouchWindowIn
 
 
-def _validate(model: type, obj: Any) -> Any:
+def _validate(model: type[BaseModel], obj: Any) -> Any:
     try:
         return model.model_validate(obj)
     except ValidationError as exc:
@@ -56,7 +56,7 @@ def window_write(
     calibrated: bool,
     sense: str,
     shape: tuple[int, ...],
-    bodies: tuple[type, type] = (TouchWindowIn, TouchBatchIn),
+    bodies: tuple[type[BaseModel], type[BaseModel]] = (TouchWindowIn, TouchBatchIn),
 ) -> tuple[np.ndarray, WriteKwargs]:
     """One windowed POST (JSON window, JSON batch or ``.npy`` body) for the windowed sense
     ``sense`` whose frames are ``shape`` -> (windows (B, K, *shape) float32, the keywords for

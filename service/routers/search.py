@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Response
 
 from tactus_memory.limits import MAX_K
 from tactus_memory.query import Scope
+from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.service.arrays import as_window_array
 from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, Read, ScopeDep
 from tactus_memory.service.problems import problem_responses
@@ -106,7 +107,7 @@ def search_like(body: SearchLikeIn, memory: MemoryDep, response: Response) -> Se
         # the example's frame shape is its windowed sense's (a sense that is not windowed is
         # held to the shape the schema states and refuses the window itself, below)
         sense = memory.senses.get(body.sense)
-        shape = frame_shape(sense) if getattr(sense, "windowed", False) else STATED_FRAME
+        shape = frame_shape(sense) if isinstance(sense, WindowedSense) else STATED_FRAME
         window = as_window_array(body.frames, "K", "frames", shape, body.sense)
         opts = {"calibrated": body.calibrated}
         hits = memory.search_like(body.sense, window, k=body.k, options=opts, scope=scope)

@@ -16,6 +16,7 @@ import functools
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
+from pydantic import BaseModel
 
 from tactus_memory.service.deps import ServiceState, SessionId, StateDep, TenantDep, Write
 from tactus_memory.service.problems import problem_responses
@@ -48,7 +49,7 @@ def _request_body(one: Any, batch: Any, example: bool) -> dict[str, Any]:
         "schema": {"oneOf": [one.model_json_schema(), batch.model_json_schema()]}
     }
     if example:
-        json_body["example"] = one.model_config["json_schema_extra"]["examples"][0]  # type: ignore[index]
+        json_body["example"] = one.model_config["json_schema_extra"]["examples"][0]
     return {
         "required": True,
         "content": {
@@ -136,7 +137,7 @@ async def _store(
     t_end: list[float] | None,
     calibrated: bool,
     sense: Any,
-    bodies: tuple[type, type],
+    bodies: tuple[type[BaseModel], type[BaseModel]],
 ) -> StoredOut:
     """One windowed write of ``sense`` (either route): the body parsed, checked against the
     sense's frame shape and validated by the sense on the write threads, off the event loop

@@ -44,7 +44,7 @@ class WindowCutter(Protocol):
         """Frames received that no completed window holds yet."""
         ...
 
-    def push(self, frames: np.ndarray, times: Sequence[float]) -> Any:
+    def push(self, frames: np.ndarray, times: Sequence[float] | np.ndarray) -> Any:
         """``frames`` (n, *frame_shape) at ``times`` (n,) -> the windows completed
         (``len()`` of them; ``.frames[i]`` one window, ``(K, *frame_shape)``)."""
         ...
@@ -79,7 +79,7 @@ class FrameStream:
     def pending(self) -> int:
         return 0 if self._frames is None else int(self._frames.shape[0])
 
-    def push(self, frames: np.ndarray, times: Sequence[float]) -> CutWindows:
+    def push(self, frames: np.ndarray, times: Sequence[float] | np.ndarray) -> CutWindows:
         arr = np.asarray(frames)
         ts = np.asarray(times, dtype=np.float64).reshape(-1)
         if arr.ndim < 1 or ts.shape[0] != arr.shape[0]:
