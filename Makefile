@@ -62,7 +62,7 @@ run: setup
 lint: setup-test
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(VENV)/bin/mypy -p tactus_memory
+	$(PY) scripts/typecheck.py
 
 test: setup-test lint
 	$(VENV)/bin/pytest -q

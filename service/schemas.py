@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic.json_schema import JsonDict
 
 from tactus_memory.limits import (
     ID_DESCRIPTION,
@@ -43,8 +44,12 @@ MAX_JSON_WINDOWS = 64
 STATED_FRAME: tuple[int, ...] = default_sense_class().default_frame_shape
 #: a valid raw STAG-like frame (values 500-690: a real dynamic range, never all-zero)
 _ROWS, _COLS = STATED_FRAME
-_FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(_COLS)] for r in range(_ROWS)]
-_FRAME_EXAMPLE_2 = [[500.0 + (11 * r + 5 * c) % 187 for c in range(_COLS)] for r in range(_ROWS)]
+_FRAME_EXAMPLE: list[Any] = [
+    [500.0 + (7 * r + 13 * c) % 191 for c in range(_COLS)] for r in range(_ROWS)
+]
+_FRAME_EXAMPLE_2: list[Any] = [
+    [500.0 + (11 * r + 5 * c) % 187 for c in range(_COLS)] for r in range(_ROWS)
+]
 
 
 class Strict(BaseModel):
@@ -68,7 +73,7 @@ Component = Annotated[
 ]
 #: a vector: at least one component of magnitude >= 1e-11 (an all-zero vector has no
 #: direction; tactus_memory/vectors.py refuses norms below 1e-12)
-NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
+NONZERO: JsonDict = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
 # The JSON schema states the default touch sense's frame, the 32x32 glove (STATED_FRAME); a
 # touch sense of another sensor (`?sense=NAME`, `"sense"`) reads its own H x W (GET /senses:
 # shape), which one schema cannot state per sense: the edge checks each window against its
@@ -254,7 +259,8 @@ class HitOut(Hit):
     """A search hit as the service sends it (:class:`tactus_memory.results.Hit`)."""
 
     score: float = Field(description="Calibrated score (comparable across senses).")
-    cosine: float | None = Field(None, description="Raw cosine similarity.")
+    # null where a hit has no cosine of its own (the library's Hit always has one)
+    cosine: float | None = Field(None, description="Raw cosine similarity.")  # type: ignore[assignment]
     meta: Meta = Field(default_factory=dict)
     text: str | None = Field(None, description="The stored text, for text items.")
     source: str = Field("", description="The stream the item came from, if any.")

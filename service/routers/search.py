@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Response
 
 from tactus_memory.limits import MAX_K
 from tactus_memory.query import Scope
+from tactus_memory.results import Moment
 from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.service.arrays import as_window_array
 from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, Read, ScopeDep
@@ -73,7 +74,8 @@ def search(
 ) -> SearchOut:
     t0 = time.perf_counter()
     if group == "moment":
-        moments = memory.search(q, k=k, group="moment", gap=gap, scope=scope, sort=sort)
+        found = memory.search(q, k=k, group="moment", gap=gap, scope=scope, sort=sort)
+        moments = [m for m in found if isinstance(m, Moment)]
         _timing(response, t0)
         best = [next(h for h in m.hits if h.id == m.best) for m in moments]
         return SearchOut(

@@ -50,6 +50,7 @@ import logging
 import math
 import time
 import uuid
+from collections.abc import Mapping
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Annotated, Any
@@ -323,7 +324,7 @@ async def _try_send(send: Any, message: dict[str, Any]) -> None:
 INLINE_BINARY_BYTES = 8_320
 
 
-def _inline(message: dict[str, Any]) -> bool:
+def _inline(message: Mapping[str, Any]) -> bool:
     data = message.get("bytes")
     return data is not None and len(data) <= INLINE_BINARY_BYTES
 
@@ -350,7 +351,7 @@ class _Target:
 
 
 def _ingest(
-    message: dict[str, Any],
+    message: Mapping[str, Any],
     index: int,
     params: StreamParams,
     max_bytes: int,
@@ -405,7 +406,7 @@ def _queue_windows(
 
 
 def _parse(
-    message: dict[str, Any], index: int, params: StreamParams, max_bytes: int, target: _Target
+    message: Mapping[str, Any], index: int, params: StreamParams, max_bytes: int, target: _Target
 ) -> tuple[np.ndarray, np.ndarray]:
     """One WebSocket message -> (frames (M, *F), times (M,) float64), F the frame shape of the
     stream's windowed sense ((H, W) for touch): a binary ``.npy`` of M frames is parsed and

@@ -96,7 +96,7 @@ class Sense(ABC):
         A sense with ``validate_options`` takes them as keyword arguments."""
 
     def validate_many(
-        self, items: Sequence[Any], *, skip_idle: bool = True, **options: Any
+        self, items: Sequence[Any] | np.ndarray, *, skip_idle: bool = True, **options: Any
     ) -> tuple[list[Any], list[int]]:
         """N items -> (their canonical forms, the indices of those skipped as idle), the
         write path's one call per write. Each item as :meth:`validate` checks it; an item
