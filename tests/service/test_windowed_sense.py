@@ -154,5 +154,8 @@ def test_an_imu_is_written_streamed_and_found_by_one_registration(served) -> Non
         every_shake = {*shaking, *(m["id"] for m in streamed)}
         assert set(found[: len(every_shake)]) == every_shake, hits
         assert found.index(slow[0]) == len(every_shake)  # the slow turn ranks after them
+        # the heat maps: a sense that brings no drawer has no picture, a 422 naming the item
+        r = c.get(f"/items/{slow[0]}/touch.png")
+        assert r.status_code == 422 and "holds no touch window" in r.json()["detail"], r.text
         rows = {s["name"]: s["rows"] for s in c.get("/senses").json()["senses"]}
     assert rows["imu"] == 5 and set(memory.senses) == {"text", "imu"}
