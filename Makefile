@@ -62,7 +62,7 @@ run: setup
 lint: setup-test
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(VENV)/bin/mypy -p tactus_memory
+	$(PY) scripts/typecheck.py
 
 # two workers (TEST_WORKERS=0: one process), whole test files per worker (--dist loadfile), so
 # a module's server, store or trained checkpoint is built once

@@ -9,7 +9,8 @@ import numpy as np
 
 from tactus_memory.adapters.decode import COMPRESSED, IMAGE, camera_image
 from tactus_memory.errors import CapabilityError, InvalidInputError
-from tactus_memory.senses.base import Sense, array_to_bytes, validate_sense_name
+from tactus_memory.names import validate_sense_name
+from tactus_memory.senses.base import Sense, array_to_bytes
 from tactus_memory.senses.plugins import register
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows

@@ -34,23 +34,27 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from tactus_memory import __version__
 from tactus_memory.adapters.decode import ARRAYS, IMAGE, touch_frame
+from tactus_memory.adapters.touch_drawing import TouchDrawer
 from tactus_memory.errors import (
     DynamicRangeError,
     IdleWindowError,
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.senses.base import array_to_bytes, validate_sense_name
+from tactus_memory.names import validate_sense_name
+from tactus_memory.senses.base import array_to_bytes
 from tactus_memory.senses.plugins import register
-from tactus_memory.senses.windowed import WindowedSense
+from tactus_memory.senses.windowed import WindowedSense, WindowLayout
 from tactus_memory.spaces.base import Space
 from tactus_memory.touch.checkpoint import default_checkpoint_path
+from tactus_memory.touch.profile import FRAME_SHAPE
+from tactus_memory.touch.render import MAX_FRAMES, SCALE
 from tactus_memory.touch.windows import (
     CONTACT_LEVEL,
     CONTACT_MIN_TAXELS,
@@ -88,6 +92,10 @@ class TactusEncoder(WindowedSense):
     modality = "touch"
     validate_options = frozenset({"calibrated", "keep_idle"})
     message_types = (IMAGE, *ARRAYS)
+    #: the frame of the shipped checkpoint (the STAG glove's 32x32): what the HTTP API's
+    #: JSON schema states for a touch window
+    default_frame_shape: ClassVar[tuple[int, ...]] = FRAME_SHAPE
+    draw_defaults: ClassVar[WindowLayout] = WindowLayout(scale=SCALE, max_frames=MAX_FRAMES)
 
     def __init__(
         self,
@@ -158,6 +166,13 @@ class TactusEncoder(WindowedSense):
     def from_pretrained(cls, path: str | os.PathLike[str], **kw: Any) -> TactusEncoder:
         return cls(path, **kw)
 
+    @staticmethod
+    def shipped_sha256() -> str:
+        """The sha256 of the checkpoint this install ships (the default one)."""
+        from tactus_memory.hashing import file_sha256
+
+        return file_sha256(default_checkpoint_path())
+
     @classmethod
     def create(cls, space: Space, /, **config: Any) -> TactusEncoder:
         return cls(config.pop("checkpoint", None), **config)
@@ -182,6 +197,15 @@ class TactusEncoder(WindowedSense):
         """Raw frames (n, H, W) -> raw windows (K, H, W); no profile: :meth:`validate`
         calibrates each window and judges it idle."""
         return WindowStream(window, stride, profile=None)
+
+    def drawer(self) -> TouchDrawer:
+        """Heat maps with this checkpoint's sensor profile."""
+        return TouchDrawer(self.profile)
+
+    @classmethod
+    def drawer_from_provenance(cls, provenance: dict[str, Any]) -> TouchDrawer:
+        """Heat maps with the sensor profile the store recorded (the glove's when none)."""
+        return TouchDrawer.from_provenance(provenance)
 
     def is_idle(self, window: np.ndarray) -> bool:
         """A calibrated window (K, H, W) with no frame in contact

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.senses.base import Sense, validate_sense_name
+from tactus_memory.names import validate_sense_name
+from tactus_memory.senses.base import Sense
 from tactus_memory.senses.plugins import register
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows

@@ -26,7 +26,7 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.errors import UnknownTenantError
-from tactus_memory.senses.plugins import create_sense
+from tactus_memory.senses.plugins import create_sense, lookup
 from tactus_memory.service.auth import Gate
 from tactus_memory.service.deps import ServiceState, authorize
 from tactus_memory.service.middleware import (
@@ -70,7 +70,9 @@ A robot memory in which touch, text, images and motion live in one vector space,
 in natural language.
 
 * Write: `POST /sessions/{id}/touch` (raw sensor units by default), `/text`, `/image`,
-  `/vectors`; live touch over the WebSocket `/sessions/{id}/touch/stream`.
+  `/vectors`; live touch over the WebSocket `/sessions/{id}/touch/stream`; any windowed sense
+  (touch, an IMU) at `POST /sessions/{id}/senses/{sense}/windows` and the WebSocket
+  `/sessions/{id}/senses/{sense}/stream`.
 * Read: `GET /search?q=...`, `POST /search/like`, `GET /sessions`, `GET /senses`.
 * Where: `POST /sessions/{id}/poses` (the trajectory), `GET /where?q=...`,
   `GET /at?x=&y=&z=&r=`; every search takes `near=x,y,z,r` and `frame=`.
@@ -181,11 +183,8 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
 
 def _shipped_or_none(memory: Any) -> bool:
     """Whether the store records the shipped touch checkpoint, or no touch sense at all."""
-    from tactus_memory.hashing import file_sha256
-    from tactus_memory.touch.checkpoint import default_checkpoint_path
-
     recorded = recorded_checkpoint(memory, "touch")
-    return recorded is None or recorded[1] == file_sha256(default_checkpoint_path())
+    return recorded is None or recorded[1] == lookup("sense", "touch").shipped_sha256()
 
 
 async def _load_in_background(state: ServiceState, loader: Loader) -> None:
@@ -373,6 +372,8 @@ def create_app(
         retention, labels,
     ):  # fmt: skip
         app.include_router(module.router, dependencies=auth, responses=problem_responses(401, 403))
+    for router in (touch.windows_router, touch_stream.windows_router):  # any windowed sense
+        app.include_router(router, dependencies=auth, responses=problem_responses(401, 403))
     app.include_router(temporal.router, dependencies=auth, responses=problem_responses(401, 403))
     app.include_router(ui.page_router)  # the browser page: static, no data, no token
     app.include_router(api_docs.router)  # /docs and /redoc, served offline; no token

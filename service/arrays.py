@@ -1,10 +1,10 @@
-"""Turning request payloads into arrays: JSON without NaN, ``.npy`` bodies, touch frames.
+"""Turning request payloads into arrays: JSON without NaN, ``.npy`` bodies, sensor frames.
 
-The edge checks what a request is made of, once: parseable, numeric, the shape (windows
-(K, H, W), batches (B, K, H, W), H x W the frame shape of the touch sense written to: 32x32
-for the STAG glove, its checkpoint's sensor profile for any other) and the size; what the
-numbers mean (finite, range, calibration, idle) is the touch sense's check, once
-(``TactusEncoder.validate``). A stream frame is no item, so its own finiteness is checked
+The edge checks what a request is made of, once: parseable, numeric, the shape (windows (K, *F),
+batches (B, K, *F), F the frame shape of the windowed sense written to: (H, W) = 32x32 for the STAG
+glove, its checkpoint's sensor profile for another touch sense, (C,) for an IMU) and the size; what
+the numbers mean (finite, range, calibration, idle) is the sense's check, once (``validate``:
+``TactusEncoder.validate`` for touch). A stream frame is no item, so its own finiteness is checked
 here (the error names the frame).
 Every failure raises ``InvalidInputError`` with a message naming the problem, so it becomes a
 422 problem in the one mapping (``errors.ERROR_STATUS``).
@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.touch.profile import FRAME_SHAPE
 
 NPY_TYPES = ("application/x-npy", "application/octet-stream")
 
@@ -143,23 +142,28 @@ def finite_frames(arr: np.ndarray, what: str) -> np.ndarray:
     return arr
 
 
-def _expected(shape: tuple[int, int], sense: str | None) -> str:
+def shape_name(shape: tuple[int, ...]) -> str:
+    """How an error names a frame shape: ``32x32`` for (32, 32), ``6`` for (6,)."""
+    return "x".join(map(str, shape))
+
+
+def _expected(shape: tuple[int, ...], sense: str | None) -> str:
     """How a shape error names what was expected: the sense's frame shape, and the sense."""
-    h, w = shape
-    return f"{h}x{w} frames" + ("" if sense is None else f" (sense {sense!r} reads {h}x{w})")
+    name = shape_name(shape)
+    return f"{name} frames" + ("" if sense is None else f" (sense {sense!r} reads {name})")
 
 
-def as_touch_array(
-    value: Any, lead: str, what: str, shape: tuple[int, int] = FRAME_SHAPE, sense: str | None = None
+def as_window_array(
+    value: Any, lead: str, what: str, shape: tuple[int, ...], sense: str | None = None
 ) -> np.ndarray:
-    """``value`` as touch frames of the ``lead`` axes, then H x W = ``shape`` (the touch
-    sense's frame shape): ``""`` one stream frame (H, W), ``"K"`` one window (K, H, W), ``"BK"``
-    a batch of windows (B, K, H, W); a lead axis may not be empty. Parsed JSON holds no NaN
-    and inf is out of range; an error names ``what``, the shape expected and ``sense``."""
+    """``value`` as frames of the ``lead`` axes, then ``shape`` (the windowed sense's frame
+    shape, e.g. (H, W) for touch): ``""`` one stream frame, ``"K"`` one window (K, *shape),
+    ``"BK"`` a batch of windows (B, K, *shape); a lead axis may not be empty. Parsed JSON holds
+    no NaN and inf is out of range; an error names ``what``, the shape expected and ``sense``."""
     arr = value if isinstance(value, np.ndarray) else as_float_array(value, what)
     n = len(lead)
-    if arr.ndim != n + 2 or arr.shape[n:] != tuple(shape) or 0 in arr.shape[:n]:
-        axes = ", ".join([*lead, str(shape[0]), str(shape[1])])
+    if arr.ndim != n + len(shape) or arr.shape[n:] != tuple(shape) or 0 in arr.shape[:n]:
+        axes = ", ".join([*lead, *map(str, shape)])
         raise InvalidInputError(
             f"{what} has shape {arr.shape}, expected ({axes}): " + _expected(shape, sense)
         )

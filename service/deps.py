@@ -147,6 +147,7 @@ def get_settings(state: Annotated[ServiceState, Depends(get_state)]) -> Settings
 
 
 def get_write_threads(state: Annotated[ServiceState, Depends(get_state)]) -> WriteThreads:
+    assert state.write_threads is not None  # started with the app (lifespan)
     return state.write_threads
 
 

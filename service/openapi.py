@@ -27,7 +27,10 @@ from tactus_memory.service.problems import problem_responses
 
 IMAGE_PATH = "/sessions/{session}/image"
 #: writes that take an explicit item id: 409 when it belongs to another session or sense
-ID_WRITES = tuple(f"/sessions/{{session}}/{kind}" for kind in ("text", "vectors", "image", "touch"))
+ID_WRITES = (
+    *(f"/sessions/{{session}}/{kind}" for kind in ("text", "vectors", "image", "touch")),
+    "/sessions/{session}/senses/{sense}/windows",
+)
 
 
 def _array_of(node: dict[str, Any]) -> dict[str, Any] | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic.json_schema import JsonDict
 
 from tactus_memory.limits import (
     ID_DESCRIPTION,
@@ -26,8 +27,8 @@ from tactus_memory.results import (
     SenseInfo,
 )
 from tactus_memory.service.arrays import MAX_FRAME_VALUE
+from tactus_memory.service.touch_senses import default_sense_class
 from tactus_memory.times import Seconds
-from tactus_memory.touch.profile import FRAME_SHAPE
 from tactus_memory.vectors import MAX_COMPONENT
 from tactus_memory.where import DEFAULT_FRAME
 
@@ -38,10 +39,17 @@ MAX_JSON_ITEMS = 4096
 #: batches as .npy, which has no such limit besides the body size)
 MAX_JSON_WINDOWS = 64
 
+#: (H, W) the frame the JSON schema states for a touch window: the default touch sense's,
+#: the shipped checkpoint's STAG glove (32, 32), as its registered class states it
+STATED_FRAME: tuple[int, ...] = default_sense_class().default_frame_shape
 #: a valid raw STAG-like frame (values 500-690: a real dynamic range, never all-zero)
-_ROWS, _COLS = FRAME_SHAPE
-_FRAME_EXAMPLE = [[500.0 + (7 * r + 13 * c) % 191 for c in range(_COLS)] for r in range(_ROWS)]
-_FRAME_EXAMPLE_2 = [[500.0 + (11 * r + 5 * c) % 187 for c in range(_COLS)] for r in range(_ROWS)]
+_ROWS, _COLS = STATED_FRAME
+_FRAME_EXAMPLE: list[Any] = [
+    [500.0 + (7 * r + 13 * c) % 191 for c in range(_COLS)] for r in range(_ROWS)
+]
+_FRAME_EXAMPLE_2: list[Any] = [
+    [500.0 + (11 * r + 5 * c) % 187 for c in range(_COLS)] for r in range(_ROWS)
+]
 
 
 class Strict(BaseModel):
@@ -53,7 +61,7 @@ class Strict(BaseModel):
 
 Meta = dict[str, Any]
 # The shape and float32 range are stated in the JSON schema here and enforced after parsing
-# (service/arrays.py: as_touch_array / as_float_array), whose 422 names the whole shape, e.g.
+# (service/arrays.py: as_window_array / as_float_array), whose 422 names the whole shape, e.g.
 # "(8, 32, 31)", instead of listing up to 1,024 per-element errors.
 #: one pressure value (service/arrays.py: MAX_FRAME_VALUE)
 Value = Annotated[
@@ -65,11 +73,11 @@ Component = Annotated[
 ]
 #: a vector: at least one component of magnitude >= 1e-11 (an all-zero vector has no
 #: direction; tactus_memory/vectors.py refuses norms below 1e-12)
-NONZERO = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
-# The JSON schema states the default touch sense's frame, the 32x32 glove (touch/profile.py:
-# FRAME_SHAPE); a touch sense of another sensor (`?sense=NAME`, `"sense"`) reads its own
-# H x W (GET /senses: shape), which one schema cannot state per sense: the edge checks each
-# window against its sense's shape (service/arrays.py), not against this schema.
+NONZERO: JsonDict = {"contains": {"anyOf": [{"minimum": 1e-11}, {"maximum": -1e-11}]}}
+# The JSON schema states the default touch sense's frame, the 32x32 glove (STATED_FRAME); a
+# touch sense of another sensor (`?sense=NAME`, `"sense"`) reads its own H x W (GET /senses:
+# shape), which one schema cannot state per sense: the edge checks each window against its
+# sense's shape (service/arrays.py), not against this schema.
 #: (32,) one row of a glove frame
 Row = Annotated[list[Value], Field(json_schema_extra={"minItems": _COLS, "maxItems": _COLS})]
 #: (32, 32) one glove frame
@@ -251,7 +259,8 @@ class HitOut(Hit):
     """A search hit as the service sends it (:class:`tactus_memory.results.Hit`)."""
 
     score: float = Field(description="Calibrated score (comparable across senses).")
-    cosine: float | None = Field(None, description="Raw cosine similarity.")
+    # null where a hit has no cosine of its own (the library's Hit always has one)
+    cosine: float | None = Field(None, description="Raw cosine similarity.")  # type: ignore[assignment]
     meta: Meta = Field(default_factory=dict)
     text: str | None = Field(None, description="The stored text, for text items.")
     source: str = Field("", description="The stream the item came from, if any.")

@@ -1,4 +1,10 @@
-"""Which touch sense a touch route writes to: ``?sense=NAME`` (default ``touch``, the glove).
+"""Which windowed sense a route writes to or draws: ``?sense=NAME`` on the touch routes
+(default ``touch``, the glove), ``{sense}`` in the generic windowed routes' paths.
+
+The service knows windowed senses through their contract only
+(:mod:`tactus_memory.senses.windowed`: ``frame_shape``, ``window_stream``, ``validate``'s idle
+rule, ``drawer``) and the plug-in registry (the class registered as ``touch`` states the frame
+the JSON schema shows and draws a sense known only from the store); it imports no touch module.
 
 A memory may hold several touch senses side by side, each a Tactus checkpoint with its own
 sensor profile and so its own frame shape (H, W): the 32x32 STAG glove as ``touch``, a 16x16
@@ -17,14 +23,14 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import Depends, Query
+from fastapi import Depends, Path, Query
 
 from tactus_memory.errors import InvalidInputError, UnknownSenseError
 from tactus_memory.limits import SENSE_NAME_PATTERN
-from tactus_memory.senses.windowed import WindowedSense
+from tactus_memory.senses.plugins import lookup
+from tactus_memory.senses.windowed import WindowDrawer, WindowedSense
 from tactus_memory.service.deps import MemoryDep, StateDep
 from tactus_memory.service.problems import ServiceUnavailable
-from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
 
 #: the sense a touch route writes to when the request names none (the shipped glove)
 DEFAULT_TOUCH_SENSE = "touch"
@@ -59,17 +65,37 @@ def resolve_touch_sense(memory: Any, name: str, why_default_missing: str | None 
     return sense
 
 
-def frame_shape(sense: WindowedSense) -> tuple[int, int]:
-    """(H, W) of one frame of the touch ``sense`` (the windowed-sense contract's
-    ``frame_shape``: the touch sense's checkpoint's sensor profile)."""
-    h, w = sense.frame_shape
-    return int(h), int(w)
+def frame_shape(sense: WindowedSense) -> tuple[int, ...]:
+    """The shape of one frame of the windowed ``sense`` (the contract's ``frame_shape``: (H,
+    W) for a touch sense, its checkpoint's sensor profile's; (C,) for an IMU)."""
+    return tuple(int(n) for n in sense.frame_shape)
 
 
-def sense_profile(sense: Any) -> SensorProfile:
-    """The sensor profile of a touch sense (the glove's for a sense that records none)."""
-    p = getattr(sense, "profile", None)
-    return p if isinstance(p, SensorProfile) else STAG_GLOVE
+def default_sense_class() -> type[WindowedSense]:
+    """The class registered as the default touch sense (``touch``, ``TactusEncoder``)."""
+    cls: type[WindowedSense] = lookup("sense", DEFAULT_TOUCH_SENSE)
+    return cls
+
+
+def drawer_of(memory: Any, name: str) -> WindowDrawer:
+    """How the windows of sense ``name`` are drawn: a live windowed sense's own drawer; for a
+    live sense that draws none, or a sense known from the store only, the default touch
+    class's drawer from the sense's provenance (the glove's when it records no sensor)."""
+    live = memory.senses.get(name)
+    drawer = live.drawer() if isinstance(live, WindowedSense) else None
+    if drawer is not None:
+        return drawer
+    if live is not None:
+        provenance = live.provenance()
+    else:
+        info = next((i for i in memory.sense_info() if i.name == name), None)
+        if info is None:
+            raise UnknownSenseError(f"no sense {name!r} in this memory")
+        provenance = info.provenance
+    drawer = default_sense_class().drawer_from_provenance(provenance)
+    if drawer is None:
+        raise InvalidInputError(f"sense {name!r} draws no picture of its windows")
+    return drawer
 
 
 def touch_sense_dep(
@@ -85,3 +111,23 @@ def touch_sense_dep(
 
 #: the resolved touch sense of a touch route (``?sense=NAME``, default ``touch``)
 TouchSenseDep = Annotated[Any, Depends(touch_sense_dep)]
+
+
+def windowed_sense_dep(
+    state: StateDep,
+    memory: MemoryDep,
+    sense: Annotated[
+        str,
+        Path(
+            pattern=SENSE_NAME_PATTERN,
+            max_length=64,
+            description="The windowed sense written to (`GET /senses`: its `shape`).",
+        ),
+    ],
+) -> Any:
+    """The windowed sense the generic routes' path names (``/senses/{sense}/...``)."""
+    return resolve_touch_sense(memory, sense, state.touch_unavailable)
+
+
+#: the resolved windowed sense of a generic windowed route (``{sense}`` in the path)
+WindowedSenseDep = Annotated[Any, Depends(windowed_sense_dep)]

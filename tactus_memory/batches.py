@@ -15,9 +15,9 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_BATCH, MAX_META_BYTES, MAX_META_DEPTH
+from tactus_memory.names import validate_id
 from tactus_memory.signatures import reject_unknown
 from tactus_memory.times import check_time
-from tactus_memory.where import validate_id
 
 
 class BatchKwargs(TypedDict, total=False):

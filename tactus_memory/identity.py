@@ -5,7 +5,7 @@ tenant), the service (the bearer token and ``X-Tactus-Tenant``) and the remote c
 
 from __future__ import annotations
 
-from tactus_memory.where import validate_id
+from tactus_memory.names import validate_id
 
 #: the tenant of a store without keys, of the operator's ``--token``, and of
 #: ``Memory.open(path)`` without ``tenant=``

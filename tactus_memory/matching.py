@@ -67,9 +67,9 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.names import validate_sense_name
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.results import Evidence, Hit, Moment
-from tactus_memory.senses.base import validate_sense_name
 from tactus_memory.signatures import reject_unknown
 from tactus_memory.where import finite_float
 

@@ -12,8 +12,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from tactus_memory.limits import ID_RE
-from tactus_memory.senses.base import validate_sense_name
-from tactus_memory.where import validate_id
+from tactus_memory.names import validate_id, validate_sense_name
 
 MiB = 1024 * 1024
 

@@ -150,8 +150,9 @@ class SenseInfo(BaseModel):
     )
     shape: list[int] | None = Field(
         None,
-        description="A touch sense's frame shape [H, W] (its sensor profile: [32, 32] for the "
-        "STAG glove); its windows are (K, H, W). Null for other senses.",
+        description="A windowed sense's frame shape: [H, W] for touch (its sensor profile: "
+        "[32, 32] for the STAG glove; windows (K, H, W)), [6] for a 6-axis IMU. Null for "
+        "senses that are not windowed.",
     )
 
 

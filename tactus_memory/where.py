@@ -15,24 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import InvalidIdError, InvalidInputError
-from tactus_memory.limits import ID_DESCRIPTION, ID_RE, MAX_COORDINATE
-from tactus_memory.senses.base import validate_sense_name
+from tactus_memory.errors import InvalidInputError
+from tactus_memory.limits import MAX_COORDINATE
+from tactus_memory.names import validate_id, validate_sense_name
 
 
 # --------------------------------------------------------------------------- validation
-def validate_id(value: Any, what: str = "id") -> str:
-    """Session ids, item ids and source ids: 1-128 chars of ``[A-Za-z0-9._:-]``."""
-    if not isinstance(value, str) or not ID_RE.fullmatch(value):
-        shown = (
-            repr(value)
-            if not isinstance(value, str) or len(value) <= 60
-            else repr(value[:60]) + "..."
-        )
-        raise InvalidIdError(f"invalid {what} {shown}: use {ID_DESCRIPTION.removesuffix('.')}")
-    return value
-
-
 def refuse_format_chars(value: str, what: str) -> str:
     """``value`` unless it holds a Unicode format character (category Cf: a bidi override,
     a zero-width space...), which makes a name a person reads display as another one."""

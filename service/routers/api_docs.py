@@ -5,6 +5,7 @@ Open routes like the page (no token: they describe the routes, not the memory)."
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import fastapi_offline
 from fastapi import APIRouter, HTTPException, Request
@@ -36,7 +37,7 @@ def _root(request: Request) -> str:
     return str(request.scope.get("root_path", "")).rstrip("/")
 
 
-def _page(root: str, viewer: str) -> dict[str, str]:
+def _page(root: str, viewer: str) -> dict[str, Any]:
     """What both API pages take: the OpenAPI document under the app's root, and a title."""
     return {"openapi_url": root + OPENAPI_URL, "title": f"tactus-memory - {viewer}"}
 

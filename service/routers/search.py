@@ -9,12 +9,13 @@ from fastapi import APIRouter, Query, Response
 
 from tactus_memory.limits import MAX_K
 from tactus_memory.query import Scope
-from tactus_memory.service.arrays import as_touch_array
+from tactus_memory.results import Moment
+from tactus_memory.senses.windowed import WindowedSense
+from tactus_memory.service.arrays import as_window_array
 from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, Read, ScopeDep
 from tactus_memory.service.problems import problem_responses
-from tactus_memory.service.schemas import HitOut, SearchLikeIn, SearchOut
+from tactus_memory.service.schemas import STATED_FRAME, HitOut, SearchLikeIn, SearchOut
 from tactus_memory.service.touch_senses import frame_shape
-from tactus_memory.touch.profile import FRAME_SHAPE
 
 router = APIRouter(prefix="/search", tags=["search"])
 
@@ -73,7 +74,8 @@ def search(
 ) -> SearchOut:
     t0 = time.perf_counter()
     if group == "moment":
-        moments = memory.search(q, k=k, group="moment", gap=gap, scope=scope, sort=sort)
+        found = memory.search(q, k=k, group="moment", gap=gap, scope=scope, sort=sort)
+        moments = [m for m in found if isinstance(m, Moment)]
         _timing(response, t0)
         best = [next(h for h in m.hits if h.id == m.best) for m in moments]
         return SearchOut(
@@ -104,11 +106,11 @@ def search_like(body: SearchLikeIn, memory: MemoryDep, response: Response) -> Se
     t0 = time.perf_counter()
     scope = Scope(body.session, body.senses, body.source, body.after, body.before)
     if body.frames is not None:
-        # the example's frame shape is its sense's (a sense that is no touch sense refuses
-        # the window itself, below)
+        # the example's frame shape is its windowed sense's (a sense that is not windowed is
+        # held to the shape the schema states and refuses the window itself, below)
         sense = memory.senses.get(body.sense)
-        shape = frame_shape(sense) if getattr(sense, "windowed", False) else FRAME_SHAPE
-        window = as_touch_array(body.frames, "K", "frames", shape, body.sense)
+        shape = frame_shape(sense) if isinstance(sense, WindowedSense) else STATED_FRAME
+        window = as_window_array(body.frames, "K", "frames", shape, body.sense)
         opts = {"calibrated": body.calibrated}
         hits = memory.search_like(body.sense, window, k=body.k, options=opts, scope=scope)
     elif body.vector is not None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import APIRouter
 
 from tactus_memory.adapters.vectors import VectorSense
@@ -12,7 +14,7 @@ from tactus_memory.service.schemas import SenseIn, SenseOut, SensesOut
 router = APIRouter(prefix="/senses", tags=["senses"])
 
 
-def _senses(memory: object) -> list[SenseOut]:
+def _senses(memory: Any) -> list[SenseOut]:
     return [SenseOut.model_validate(s, from_attributes=True) for s in memory.sense_info()]
 
 

@@ -1,4 +1,7 @@
-"""Live touch: WebSocket ``/sessions/{session}/touch/stream``, frames in, stored windows out.
+"""Live touch: WebSocket ``/sessions/{session}/touch/stream``, frames in, stored windows out;
+``/sessions/{session}/senses/{sense}/stream`` the same for any windowed sense (an IMU's frames
+are (C,) instead of (H, W)): the sense's frame shape, its stream cutter
+(``WindowedSense.window_stream``) and its ``validate`` (the idle rule) do the sense's part.
 
 Protocol (all server messages are JSON objects with a ``type``):
 
@@ -47,6 +50,7 @@ import logging
 import math
 import time
 import uuid
+from collections.abc import Mapping
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Annotated, Any
@@ -58,7 +62,7 @@ from tactus_memory.errors import IdleWindowError, InvalidInputError, OverloadedE
 from tactus_memory.limits import MAX_WINDOW_FRAMES
 from tactus_memory.memory.group_commit import GroupCommitter
 from tactus_memory.senses.windowed import WindowCutter
-from tactus_memory.service.arrays import as_touch_array, load_npy, loads_strict
+from tactus_memory.service.arrays import as_window_array, load_npy, loads_strict, shape_name
 from tactus_memory.service.deps import (
     PrincipalDep,
     SessionId,
@@ -69,12 +73,14 @@ from tactus_memory.service.deps import (
     Write,
 )
 from tactus_memory.service.problems import problem_body, problem_for_exception
-from tactus_memory.service.touch_senses import TouchSenseDep, frame_shape
+from tactus_memory.service.touch_senses import TouchSenseDep, WindowedSenseDep, frame_shape
 from tactus_memory.times import check_time
 
 log = logging.getLogger("tactus_memory.service")
 
 router = APIRouter(tags=["touch"])
+#: the same stream for any windowed sense, by the name in the path
+windows_router = APIRouter(tags=["windows"])
 
 QUEUE_WINDOWS = 256
 
@@ -149,6 +155,41 @@ async def touch_stream(
     """The token, the session id, a writable store and the touch sense (``?sense=``) are
     checked by the same dependencies as the HTTP routes (the app includes this router with
     the token)."""
+    route = "WS /sessions/{session}/touch/stream"
+    await _serve(websocket, session, state, tenant, principal, params, sense, route)
+
+
+@windows_router.websocket(
+    "/sessions/{session}/senses/{sense}/stream",
+    name="windows_stream",
+    dependencies=[Write, Writable],
+)
+async def windows_stream(
+    websocket: WebSocket,
+    session: SessionId,
+    state: StateDep,
+    tenant: TenantDep,
+    principal: PrincipalDep,
+    params: Annotated[StreamParams, Depends(stream_params)],
+    sense: WindowedSenseDep,
+) -> None:
+    """The touch stream's protocol for the windowed sense the path names."""
+    route = "WS /sessions/{session}/senses/{sense}/stream"
+    await _serve(websocket, session, state, tenant, principal, params, sense, route)
+
+
+async def _serve(
+    websocket: WebSocket,
+    session: str,
+    state: Any,
+    tenant: Any,
+    principal: Any,
+    params: StreamParams,
+    sense: Any,
+    route: str,
+) -> None:
+    """One stream of frames of the windowed ``sense`` (either route), until the client
+    leaves; ``route`` names it in the audit log."""
     target = _Target(sense.name, frame_shape(sense))
     send_lock = asyncio.Lock()
 
@@ -251,7 +292,6 @@ async def touch_stream(
         with contextlib.suppress(Exception):
             await acker_task
         if state.audit is not None:
-            route = "WS /sessions/{session}/touch/stream"
             state.audit.record(principal.key_id, principal.tenant, route, 101, stored[0])
     with contextlib.suppress(Exception):
         await websocket.close()
@@ -284,7 +324,7 @@ async def _try_send(send: Any, message: dict[str, Any]) -> None:
 INLINE_BINARY_BYTES = 8_320
 
 
-def _inline(message: dict[str, Any]) -> bool:
+def _inline(message: Mapping[str, Any]) -> bool:
     data = message.get("bytes")
     return data is not None and len(data) <= INLINE_BINARY_BYTES
 
@@ -304,14 +344,14 @@ class _Ingested:
 
 @dataclass(frozen=True)
 class _Target:
-    """The touch sense a stream writes to and its frame shape (H, W)."""
+    """The windowed sense a stream writes to and its frame shape ((H, W) for touch)."""
 
     sense: str
-    shape: tuple[int, int]
+    shape: tuple[int, ...]
 
 
 def _ingest(
-    message: dict[str, Any],
+    message: Mapping[str, Any],
     index: int,
     params: StreamParams,
     max_bytes: int,
@@ -366,25 +406,25 @@ def _queue_windows(
 
 
 def _parse(
-    message: dict[str, Any], index: int, params: StreamParams, max_bytes: int, target: _Target
+    message: Mapping[str, Any], index: int, params: StreamParams, max_bytes: int, target: _Target
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One WebSocket message -> (frames (M, H, W), times (M,) float64), (H, W) the frame shape
-    of the stream's touch sense: a binary ``.npy`` of M frames is parsed and timed as one
-    array."""
+    """One WebSocket message -> (frames (M, *F), times (M,) float64), F the frame shape of the
+    stream's windowed sense ((H, W) for touch): a binary ``.npy`` of M frames is parsed and
+    timed as one array."""
     shape, sense = target.shape, target.sense
-    h, w = shape
+    dims = ", ".join(map(str, shape))
     data = message.get("bytes")
     if data is not None:
         if len(data) > max_bytes:
             raise InvalidInputError(f"message is {len(data)} bytes; the limit is {max_bytes}")
         arr = load_npy(data, f"binary frame {index}", frames=True)
         sent = arr.shape
-        if arr.ndim == 2:
+        if arr.ndim == len(shape):
             arr = arr[None]
-        if arr.ndim != 3 or arr.shape[1:] != shape:
+        if arr.ndim != len(shape) + 1 or arr.shape[1:] != shape:
             raise InvalidInputError(
-                f"binary frame {index} has shape {sent}, expected ({h}, {w}) or "
-                f"(N, {h}, {w}): sense {sense!r} reads {h}x{w} frames"
+                f"binary frame {index} has shape {sent}, expected ({dims}) or "
+                f"(N, {dims}): sense {sense!r} reads {shape_name(shape)} frames"
             )
         m = arr.shape[0]
         if params.hz is not None:
@@ -400,7 +440,15 @@ def _parse(
     obj = loads_strict(text)
     if not isinstance(obj, dict) or "frame" not in obj:
         raise InvalidInputError(
-            f'message {index} must be a JSON object {{"frame": [[...{w}] x {h}], "t": ...}}'
+            f'message {index} must be a JSON object {{"frame": {_frame_words(shape)}, "t": ...}}'
         )
-    frame = as_touch_array(obj["frame"], "", f"frame {index}", shape, sense)
+    frame = as_window_array(obj["frame"], "", f"frame {index}", shape, sense)
     return frame[None], np.array([_frame_time(obj, index)])
+
+
+def _frame_words(shape: tuple[int, ...]) -> str:
+    """How an error draws one frame of ``shape``: ``[[...32] x 32]`` for (32, 32)."""
+    words = f"[...{shape[-1]}]"
+    for n in reversed(shape[:-1]):
+        words = f"[{words} x {n}]"
+    return words

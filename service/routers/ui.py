@@ -5,12 +5,14 @@ token the user types on every API call) serves ``/`` and ``/static/<file>`` from
 ``service/static``. ``router`` (behind the token like every data route) draws touch windows:
 ``GET /items/{id}/touch.png`` for a stored window (``/touch.json``: its numbers, for the value
 under the pointer) and ``POST /render/touch.png`` for a window the user is about to search
-with. Both use :func:`tactus_memory.touch.render.draw_window_png`, the same renderer as the
-evaluation report.
+with. Both draw through the sense's ``drawer`` (the windowed-sense contract,
+``service/touch_senses.py: drawer_of``): for touch the renderer of the evaluation report
+(``tactus_memory.touch.render``).
 """
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path as FsPath
 from typing import Annotated, Any
 
@@ -20,15 +22,18 @@ from fastapi.responses import FileResponse, HTMLResponse, Response
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
-from tactus_memory.errors import InvalidInputError, UnknownSenseError
+from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import SENSE_NAME_PATTERN
-from tactus_memory.service.arrays import as_touch_array
+from tactus_memory.senses.windowed import WindowDrawer, WindowLayout
+from tactus_memory.service.arrays import as_window_array
 from tactus_memory.service.deps import ItemIdPath, MemoryDep, Open, Read
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import Strict, Window
-from tactus_memory.service.touch_senses import DEFAULT_TOUCH_SENSE, sense_profile
-from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile
-from tactus_memory.touch.render import MAX_FRAMES, SCALE, View, draw_window_png, window_values
+from tactus_memory.service.touch_senses import (
+    DEFAULT_TOUCH_SENSE,
+    default_sense_class,
+    drawer_of,
+)
 
 STATIC = FsPath(__file__).resolve().parent.parent / "static"
 STATIC_TYPES = {
@@ -47,6 +52,9 @@ PNG_RESPONSE: dict[int | str, dict[str, Any]] = {
 page_router = APIRouter(include_in_schema=False)
 router = APIRouter(tags=["browser"])
 
+#: the heat maps' defaults: the default touch sense's (the glove: 4 px per taxel, 16 frames)
+DRAW = default_sense_class().draw_defaults
+SCALE, MAX_FRAMES = DRAW["scale"], DRAW["max_frames"]
 Scale = Annotated[int, Query(ge=1, le=16, description="Pixels per taxel.")]
 MaxFrames = Annotated[int, Query(ge=1, le=64, description="Most frames drawn (evenly spread).")]
 Columns = Annotated[
@@ -57,13 +65,13 @@ Legend = Annotated[bool, Query(description="Draw the colour bar under the frames
 
 def _layout(
     scale: Scale = SCALE, max_frames: MaxFrames = MAX_FRAMES, columns: Columns = None
-) -> View:
+) -> WindowLayout:
     """How the query asks a window to be drawn (the same three parameters on every heat map)."""
-    return View(scale=scale, max_frames=max_frames, columns=columns)
+    return WindowLayout(scale=scale, max_frames=max_frames, columns=columns)
 
 
 #: ``scale``, ``max_frames`` and ``columns`` from the query, as drawing keywords
-LayoutDep = Annotated[View, Depends(_layout)]
+LayoutDep = Annotated[WindowLayout, Depends(_layout)]
 
 
 # ----------------------------------------------------------------------------- the page
@@ -88,9 +96,10 @@ def _static_file(name: str) -> Response:
 
 
 # ----------------------------------------------------------------------------- heat maps
-def _window_of(raw: Any, shape: tuple[int, int]) -> tuple[np.ndarray | None, bool | None]:
-    """The (K, H, W) frames inside a stored touch item, (H, W) = ``shape`` its sense's frame
-    shape, and whether they are calibrated (None: unknown, decided from the values)."""
+def _window_of(raw: Any, shape: tuple[int, ...]) -> tuple[np.ndarray | None, bool | None]:
+    """The (K, *shape) frames inside a stored windowed item, ``shape`` its sense's frame shape
+    ((H, W) for touch), and whether they are calibrated (None: unknown, decided from the
+    values)."""
     calibrated = getattr(raw, "calibrated", None)
     if isinstance(raw, dict):
         calibrated = raw.get("calibrated")
@@ -100,55 +109,36 @@ def _window_of(raw: Any, shape: tuple[int, int]) -> tuple[np.ndarray | None, boo
     if raw is None or isinstance(raw, (str, bytes)):
         return None, None
     arr = np.asarray(raw)
-    if arr.ndim == 2:
+    if arr.ndim == len(shape):
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != tuple(shape) or arr.dtype == object:
+    if arr.ndim != len(shape) + 1 or arr.shape[1:] != tuple(shape) or arr.dtype == object:
         return None, None
     return arr, None if calibrated is None else bool(calibrated)
-
-
-def _profile(memory: Any, sense: str) -> SensorProfile:
-    """The live sense's sensor profile; for a sense known from the store only, the profile its
-    provenance recorded (the glove's when none)."""
-    live = memory.senses.get(sense)
-    if live is not None:
-        return sense_profile(live)
-    info = next((i for i in memory.sense_info() if i.name == sense), None)
-    if info is None:
-        raise UnknownSenseError(f"no sense {sense!r} in this memory")
-    recorded = info.provenance.get("calibration")
-    return SensorProfile.from_dict(recorded) if isinstance(recorded, dict) else STAG_GLOVE
 
 
 def _png(body: bytes) -> Response:
     return Response(body, media_type=PNG, headers={"Cache-Control": "private, max-age=300"})
 
 
-def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, SensorProfile]:
+def _item_window(memory: Any, item_id: str) -> tuple[np.ndarray, bool | None, WindowDrawer]:
     item = memory.get_item(item_id)  # NotFoundError -> 404
-    profile = _profile(memory, item.sense)
-    window, calibrated = _window_of(item.raw, profile.shape)
+    drawer = drawer_of(memory, item.sense)
+    window, calibrated = _window_of(item.raw, drawer.frame_shape)
     if window is None:
         raise InvalidInputError(
             f"item {item_id!r} (sense {item.sense!r}) holds no touch window to draw"
         )
-    return window, calibrated, profile
+    return window, calibrated, drawer
 
 
-def _item_view(memory: Any, item_id: str, layout: View) -> tuple[np.ndarray, View]:
-    """The item's window and how to draw it (for draw_window_png and window_values)."""
-    window, calibrated, profile = _item_window(memory, item_id)
-    return window, View(**layout, calibrated=calibrated, profile=profile)
+def _item_png(memory: Any, item_id: str, layout: WindowLayout, legend: bool) -> bytes:
+    window, calibrated, drawer = _item_window(memory, item_id)
+    return drawer.png(window, calibrated=calibrated, legend=legend, layout=layout)
 
 
-def _item_png(memory: Any, item_id: str, layout: View, legend: bool) -> bytes:
-    window, view = _item_view(memory, item_id, layout)
-    return draw_window_png(window, legend=legend, **view)
-
-
-def _item_values(memory: Any, item_id: str, layout: View) -> dict[str, Any]:
-    window, view = _item_view(memory, item_id, layout)
-    return window_values(window, **view)
+def _item_values(memory: Any, item_id: str, layout: WindowLayout) -> dict[str, Any]:
+    window, calibrated, drawer = _item_window(memory, item_id)
+    return drawer.values(window, calibrated=calibrated, layout=layout)
 
 
 @router.get(
@@ -226,14 +216,10 @@ async def render_touch_png(
     memory: MemoryDep,
     legend: Legend = True,
 ) -> Response:
-    profile = _profile(memory, body.sense)
-    window = as_touch_array(body.frames, "K", "frames", profile.shape, body.sense)
+    drawer = drawer_of(memory, body.sense)
+    window = as_window_array(body.frames, "K", "frames", drawer.frame_shape, body.sense)
     png = await run_in_threadpool(
-        draw_window_png,
+        functools.partial(drawer.png, calibrated=body.calibrated, legend=legend, layout=layout),
         window,
-        calibrated=body.calibrated,
-        legend=legend,
-        profile=profile,
-        **layout,
     )
     return _png(png)

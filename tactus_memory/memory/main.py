@@ -56,6 +56,7 @@ from tactus_memory.matching import DEFAULT_MOMENT_GAP, mark_matches
 from tactus_memory.memory.parts import Part
 from tactus_memory.memory.places import Places
 from tactus_memory.memory.writes import WritePath
+from tactus_memory.names import validate_sense_name
 from tactus_memory.policies import MaintenanceConfig
 from tactus_memory.query import Scope, ScopeKwargs, check_k, embed_query
 from tactus_memory.results import (
@@ -73,7 +74,7 @@ from tactus_memory.search.ordering import candidates, sort_hits
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.search.scoring import Calibration
 from tactus_memory.search.teaching import Teachings
-from tactus_memory.senses.base import Sense, bytes_to_array, validate_sense_name
+from tactus_memory.senses.base import Sense, bytes_to_array
 from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.settings import DEFAULT_MEMORY, Settings
 from tactus_memory.spaces.base import Space
@@ -90,7 +91,6 @@ from tactus_memory.where import DEFAULT_FRAME, Where
 log = logging.getLogger(__name__)
 
 
-# --------------------------------------------------------------------------- memory
 class Memory(AbstractContextManager["Memory"]):
     """A robot memory: items of every sense in one LanceDB table, one embedding space.
 

@@ -30,6 +30,7 @@ from typing_extensions import Unpack
 from tactus_memory.errors import InvalidInputError, PoseConflictError
 from tactus_memory.limits import MAX_K
 from tactus_memory.matching import DEFAULT_MOMENT_GAP, TIMELINE_MAX, MatchKwargs, split_match
+from tactus_memory.names import validate_id
 from tactus_memory.query import Scope, embed_query
 from tactus_memory.results import Place, TimelineItem, TrajectoryOut, row_fields
 from tactus_memory.storage.places import POSE_TOLERANCE, Placement, check_poses, place_many
@@ -42,7 +43,6 @@ from tactus_memory.where import (
     Where,
     check_near,
     validate_frame,
-    validate_id,
     validate_source,
 )
 

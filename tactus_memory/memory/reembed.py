@@ -48,7 +48,8 @@ import numpy as np
 from pydantic import BaseModel
 
 from tactus_memory.errors import InvalidInputError, SenseConflictError
-from tactus_memory.senses.base import Sense, validate_sense_name
+from tactus_memory.names import validate_sense_name
+from tactus_memory.senses.base import Sense
 from tactus_memory.storage.codes import code_batches
 from tactus_memory.storage.rows import options_for
 from tactus_memory.storage.tables import items_schema

@@ -21,6 +21,7 @@ import numpy as np
 
 from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.memory.places import Places
+from tactus_memory.names import validate_id
 from tactus_memory.results import Stored
 from tactus_memory.senses.base import Sense
 from tactus_memory.senses.stored import SenseRegistry
@@ -28,7 +29,7 @@ from tactus_memory.spaces.base import Space
 from tactus_memory.storage.rows import PreparedWrite, check_batch, options_for, writes_table
 from tactus_memory.storage.store import Store
 from tactus_memory.vectors import as_unit_rows
-from tactus_memory.where import DEFAULT_FRAME, validate_id, validate_source
+from tactus_memory.where import DEFAULT_FRAME, validate_source
 
 
 @dataclass(eq=False)

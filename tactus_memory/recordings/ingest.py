@@ -34,6 +34,7 @@ from pydantic import BaseModel, Field
 
 import tactus_memory.adapters.decode as decode
 from tactus_memory.errors import RecordingError, UnknownSenseError
+from tactus_memory.names import validate_id
 from tactus_memory.recordings.decoding import NS, DecodeSpec, Tally, TopicPlan
 from tactus_memory.recordings.poses import (
     DEFAULT_TF,
@@ -47,7 +48,7 @@ from tactus_memory.recordings.poses import (
 )
 from tactus_memory.recordings.reader import Recording, TopicInfo, open_recording
 from tactus_memory.senses.plugins import lookup
-from tactus_memory.where import Where, validate_id
+from tactus_memory.where import Where
 
 if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them
     from tactus_memory.memory.main import Memory

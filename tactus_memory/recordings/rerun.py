@@ -29,8 +29,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel
 
+from tactus_memory.names import validate_id
 from tactus_memory.senses.base import bytes_to_array
-from tactus_memory.where import Where, validate_id
+from tactus_memory.where import Where
 
 if TYPE_CHECKING:  # recordings take a memory; the memory knows nothing of them
     from tactus_memory.memory.main import Memory

@@ -43,13 +43,14 @@ from typing_extensions import Unpack
 
 from tactus_memory.errors import InvalidInputError, NotFoundError
 from tactus_memory.limits import FORMAT_CHARS
+from tactus_memory.names import validate_id
 from tactus_memory.query import TeachSpan, teach_span
 from tactus_memory.results import Teaching, label_key
 from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.retention import TAUGHT_PREFIX
 from tactus_memory.storage.store import Store
-from tactus_memory.where import Where, refuse_format_chars, session_visible, validate_id
+from tactus_memory.where import Where, refuse_format_chars, session_visible
 
 #: weight of the label's text target in the taught ranking (chosen with the benchmark,
 #: ``benchmarks/teach.py``; the docs' "Objects you teach" reports the grid)

@@ -22,21 +22,11 @@ import numpy as np
 
 from tactus_memory.errors import (
     IdleWindowError,
-    InvalidIdError,
     InvalidInputError,
     SenseConflictError,
 )
-from tactus_memory.limits import SENSE_NAME_RE
 from tactus_memory.spaces.base import Space
 from tactus_memory.vectors import as_unit_rows
-
-
-def validate_sense_name(name: str) -> str:
-    if not isinstance(name, str) or not SENSE_NAME_RE.fullmatch(name):
-        raise InvalidIdError(
-            f"invalid sense name {name!r}: use 1-32 chars of [a-z0-9_], starting with a letter"
-        )
-    return name
 
 
 def array_to_bytes(arr: np.ndarray) -> bytes:
@@ -106,7 +96,7 @@ class Sense(ABC):
         A sense with ``validate_options`` takes them as keyword arguments."""
 
     def validate_many(
-        self, items: Sequence[Any], *, skip_idle: bool = True, **options: Any
+        self, items: Sequence[Any] | np.ndarray, *, skip_idle: bool = True, **options: Any
     ) -> tuple[list[Any], list[int]]:
         """N items -> (their canonical forms, the indices of those skipped as idle), the
         write path's one call per write. Each item as :meth:`validate` checks it; an item

@@ -25,10 +25,12 @@ from tactus_memory.errors import (
     SenseSwappedError,
     UnknownSenseError,
 )
+from tactus_memory.names import validate_sense_name
 from tactus_memory.results import SenseInfo
 from tactus_memory.search.scoring import PROBES, SAMPLE, Calibration, blend, estimate
-from tactus_memory.senses.base import Sense, array_to_bytes, bytes_to_array, validate_sense_name
+from tactus_memory.senses.base import Sense, array_to_bytes, bytes_to_array
 from tactus_memory.senses.plugins import lookup, registered_name
+from tactus_memory.senses.windowed import described_shape
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
 from tactus_memory.vectors import as_unit_rows, vector_column
@@ -311,16 +313,13 @@ class SenseRegistry:
         for name, s in sorted(self._stored.items()):
             c = self._calib.get(name)
             prov = s.provenance()
-            calibration = prov.get("calibration")  # a touch sense's sensor profile
             out.append(
                 SenseInfo(
                     name=name,
                     modality=s.modality,
                     dim=s.dim,
                     provenance=prov,
-                    shape=list(calibration["shape"])
-                    if isinstance(calibration, dict) and "shape" in calibration
-                    else None,
+                    shape=described_shape(self._live.get(name), prov),
                     live=name in self._live,
                     rows=counts.get(name, 0),
                     mu=c.mu if c else None,

@@ -28,10 +28,11 @@ from tactus_memory.errors import (
     ThrottledError,
 )
 from tactus_memory.identity import validate_tenant
+from tactus_memory.names import validate_id
 from tactus_memory.storage.connect import normalise_uri, storage_options_for
 from tactus_memory.storage.integrity import _lance_message
 from tactus_memory.storage.tables import keys_schema
-from tactus_memory.where import _sql_str, validate_id, validate_session_prefix
+from tactus_memory.where import _sql_str, validate_session_prefix
 
 log = logging.getLogger(__name__)
 

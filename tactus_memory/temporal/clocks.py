@@ -18,10 +18,10 @@ from collections.abc import Mapping
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.limits import MAX_CLOCK_OFFSET
+from tactus_memory.names import validate_id, validate_sense_name
 from tactus_memory.results import ClockOffset
-from tactus_memory.senses.base import validate_sense_name
 from tactus_memory.storage.store import Store
-from tactus_memory.where import finite_float, validate_id, validate_source
+from tactus_memory.where import finite_float, validate_source
 
 #: the meta key of every session's offsets in one JSON value (stores written before)
 CLOCK_KEY = "clock_offsets"

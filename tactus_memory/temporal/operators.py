@@ -52,6 +52,7 @@ from tactus_memory.matching import (
     sense_bar,
     split_match,
 )
+from tactus_memory.names import validate_id
 from tactus_memory.query import Scope, TimelineKwargs, check_k, embed_query, timeline_scope
 from tactus_memory.results import (
     ClockOffset,
@@ -93,7 +94,7 @@ from tactus_memory.temporal.episodes import (
     representative,
 )
 from tactus_memory.vectors import vector_column
-from tactus_memory.where import Where, validate_id
+from tactus_memory.where import Where
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None

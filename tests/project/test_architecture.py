@@ -5,6 +5,7 @@ library never imports the service, and no source file grows past MAX_LINES."""
 from __future__ import annotations
 
 import ast
+import functools
 import subprocess
 import sys
 from pathlib import Path
@@ -60,6 +61,7 @@ def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
     return found
 
 
+@functools.cache  # one walk per test process (the tests only read it): ~4 s each on 2 cores
 def graph() -> dict[str, set[str]]:
     mods = modules()
     known = set(mods)
@@ -136,34 +138,46 @@ PACKAGE_LAYERS = (
 #: in the base, the store's sense registry in search)
 LAYER_EXTRA: dict[str, tuple[str, ...]] = {"search": ("tactus_memory.senses.stored",)}
 
+#: The base's inner order, bottom to top: the vocabulary (errors, limits, results, the name
+#: validators...) that imports nothing of the package above it; the contracts (a space, a
+#: sense, the plug-in registry); the query vocabulary (filters, scopes, batches, the match
+#: bar); the configuration (policies, settings); the front (the package's ``__init__`` and the
+#: Memory/Client contract). Each is a layer of LAYER_MAP, so the layer test checks the order.
+BASE_LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (
+        "base: vocabulary",
+        (
+            "tactus_memory.errors",
+            "tactus_memory.limits",
+            "tactus_memory.names",
+            "tactus_memory.results",
+            "tactus_memory.hashing",
+            "tactus_memory.signatures",
+            "tactus_memory.vectors",
+            "tactus_memory.times",
+        ),
+    ),
+    ("base: contracts", ("tactus_memory.spaces.base", "tactus_memory.senses")),
+    (
+        "base: query",
+        (
+            "tactus_memory.where",
+            "tactus_memory.identity",
+            "tactus_memory.query",
+            "tactus_memory.batches",
+            "tactus_memory.matching",
+        ),
+    ),
+    ("base: configuration", ("tactus_memory.policies", "tactus_memory.settings")),
+    ("base: front", ("tactus_memory", "tactus_memory.contract")),
+)
+
 #: The layer map, bottom to top (docs/architecture.md draws it). A module belongs to the layer
 #: whose entry names it most precisely (``tactus_memory.spaces.base`` is base, the rest of
 #: ``tactus_memory.spaces`` is models); it may import its own layer and the layers below, never
 #: one above. ``tactus_memory`` alone is the package's ``__init__``.
 LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
-    (
-        "base",
-        (
-            "tactus_memory",
-            "tactus_memory.errors",
-            "tactus_memory.limits",
-            "tactus_memory.results",
-            "tactus_memory.settings",
-            "tactus_memory.hashing",
-            "tactus_memory.signatures",
-            "tactus_memory.senses",
-            "tactus_memory.vectors",
-            "tactus_memory.where",
-            "tactus_memory.times",
-            "tactus_memory.spaces.base",
-            "tactus_memory.policies",
-            "tactus_memory.identity",
-            "tactus_memory.batches",
-            "tactus_memory.query",
-            "tactus_memory.matching",
-            "tactus_memory.contract",
-        ),
-    ),
+    *BASE_LAYERS,
     ("models", ("tactus_memory.spaces", "tactus_memory.touch", "tactus_memory.datasets")),
     # every layer above the models is the one package of its name (and the modules named
     # in LAYER_EXTRA: the store's sense registry, in senses/ beside the contract, is search's)
@@ -171,7 +185,7 @@ LAYER_MAP: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 #: layers that may import only some of the layers below them (the remote client needs no
 #: store, search or model code: it speaks HTTP and shares the base's vocabulary)
-ONLY: dict[str, tuple[str, ...]] = {"client": ("base",)}
+ONLY: dict[str, tuple[str, ...]] = {"client": tuple(name for name, _ in BASE_LAYERS)}
 
 
 def _under(name: str, pkg: str) -> bool:
@@ -216,12 +230,17 @@ def test_the_layer_check_sees_an_upward_import() -> None:
         "tactus_memory.temporal.clocks": {"tactus_memory.search.ranking"},
         "tactus_memory.spaces.base": {"tactus_memory.spaces.minilm"},
         "tactus_memory.client.main": {"tactus_memory.search.grasps", "tactus_memory.results"},
+        # inside the base: the vocabulary below the filters, the filters below the settings
+        "tactus_memory.errors": {"tactus_memory.where"},
+        "tactus_memory.where": {"tactus_memory.senses.base", "tactus_memory.settings"},
     }
     assert layer_violations(g) == [
         "tactus_memory.client.main -> tactus_memory.search.grasps",
+        "tactus_memory.errors -> tactus_memory.where",
         "tactus_memory.search.ranking -> tactus_memory.memory.main",
         "tactus_memory.spaces.base -> tactus_memory.spaces.minilm",
         "tactus_memory.storage.store -> tactus_memory.search.ranking",
+        "tactus_memory.where -> tactus_memory.settings",
     ]
 
 
@@ -245,6 +264,40 @@ def test_recordings_cut_windows_through_the_sense() -> None:
     deps = g["tactus_memory.recordings.ingest"] | g["tactus_memory.recordings.decoding"]
     adapters = {f"tactus_memory.adapters.{s}" for s in ("text", "image", "vectors", "touch")}
     assert [d for d in deps if _under(d, "tactus_memory.touch") or d in adapters] == []
+
+
+def touch_imports(g: dict[str, set[str]], under: str) -> list[str]:
+    """``module -> import`` edges from the modules under ``under`` to touch's own modules
+    (``tactus_memory.touch``) or the touch adapter (``tactus_memory.adapters.touch*``)."""
+    return sorted(
+        f"{n} -> {d}"
+        for n, deps in g.items()
+        if _under(n, under)
+        for d in deps
+        if _under(d, "tactus_memory.touch") or d.startswith("tactus_memory.adapters.touch")
+    )
+
+
+def test_the_touch_check_sees_a_touch_import() -> None:
+    g = {
+        "tactus_memory.service.routers.ui": {"tactus_memory.touch.render"},
+        "tactus_memory.service.arrays": {"tactus_memory.errors"},
+        "tactus_memory.service.app": {"tactus_memory.adapters.touch_drawing"},
+        "tactus_memory.adapters.touch": {"tactus_memory.touch.windows"},
+    }
+    assert touch_imports(g, "tactus_memory.service") == [
+        "tactus_memory.service.app -> tactus_memory.adapters.touch_drawing",
+        "tactus_memory.service.routers.ui -> tactus_memory.touch.render",
+    ]
+
+
+def test_the_service_knows_senses_not_touch() -> None:
+    """No service module imports ``tactus_memory.touch`` (or the touch adapter): windowed
+    writes, streams, drawing and search by example go through the windowed-sense contract
+    (``senses/windowed.py``) and the plug-in registry (issue 49)."""
+    g = graph()
+    assert any(_under(n, "tactus_memory.service") for n in g)
+    assert touch_imports(g, "tactus_memory.service") == []
 
 
 def test_storage_gets_its_configuration_passed_in() -> None:

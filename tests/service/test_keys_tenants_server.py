@@ -27,7 +27,7 @@ OPERATOR = "operator-s3cret"
 #: these POST/PUT routes write, these routes need admin
 WRITES = {
     "add_text", "add_vectors", "add_image", "add_touch", "add_poses", "segment_episodes",
-    "set_clock", "touch_stream", "teach",
+    "set_clock", "touch_stream", "teach", "add_windows", "windows_stream",
 }  # fmt: skip
 ADMIN = {"delete_session", "add_sense", "forget_label"}  # DELETE needs admin
 SCOPES = ("read", "write", "admin")

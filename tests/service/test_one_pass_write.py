@@ -135,7 +135,7 @@ def _off_the_loop(monkeypatch, module: Any, name: str) -> list[bool]:
 def test_an_npy_body_of_many_windows_is_one_write_off_the_loop(client, monkeypatch) -> None:
     import tactus_memory.service.routers.touch as route
 
-    seen = _off_the_loop(monkeypatch, route, "touch_write")
+    seen = _off_the_loop(monkeypatch, route, "window_write")
     items = batch(12, idle=(5,))
     r = client.post(
         "/sessions/s/touch",

@@ -17,7 +17,7 @@ from tactus_memory.adapters.decode import touch_frame
 from tactus_memory.cli.app import app as cli_app
 from tactus_memory.errors import InvalidInputError, RecordingError
 from tactus_memory.recordings.samples import FLOAT32_ARRAY
-from tactus_memory.service.arrays import as_touch_array
+from tactus_memory.service.arrays import as_window_array
 from tactus_memory.service.startup import StartupError, check_touch_senses, parse_touch_senses
 from tactus_memory.settings import Settings
 from tactus_memory.touch.profile import STAG_GLOVE, SensorProfile, taxel_mask_from_spec
@@ -81,12 +81,12 @@ def test_a_profile_without_a_mask_is_its_whole_grid_and_the_glove_its_taxels():
 
 def test_the_edge_names_both_shapes_and_the_sense():
     with pytest.raises(InvalidInputError, match=r"\(8, 32, 32\), expected \(K, 12, 16\).*'hand'"):
-        as_touch_array(np.zeros((8, 32, 32), np.float32), "K", "frames", HAND.shape, "hand")
+        as_window_array(np.zeros((8, 32, 32), np.float32), "K", "frames", HAND.shape, "hand")
     with pytest.raises(InvalidInputError, match=r"\(2, 8, 16, 16\), expected \(B, K, 12, 16\)"):
-        as_touch_array(np.zeros((2, 8, 16, 16), np.float32), "BK", "windows", HAND.shape, "hand")
+        as_window_array(np.zeros((2, 8, 16, 16), np.float32), "BK", "windows", HAND.shape, "hand")
     with pytest.raises(InvalidInputError, match=r"\(32, 32\), expected \(16, 16\)"):
-        as_touch_array([[500.0] * 32] * 32, "", "frame 3", SKIN.shape, "skin")
-    assert as_touch_array(np.zeros((1, 12, 16), np.float32), "K", "frames", HAND.shape).shape == (
+        as_window_array([[500.0] * 32] * 32, "", "frame 3", SKIN.shape, "skin")
+    assert as_window_array(np.zeros((1, 12, 16), np.float32), "K", "frames", HAND.shape).shape == (
         1,
         12,
         16,

@@ -44,13 +44,14 @@ KEPT = {0, 5e-324, 1e9}
 READ_LIVENESS_S = 30.0
 S = "edge"
 #: the doors whose values travel as text (a query string, a form): "3" there is 3 seconds
-TEXT_DOORS = ("get", "timeline", "touch.npy", "image.t", "like.image")
+TEXT_DOORS = ("get", "timeline", "touch.npy", "windows.npy", "image.t", "like.image")
 
 #: every time a client can send over HTTP: (method, path, where) -> covered below
 TIME_FIELDS = {
     ("post", "/sessions/{session}/text"): {"t", "t_end"},
     ("post", "/sessions/{session}/vectors"): {"t", "t_end"},
     ("post", "/sessions/{session}/touch"): {"t", "t_end"},
+    ("post", "/sessions/{session}/senses/{sense}/windows"): {"t", "t_end"},
     ("post", "/sessions/{session}/labels"): {"t", "t_end"},
     ("post", "/search/like"): {"after", "before"},
     ("post", "/search/like/image"): {"after", "before"},
@@ -113,6 +114,17 @@ def _writes(c: httpx.Client, v: Any) -> dict[str, httpx.Response]:
             f"/sessions/{S}/touch",
             params={"t": _q(v)},
             content=npy_bytes(window(seed=8)[None]),
+            headers={"content-type": "application/x-npy"},
+        ),
+        "windows.json": c.post(
+            f"/sessions/{S}/senses/touch/windows",
+            content=_dumps({"frames": frames, "t": v}),
+            headers=js,
+        ),
+        "windows.npy": c.post(
+            f"/sessions/{S}/senses/touch/windows",
+            params={"t": _q(v)},
+            content=npy_bytes(window(seed=9)[None]),
             headers={"content-type": "application/x-npy"},
         ),
         "vectors": c.post(

@@ -9,11 +9,12 @@ import pyarrow as pa
 import pytest
 
 from tactus_memory.errors import InvalidIdError, InvalidInputError, SpaceMismatchError
+from tactus_memory.names import validate_id
 from tactus_memory.storage.codes import vector_array
 from tactus_memory.storage.connect import normalise_uri
 from tactus_memory.storage.store import Store
 from tactus_memory.storage.tables import facet_fields, place_fields
-from tactus_memory.where import Where, finite_float, validate_id
+from tactus_memory.where import Where, finite_float
 
 HOSTILE = [
     "s1' OR 1=1 --",
