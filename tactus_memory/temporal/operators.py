@@ -65,6 +65,7 @@ from tactus_memory.results import (
     TimelineItem,
     row_fields,
 )
+from tactus_memory.search.ordering import candidates, check_order, sort_hits
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
@@ -195,22 +196,28 @@ class Temporal:
         per_stream: bool = False,
         group: str | None = DEFAULT_GROUP,
         pool: str = OCCURRENCE_POOL,
+        sort: str | None = None,
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
         """Distinct occurrences of ``query``: matching items (``group="grasp"``: grasps,
         matched on their ``pool`` score) merged per session when their aligned spans overlap
         or lie within ``merge_gap`` seconds. ``per_stream=True`` merges only within one
-        stream (session + sense + source): a grasp and its note count twice."""
+        stream (session + sense + source): a grasp and its note count twice. The
+        occurrences come in time order, or in ``sort`` order (a touch facet, or ``-t``:
+        :mod:`tactus_memory.search.ordering`); the order never changes which occurrences
+        answer, so ``count`` is the same whatever it is, and ``first``/``last`` are the two
+        ends of it: ``first(q, sort="-force")`` is the firmest occurrence."""
         scope, match = split_match(kw)
         gap = check_seconds(merge_gap, "merge_gap")
         rule = grasp_rule(group, pool)
+        check_order(sort, scope, self.store.schema)
         q = embed_query(self.space, query)
         ev, capped = self._evidence(q, scope, match, MATCH_CANDIDATES, rule)
         passed = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
-        moments = answering(passed, match.answer)
+        moments = sort_hits(answering(passed, match.answer), sort, len(passed))
         return Occurrences(
             query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments,
-            passed=len(passed), answer=match.answer,
+            passed=len(passed), answer=match.answer, sort=sort,
         )  # fmt: skip
 
     def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
@@ -445,15 +452,19 @@ class Temporal:
         gap: float = DEFAULT_MOMENT_GAP,
         group: str | None = DEFAULT_GROUP,
         pool: str = "mean",
+        sort: str | None = None,
         **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
         """Search for ``query``, then group hits of one session whose aligned spans overlap
         or lie within ``gap`` seconds into moments carrying every sense's evidence; best
         ``k`` moments (:meth:`moments`); ``group="grasp"``: moments of grasps (pooled, with
-        ``pool``), not of single windows."""
+        ``pool``), not of single windows. ``sort``: the best moments (at least
+        ``search.ordering.SORT_CANDIDATES``) in that order, the first ``k``."""
         scope, match = split_match(kw)
+        kk = candidates(check_k(k), sort, scope, self.store.schema)
         q = embed_query(self.space, query)
-        return self.moments(q, k, scope, match, gap, grasp_rule(group, pool))
+        found = self.moments(q, kk, scope, match, gap, grasp_rule(group, pool))
+        return sort_hits(found, sort, k)
 
     def moments(
         self, q: np.ndarray, k: int, scope: Scope, match: Match, gap: float, grasp: Rule = None

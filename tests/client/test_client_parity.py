@@ -360,3 +360,89 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
             assert all(set(a) == want for a in answers.values()), (kw, answers)
     hit = local.search("holding", k=1, group="window", grip="tripod", session=GRIPS_SESSION)[0]
     assert hit.facets["grip"] == "tripod" and set(hit.facets["regions"]) == set(STAG_REGIONS.names)
+    when = _temporal(local, remote, [kw for _, kw, _ in WHEN])
+    for (route, kw, want), got in zip(WHEN, when, strict=True):
+        assert all(a == want for a in got.values()), (route, kw, got)
+
+
+#: when-questions with a facet order (and filters): (route, arguments, the best ids of the
+#: occurrences answered, in order). ``first``/``last`` are the ends of the order, ``count``
+#: lists the occurrences in it; a bar of -100 asks of every window (the synthetic windows
+#: clear no sense's bar for any words)
+WHEN: list[tuple[str, dict[str, Any], list[str]]] = [
+    ("first", {"sort": "-force"}, ["power"]),
+    ("last", {"sort": "-force"}, ["press"]),
+    ("first", {"sort": "force", "regions": "thumb,index"}, ["pinch-light"]),
+    ("count", {"sort": "-force", "grip": "pinch"}, ["pinch-firm", "pinch-light"]),
+]
+BAR = -100.0
+
+
+def _bests(body: Any) -> list[str]:
+    """The best ids of a /first, /last or /count answer (a dict, as JSON or a model dump)."""
+    if not body:
+        return []
+    if "moments" in body or "occurrences" in body:
+        return [m["best"] for m in body.get("moments", body.get("occurrences"))]
+    moment = body.get("moment") if "moment" in body or "found" in body else body
+    return [] if moment is None else [moment["best"]]
+
+
+def _temporal(local: Memory, remote: Client, cases: list[dict[str, Any]]) -> list[dict]:
+    """Each WHEN case asked five ways (as ``test_facet_filters_answer_alike_five_ways``), and
+    /moments three ways: Python, HTTP, Client."""
+    q, args = "holding something", {"session": GRIPS_SESSION, "threshold": BAR}
+    mcp = _mcp_when(local, [(route, kw) for (route, _, _), kw in zip(WHEN, cases, strict=True)])
+    out = []
+    for (route, _, _), kw, by_mcp in zip(WHEN, cases, mcp, strict=True):
+        fn = getattr(local, route if route != "count" else "occurrences")
+        remote_fn = getattr(remote, route if route != "count" else "occurrences")
+        as_dict = lambda m: {} if m is None else m.model_dump()  # noqa: E731
+        r = httpx.get(
+            f"{remote.url}/{route}",
+            params={"q": q, **args, "group": "window", **kw},
+            headers=auth_headers(TOKEN),
+        )
+        assert r.status_code == 200, r.text
+        cli = ["--url", remote.url, "--token", TOKEN, "--session", GRIPS_SESSION, "--json"]
+        cli += ["--windows", "--threshold", str(BAR)]
+        for name, v in kw.items():
+            cli += [f"--{name.replace('_', '-')}", str(v)]
+        res = CliRunner().invoke(app, [route, q, *cli])
+        assert res.exit_code == 0, res.output
+        out.append(
+            {
+                "python": _bests(as_dict(fn(q, group="window", **args, **kw))),
+                "http": _bests(r.json()),
+                "client": _bests(as_dict(remote_fn(q, group="window", **args, **kw))),
+                "cli": _bests(json.loads(res.output) or {}),
+                "mcp": by_mcp,
+            }
+        )
+    kw = {"sort": "-force", "threshold": BAR, "group": "window", "session": GRIPS_SESSION}
+    r = httpx.get(
+        f"{remote.url}/moments", params={"q": q, "k": 2, **kw}, headers=auth_headers(TOKEN)
+    )
+    moments = {
+        "python": [m.best for m in local.search_moments(q, 2, **kw)],
+        "http": [m["best"] for m in r.json()["moments"]],
+        "client": [m.best for m in remote.search_moments(q, 2, **kw)],
+    }
+    assert all(m == ["power", "tripod"] for m in moments.values()), moments
+    return out
+
+
+def _mcp_when(memory: Memory, cases: list[tuple[str, dict[str, Any]]]) -> list[list[str]]:
+    """Each (tool, arguments) case's best ids from the MCP ``last``/``first``/``count``."""
+
+    async def main() -> list[list[str]]:
+        out = []
+        async with McpClient(build_server(memory)) as client:
+            for tool, kw in cases:
+                args = {"query": "holding something", "windows": True, "threshold": BAR, **kw}
+                r = await client.call_tool(tool, {**args, "session": GRIPS_SESSION})
+                assert not r.is_error, r.content
+                out.append(_bests(json.loads(r.content[0].text)))
+        return out
+
+    return anyio.run(main)
