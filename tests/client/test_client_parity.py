@@ -360,6 +360,14 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
             assert all(set(a) == want for a in answers.values()), (kw, answers)
     hit = local.search("holding", k=1, group="window", grip="tripod", session=GRIPS_SESSION)[0]
     assert hit.facets["grip"] == "tripod" and set(hit.facets["regions"]) == set(STAG_REGIONS.names)
+    # captions (search.captions): words about the grip find the pinches above the power grasp,
+    # whatever the encoder makes of the synthetic windows; the same over HTTP
+    q = {"q": "a pinch with thumb and index", "k": 5, "session": GRIPS_SESSION}
+    by_words = [h.id for h in local.search(q["q"], k=5, session=GRIPS_SESSION)]
+    assert set(by_words[:2]) == {"pinch-light", "pinch-firm"}, by_words
+    assert "power" not in by_words or by_words.index("power") > 1
+    r = httpx.get(remote.url + "/search", params=q, headers=auth_headers(TOKEN))
+    assert [h["id"] for h in r.json()["hits"]] == by_words
     when = _temporal(local, remote, [kw for _, kw, _ in WHEN])
     for (route, kw, want), got in zip(WHEN, when, strict=True):
         assert all(a == want for a in got.values()), (route, kw, got)
