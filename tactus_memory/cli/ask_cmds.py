@@ -42,7 +42,7 @@ Threshold = Annotated[
     typer.Option(
         "--threshold",
         help="Match bar on the calibrated score for every sense (default: per sense); a low "
-        "bar (e.g. -10) asks of every grasp in scope.",
+        "bar (e.g. -10) lets every grasp scoring at least 0.4 x the best one match.",
     ),
 ]
 

@@ -119,7 +119,8 @@ class Question:
         Number | None,
         Field(
             description="Match bar on the calibrated score for every sense (default: per "
-            "sense); a low bar (e.g. -10) asks of every grasp in scope, for 'the firmest'."
+            "sense); a low bar (e.g. -10) lets every grasp scoring at least 0.4 x the best "
+            "match, for 'the firmest'."
         ),
     ] = None
 
