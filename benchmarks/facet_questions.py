@@ -15,8 +15,8 @@ memory (MiniLM, the shipped touch encoder, LanceDB). Per session, four questions
 The known answers are computed from the raw frames by this script (a loop over the 548
 public taxel coordinates, the calibration written out), not by the facets module; the grip of
 a window is the documented rule applied to those shares. R@1 is the share of questions whose
-first hit is right; ``words_only`` asks the same of the learned touch embedding alone (a
-phrase, no facet filter or order) for contrast.
+first hit is right; ``words_only`` asks the same in a phrase (no facet filter or order), of
+the memory as it is: the learned touch embedding and, since issue 50, the windows' captions.
 
 **Words only** (issue 50, captions: :mod:`tactus_memory.search.captions`): questions asked
 in words alone, no filter or order, each answered twice: ``captions`` by the memory as it
