@@ -322,17 +322,20 @@ def _cli(url: str, kw: dict[str, Any]) -> list[str]:
     return [h["id"] for h in json.loads(res.output)]
 
 
-def _mcp(memory: Memory, cases: list[dict[str, Any]]) -> list[list[str]]:
-    """Each case's ids from the MCP ``search`` tool (one session for them all)."""
+def _mcp(memory: Memory, cases: list[tuple[str, dict[str, Any]]]) -> list[list[str]]:
+    """Each (tool, arguments) case's ids, from the MCP ``search`` tool (its hits) or
+    ``last``/``first``/``count`` (its occurrences' best ids), one session for them all."""
 
     async def main() -> list[list[str]]:
         out = []
         async with McpClient(build_server(memory)) as client:
-            for kw in cases:
-                args = {"query": "holding something", "k": 10, "windows": True, **kw}
-                r = await client.call_tool("search", {**args, "session": GRIPS_SESSION})
+            for tool, kw in cases:
+                args = {"query": "holding something", "windows": True, **kw}
+                args |= {"k": 10} if tool == "search" else {"threshold": BAR}
+                r = await client.call_tool(tool, {**args, "session": GRIPS_SESSION})
                 assert not r.is_error, r.content
-                out.append([h["id"] for h in json.loads(r.content[0].text)["hits"]])
+                body = json.loads(r.content[0].text)
+                out.append([h["id"] for h in body["hits"]] if tool == "search" else _bests(body))
         return out
 
     return anyio.run(main)
@@ -345,8 +348,8 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
     local memory in process); the same ids, in the same order where sorted."""
     write(local)
     write(remote)
-    mcp = _mcp(local, [kw for kw, _ in CASES])
-    for (kw, want), by_mcp in zip(CASES, mcp, strict=True):
+    mcp = _mcp(local, [*(("search", kw) for kw, _ in CASES), *((r, kw) for r, kw, _ in WHEN)])
+    for (kw, want), by_mcp in zip(CASES, mcp[: len(CASES)], strict=True):
         answers = {
             "python": _python(local, kw),
             "http": _http(remote.url, kw),
@@ -368,19 +371,18 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
     assert "power" not in by_words or by_words.index("power") > 1
     r = httpx.get(remote.url + "/search", params=q, headers=auth_headers(TOKEN))
     assert [h["id"] for h in r.json()["hits"]] == by_words
-    when = _temporal(local, remote, [kw for _, kw, _ in WHEN])
+    when = _temporal(local, remote, mcp[len(CASES) :])
     for (route, kw, want), got in zip(WHEN, when, strict=True):
         assert all(a == want for a in got.values()), (route, kw, got)
 
 
 #: when-questions with a facet order (and filters): (route, arguments, the best ids of the
 #: occurrences answered, in order). ``first``/``last`` are the ends of the order, ``count``
-#: lists the occurrences in it; a bar of -100 asks of every window (the synthetic windows
-#: clear no sense's bar for any words)
+#: lists the occurrences in it; a bar of -100 lets every window match (the synthetic windows
+#: clear no sense's own bar for these words; all score above the relative gate, 0.4 x the best)
 WHEN: list[tuple[str, dict[str, Any], list[str]]] = [
     ("first", {"sort": "-force"}, ["power"]),
     ("last", {"sort": "-force"}, ["press"]),
-    ("first", {"sort": "force", "regions": "thumb,index"}, ["pinch-light"]),
     ("count", {"sort": "-force", "grip": "pinch"}, ["pinch-firm", "pinch-light"]),
 ]
 BAR = -100.0
@@ -396,13 +398,12 @@ def _bests(body: Any) -> list[str]:
     return [] if moment is None else [moment["best"]]
 
 
-def _temporal(local: Memory, remote: Client, cases: list[dict[str, Any]]) -> list[dict]:
-    """Each WHEN case asked five ways (as ``test_facet_filters_answer_alike_five_ways``), and
-    /moments three ways: Python, HTTP, Client."""
+def _temporal(local: Memory, remote: Client, mcp: list[list[str]]) -> list[dict]:
+    """Each WHEN case asked five ways (as ``test_facet_filters_answer_alike_five_ways``; MCP's
+    answers given), and /moments three ways: Python, HTTP, Client."""
     q, args = "holding something", {"session": GRIPS_SESSION, "threshold": BAR}
-    mcp = _mcp_when(local, [(route, kw) for (route, _, _), kw in zip(WHEN, cases, strict=True)])
     out = []
-    for (route, _, _), kw, by_mcp in zip(WHEN, cases, mcp, strict=True):
+    for (route, kw, _), by_mcp in zip(WHEN, mcp, strict=True):
         fn = getattr(local, route if route != "count" else "occurrences")
         remote_fn = getattr(remote, route if route != "count" else "occurrences")
         as_dict = lambda m: {} if m is None else m.model_dump()  # noqa: E731
@@ -438,19 +439,3 @@ def _temporal(local: Memory, remote: Client, cases: list[dict[str, Any]]) -> lis
     }
     assert all(m == ["power", "tripod"] for m in moments.values()), moments
     return out
-
-
-def _mcp_when(memory: Memory, cases: list[tuple[str, dict[str, Any]]]) -> list[list[str]]:
-    """Each (tool, arguments) case's best ids from the MCP ``last``/``first``/``count``."""
-
-    async def main() -> list[list[str]]:
-        out = []
-        async with McpClient(build_server(memory)) as client:
-            for tool, kw in cases:
-                args = {"query": "holding something", "windows": True, "threshold": BAR, **kw}
-                r = await client.call_tool(tool, {**args, "session": GRIPS_SESSION})
-                assert not r.is_error, r.content
-                out.append(_bests(json.loads(r.content[0].text)))
-        return out
-
-    return anyio.run(main)
