@@ -259,16 +259,16 @@ class Captions:
     @staticmethod
     def grasp_score(
         reached: dict[CaptionKey, tuple[float, float]], facets: Sequence[str | None] | None
-    ) -> float | None:
-        """The best caption score of a grasp's member windows (their stored facets JSON)
-        among the captions a query ``reached`` (:meth:`scores`); None: none reached."""
+    ) -> tuple[float, float] | None:
+        """The best ``(score, cosine)`` of a grasp's member windows' captions (from their
+        stored facets JSON) among those a query ``reached`` (:meth:`scores`); None: none."""
         if not reached or not facets:
             return None
-        best = None
+        best: tuple[float, float] | None = None
         for f in facets:
             if f is None:
                 continue
             hit = reached.get(CaptionKey.of(facet_columns(json.loads(f))))
-            if hit is not None and (best is None or hit[0] > best):
-                best = hit[0]
+            if hit is not None and (best is None or hit[0] > best[0]):
+                best = hit
         return best

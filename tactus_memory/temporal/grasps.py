@@ -406,7 +406,8 @@ def pool_grasps(
         cos = g.cosine(qs, rule.pool)
         score = float(calib.score(cos))
         captioned = ranker.captions.grasp_score(reached, g.facets)
-        score = score if captioned is None else max(score, captioned)
+        if captioned is not None and captioned[0] > score:  # its caption answers: its cosine
+            score, cos = captioned
         off = best.t_aligned - best.t
         fields = best.model_dump(exclude={"t", "t_end", "t_aligned", "t_end_aligned", "score"})
         fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids, facets=g.grasp_facets())

@@ -32,6 +32,7 @@ from tactus_memory.errors import (
 from tactus_memory.identity import auth_headers
 from tactus_memory.mcp.server import build_server
 from tactus_memory.memory.main import Memory
+from tactus_memory.search.captions import CAPTION_MIN_COS
 from tactus_memory.touch.regions import STAG_REGIONS
 from tests.helpers.servers import Server
 from tests.helpers.service import window
@@ -366,8 +367,10 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
     # captions (search.captions): words about the grip find the pinches above the power grasp,
     # whatever the encoder makes of the synthetic windows; the same over HTTP
     q = {"q": "a pinch with thumb and index", "k": 5, "session": GRIPS_SESSION}
-    by_words = [h.id for h in local.search(q["q"], k=5, session=GRIPS_SESSION)]
+    found = local.search(q["q"], k=5, session=GRIPS_SESSION)
+    by_words = [h.id for h in found]
     assert set(by_words[:2]) == {"pinch-light", "pinch-firm"}, by_words
+    assert found[0].cosine >= CAPTION_MIN_COS  # the caption's cosine answers, not the encoder's
     assert "power" not in by_words or by_words.index("power") > 1
     r = httpx.get(remote.url + "/search", params=q, headers=auth_headers(TOKEN))
     assert [h["id"] for h in r.json()["hits"]] == by_words
