@@ -15,8 +15,21 @@ memory (MiniLM, the shipped touch encoder, LanceDB). Per session, four questions
 The known answers are computed from the raw frames by this script (a loop over the 548
 public taxel coordinates, the calibration written out), not by the facets module; the grip of
 a window is the documented rule applied to those shares. R@1 is the share of questions whose
-first hit is right; ``words_only`` asks the same of the learned touch embedding alone (a
-phrase, no facet filter or order) for contrast.
+first hit is right; ``words_only`` asks the same in a phrase (no facet filter or order), of
+the memory as it is: the learned touch embedding and, since issue 50, the windows' captions.
+
+**Words only** (issue 50, captions: :mod:`tactus_memory.search.captions`): questions asked
+in words alone, no filter or order, each answered twice: ``captions`` by the memory as it
+is (the touch encoder and the windows' captions), ``encoder`` by the touch encoder alone
+(the caption channel switched off in this process). Right when the top window is
+
+* "pinching something small", "a pinch with thumb and index": a pinch (sessions with one);
+* "a power grasp with the palm": a power grasp (sessions with one);
+* "squeezing hard": among the session's firmest quarter (force >= its 75th percentile);
+* "touching lightly": among its lightest quarter (force <= its 25th percentile);
+
+known from the frames as above. A session counts for a question when its right answers are
+some but not all of its windows (otherwise any answer, or none, is right).
 
     TACTUS_DATA_HOME=... nice python benchmarks/facet_questions.py   # results/facet_questions.json
 """
@@ -27,7 +40,9 @@ import argparse
 import json
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -61,6 +76,48 @@ def truth(window: np.ndarray, coords: list[tuple[int, int]]) -> tuple[float, str
     return float(vals.sum(axis=1).mean()), str(grip_of(shares))
 
 
+#: words-only questions: (phrase, which windows of a session answer it)
+WORDS: dict[str, Callable[[dict[str, tuple[float, float, float, str]]], set[str]]] = {
+    "pinching something small": lambda rows: {i for i, v in rows.items() if v[3] == "pinch"},
+    "a pinch with thumb and index": lambda rows: {i for i, v in rows.items() if v[3] == "pinch"},
+    "a power grasp with the palm": lambda rows: {i for i, v in rows.items() if v[3] == "power"},
+    "squeezing hard": lambda rows: _quarter(rows, top=True),
+    "touching lightly": lambda rows: _quarter(rows, top=False),
+}
+
+
+def _quarter(rows: dict[str, tuple[float, float, float, str]], top: bool) -> set[str]:
+    force = {i: v[2] for i, v in rows.items()}
+    bar = float(np.percentile(list(force.values()), 75 if top else 25))
+    return {i for i, f in force.items() if (f >= bar - 1e-6 if top else f <= bar + 1e-6)}
+
+
+def ask_in_words(memory: Memory, known: dict[str, dict[str, tuple]]) -> dict[str, Any]:
+    """Each WORDS question of each session it fits, R@1 with the captions and without."""
+    out: dict[str, Any] = {}
+    captions = memory.ranker.captions
+    for phrase, answers in WORDS.items():
+        right: dict[str, list[bool]] = {"captions": [], "encoder": []}
+        for session, rows in known.items():
+            want = answers(rows)
+            if not want or len(want) == len(rows):
+                continue
+            for way in right:
+                if way == "encoder":  # the caption channel off: no caption is reached
+                    captions.scores = lambda q: {}  # type: ignore[method-assign]
+                hits = memory.search(phrase, k=1, senses=["touch"], group="window", session=session)
+                if way == "encoder":
+                    del captions.scores
+                right[way].append(bool(hits) and hits[0].id in want)
+        out[phrase] = {
+            "questions": len(right["captions"]),
+            **{
+                f"r@1_{way}": round(float(np.mean(v)), 3) if v else None for way, v in right.items()
+            },
+        }
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--subset", default="blindfolded_lite_train")
@@ -87,6 +144,7 @@ def main() -> None:
             for i, j in zip(ids, keep, strict=True)
         }
     ingest_s = time.perf_counter() - t0
+    in_words = ask_in_words(memory, known)
     right: dict[str, list[bool]] = {k: [] for k in PHRASES}
     words: dict[str, list[bool]] = {k: [] for k in PHRASES}
 
@@ -125,6 +183,7 @@ def main() -> None:
         "ingest_s": round(ingest_s, 1),
         "facets": {k: r1(v) for k, v in right.items()},
         "words_only": {k: {**r1(v), "phrase": PHRASES[k]} for k, v in words.items()},
+        "in_words": in_words,
     }
     OUT.parent.mkdir(exist_ok=True)
     OUT.write_text(json.dumps(result, indent=2) + "\n")

@@ -373,6 +373,18 @@ GripQ = Annotated[
 ]
 
 
+SortQ = Annotated[
+    Literal["force", "-force", "area", "-area", "t", "-t"] | None,
+    Query(
+        description="Order by a touch facet (`-force`: the firmest first; a moment by its "
+        "firmest touch member) or by time, instead of the route's own order: /search and "
+        "/moments order their best candidates' and return the first `k`; /count lists its "
+        "occurrences in that order (the count is the same); /first and /last answer the two "
+        "ends of it (`/first?sort=-force`: the firmest occurrence)."
+    ),
+]
+
+
 @dataclass(frozen=True)
 class FacetFilters:
     """The touch facet filters of a query string (one Depends, so routes stay short)."""

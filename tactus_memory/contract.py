@@ -73,8 +73,10 @@ class MemoryAPI(Protocol):
         """Natural-language search."""
         ...
 
-    def search_moments(self, query: str, k: int = 10, **kw: Unpack[MatchKwargs]) -> list[Moment]:
-        """Search grouped into moments."""
+    def search_moments(
+        self, query: str, k: int = 10, *, sort: str | None = None, **kw: Unpack[MatchKwargs]
+    ) -> list[Moment]:
+        """Search grouped into moments (``sort``: by a touch facet or time)."""
         ...
 
     def search_like(

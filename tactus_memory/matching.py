@@ -71,7 +71,7 @@ from tactus_memory.names import validate_sense_name
 from tactus_memory.query import Scope, ScopeKwargs, split_scope
 from tactus_memory.results import Evidence, Hit, Moment
 from tactus_memory.signatures import reject_unknown
-from tactus_memory.where import finite_float
+from tactus_memory.where import check_sort, finite_float
 
 # --------------------------------------------------------------------------- constants
 #: per-sense match threshold on the calibrated score (z vs the probe null); see the module
@@ -286,12 +286,15 @@ def make_moment(hits: Sequence[Evidence]) -> Moment:
 
 class OccurrenceKwargs(MatchKwargs, total=False):
     """``count``/``last``/``first`` keywords: the scope, the match bar, ``merge_gap``,
-    ``per_stream``, and ``group="grasp"`` with its ``pool`` (grasps.POOLS)."""
+    ``per_stream``, ``group="grasp"`` with its ``pool`` (grasps.POOLS), and ``sort`` (the
+    occurrences' order, :mod:`tactus_memory.search.ordering`: ``first``/``last`` are the ends
+    of that order, ``count`` is the same whatever the order)."""
 
     merge_gap: float
     per_stream: bool
     group: str | None
     pool: str
+    sort: str | None
 
 
 class AroundKwargs(MatchKwargs, total=False):
@@ -302,6 +305,8 @@ class AroundKwargs(MatchKwargs, total=False):
 
 
 def grasp_params(kw: dict[str, Any]) -> dict[str, Any]:
-    """The grasp keywords (``group``, ``pool``) popped from ``kw``, as the service's query
-    parameters (the remote Client's questions)."""
-    return {k: kw.pop(k) for k in ("group", "pool") if kw.get(k) is not None}
+    """The grasp and order keywords (``group``, ``pool``, ``sort``) popped from ``kw``, as the
+    service's query parameters (the remote Client's questions; ``sort`` checked here)."""
+    check_sort(kw.get("sort"))
+    popped = {k: kw.pop(k, None) for k in ("group", "pool", "sort")}
+    return {k: v for k, v in popped.items() if v is not None}

@@ -245,7 +245,8 @@ class Moment(BaseModel):
 
 
 class Occurrences(BaseModel):
-    """Distinct occurrences of a query (``count == len(moments)``), in time order."""
+    """Distinct occurrences of a query (``count == len(moments)``), in time order or in
+    ``sort`` order (tactus_memory.search.ordering)."""
 
     query: str
     count: int
@@ -262,6 +263,9 @@ class Occurrences(BaseModel):
     )
     answer: float | None = Field(
         None, description="The answer ratio asked for (null: the per-sense defaults)."
+    )
+    sort: str | None = Field(
+        None, description="The order of `moments` asked for (null: time order)."
     )
 
 

@@ -274,6 +274,23 @@ class Where:
             self.parts.append(f"strpos(regions, {_sql_str(',' + n + ',')}) > 0")
         return self
 
+    def caption_key(
+        self, grip: str | None, regions: str, lo: float | None, hi: float | None
+    ) -> Where:
+        """Touch rows whose window caption (:mod:`tactus_memory.search.captions`) is the one
+        of ``grip`` (None: a sensor without regions), exactly the active regions ``regions``
+        (the stored form, ``",thumb,index,"``) and a ``peak`` in [lo, hi)."""
+        if grip is None:
+            self.parts.append("grip IS NULL")
+        else:
+            self._eq("grip", grip, check_grip)
+        self.parts.append(f"regions = {_sql_str(regions)}")
+        if lo is not None:
+            self.parts.append(f"peak >= {_sql_float(finite_float(lo, 'peak'))}")
+        if hi is not None:
+            self.parts.append(f"peak < {_sql_float(finite_float(hi, 'peak'))}")
+        return self
+
     def grip(self, grip: str | None) -> Where:
         """Touch rows of this grip (one of :data:`GRIPS`)."""
         return self._eq("grip", grip, check_grip)

@@ -12,7 +12,7 @@ from tactus_memory.query import Scope
 from tactus_memory.results import Moment
 from tactus_memory.senses.windowed import WindowedSense
 from tactus_memory.service.arrays import as_window_array
-from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, Read, ScopeDep
+from tactus_memory.service.deps import GraspPool, MemoryDep, QueryText, Read, ScopeDep, SortQ
 from tactus_memory.service.problems import problem_responses
 from tactus_memory.service.schemas import STATED_FRAME, HitOut, SearchLikeIn, SearchOut
 from tactus_memory.service.touch_senses import frame_shape
@@ -64,13 +64,7 @@ def search(
         Query(ge=0.0, le=3600.0, description="With group=moment: seconds that still join hits."),
     ] = None,
     pool: GraspPool = "mean",
-    sort: Annotated[
-        Literal["force", "-force", "area", "-area", "t", "-t"] | None,
-        Query(
-            description="Order the question's best candidates by a touch facet (`-force`: the "
-            "firmest first) or by time, instead of by score; the first `k` are returned."
-        ),
-    ] = None,
+    sort: SortQ = None,
 ) -> SearchOut:
     t0 = time.perf_counter()
     if group == "moment":

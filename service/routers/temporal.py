@@ -32,6 +32,7 @@ from tactus_memory.service.deps import (
     Read,
     ScopeDep,
     SessionId,
+    SortQ,
     StreamScopeDep,
     Write,
 )
@@ -114,6 +115,7 @@ class Occurrence:
     merge_gap: MergeGap = DEFAULT_MERGE_GAP
     group: GroupGrasp = "auto"
     pool: GraspPool = OCCURRENCE_POOL
+    sort: SortQ = None
 
     def ask(self, per_stream: bool = False) -> Occurrences:
         a = self.asked
@@ -127,6 +129,7 @@ class Occurrence:
             per_stream=per_stream,
             group=self.group,
             pool=self.pool,
+            sort=self.sort,
         )
 
 
@@ -138,8 +141,8 @@ OccurrenceDep = Annotated[Occurrence, Depends()]
     dependencies=[Read],
     summary="The most recent occurrence of something",
     description="Matching items (per-sense calibrated threshold), merged into occurrences; the "
-    "one that started last. `moment` is null when nothing matches; an unknown `session` is "
-    "a 404.",
+    "one that started last (with `sort`: the last in that order). `moment` is null when "
+    "nothing matches; an unknown `session` is a 404.",
     response_model=MomentOut,
 )
 def last(question: OccurrenceDep) -> MomentOut:
@@ -151,6 +154,8 @@ def last(question: OccurrenceDep) -> MomentOut:
     "/first",
     dependencies=[Read],
     summary="The earliest occurrence of something",
+    description="As /last, the one that started first (with `sort`: the first in that "
+    "order, e.g. `sort=-force`: the firmest).",
     response_model=MomentOut,
 )
 def first(question: OccurrenceDep) -> MomentOut:
@@ -254,8 +259,11 @@ def moments(
     gap: Annotated[float, Query(ge=0.0, le=1e9)] = DEFAULT_MOMENT_GAP,
     group: GroupGrasp = "auto",
     pool: GraspPool = "mean",
+    sort: SortQ = None,
 ) -> MomentsOut:
-    moments = memory.search_moments(q, k, gap=gap, group=group, pool=pool, scope=scope, match=match)
+    moments = memory.search_moments(
+        q, k, gap=gap, group=group, pool=pool, sort=sort, scope=scope, match=match
+    )
     return MomentsOut(moments=moments)
 
 

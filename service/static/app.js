@@ -1093,8 +1093,36 @@ function renderTimeline(points) {
       track.append(btn);
     }
     root.append(h("div", { class: "lane" }, h("span", { class: "lane-label" }, senseBadge(sense)), track));
+    const strip = forceStrip(sense, lanePts, pct);
+    if (strip) root.append(strip);
   }
   root.onkeydown = onTimelineKey;
+}
+
+// Touch facets on the timeline (tactus_memory/touch/facets.py): a strip under a touch lane
+// drawing each window's force (the sum of its calibrated taxels, averaged over its frames)
+// at the middle of its span, scaled to the lane's firmest; null when no item has a force.
+const SVG_NS = "http://www.w3.org/2000/svg";
+function forceStrip(sense, lanePts, pct) {
+  const pts = lanePts.filter((p) => typeof p.facets?.force === "number");
+  if (!pts.length) return null;
+  const top = Math.max(...pts.map((p) => p.facets.force)) || 1;
+  const svg = document.createElementNS(SVG_NS, "svg");
+  svg.setAttribute("viewBox", "0 0 100 24");
+  svg.setAttribute("preserveAspectRatio", "none");
+  const line = document.createElementNS(SVG_NS, "polyline");
+  const xy = pts.map((p) => `${((pct(p.t) + pct(p.t_end)) / 2).toFixed(3)},${(23 - (22 * p.facets.force) / top).toFixed(3)}`);
+  line.setAttribute("points", xy.join(" "));
+  line.setAttribute("vector-effect", "non-scaling-stroke");
+  svg.append(line);
+  const lo = Math.min(...pts.map((p) => p.facets.force));
+  const label = `${sense} force over time: ${pts.length} windows, ${lo.toFixed(1)} to ${top.toFixed(1)}`;
+  return h(
+    "div",
+    { class: "lane force-lane" },
+    h("span", { class: "lane-label muted" }, "force"),
+    h("div", { class: "force-strip", role: "img", "aria-label": label, title: label, dataset: { sense } }, svg),
+  );
 }
 
 function onTimelineKey(e) {

@@ -12,12 +12,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from tactus_memory.cli.app import app
-from tactus_memory.cli.common import AsJson, Scope, Source, Window, Windows
+from tactus_memory.cli.common import AsJson, Scope, Sort, Source, Window, Windows
 from tactus_memory.cli.memory_cmds import (
     _open,
     _print_json,
@@ -37,9 +37,27 @@ if TYPE_CHECKING:
 Query = typer.Argument(..., help="What happened, in natural language.")
 
 
-def _occurrences(query: str, scope: Scope, source: Source, windows: bool = False) -> Occurrences:
+Threshold = Annotated[
+    float | None,
+    typer.Option(
+        "--threshold",
+        help="Match bar on the calibrated score for every sense (default: per sense); a low "
+        "bar (e.g. -10) lets every grasp scoring at least 0.4 x the best one match.",
+    ),
+]
+
+
+def _occurrences(
+    query: str,
+    scope: Scope,
+    source: Source,
+    windows: bool = False,
+    sort: str | None = None,
+    threshold: float | None = None,
+) -> Occurrences:
     """Every occurrence of ``query`` in scope, from the store (``--data``) or a server;
-    touch asked of grasps unless ``windows``."""
+    touch asked of grasps unless ``windows``; in time order, or ``sort`` order; matched at
+    the sense's bar, or ``threshold``."""
     from tactus_memory.search.grasps import windows_group
 
     group = windows_group(windows)
@@ -48,15 +66,17 @@ def _occurrences(query: str, scope: Scope, source: Source, windows: bool = False
 
     one_source(source.data, source.url)
     if source.url:
-        params = {"q": query, "group": group, **dataclasses.asdict(scope)}
+        params = {"q": query, "group": group, "sort": sort, "threshold": threshold}
+        params.update(dataclasses.asdict(scope))
         return Occurrences.model_validate(
             get_json(source.url, "/count", params, source.token, source.tenant)
         )
     try:
         memory = _open(source.data, *source.spaces, tenant=source.tenant)
+        kw = scope.filters()
         if scope.session is not None:
             memory.session(scope.session)  # an unknown session is an error, as over HTTP
-        return memory.occurrences(query, group=group, **scope.filters())
+        return memory.occurrences(query, group=group, sort=sort, threshold=threshold, **kw)
     except TactusError as exc:
         fail(str(exc))
 
@@ -119,8 +139,10 @@ def _question(name: str, doc: str, show: Callable[[str, Occurrences, bool], None
         as_json: AsJson = False,
         source: Source,
         windows: Windows = False,
+        sort: Sort = None,
+        threshold: Threshold = None,
     ) -> None:
-        show(query, _occurrences(query, scope, source, windows), as_json)
+        show(query, _occurrences(query, scope, source, windows, sort, threshold), as_json)
 
 
 _question(

@@ -191,6 +191,16 @@ Grip = Annotated[
 ]
 
 
+Sort = Annotated[
+    str | None,
+    typer.Option(
+        "--sort",
+        help="Order by a touch facet or time: force, -force, area, -area, t, -t (first and "
+        "last: the ends of that order, e.g. first --sort -force: the firmest).",
+    ),
+]
+
+
 @dataclass(frozen=True)
 class Scope(Window):
     """A question's scope: the window, ``--session`` and the touch facet filters (search,

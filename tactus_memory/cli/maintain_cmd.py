@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import asdict
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -64,9 +64,9 @@ def maintain(
         typer.Option(
             "--facets",
             help="Add the touch facet columns (force, area, grip, ...) to a store made before "
-            "them, computed from each stored touch window, then exit: one JSON line per store. "
-            "One commit: an interrupted run changes nothing and is run again. Stop the "
-            "store's servers first.",
+            "them, computed from each stored touch window, and embed the windows' captions of "
+            "the current caption rule (removing other rules'), then exit: one JSON line per "
+            "store. An interrupted run is run again. Stop the store's servers first.",
         ),
     ] = False,
 ) -> None:
@@ -202,8 +202,23 @@ def _facets(store: Store, root: bool) -> int:
     except Exception as exc:  # noqa: BLE001  (reported; every store is tried)
         typer.echo(f"{store.uri}: facets not added: {exc} (run it again)", err=True)
         return 1
-    typer.echo(json.dumps({**where, **report.as_dict()}))
+    try:
+        captions: dict[str, Any] = _captions(store)
+    except Exception as exc:  # noqa: BLE001  (the facets are in; the captions said apart)
+        typer.echo(f"{store.uri}: captions not embedded: {exc} (run it again)", err=True)
+        captions = {"captions_error": str(exc)}
+    typer.echo(json.dumps({**where, **report.as_dict(), **captions}))
     return 0
+
+
+def _captions(store: Store) -> dict[str, int]:
+    """The store's caption embeddings rebuilt in its recorded space
+    (:meth:`tactus_memory.search.captions.Captions.rebuild`)."""
+    from tactus_memory.search.captions import Captions
+    from tactus_memory.spaces.resolve import recorded_space, resolve_space
+
+    space = resolve_space(recorded=recorded_space(store.get_meta("space")))
+    return Captions(store, space).rebuild()
 
 
 class _Progress:

@@ -23,6 +23,7 @@ from tactus_memory.cli.common import (
     MemoryData,
     RayJob,
     Scope,
+    Sort,
     Source,
     Windows,
 )
@@ -141,10 +142,7 @@ def search(
     as_json: AsJson = False,
     source: Source,
     windows: Windows = False,
-    sort: Annotated[
-        str | None,
-        typer.Option(help="Order by a touch facet or time: force, -force, area, -area, t, -t."),
-    ] = None,
+    sort: Sort = None,
 ) -> None:
     """Search in plain language; each hit says whether it clears its sense's match bar; a
     touch hit is a grasp (its windows together) unless --windows.

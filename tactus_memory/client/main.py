@@ -318,10 +318,16 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
         return [Hit.model_validate(h) for h in body["hits"]]
 
     def search_moments(
-        self, query: str, k: int = 10, *, gap: float = DEFAULT_MOMENT_GAP, **kw: Unpack[MatchKwargs]
+        self,
+        query: str,
+        k: int = 10,
+        *,
+        gap: float = DEFAULT_MOMENT_GAP,
+        sort: str | None = None,
+        **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
         """Search grouped into moments (see :meth:`Memory.search_moments`)."""
-        rest: dict[str, Any] = dict(kw)
+        rest: dict[str, Any] = {**kw, "sort": sort}
         params = {"q": query, "k": k, "gap": gap, **grasp_params(rest)}
         scope, match = split_match(rest)
         params.update(scope_params(scope), **match_params(match))
@@ -357,7 +363,8 @@ class Client(TeachingCalls, AbstractContextManager["Client"]):
     # ----------------------------------------------------------------- temporal questions
     def occurrences(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> Occurrences:
         """Distinct occurrences of ``query`` (see :meth:`Memory.occurrences`): the keywords
-        ``merge_gap``, ``per_stream``, ``group``, ``pool`` and the scope's and match's."""
+        ``merge_gap``, ``per_stream``, ``group``, ``pool``, ``sort`` and the scope's and
+        match's."""
         rest: dict[str, Any] = dict(kw)
         merge_gap = rest.pop("merge_gap", DEFAULT_MERGE_GAP)
         per_stream = rest.pop("per_stream", False)

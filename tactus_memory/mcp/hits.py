@@ -111,7 +111,9 @@ class CountResult(BaseModel):
     query: str
     count: int = Field(description="Distinct occurrences (matches merged within merge_gap s).")
     capped: bool = Field(description="True when the count is a lower bound (narrow the time).")
-    occurrences: list[MomentResult] = Field(description="Each occurrence, time order.")
+    occurrences: list[MomentResult] = Field(
+        description="Each occurrence, in time order (or in `sort` order)."
+    )
 
 
 class ContextResult(BaseModel):

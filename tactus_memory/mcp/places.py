@@ -121,7 +121,8 @@ class Within:
 @dataclass(frozen=True)
 class TouchFilters:
     """``force_min``, ``force_max``, ``area_min``, ``regions``, ``grip``, ``sort``: the touch
-    facet filters and order of ``search``, one group of arguments."""
+    facet filters and order of ``search``, ``last``, ``first`` and ``count``, one group of
+    arguments."""
 
     force_min: Annotated[
         Number | None, Field(description="Touch only: force (sum of the taxels) >= this.")

@@ -78,7 +78,7 @@ from tactus_memory.mcp.places import (
 )
 from tactus_memory.memory.main import Memory
 from tactus_memory.query import Scope
-from tactus_memory.results import Moment
+from tactus_memory.results import Moment, Occurrences
 from tactus_memory.signatures import grouped
 
 log = logging.getLogger(__name__)
@@ -103,26 +103,48 @@ R = TypeVar("R")
 @dataclass(frozen=True)
 class Question:
     """The arguments of ``last``, ``first`` and ``count``, one group
-    (:func:`tactus_memory.signatures.grouped`, as :data:`ASK`)."""
+    (:func:`tactus_memory.signatures.grouped`, as :data:`ASK`); ``touch``: the facet filters
+    and the order (``first`` and ``last`` answer its two ends: ``first`` with ``sort:
+    '-force'`` is the firmest occurrence; ``count`` lists its occurrences in that order)."""
 
     query: QueryArg
     within: Within = Within()
+    touch: TouchFilters = TouchFilters()
     merge_gap: MergeGapArg = DEFAULT_MERGE_GAP
     windows: WindowsArg = False
     group: QuestionGroupArg = None
     near: NearArg = None
     frame: FrameArg = None
+    threshold: Annotated[
+        Number | None,
+        Field(
+            description="Match bar on the calibrated score for every sense (default: per "
+            "sense); a low bar (e.g. -10) lets every grasp scoring at least 0.4 x the best "
+            "match, for 'the firmest'."
+        ),
+    ] = None
 
     def scope(self) -> Scope:
-        return self.within.scope(self.near, self.frame)
+        return self.touch.scope(self.within.scope(self.near, self.frame))
 
     @property
     def grouping(self) -> str:
         return group_of(self.group, self.windows)
 
+    def occurrences(self, memory: Memory) -> Occurrences:
+        return memory.occurrences(
+            self.query,
+            merge_gap=self.merge_gap,
+            group=self.grouping,
+            scope=self.scope(),
+            sort=self.touch.sort,
+            threshold=self.threshold,
+        )
 
-#: a :class:`Question` from its arguments with ``within``'s spelt out (the tools' group)
-ASK = grouped(within=Within)(Question)
+
+#: a :class:`Question` from its arguments with ``within``'s and ``touch``'s spelt out (the
+#: tools' group)
+ASK = grouped(within=Within, touch=TouchFilters)(Question)
 
 
 def around_args(side: str) -> type:
@@ -259,9 +281,7 @@ class MemoryTools(PlaceTools):
     def _occurrence(self, which: int, ask: Question) -> OccurrenceResult:
         memory, query = self.memory, ask.query
         self._known(ask.within.session)
-        moments = memory.occurrences(
-            query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
-        ).moments
+        moments = ask.occurrences(memory).moments
         if not moments:
             return OccurrenceResult(query=query, found=False)
         (moment,) = self.compactor.moments([moments[which]])
@@ -278,9 +298,7 @@ class MemoryTools(PlaceTools):
     def count(self, ask: Question) -> CountResult:
         """How many distinct times did this happen? Also answers yes/no (count > 0)."""
         self._known(ask.within.session)
-        occ = self.memory.occurrences(
-            ask.query, merge_gap=ask.merge_gap, group=ask.grouping, scope=ask.scope()
-        )
+        occ = ask.occurrences(self.memory)
         moments = self.compactor.moments(occ.moments)
         result = CountResult(
             query=ask.query, count=occ.count, capped=occ.capped, occurrences=moments

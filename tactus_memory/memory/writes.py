@@ -23,6 +23,7 @@ from tactus_memory.errors import IdConflictError, InvalidInputError
 from tactus_memory.memory.places import Places
 from tactus_memory.names import validate_id
 from tactus_memory.results import Stored
+from tactus_memory.search.captions import Captions
 from tactus_memory.senses.base import Sense
 from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
@@ -41,6 +42,10 @@ class WritePath:
     space: Space
     lock: threading.RLock
     places: Places
+
+    def __post_init__(self) -> None:
+        #: touch windows' caption embeddings, added before their rows (search.captions)
+        self.captions = Captions(self.store, self.space)
 
     def prepare_write(
         self,
@@ -111,6 +116,8 @@ class WritePath:
             all_ids = [i for w in live if w.batch.upsert for i in w.ids]
             if len(set(all_ids)) != len(all_ids):
                 raise InvalidInputError("the same id appears in two writes of one commit")
+        # the captions of touch windows the store lacks, before the rows (search.captions)
+        self.captions.add([e for w in live if w.error is None for e in w.extras])
         with self.lock:
             # embedded by an encoder the store no longer records (a re-embedding swapped the
             # sense meanwhile, maybe in another process): refused, never mixed

@@ -384,14 +384,20 @@ def pool_grasps(
 ) -> list[Grasp]:
     """One sense's candidate evidence -> the grasps holding it, scored (``rule.pool``; default
     the pooled vector) against the sense's transformed query ``q`` (1, D), calibrated like any
-    hit of the sense; best first. Times: the grasp's span, aligned by its stream's clock
-    offset."""
+    hit of the sense, or by the best caption score of its windows when higher
+    (:mod:`tactus_memory.search.captions`); best first. Times: the grasp's span, aligned by
+    its stream's clock offset."""
     qs = ranker.query_for(q, sense)[0]
     calib = ranker.registry.calibration(sense)
+    reached = ranker.captions.scores(q)  # the captions the words reach (search.captions)
     out = []
     for g in find_grasps(ranker.store, ranker.space.dim, hits, rule):
         best = max(g.candidates, key=lambda e: (e.score, -e.t, e.id))
         cos = g.cosine(qs, rule.pool)
+        score = float(calib.score(cos))
+        captioned = ranker.captions.grasp_score(reached, g.facets)
+        if captioned is not None and captioned[0] > score:  # its caption answers: its cosine
+            score, cos = captioned
         off = best.t_aligned - best.t
         fields = best.model_dump(exclude={"t", "t_end", "t_aligned", "t_end_aligned", "score"})
         fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids, facets=g.grasp_facets())
@@ -402,7 +408,7 @@ def pool_grasps(
                 t_end=g.t_end,
                 t_aligned=g.t + off,
                 t_end_aligned=g.t_end + off,
-                score=float(calib.score(cos)),
+                score=score,
                 window_score=best.score,
             )
         )

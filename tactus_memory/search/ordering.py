@@ -4,7 +4,13 @@ facet orders them, the first ``k`` are the answer. "The firmest grasp of session
 ``search("holding something", session="S", sort="-force", k=1)``.
 
 Hits without facets (other senses, rows stored before facets) come after those with, in
-their score order; ``t``/``-t`` order by start time (aligned when the hit has it)."""
+their score order; ``t``/``-t`` order by start time (aligned when the hit has it).
+
+A moment (``group="moment"``, ``search_moments``, the occurrences of ``count``/``last``/
+``first``) is ordered by its touch members: its ``force`` (``area``) is the highest of its
+members' (as a grasp's is the highest of its windows'), so ``sort="force"`` puts the moment
+whose firmest touch is lightest first; a moment without a touch member with facets comes
+last."""
 
 from __future__ import annotations
 
@@ -25,12 +31,18 @@ SORT_CANDIDATES = MAX_K // 4
 H = TypeVar("H")
 
 
-def candidates(k: int, sort: str | None, scope: Scope, schema: pa.Schema) -> int:
-    """How many hits to ask for: ``k``, or :data:`SORT_CANDIDATES` (at least k) when sorted.
-    A facet filter or order on a store without facet columns (``schema``, the items table's)
-    raises InvalidInputError (``storage.tables.check_facet_columns``)."""
+def check_order(sort: str | None, scope: Scope, schema: pa.Schema) -> None:
+    """An unknown ``sort``, or a facet filter or order on a store without facet columns
+    (``schema``, the items table's), raises InvalidInputError
+    (``storage.tables.check_facet_columns``)."""
     if scope.faceted or (check_sort(sort) or "t").lstrip("-") != "t":
         check_facet_columns(schema)
+
+
+def candidates(k: int, sort: str | None, scope: Scope, schema: pa.Schema) -> int:
+    """How many hits to ask for: ``k``, or :data:`SORT_CANDIDATES` (at least k) when sorted
+    (:func:`check_order` first)."""
+    check_order(sort, scope, schema)
     return k if sort is None else max(k, SORT_CANDIDATES)
 
 
@@ -40,9 +52,19 @@ def _key(hit: Any, sort: str) -> tuple[int, float]:
     if name == "t":
         t = getattr(hit, "t_aligned", None)
         return 0, sign * float(hit.t if t is None else t)
-    facets = getattr(hit, "facets", None) or {}
-    value = facets.get(name)
+    value = facet_value(hit, name)
     return (1, 0.0) if value is None else (0, sign * float(value))
+
+
+def facet_value(hit: Any, name: str) -> float | None:
+    """A hit's (grasp's, window's) facet ``name``; a moment's: the highest of its members'
+    (None: no member has it)."""
+    members = getattr(hit, "hits", None)
+    if members is not None:  # a Moment
+        values = [v for v in (facet_value(m, name) for m in members) if v is not None]
+        return max(values) if values else None
+    value = (getattr(hit, "facets", None) or {}).get(name)
+    return None if value is None else float(value)
 
 
 def sort_hits(hits: Sequence[H], sort: str | None, k: int) -> list[H]:

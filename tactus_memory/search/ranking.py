@@ -18,12 +18,16 @@ from typing import Any
 import numpy as np
 
 from tactus_memory.results import Hit, hit_from_row
+from tactus_memory.search.captions import Captions
 from tactus_memory.search.scoring import Calibration
 from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.storage.spans import Spans
 from tactus_memory.storage.store import Store
 from tactus_memory.vectors import as_unit_rows
 from tactus_memory.where import Where
+
+#: the modality whose windows are also found by their captions (search.captions)
+CAPTIONED = "touch"
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
@@ -60,6 +64,8 @@ class Ranker:
         #: ``(q, sense, transformed) -> (1, D)``: the taught labels' steering of a text query
         #: (:meth:`tactus_memory.search.teaching.Teachings.steer`); None: none
         self.steer: Any = None
+        #: touch windows found in words by their captions (a text query's, ``transform``)
+        self.captions = Captions(store, registry.space, registry)
 
     def rank(
         self,
@@ -123,9 +129,20 @@ class Ranker:
         else:
             for vec, names in groups:
                 scored.extend(self._search_group(vec[0], k, names, base, counts, calib, scored))
+        touch = [n for n in active if self.registry.search_sense(n).modality == CAPTIONED]
+        if transform and touch:
+            scored = self.captions.merge(scored, q, k, touch, base)
         scored.sort(key=lambda x: -x[0])  # stable: a sense's hits keep their order among ties
-        # each: one sense per group, each group at most k rows (its own top k)
-        top = scored if each else scored[:k]
+        if each:  # every sense's own top k (its captions' windows among them)
+            kept: dict[str, int] = {}
+            top = []
+            for item in scored:
+                sense = item[2]["sense"]
+                if kept.get(sense, 0) < k:
+                    kept[sense] = kept.get(sense, 0) + 1
+                    top.append(item)
+        else:
+            top = scored[:k]
         return [hit_from_row(row, score, cos) for score, cos, row in top]
 
     def query_for(self, q: np.ndarray, name: str) -> np.ndarray:

@@ -39,7 +39,6 @@ from tactus_memory.matching import (
     MOMENT_MIN_Z,
     MOMENT_POOL_FACTOR,
     MOMENT_POOL_MIN,
-    TIMELINE_MAX,
     AroundKwargs,
     Match,
     MatchKwargs,
@@ -65,8 +64,6 @@ from tactus_memory.results import (
     Occurrences,
     Side,
     Timeline,
-    TimelineItem,
-    row_fields,
 )
 from tactus_memory.search.evidence import ranked_evidence
 from tactus_memory.search.grasps import (
@@ -77,13 +74,12 @@ from tactus_memory.search.grasps import (
     as_hit,
     grasp_rule,
 )
-from tactus_memory.search.ordering import sort_hits
+from tactus_memory.search.ordering import candidates, check_order, sort_hits
 from tactus_memory.search.ranking import Ranker
 from tactus_memory.senses.stored import SenseRegistry
 from tactus_memory.spaces.base import Space
 from tactus_memory.storage.store import Store
-from tactus_memory.storage.tables import HIT_COLUMNS
-from tactus_memory.temporal.clocks import Clocks, Offsets, pad
+from tactus_memory.temporal.clocks import Clocks, pad
 from tactus_memory.temporal.episodes import (
     EPISODE_MAX_GAP,
     EPISODE_MEAN_COS,
@@ -93,17 +89,12 @@ from tactus_memory.temporal.episodes import (
     number_episodes,
     representative,
 )
+from tactus_memory.temporal.timeline import overlaps, timeline_items
 from tactus_memory.vectors import vector_column
 from tactus_memory.where import Where
 
 #: the grasp rule a question groups by (None: items, not grasps)
 Rule = GraspRule | None
-
-
-def _overlaps(item: TimelineItem | Episode, after: float | None, before: float | None) -> bool:
-    return (after is None or item.t_end_aligned >= after) and (
-        before is None or item.t_aligned <= before
-    )
 
 
 @dataclass(eq=False)
@@ -170,7 +161,7 @@ class Temporal:
             capped = capped or (found.ranked >= per_sense and all(flags))
             for e, flag in zip(evs, flags, strict=True):
                 e.match, e.bar = flag, bar
-                if _overlaps(e, after, before):
+                if overlaps(e, after, before):
                     out.append(e)
         return out, capped
 
@@ -193,22 +184,28 @@ class Temporal:
         per_stream: bool = False,
         group: str | None = DEFAULT_GROUP,
         pool: str = OCCURRENCE_POOL,
+        sort: str | None = None,
         **kw: Unpack[MatchKwargs],
     ) -> Occurrences:
         """Distinct occurrences of ``query``: matching items (``group="grasp"``: grasps,
         matched on their ``pool`` score) merged per session when their aligned spans overlap
         or lie within ``merge_gap`` seconds. ``per_stream=True`` merges only within one
-        stream (session + sense + source): a grasp and its note count twice."""
+        stream (session + sense + source): a grasp and its note count twice. The
+        occurrences come in time order, or in ``sort`` order (a touch facet, or ``-t``:
+        :mod:`tactus_memory.search.ordering`); the order never changes which occurrences
+        answer, so ``count`` is the same whatever it is, and ``first``/``last`` are the two
+        ends of it: ``first(q, sort="-force")`` is the firmest occurrence."""
         scope, match = split_match(kw)
         gap = check_seconds(merge_gap, "merge_gap")
         rule = grasp_rule(group, pool)
+        check_order(sort, scope, self.store.schema)
         q = embed_query(self.space, query)
         ev, capped = self._evidence(q, scope, match, MATCH_CANDIDATES, rule)
         passed = group_moments([e for e in ev if e.match], gap, per_stream=per_stream)
-        moments = answering(passed, match.answer)
+        moments = sort_hits(answering(passed, match.answer), sort, len(passed))
         return Occurrences(
             query=query, count=len(moments), capped=capped, merge_gap=gap, moments=moments,
-            passed=len(passed), answer=match.answer,
+            passed=len(passed), answer=match.answer, sort=sort,
         )  # fmt: skip
 
     def count(self, query: str, **kw: Unpack[OccurrenceKwargs]) -> int:
@@ -273,7 +270,7 @@ class Temporal:
             where.senses(names)
         items = [
             it
-            for it in self._items(where, offsets)
+            for it in timeline_items(self.store, where, offsets)
             if it.id != a.id
             and lo <= it.t_aligned
             and (it.t_aligned < hi if side == "before" else it.t_aligned <= hi)
@@ -281,23 +278,6 @@ class Temporal:
         return Context(side=side, window=window, anchor=a, t_from=lo, t_to=hi, items=items)
 
     # ----------------------------------------------------------- timeline
-    def _items(self, where: Where, offsets: Offsets) -> list[TimelineItem]:
-        rows = self.store.scan(where.sql(), HIT_COLUMNS, limit=TIMELINE_MAX + 1).to_pylist()
-        if len(rows) > TIMELINE_MAX:
-            raise InvalidInputError(
-                f"more than {TIMELINE_MAX} items in range; narrow it with after/before or senses"
-            )
-        items = []
-        for r in rows:
-            off = offsets.get((r["session"], r["sense"], r.get("source") or ""), 0.0)
-            items.append(
-                TimelineItem(
-                    **row_fields(r), t_aligned=r["t"] + off, t_end_aligned=r["t_end"] + off
-                )
-            )
-        items.sort(key=lambda it: (it.t_aligned, it.t_end_aligned, it.sense, it.source, it.id))
-        return items
-
     def timeline(self, session: str, **kw: Unpack[TimelineKwargs]) -> Timeline:
         """The session's items (or, with ``episodes=True``, its episodes) in aligned time
         order; the keywords (:class:`~tactus_memory.query.TimelineKwargs`): ``senses``,
@@ -316,12 +296,13 @@ class Temporal:
             raise InvalidInputError("near/frame select items, not episodes: drop one of them")
         if episodes:
             eps = self._episodes(session, names, scope.source)
-            eps = [e for e in eps if _overlaps(e, after, before)]
+            eps = [e for e in eps if overlaps(e, after, before)]
             return eps[:limit] if limit else eps
         where = scope.where(pad(offsets, session))
         if names is not None:
             where.senses(names)
-        items = [it for it in self._items(where, offsets) if _overlaps(it, after, before)]
+        items = timeline_items(self.store, where, offsets)
+        items = [it for it in items if overlaps(it, after, before)]
         return items[:limit] if limit else items
 
     # ----------------------------------------------------------- episodes
@@ -443,15 +424,19 @@ class Temporal:
         gap: float = DEFAULT_MOMENT_GAP,
         group: str | None = DEFAULT_GROUP,
         pool: str = "mean",
+        sort: str | None = None,
         **kw: Unpack[MatchKwargs],
     ) -> list[Moment]:
         """Search for ``query``, then group hits of one session whose aligned spans overlap
         or lie within ``gap`` seconds into moments carrying every sense's evidence; best
         ``k`` moments (:meth:`moments`); ``group="grasp"``: moments of grasps (pooled, with
-        ``pool``), not of single windows."""
+        ``pool``), not of single windows. ``sort``: the best moments (at least
+        ``search.ordering.SORT_CANDIDATES``) in that order, the first ``k``."""
         scope, match = split_match(kw)
+        kk = candidates(check_k(k), sort, scope, self.store.schema)
         q = embed_query(self.space, query)
-        return self.moments(q, k, scope, match, gap, grasp_rule(group, pool))
+        found = self.moments(q, kk, scope, match, gap, grasp_rule(group, pool))
+        return sort_hits(found, sort, k)
 
     def moments(
         self, q: np.ndarray, k: int, scope: Scope, match: Match, gap: float, grasp: Rule = None

@@ -301,7 +301,7 @@ def facets_of_rows(rows: list[dict[str, Any]]) -> WindowFacets:
 # --------------------------------------------------------------------------- captions
 #: the caption rule's version, returned beside each caption (``caption_rule``): bump it when
 #: :func:`caption` changes, so captions written by another rule can be told apart and redone
-CAPTION_RULE = 1
+CAPTION_RULE = 2
 #: peak (calibrated) bands of the caption's firmness word: below LIGHT_PEAK "light", from
 #: FIRM_PEAK "firm", between "steady" (the STAG glove saturates at 1; its informative band
 #: ends near raw 650 = calibrated 1, stag-format.md). Chosen, not tuned.
@@ -310,6 +310,11 @@ FIRM_PEAK = 0.75
 #: centroid speed (taxels per second) from which a grasp is "slipping": its load moved more
 #: than two taxel pitches a second. Chosen, not tuned.
 SLIP_SPEED = 2.0
+#: what a firmness adds in words (rule 2: "squeezing hard" and "touching lightly" put the
+#: physical questions' own words in the caption: "squeezing hard" was at cosine 0.46 to
+#: rule 1's "a firm pinch with thumb and index", 0.71 to "a firm press with palm, squeezing
+#: hard" (MiniLM)); a steady one says nothing ("holding" would pull every object question)
+FIRMNESS_WORDS = {"light": "touching lightly", "firm": "squeezing hard"}
 #: how a grip is said
 GRIP_WORDS = {
     "pinch": "pinch",
@@ -325,18 +330,36 @@ def _and(words: list[str]) -> str:
     return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
 
 
+def firmness(peak: float | None) -> str:
+    """The firmness word of a ``peak`` (calibrated): light, steady or firm."""
+    p = float(peak or 0.0)
+    return "light" if p < LIGHT_PEAK else "firm" if p >= FIRM_PEAK else "steady"
+
+
+#: each firmness's band of ``peak``, [lo, hi) (None: open)
+FIRMNESS_BANDS: dict[str, tuple[float | None, float | None]] = {
+    "light": (None, LIGHT_PEAK),
+    "steady": (LIGHT_PEAK, FIRM_PEAK),
+    "firm": (FIRM_PEAK, None),
+}
+
+
 def caption(facets: dict[str, Any]) -> str:
-    """A grasp's facets in words, deterministically (rule :data:`CAPTION_RULE`): firmness
-    from ``peak`` (light / steady / firm), the grip, the active regions most loaded first,
-    the duration, and "slipping" when ``slip`` >= :data:`SLIP_SPEED`; e.g. "a firm pinch
-    with thumb and index, 2.3 s, slipping"."""
-    peak = float(facets.get("peak") or 0.0)
-    firm = "light" if peak < LIGHT_PEAK else "firm" if peak >= FIRM_PEAK else "steady"
+    """A grasp's (or a window's) facets in words, deterministically (rule
+    :data:`CAPTION_RULE`): firmness from ``peak`` (light / steady / firm), the grip, the
+    active regions most loaded first, the firmness's words (:data:`FIRMNESS_WORDS`), then,
+    for a grasp, the duration, and "slipping" when ``slip`` >= :data:`SLIP_SPEED`; e.g. "a
+    firm pinch with thumb and index, squeezing hard, 2.3 s, slipping". A window's facets have
+    no duration or slip: its caption is the first part alone, a function of its ``peak``
+    band, ``grip`` and active regions (what :mod:`tactus_memory.search.captions` keys on)."""
+    firm = firmness(facets.get("peak"))
     grip = facets.get("grip")
     words = [f"a {firm} {GRIP_WORDS.get(grip or '', 'touch')}"]
     active = active_regions(facets.get("regions") or {})
     if active:
         words[0] += " with " + _and(active)
+    if firm in FIRMNESS_WORDS:
+        words.append(FIRMNESS_WORDS[firm])
     if facets.get("duration") is not None:
         words.append(f"{float(facets['duration']):.1f} s")
     if float(facets.get("slip") or 0.0) >= SLIP_SPEED:

@@ -32,6 +32,7 @@ from tactus_memory.errors import (
 from tactus_memory.identity import auth_headers
 from tactus_memory.mcp.server import build_server
 from tactus_memory.memory.main import Memory
+from tactus_memory.search.captions import CAPTION_MIN_COS
 from tactus_memory.touch.regions import STAG_REGIONS
 from tests.helpers.servers import Server
 from tests.helpers.service import window
@@ -322,17 +323,20 @@ def _cli(url: str, kw: dict[str, Any]) -> list[str]:
     return [h["id"] for h in json.loads(res.output)]
 
 
-def _mcp(memory: Memory, cases: list[dict[str, Any]]) -> list[list[str]]:
-    """Each case's ids from the MCP ``search`` tool (one session for them all)."""
+def _mcp(memory: Memory, cases: list[tuple[str, dict[str, Any]]]) -> list[list[str]]:
+    """Each (tool, arguments) case's ids, from the MCP ``search`` tool (its hits) or
+    ``last``/``first``/``count`` (its occurrences' best ids), one session for them all."""
 
     async def main() -> list[list[str]]:
         out = []
         async with McpClient(build_server(memory)) as client:
-            for kw in cases:
-                args = {"query": "holding something", "k": 10, "windows": True, **kw}
-                r = await client.call_tool("search", {**args, "session": GRIPS_SESSION})
+            for tool, kw in cases:
+                args = {"query": "holding something", "windows": True, **kw}
+                args |= {"k": 10} if tool == "search" else {"threshold": BAR}
+                r = await client.call_tool(tool, {**args, "session": GRIPS_SESSION})
                 assert not r.is_error, r.content
-                out.append([h["id"] for h in json.loads(r.content[0].text)["hits"]])
+                body = json.loads(r.content[0].text)
+                out.append([h["id"] for h in body["hits"]] if tool == "search" else _bests(body))
         return out
 
     return anyio.run(main)
@@ -345,8 +349,8 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
     local memory in process); the same ids, in the same order where sorted."""
     write(local)
     write(remote)
-    mcp = _mcp(local, [kw for kw, _ in CASES])
-    for (kw, want), by_mcp in zip(CASES, mcp, strict=True):
+    mcp = _mcp(local, [*(("search", kw) for kw, _ in CASES), *((r, kw) for r, kw, _ in WHEN)])
+    for (kw, want), by_mcp in zip(CASES, mcp[: len(CASES)], strict=True):
         answers = {
             "python": _python(local, kw),
             "http": _http(remote.url, kw),
@@ -360,3 +364,81 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
             assert all(set(a) == want for a in answers.values()), (kw, answers)
     hit = local.search("holding", k=1, group="window", grip="tripod", session=GRIPS_SESSION)[0]
     assert hit.facets["grip"] == "tripod" and set(hit.facets["regions"]) == set(STAG_REGIONS.names)
+    # captions (search.captions): words about the grip find the pinches above the power grasp,
+    # whatever the encoder makes of the synthetic windows; the same over HTTP
+    q = {"q": "a pinch with thumb and index", "k": 5, "session": GRIPS_SESSION}
+    found = local.search(q["q"], k=5, session=GRIPS_SESSION)
+    by_words = [h.id for h in found]
+    assert set(by_words[:2]) == {"pinch-light", "pinch-firm"}, by_words
+    assert found[0].cosine >= CAPTION_MIN_COS  # the caption's cosine answers, not the encoder's
+    assert "power" not in by_words or by_words.index("power") > 1
+    r = httpx.get(remote.url + "/search", params=q, headers=auth_headers(TOKEN))
+    assert [h["id"] for h in r.json()["hits"]] == by_words
+    when = _temporal(local, remote, mcp[len(CASES) :])
+    for (route, kw, want), got in zip(WHEN, when, strict=True):
+        assert all(a == want for a in got.values()), (route, kw, got)
+
+
+#: when-questions with a facet order (and filters): (route, arguments, the best ids of the
+#: occurrences answered, in order). ``first``/``last`` are the ends of the order, ``count``
+#: lists the occurrences in it; a bar of -100 lets every window match (the synthetic windows
+#: clear no sense's own bar for these words; all score above the relative gate, 0.4 x the best)
+WHEN: list[tuple[str, dict[str, Any], list[str]]] = [
+    ("first", {"sort": "-force"}, ["power"]),
+    ("last", {"sort": "-force"}, ["press"]),
+    ("count", {"sort": "-force", "grip": "pinch"}, ["pinch-firm", "pinch-light"]),
+]
+BAR = -100.0
+
+
+def _bests(body: Any) -> list[str]:
+    """The best ids of a /first, /last or /count answer (a dict, as JSON or a model dump)."""
+    if not body:
+        return []
+    if "moments" in body or "occurrences" in body:
+        return [m["best"] for m in body.get("moments", body.get("occurrences"))]
+    moment = body.get("moment") if "moment" in body or "found" in body else body
+    return [] if moment is None else [moment["best"]]
+
+
+def _temporal(local: Memory, remote: Client, mcp: list[list[str]]) -> list[dict]:
+    """Each WHEN case asked five ways (as ``test_facet_filters_answer_alike_five_ways``; MCP's
+    answers given), and /moments three ways: Python, HTTP, Client."""
+    q, args = "holding something", {"session": GRIPS_SESSION, "threshold": BAR}
+    out = []
+    for (route, kw, _), by_mcp in zip(WHEN, mcp, strict=True):
+        fn = getattr(local, route if route != "count" else "occurrences")
+        remote_fn = getattr(remote, route if route != "count" else "occurrences")
+        as_dict = lambda m: {} if m is None else m.model_dump()  # noqa: E731
+        r = httpx.get(
+            f"{remote.url}/{route}",
+            params={"q": q, **args, "group": "window", **kw},
+            headers=auth_headers(TOKEN),
+        )
+        assert r.status_code == 200, r.text
+        cli = ["--url", remote.url, "--token", TOKEN, "--session", GRIPS_SESSION, "--json"]
+        cli += ["--windows", "--threshold", str(BAR)]
+        for name, v in kw.items():
+            cli += [f"--{name.replace('_', '-')}", str(v)]
+        res = CliRunner().invoke(app, [route, q, *cli])
+        assert res.exit_code == 0, res.output
+        out.append(
+            {
+                "python": _bests(as_dict(fn(q, group="window", **args, **kw))),
+                "http": _bests(r.json()),
+                "client": _bests(as_dict(remote_fn(q, group="window", **args, **kw))),
+                "cli": _bests(json.loads(res.output) or {}),
+                "mcp": by_mcp,
+            }
+        )
+    kw = {"sort": "-force", "threshold": BAR, "group": "window", "session": GRIPS_SESSION}
+    r = httpx.get(
+        f"{remote.url}/moments", params={"q": q, "k": 2, **kw}, headers=auth_headers(TOKEN)
+    )
+    moments = {
+        "python": [m.best for m in local.search_moments(q, 2, **kw)],
+        "http": [m["best"] for m in r.json()["moments"]],
+        "client": [m.best for m in remote.search_moments(q, 2, **kw)],
+    }
+    assert all(m == ["power", "tripod"] for m in moments.values()), moments
+    return out

@@ -415,6 +415,16 @@ def test_session_timeline_and_evidence(page, served, tmp_path):
     assert n_points == len(NOTES) + 4 + 3
     status = page.text_content("#timeline-status")
     assert f"{n_points} items, from" in status, status
+    # the force-over-time strip under the touch lane (issue 50): one vertex per window, the
+    # firmest at the top of the strip
+    strip = page.eval_on_selector(
+        "#timeline .force-strip[data-sense=touch]",
+        """s => ({label: s.getAttribute('aria-label'),
+                 ys: s.querySelector('polyline').getAttribute('points').trim().split(' ')
+                      .map(p => Number(p.split(',')[1]))})""",
+    )
+    assert len(strip["ys"]) == 4 and "touch force over time: 4 windows" in strip["label"]
+    assert min(strip["ys"]) == pytest.approx(1.0)  # 23 - 22 x force / the firmest
     # a touch point: heat map + its meta
     touch_id = served["ids"]["ball"]
     page.click(f'#timeline .point[data-id="{touch_id}"]')

@@ -15,10 +15,11 @@ from typer.testing import CliRunner
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.cli.app import app
 from tactus_memory.errors import InvalidInputError
+from tactus_memory.search.captions import CAPTION_PREFIX, CaptionKey, Captions
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.tables import FACET_COLUMNS
-from tactus_memory.touch.facets import window_facets
+from tactus_memory.touch.facets import CAPTION_RULE, caption, facet_columns, window_facets
 from tactus_memory.touch.profile import STAG_GLOVE
 from tactus_memory.touch.regions import STAG_REGIONS
 from tests.helpers.service import FRAMES, make_memory
@@ -187,3 +188,23 @@ def test_rerun_export_carries_facets_as_scalars(stored, tmp_path: Path) -> None:
     ]
     want = [memory.get_item(i).facets["force"] for i in ids]
     assert sorted(got) == pytest.approx(sorted(want))
+
+
+def test_captions_are_stored_per_rule_and_rebuilt(stored) -> None:
+    """Issue 50: each stored window's caption (a function of its peak band, grip and active
+    regions) has one embedding in the store, of the current rule, added by the write;
+    ``Captions.rebuild`` (``tactus maintain --facets``) adds what is missing and removes
+    another rule's."""
+    memory, _ = stored
+    have = memory.store.meta_items(CAPTION_PREFIX)
+    assert have and all(k.startswith(f"{CAPTION_PREFIX}{CAPTION_RULE}/") for k in have)
+    windows = memory.search("x", k=10, senses=["touch"], group="window")
+    keys = {CaptionKey.of(facet_columns(h.facets)) for h in windows}
+    assert {k.digest() for k in keys} == {k.rsplit("/", 1)[1] for k in have}
+    for h in windows:  # the key's caption is the window's own, word for word
+        assert CaptionKey.of(facet_columns(h.facets)).caption() == caption(h.facets)
+    memory.store.set_meta(f"{CAPTION_PREFIX}{CAPTION_RULE - 1}/old", "{}")  # an older rule's
+    memory.store.delete_meta(next(iter(have)))
+    report = Captions(memory.store, memory.space).rebuild()
+    assert report == {"captions": len(have), "added": 1, "removed": 1}
+    assert set(memory.store.meta_items(CAPTION_PREFIX)) == set(have)

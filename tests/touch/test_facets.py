@@ -169,10 +169,10 @@ def test_bad_shapes_are_refused() -> None:
 def test_caption_says_firmness_grip_regions_duration_and_slip() -> None:
     f = {"peak": 0.9, "grip": "pinch", "regions": {"thumb": 0.6, "index": 0.4, "palm": 0.0}}
     assert caption({**f, "duration": 2.34, "slip": 3.0}) == (
-        "a firm pinch with thumb and index, 2.3 s, slipping"
+        "a firm pinch with thumb and index, squeezing hard, 2.3 s, slipping"
     )
     assert caption({**f, "peak": 0.2, "duration": 1.0, "slip": 0.5}) == (
-        "a light pinch with thumb and index, 1.0 s"
+        "a light pinch with thumb and index, touching lightly, 1.0 s"
     )
     power = {"peak": 0.5, "grip": "power", "duration": 4.0, "slip": 0.0}
     power["regions"] = {"palm": 0.5, "index": 0.2, "middle": 0.3}
@@ -183,5 +183,5 @@ def test_caption_says_firmness_grip_regions_duration_and_slip() -> None:
 def test_grasp_facets_carry_their_caption_and_rule() -> None:
     wins = np.stack([hand_window({"thumb": 0.9, "index": 0.9}) for _ in range(3)])
     g = grasp_facets(window_facets(wins, HAND), np.array([0.0, 0.5, 1.0]), np.array([1, 1.5, 2]))
-    assert g["caption"] == "a firm pinch with thumb and index, 2.0 s"
+    assert g["caption"] == "a firm pinch with thumb and index, squeezing hard, 2.0 s"
     assert g["caption_rule"] == CAPTION_RULE
