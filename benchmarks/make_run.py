@@ -6,7 +6,8 @@ does) into a temporary folder and runs ``make run`` there with an empty ``HOME``
 first start writes MiniLM's ONNX graph) and a fresh ``.venv``, on a free port, then records:
 
 * ``ready_s``: seconds from ``make run`` to the ready line (venv, pip install, start, export);
-* ``rss_mb``: the serving process's resident memory once ready (VmRSS, /proc);
+* ``rss_mb``: the serving process's resident memory once ready (VmRSS, /proc; MB = 10^6
+  bytes, ``rss_mib`` in 2^20 bytes), and where it is (``rss_by_mapping_mib``, smaps);
 * ``install_mb``: the size of the copy's ``.venv`` (and of its torch side, none expected);
 * the machine's load average (1, 5 min) at the start, at ready and at the end, and its cores.
 
@@ -47,10 +48,29 @@ def _du_mb(path: Path) -> float:
     return round(int(out.stdout.split()[0]) / 1e6, 1)
 
 
-def _rss_mb(pid: int) -> float:
+def _rss_kb(pid: int) -> int:
+    """VmRSS of ``pid`` in kB (1024 bytes), /proc/PID/status."""
     status = Path(f"/proc/{pid}/status").read_text()
-    kb = int(re.search(r"VmRSS:\s+(\d+) kB", status).group(1))  # type: ignore[union-attr]
-    return round(kb / 1024, 1)
+    return int(re.search(r"VmRSS:\s+(\d+) kB", status).group(1))  # type: ignore[union-attr]
+
+
+def rss_by_mapping(pid: int, top: int = 12) -> dict[str, float]:
+    """Where the resident memory of ``pid`` is (/proc/PID/smaps), in MiB: anonymous memory
+    (``[heap]``, ``[anon]``: Python's objects, the runtimes' buffers) and, per installed
+    package or file, its mapped files (code pages of the shared libraries, mapped models),
+    the ``top`` biggest."""
+    sizes: dict[str, int] = {}
+    where = "[anon]"
+    for line in Path(f"/proc/{pid}/smaps").read_text().splitlines():
+        if re.match(r"^[0-9a-f]+-[0-9a-f]+ ", line):
+            parts = line.split()
+            where = parts[5] if len(parts) > 5 else "[anon]"
+            if "site-packages/" in where:
+                where = where.split("site-packages/")[1].split("/")[0]
+        elif line.startswith("Rss:"):
+            sizes[where] = sizes.get(where, 0) + int(line.split()[1])
+    biggest = sorted(sizes.items(), key=lambda kv: -kv[1])[:top]
+    return {name: round(kb / 1024, 1) for name, kb in biggest}
 
 
 def _load() -> list[float]:
@@ -130,7 +150,13 @@ def run(cold: bool) -> dict[str, object]:
         load_ready = _load()
         time.sleep(2)  # the first /ready probe's garbage settles
         pid = _server_pid(proc.pid)
-        rss = _rss_mb(pid) if pid is not None and ready_s is not None else None
+        rss = _rss_kb(pid) if pid is not None and ready_s is not None else None
+        by_mapping = rss_by_mapping(pid) if rss is not None and pid is not None else None
+        packages = subprocess.run(
+            [str(clone / ".venv" / "bin" / "python"), "-m", "pip", "list", "--format=freeze"],
+            capture_output=True,
+            text=True,
+        ).stdout.split()
         venv = clone / ".venv"
         site = next(venv.glob("lib/python*/site-packages"))
         torch_side = [p.name for p in site.iterdir() if p.name.split("-")[0] in TORCH_SIDE]
@@ -144,9 +170,14 @@ def run(cold: bool) -> dict[str, object]:
             "pip_cache": "a new empty folder" if cold else "the user's (warm)",
             "cold": cold,
             "ready_s": ready_s,
-            "rss_mb": rss,
+            # MB = 10^6 bytes, as the docs and benchmarks/rss.py give it; MiB = 2^20 bytes
+            "rss_mb": None if rss is None else round(rss * 1024 / 1e6, 1),
+            "rss_mib": None if rss is None else round(rss / 1024, 1),
+            "rss_by_mapping_mib": by_mapping,
             "install_mb": _du_mb(venv),
             "torch_side_installed": torch_side,
+            "pandas_installed": any(p.lower().startswith("pandas==") for p in packages),
+            "packages": len(packages),
             "load_1_5min_at_start": load_start,
             "load_1_5min_at_ready": load_ready,
             "load_1_5min_at_end": _load(),
