@@ -74,10 +74,6 @@ def _session(path: Path, threads: int) -> Any:
     # no arena: ORT's own pool keeps the peak of every batch for good (a server that embedded
     # 64 touch windows once stayed ~65 MB larger); plain malloc is handed back by malloc_trim
     opts.enable_cpu_mem_arena = False
-    # no memory patterns either: ORT would keep, per input shape seen, a plan of blocks sized
-    # for it; a process that embedded 3 batches of 64 texts x 64 tokens stayed 246 MB larger
-    # with them, 150 MB without (then malloc_trim hands back what is free)
-    opts.enable_mem_pattern = False
     return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
 
 
