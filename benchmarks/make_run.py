@@ -168,6 +168,9 @@ def run(cold: bool) -> dict[str, object]:
         return {
             "nice": os.nice(0),
             "pip_cache": "a new empty folder" if cold else "the user's (warm)",
+            # the machine's own pip settings (an index, a local wheel folder) change what "cold"
+            # downloads: recorded with the run
+            "pip_env": {k: v for k, v in env.items() if k.startswith("PIP_") and k != "PIP_CERT"},
             "cold": cold,
             "ready_s": ready_s,
             # MB = 10^6 bytes, as the docs and benchmarks/rss.py give it; MiB = 2^20 bytes
