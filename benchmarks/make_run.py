@@ -1,15 +1,19 @@
 """A newcomer's ``make run``: from a fresh clone to the line ``ready: GET /ready answers 200``.
 
-Clones the checkout's HEAD into a temporary folder and runs ``make run`` there with an empty
-user cache (so the first start writes MiniLM's ONNX graph) on a free port, then records:
+Copies the checkout's files as a fresh clone has them (tracked and new, not ignored: the
+work in progress is measured too, as ``tests/project/test_newcomer.py``'s ``fresh_copy``
+does) into a temporary folder and runs ``make run`` there with an empty ``HOME`` (so the
+first start writes MiniLM's ONNX graph) and a fresh ``.venv``, on a free port, then records:
 
 * ``ready_s``: seconds from ``make run`` to the ready line (venv, pip install, start, export);
-* ``rss_mb``: the serving process's resident memory once ready (VmRSS, /proc);
-* ``install_mb``: the size of the clone's ``.venv`` (and of its torch side, none expected);
-* the machine's load average (1 min) before and at ready, and its core count.
+* ``rss_mb``: the serving process's resident memory once ready (VmRSS, /proc; MB = 10^6
+  bytes, ``rss_mib`` in 2^20 bytes), and where it is (``rss_by_mapping_mib``, smaps);
+* ``install_mb``: the size of the copy's ``.venv`` (and of its torch side, none expected);
+* the machine's load average (1, 5 min) at the start, at ready and at the end, and its cores.
 
-    python benchmarks/make_run.py               # pip's cache as it is (warm after one run)
-    python benchmarks/make_run.py --cold        # PIP_NO_CACHE_DIR=1: every wheel fetched again
+    python benchmarks/make_run.py               # warm: the user's pip cache (wheels already there)
+    python benchmarks/make_run.py --cold        # PIP_CACHE_DIR a new empty folder: every wheel
+                                                # downloaded from PyPI again
 
 Results go to ``benchmarks/results/make_run_{cold,warm}.json`` (one run appended per call).
 """
@@ -34,6 +38,8 @@ RESULTS = ROOT / "benchmarks" / "results"
 READY_LINE = "ready: GET /ready answers 200"
 #: the give-up point of one run (a run that never gets ready is recorded as such)
 GIVE_UP_S = 1800
+#: pip's cache when HOME is the user's (``pip cache dir``): the warm run's wheels
+PIP_USER_CACHE = os.environ.get("PIP_CACHE_DIR", "~/.cache/pip")
 TORCH_SIDE = ("torch", "functorch", "torchgen", "sentence_transformers", "transformers", "nvidia")
 
 
@@ -42,10 +48,50 @@ def _du_mb(path: Path) -> float:
     return round(int(out.stdout.split()[0]) / 1e6, 1)
 
 
-def _rss_mb(pid: int) -> float:
+def _rss_kb(pid: int) -> int:
+    """VmRSS of ``pid`` in kB (1024 bytes), /proc/PID/status."""
     status = Path(f"/proc/{pid}/status").read_text()
-    kb = int(re.search(r"VmRSS:\s+(\d+) kB", status).group(1))  # type: ignore[union-attr]
-    return round(kb / 1024, 1)
+    return int(re.search(r"VmRSS:\s+(\d+) kB", status).group(1))  # type: ignore[union-attr]
+
+
+def rss_by_mapping(pid: int, top: int = 12) -> dict[str, float]:
+    """Where the resident memory of ``pid`` is (/proc/PID/smaps), in MiB: anonymous memory
+    (``[heap]``, ``[anon]``: Python's objects, the runtimes' buffers) and, per installed
+    package or file, its mapped files (code pages of the shared libraries, mapped models),
+    the ``top`` biggest."""
+    sizes: dict[str, int] = {}
+    where = "[anon]"
+    for line in Path(f"/proc/{pid}/smaps").read_text().splitlines():
+        if re.match(r"^[0-9a-f]+-[0-9a-f]+ ", line):
+            parts = line.split()
+            where = parts[5] if len(parts) > 5 else "[anon]"
+            if "site-packages/" in where:
+                where = where.split("site-packages/")[1].split("/")[0]
+        elif line.startswith("Rss:"):
+            sizes[where] = sizes.get(where, 0) + int(line.split()[1])
+    biggest = sorted(sizes.items(), key=lambda kv: -kv[1])[:top]
+    return {name: round(kb / 1024, 1) for name, kb in biggest}
+
+
+def _load() -> list[float]:
+    """The 1- and 5-minute load averages."""
+    one, five, _ = os.getloadavg()
+    return [round(one, 2), round(five, 2)]
+
+
+def fresh_copy(dest: Path) -> None:
+    """The checkout's files as a fresh clone has them (tracked + new, not ignored)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=ROOT,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    for name in filter(None, listed.split("\0")):
+        src = ROOT / name
+        if src.is_file():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / name)
 
 
 def _server_pid(root_pid: int) -> int | None:
@@ -67,18 +113,21 @@ def run(cold: bool) -> dict[str, object]:
     tmp = Path(tempfile.mkdtemp(prefix="make-run-"))
     try:
         clone = tmp / "clone"
-        subprocess.run(["git", "clone", "-q", "--local", str(ROOT), str(clone)], check=True)
+        fresh_copy(clone)
+        home = tmp / "home"
+        home.mkdir()
         port = free_port()
-        env = {
-            **os.environ,
-            "TACTUS_CACHE": str(tmp / "cache"),
-            "PORT": str(port),
-            "PIP_DISABLE_PIP_VERSION_CHECK": "1",
-        }
+        # warm: pip's cache where the user's is (HOME is empty); cold: a new empty one
+        pip_cache = tmp / "pip-cache" if cold else Path(PIP_USER_CACHE).expanduser()
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("TACTUS_", "XDG_"))}
+        env.update(
+            HOME=str(home),
+            PORT=str(port),
+            PIP_CACHE_DIR=str(pip_cache),
+            PIP_DISABLE_PIP_VERSION_CHECK="1",
+        )
         env.pop("VIRTUAL_ENV", None)
-        if cold:
-            env["PIP_NO_CACHE_DIR"] = "1"
-        load_before = os.getloadavg()[0]
+        load_start = _load()
         t0 = time.monotonic()
         proc = subprocess.Popen(
             ["make", "run"],
@@ -98,10 +147,16 @@ def run(cold: bool) -> dict[str, object]:
                 break
             if time.monotonic() - t0 > GIVE_UP_S:
                 break
-        load_ready = os.getloadavg()[0]
+        load_ready = _load()
         time.sleep(2)  # the first /ready probe's garbage settles
         pid = _server_pid(proc.pid)
-        rss = _rss_mb(pid) if pid is not None and ready_s is not None else None
+        rss = _rss_kb(pid) if pid is not None and ready_s is not None else None
+        by_mapping = rss_by_mapping(pid) if rss is not None and pid is not None else None
+        packages = subprocess.run(
+            [str(clone / ".venv" / "bin" / "python"), "-m", "pip", "list", "--format=freeze"],
+            capture_output=True,
+            text=True,
+        ).stdout.split()
         venv = clone / ".venv"
         site = next(venv.glob("lib/python*/site-packages"))
         torch_side = [p.name for p in site.iterdir() if p.name.split("-")[0] in TORCH_SIDE]
@@ -111,13 +166,24 @@ def run(cold: bool) -> dict[str, object]:
         except subprocess.TimeoutExpired:
             proc.kill()
         return {
+            "nice": os.nice(0),
+            "pip_cache": "a new empty folder" if cold else "the user's (warm)",
+            # the machine's own pip settings (an index, a local wheel folder) change what "cold"
+            # downloads: recorded with the run
+            "pip_env": {k: v for k, v in env.items() if k.startswith("PIP_") and k != "PIP_CERT"},
             "cold": cold,
             "ready_s": ready_s,
-            "rss_mb": rss,
+            # MB = 10^6 bytes, as the docs and benchmarks/rss.py give it; MiB = 2^20 bytes
+            "rss_mb": None if rss is None else round(rss * 1024 / 1e6, 1),
+            "rss_mib": None if rss is None else round(rss / 1024, 1),
+            "rss_by_mapping_mib": by_mapping,
             "install_mb": _du_mb(venv),
             "torch_side_installed": torch_side,
-            "load_1min_before": round(load_before, 2),
-            "load_1min_at_ready": round(load_ready, 2),
+            "pandas_installed": any(p.lower().startswith("pandas==") for p in packages),
+            "packages": len(packages),
+            "load_1_5min_at_start": load_start,
+            "load_1_5min_at_ready": load_ready,
+            "load_1_5min_at_end": _load(),
             "cores": os.cpu_count(),
             "python": sys.version.split()[0],
             "last_lines": lines[-6:],
@@ -129,7 +195,7 @@ def run(cold: bool) -> dict[str, object]:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cold", action="store_true", help="no pip cache (PIP_NO_CACHE_DIR=1)")
+    ap.add_argument("--cold", action="store_true", help="an empty pip cache (PIP_CACHE_DIR)")
     args = ap.parse_args()
     result = run(args.cold)
     print(json.dumps(result, indent=2))

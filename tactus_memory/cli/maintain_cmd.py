@@ -18,6 +18,7 @@ import typer
 from tactus_memory.cli.app import app
 from tactus_memory.cli.common import ServiceData
 from tactus_memory.cli.memory_cmds import _data_dir
+from tactus_memory.cli.progress import RowsBar
 
 if TYPE_CHECKING:
     from tactus_memory.storage.store import Store
@@ -55,7 +56,8 @@ def maintain(
             "--sense-codes",
             help="Move a store made before sense codes to the coded layout, in place (every "
             "vector rewritten with its sense's code, the ANN index built again), then exit: "
-            "one JSON line per store (rows rewritten, seconds, index rebuilt). A store with "
+            "one JSON line per store (rows rewritten, seconds, index rebuilt) on stdout, a bar "
+            "with the time left on stderr. A store with "
             "codes already is left as it is. Stop the store's servers first.",
         ),
     ] = False,
@@ -177,9 +179,10 @@ def _sense_codes(store: Store, root: bool) -> int:
     from tactus_memory.storage.migrate import add_sense_codes
 
     where = {} if root else {"tenant": store.retention.tenant}
-    progress = _Progress(store.uri)
     try:
-        report = add_sense_codes(store, on_batch=progress)
+        # a coded store is left as it is: nothing to count
+        with RowsBar(f"sense codes {store.uri}", 0 if store.codes() else store.count()) as bar:
+            report = add_sense_codes(store, on_batch=bar)
     except Exception as exc:  # noqa: BLE001  (reported; every store is tried)
         typer.echo(
             f"{store.uri}: sense codes not added: {exc} (run it again with the store's "
@@ -198,7 +201,8 @@ def _facets(store: Store, root: bool) -> int:
 
     where = {} if root else {"tenant": store.retention.tenant}
     try:
-        report = add_facets(store, on_batch=_Progress(store.uri))
+        with RowsBar(f"facets {store.uri}", store.count()) as bar:
+            report = add_facets(store, on_batch=bar)
     except Exception as exc:  # noqa: BLE001  (reported; every store is tried)
         typer.echo(f"{store.uri}: facets not added: {exc} (run it again)", err=True)
         return 1
@@ -219,19 +223,3 @@ def _captions(store: Store) -> dict[str, int]:
 
     space = resolve_space(recorded=recorded_space(store.get_meta("space")))
     return Captions(store, space).rebuild()
-
-
-class _Progress:
-    """Rows coded so far, on stderr every ``PROGRESS_EVERY`` seconds."""
-
-    #: seconds between two progress lines
-    PROGRESS_EVERY = 10.0
-
-    def __init__(self, uri: str) -> None:
-        self.uri = uri
-        self.last = time.monotonic()
-
-    def __call__(self, rows: int) -> None:
-        if time.monotonic() - self.last >= self.PROGRESS_EVERY:
-            self.last = time.monotonic()
-            typer.echo(f"{self.uri}: {rows:,} rows done", err=True)

@@ -232,7 +232,8 @@ def reembed(
 ) -> None:
     """Recompute every stored vector of a touch sense with a new checkpoint, from the stored
     raw windows; swapped in one commit (readers see all old or all new vectors), resumable
-    after a kill (rerun the same command). Rows without a raw window are listed. --ray: the
+    after a kill (rerun the same command). Rows without a raw window are listed. A bar on
+    stderr shows the rows staged and the time left; the report is JSON on stdout. --ray: the
     embedding as a Ray Data job."""
     from tactus_memory.errors import TactusError
 
@@ -243,7 +244,10 @@ def reembed(
         enc = TactusEncoder(None if checkpoint == "default" else checkpoint, name=sense)
         address = ray.cluster()
         if address is None:
-            report = memory.reembed(sense, enc, batch=batch)
+            from tactus_memory.cli.progress import RowsBar
+
+            with RowsBar(f"reembed {sense}") as bar:
+                report = memory.reembed(sense, enc, batch=batch, on_rows=bar)
         else:
             from tactus_memory.recordings.ray_jobs import reembed_on_ray
 

@@ -488,7 +488,7 @@ class Memory(AbstractContextManager["Memory"]):
     def reembed(self, sense: str, encoder: Sense, **kw: Any) -> Any:
         """Recompute every stored vector of ``sense`` with ``encoder`` from the stored raw
         inputs, swapped in one commit, resumable: :func:`tactus_memory.memory.reembed.reembed`
-        (returns its ReembedReport; keywords ``batch``, ``on_batch``)."""
+        (returns its ReembedReport; keywords ``batch``, ``on_batch``, ``on_rows``)."""
         from tactus_memory.memory.reembed import reembed
 
         return reembed(self, sense, encoder, **kw)

@@ -222,14 +222,20 @@ def reembed(
     *,
     batch: int = REEMBED_BATCH,
     on_batch: Callable[[int], None] | None = None,
+    on_rows: Callable[[int, int], None] | None = None,
 ) -> ReembedReport:
     """Recompute every stored vector of ``sense`` with ``encoder`` (see the module docstring).
 
-    ``on_batch(n)`` is called after the n-th staged batch is committed (progress; tests kill
-    the run there). Raises SenseConflictError when ``encoder`` is another sense or space."""
+    ``on_batch(n)`` is called after the n-th staged batch is committed (tests kill the run
+    there); ``on_rows(staged, total)`` before the first batch and after each (rows of the
+    sense staged so far, a resumed run's included, of those to redo: progress). Raises
+    SenseConflictError when ``encoder`` is another sense or space."""
     job = begin(memory, sense, encoder, batch)
     store, dim = memory.store, job.dim
-    todo = [i for i in _ids(store, job.redo) if i not in job.staged]
+    every = _ids(store, job.redo)
+    todo = [i for i in every if i not in job.staged]
+    if on_rows is not None:
+        on_rows(len(every) - len(todo), len(every))
     batches = 0
     for s in range(0, len(todo), batch):
         chunk = todo[s : s + batch]
@@ -238,6 +244,8 @@ def reembed(
         batches += 1
         if on_batch is not None:
             on_batch(batches)
+        if on_rows is not None:
+            on_rows(len(every) - len(todo) + s + len(chunk), len(every))
     return swap(memory, job, batches)
 
 

@@ -23,6 +23,7 @@ from tactus_memory.storage.codes import CODE_DIMS, CODE_WEIGHT, code
 from tactus_memory.storage.store import Store
 from tactus_memory.training.data import load_stag
 from tactus_memory.training.stream_eval import build_stream
+from tests.helpers.progress import assert_bar_finished
 from tests.helpers.touch_pair import Pair, train_pair
 
 N_PER_SESSION = 20
@@ -204,7 +205,8 @@ def test_tactus_reembed_command(tmp_path, pair, windows, minilm_space) -> None:
     args = ["reembed", "--data", str(tmp_path / "m"), "--sense", "touch"]
     r = CliRunner().invoke(app, [*args, "--checkpoint", str(pair.b), "--batch", "16"])
     assert r.exit_code == 0, (r.output, r.exception)
-    report = json.loads(r.output)
+    report = json.loads(r.stdout)
+    assert_bar_finished(r.stderr, "reembed touch")  # the rows staged, with the time left
     assert report["rows"] == len(ids) and report["missing"] == 0
     assert report["provenance"]["checkpoint_sha256"] == file_sha256(pair.b)
     reader = Store(str(tmp_path / "m"), read_consistency_interval=0)

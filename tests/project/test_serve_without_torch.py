@@ -1,5 +1,7 @@
 """Serving needs no PyTorch: torch, sentence-transformers and the torch export are the ``train``
-extra; the server, a search and a touch write run on ONNX Runtime without them.
+extra; the server, a search and a touch write run on ONNX Runtime without them. Nor pandas:
+where it is installed pyarrow imports it into the server (~49 MB resident), so serving does
+not install it (the ray extra brings it).
 
 Two halves, each cheap:
 
@@ -8,9 +10,9 @@ Two halves, each cheap:
   walks them, never reach torch (a full ``pip install --dry-run`` into a fresh venv gives the
   same answer but takes over a minute on 2 cores: see the closing note of the issue);
 * a real interpreter in which torch is NOT installed: a fresh venv whose site folder holds the
-  test venv's packages less torch, sentence-transformers and transformers (links, no copy). Its
-  ``tactus serve`` exports MiniLM from the safetensors weights into an empty user cache (no
-  torch anywhere), then answers the README tour's touch write, note and search.
+  test venv's packages less torch, sentence-transformers, transformers and pandas (links, no
+  copy). Its ``tactus serve`` exports MiniLM from the safetensors weights into an empty user
+  cache (no torch anywhere), then answers the README tour's touch write, note and search.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
 
 #: what only the train extra may bring
 TORCH_SIDE = {"torch", "sentence-transformers", "transformers", "triton"}
+#: what serving must not install: the torch side, and pandas (pyarrow would import it)
+NOT_SERVING = TORCH_SIDE | {"pandas"}
 #: the extras `make run` installs (Makefile), besides the base
 SERVING_EXTRAS = ("recordings", "mcp")
 #: how long a server may take to answer /ready here (only a server that never starts fails)
@@ -70,7 +74,7 @@ def _pulled(extras: tuple[str, ...]) -> set[str]:
 def test_the_serving_install_never_pulls_torch() -> None:
     serving = _pulled(SERVING_EXTRAS)
     assert {"lancedb", "onnxruntime", "tokenizers", "mcp", "fastapi"} <= serving
-    assert serving.isdisjoint(TORCH_SIDE), serving & TORCH_SIDE
+    assert serving.isdisjoint(NOT_SERVING), serving & NOT_SERVING
     # and the train extra (which make test installs) is where they are
     assert {"torch", "sentence-transformers"} <= _pulled(("train",))
 
@@ -86,7 +90,7 @@ def torchless_python(tmp_path_factory: pytest.TempPathFactory) -> str:
     here = Path(sysconfig.get_paths()["purelib"])
     for entry in here.iterdir():
         top = _norm(entry.name.split("-")[0] if entry.name.endswith("-info") else entry.name)
-        if top in TORCH_SIDE or top in {"functorch", "torchgen"}:
+        if top in NOT_SERVING or top in {"functorch", "torchgen"}:
             continue
         (shadow / entry.name).symlink_to(entry)
     python = venv / "bin" / "python"
@@ -98,9 +102,12 @@ def torchless_python(tmp_path_factory: pytest.TempPathFactory) -> str:
     ).stdout.strip()
     # addsitedir, not a plain path line: the editable install's own .pth in there runs too
     (Path(site) / "shadow.pth").write_text(f"import site; site.addsitedir({str(shadow)!r})\n")
-    check = "import importlib.util as u; print(u.find_spec('torch'), u.find_spec('tactus_memory'))"
+    check = (
+        "import importlib.util as u; "
+        "print(u.find_spec('torch'), u.find_spec('pandas'), u.find_spec('tactus_memory'))"
+    )
     out = subprocess.run([str(python), "-c", check], capture_output=True, text=True, check=True)
-    assert out.stdout.startswith("None ") and "tactus_memory" in out.stdout, out
+    assert out.stdout.startswith("None None ") and "tactus_memory" in out.stdout, out
     return str(python)
 
 
@@ -125,7 +132,7 @@ def test_the_tour_server_runs_without_torch(torchless_python: str, tmp_path: Pat
         assert hits and hits[0]["text"] == "holding a red mug"
         assert touch_hits and touch_hits[0]["sense"] == "touch"
         maps = Path(f"/proc/{proc.pid}/maps").read_text()
-        assert "onnxruntime" in maps and "libtorch" not in maps
+        assert "onnxruntime" in maps and "libtorch" not in maps and "/pandas/" not in maps
     finally:
         stop_process(proc)
     # the export wrote its check: MiniLM against the shipped reference vectors, no torch

@@ -22,6 +22,7 @@ from tactus_memory.recordings import samples as rf
 from tactus_memory.recordings.ingest import ingest_recording
 from tactus_memory.recordings.rerun import export_rerun
 from tactus_memory.touch.windows import cut_windows
+from tests.helpers.progress import assert_bar_finished
 
 pytestmark = pytest.mark.slow
 
@@ -132,6 +133,7 @@ def test_real_cli_and_http_export(tmp_path, glove_frames, minilm_space) -> None:
     assert summary["messages_per_s"] > 0
     second = runner.invoke(app, cmd)
     assert second.exit_code == 0 and f"already present {2 + n_touch}" in second.output
+    assert_bar_finished(second.stderr, "ingest run1")  # the messages read, with the time left
     bad = runner.invoke(app, [*cmd[:6], "--topic", "/imu=touch"])
     assert bad.exit_code == 2 and "'/imu'" in bad.output and "Vector3" in bad.output
     rrd = tmp_path / "run1.rrd"

@@ -25,6 +25,7 @@ from tactus_memory.storage.store import ITEMS
 from tactus_memory.storage.tables import IndexConfig, items_schema
 from tactus_memory.vectors import as_unit_rows
 from tests.helpers.fakes import HashingSpace
+from tests.helpers.progress import assert_bar_finished
 
 DIM = 64
 ROWS = 150  # of each sense
@@ -245,9 +246,13 @@ def test_the_maintain_command_migrates_a_store(tmp_path: Path) -> None:
         res = CliRunner().invoke(app, ["maintain", "--sense-codes", "--data", str(root)])
         assert res.exit_code == 0, res.output
         [line] = [json.loads(x) for x in res.stdout.splitlines() if x.startswith("{")]
+        runs.append(res.stderr)
         return line
 
+    runs: list[str] = []
     first = run()
+    # the rows coded, with the time left, on stderr
+    assert_bar_finished(runs[0], "sense codes")
     assert first["migrated"] and first["rows"] == 2 * ROWS and first["index_rebuilt"]
     assert first["codes"] == CODE_DIMS and first["seconds"] > 0
     second = run()

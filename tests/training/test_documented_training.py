@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 from tactus_memory.cli import app
 from tests.helpers.hand_synth import as_arrays, recordings, write_toml
+from tests.helpers.progress import assert_bar_finished
 
 pytestmark = pytest.mark.slow
 
@@ -98,6 +99,9 @@ def test_every_documented_training_command_runs_into_a_new_folder(tmp_path: Path
         assert r.exit_code == 0, (page, line, args, r.output[-2000:], r.exception)
         out = Path(args[args.index("--out") + 1])
         assert out.is_file() and out.parent == folder / "runs", (page, line)
+        # the steps done, with the time left (tqdm's bar on stderr; distill trains as train)
+        kind = line.split()[1]
+        assert_bar_finished(r.stderr, "mae" if kind == "pretrain" else "train")
         _remember(tmp_path, line.split()[1], out)
     assert len(ran) == len(documented()) and len(done) == 3
 
