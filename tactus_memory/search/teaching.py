@@ -16,7 +16,10 @@ windows of ``bench`` overlapping ``[12.0, 15.5]`` were a grasp of a drill. From 
   where the text target is the label's phrase embedding centred like every touch query
   (``normalize(t - query_centroid)``) and the prototype is the normalised mean embedding of
   every stored window of the taught spans (centred on the other taught labels' prototypes
-  when :data:`CENTRE_PROTOTYPES` is set: ``normalize(p - mean(others))``). For unit
+  when :data:`CENTRE_PROTOTYPES` is set: ``normalize(p - mean(others))``). The words count
+  only when the taught grasps agree with them (:data:`TEXT_AGREE_TOP`: the label's phrase is
+  among the targets nearest its prototype), else ``W_TEXT`` is 0: a made-up label ranks by its
+  prototype alone (``benchmarks/teach_once.py``). For unit
   ``z`` that is one cosine with the query vector ``W_TEXT * target + W_PROTO * prototype``
   (normalised), so the ranking goes through the one ranked search path
   (:class:`~tactus_memory.search.ranking.Ranker`) unchanged;
@@ -61,6 +64,11 @@ W_PROTO = 1.0
 #: protocol with made-up labels (``benchmarks/teach_once.py``, demo checkpoint) it kept top-1
 #: at 3 of 26 and moved R@5 from 6 to 9 of 26, inside the noise; the docs' "Objects you teach"
 CENTRE_PROTOTYPES = False
+#: the label's words count (``W_TEXT``) only when the taught grasps agree with them: the label's
+#: phrase is among the TEXT_AGREE_TOP targets (trained classes and taught labels) nearest the
+#: label's prototype; otherwise the prototype alone ranks (a made-up or foreign word carries no
+#: meaning the encoder knows). None: the words always count (the rule before issue 46)
+TEXT_AGREE_TOP: int | None = 3
 #: a query steers toward a taught label only when its cosine to the label's phrase reaches
 #: this (MiniLM: "when was I holding the drill?" vs "a hand holding a drill" ~0.6; an
 #: unrelated question ~0.1-0.25)
@@ -106,6 +114,7 @@ class Teachings:
         #: the rule's weights and bar (module defaults; the benchmark sweeps them)
         self.w_text, self.w_proto, self.min_cos = W_TEXT, W_PROTO, MIN_LABEL_COS
         self.centre = CENTRE_PROTOTYPES
+        self.agree_top = TEXT_AGREE_TOP
 
     # ----------------------------------------------------------- records
     def teach(self, label: str, *, session: str, **span: Unpack[TeachSpan]) -> Teaching:
@@ -288,8 +297,20 @@ class Teachings:
         others = [p for k, (_, p) in protos.items() if k != key]
         if self.centre and others:
             proto = _unit(proto - np.mean(others, axis=0))
-        mixed = self.w_text * _unit(target) + self.w_proto * proto
+        w_text = self.w_text if self.text_agrees(j, protos[key][1], raw, centroid) else 0.0
+        mixed = w_text * _unit(target) + self.w_proto * proto
         return _unit(mixed).reshape(1, -1)
+
+    def text_agrees(
+        self, j: int, proto: np.ndarray, raw: np.ndarray, centroid: np.ndarray | None
+    ) -> bool:
+        """Whether target ``j``'s phrase is among the :data:`TEXT_AGREE_TOP` targets (raw (C, D)
+        phrase embeddings, centred like a query) nearest the label's (D,) prototype."""
+        if self.agree_top is None:
+            return True
+        c = raw if centroid is None else raw - np.asarray(centroid, np.float32)
+        cos = (c / np.maximum(np.linalg.norm(c, axis=1, keepdims=True), 1e-12)) @ proto
+        return bool((cos > cos[j]).sum() < self.agree_top)
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
