@@ -15,7 +15,8 @@ one object held (STAG labels a whole recording with its object). Two layouts:
 Per cut rule (:class:`~tactus_memory.temporal.holds.HoldRule`: the rule before issue 46,
 ``max_gap`` 0.5 s, the shipped one and a sweep), :func:`~tactus_memory.temporal.holds.cut_quality`
 against the known holds: ``purity`` (share of grasps from one hold), ``completeness`` (share of
-holds in one grasp), grasps, single-window grasps.
+holds in one grasp), grasps, single-window grasps; 95 % bootstrap intervals (completeness
+resampling holds, purity resampling grasps).
 
 Stream retrieval per rule (``protocol`` layout): the natural questions of
 ``touch/training/queries/stream_queries.json`` (none a training template), each turned into the
@@ -57,20 +58,11 @@ def boot(per: np.ndarray, base: np.ndarray | None = None) -> dict[str, float]:
 
 
 def cut_intervals(labels: np.ndarray, truth: np.ndarray) -> dict[str, dict[str, float]]:
-    """Bootstrap intervals of the cut's purity (per grasp: from one hold) and completeness (per
-    known hold: in one grasp), resampling holds: a resampled hold brings its grasps along."""
-    holds = np.unique(truth)
-    whole = np.array([len(np.unique(labels[truth == h])) == 1 for h in holds], float)
-    groups_of = [np.unique(labels[truth == h]) for h in holds]
-    pure = {g: len(np.unique(truth[labels == g])) == 1 for g in np.unique(labels)}
-    rng = np.random.default_rng(SEED)
-    purity = []
-    for _ in range(BOOTSTRAP):
-        pick = rng.integers(0, len(holds), len(holds))
-        gs = np.concatenate([groups_of[i] for i in pick])
-        purity.append(np.mean([pure[g] for g in gs]))
-    lo, hi = np.quantile(purity, [0.025, 0.975])
-    return {"completeness": boot(whole), "purity": {"lo": float(lo), "hi": float(hi)}}
+    """95 % bootstrap intervals of the cut's completeness (per known hold: in one grasp;
+    resampling holds) and purity (per grasp: from one hold; resampling grasps)."""
+    whole = np.array([len(np.unique(labels[truth == h])) == 1 for h in np.unique(truth)], float)
+    pure = np.array([len(np.unique(truth[labels == g])) == 1 for g in np.unique(labels)], float)
+    return {"completeness": boot(whole), "purity": boot(pure)}
 
 
 def rank_scores(groups: np.ndarray, truth: np.ndarray, vecs: np.ndarray, queries, objects):

@@ -108,6 +108,17 @@ def test_teaching_steers_queries_by_label_and_prototype(memory, minilm_space, en
             v = memory.get_item(h.id, vector=True).vector
             assert h.cosine == pytest.approx(float(v @ steer), abs=1e-4), agree_top
     memory.teachings.agree_top = teaching.TEXT_AGREE_TOP
+    # a label that is a trained class: its words always count (the class's own target)
+    memory.teach("mug", session="lesson", after=t0, before=t1)
+    classes, raw = encoder.class_targets()
+    steer = teaching.W_TEXT * centre(raw[list(classes).index("mug")], encoder.query_centroid)
+    steer = steer + teaching.W_PROTO * proto
+    steer /= np.linalg.norm(steer)
+    ask = "when was I holding the mug?"
+    for h in memory.search(ask, k=3, senses=["touch"], session="day", group="window"):
+        v = memory.get_item(h.id, vector=True).vector
+        assert h.cosine == pytest.approx(float(v @ steer), abs=1e-4)
+    memory.forget("mug")
     # the taught grasp itself is what the label finds first
     top = memory.search(QUERY, k=1, senses=["touch"], group="window")[0]
     assert top.session == "lesson" and t0 <= top.t <= t1
