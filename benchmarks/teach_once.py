@@ -36,8 +36,6 @@ from pathlib import Path
 
 import numpy as np
 
-from tactus_memory.search.teaching import TEXT_AGREE_TOP
-
 ROOT = Path(__file__).resolve().parents[1]
 #: made-up labels, one per object (in sorted object order): no word of any STAG object
 LABELS = (
@@ -46,10 +44,12 @@ LABELS = (
     "jeck", "lorn", "nuvo", "ploof",
 )  # fmt: skip
 QUESTION = "when was I holding the {}?"
-#: (w_text, w_proto, centre, agree_top) rules scored; the first is the rule before issue 46,
-#: the last the shipped one (the words count only when the prototype agrees with them)
+#: (w_text, w_proto, centre, agree_top) rules scored; the first is the rule before issue 46
+#: (still the default), the last the gate (the words count only when the prototype agrees)
 RULES = ((1.0, 1.0, False, None), (1.0, 1.0, True, None), (0.0, 1.0, False, None))
-RULES += ((0.0, 1.0, True, None), (1.0, 1.0, False, 10), (1.0, 1.0, False, TEXT_AGREE_TOP))
+#: the agreement gate scored last (opt-in ``Teachings.agree_top``; off by default)
+GATE_TOP = 3
+RULES += ((0.0, 1.0, True, None), (1.0, 1.0, False, 10), (1.0, 1.0, False, GATE_TOP))
 BOOTSTRAP = 2000
 
 
@@ -180,7 +180,7 @@ def main() -> None:
         centroid = mem.registry.search_sense("touch").query_centroid
         names, _, raw = mem.teachings.targets("touch")
         protos = mem.teachings.prototypes("touch")
-        mem.teachings.agree_top = TEXT_AGREE_TOP
+        mem.teachings.agree_top = GATE_TOP
         out["words_counted"] = sum(
             mem.teachings.text_agrees(
                 names.index(label[o]), protos[label_key(label[o])][1], raw, centroid

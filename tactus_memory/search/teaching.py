@@ -16,10 +16,9 @@ windows of ``bench`` overlapping ``[12.0, 15.5]`` were a grasp of a drill. From 
   where the text target is the label's phrase embedding centred like every touch query
   (``normalize(t - query_centroid)``) and the prototype is the normalised mean embedding of
   every stored window of the taught spans (centred on the other taught labels' prototypes
-  when :data:`CENTRE_PROTOTYPES` is set: ``normalize(p - mean(others))``). A label that is no
-  trained class counts its words only when the taught grasps agree with them
-  (:data:`TEXT_AGREE_TOP`: its phrase is among the targets nearest its prototype), else
-  ``W_TEXT`` is 0: a made-up label ranks by its prototype alone. For unit
+  when :data:`CENTRE_PROTOTYPES` is set: ``normalize(p - mean(others))``). With
+  :data:`TEXT_AGREE_TOP` set (opt-in), a label that is no trained class counts its words only
+  when its phrase is among the targets nearest its prototype, else ``W_TEXT`` is 0. For unit
   ``z`` that is one cosine with the query vector ``W_TEXT * target + W_PROTO * prototype``
   (normalised), so the ranking goes through the one ranked search path
   (:class:`~tactus_memory.search.ranking.Ranker`) unchanged;
@@ -64,15 +63,16 @@ W_PROTO = 1.0
 #: protocol with made-up labels (``benchmarks/teach_once.py``, demo checkpoint) it kept top-1
 #: at 3 of 26 and moved R@5 from 6 to 9 of 26, inside the noise; the docs' "Objects you teach"
 CENTRE_PROTOTYPES = False
-#: a taught label that is not one of the sense's trained classes counts its words (``W_TEXT``)
-#: only when the taught grasps agree with them: the label's phrase is among the TEXT_AGREE_TOP
-#: targets (trained classes and taught labels, centred) nearest the label's prototype; otherwise
-#: the prototype alone ranks (a made-up word carries no meaning the encoder knows). A trained
-#: class's words always count. None: every label's words count (the rule before issue 46).
-#: Measured (``benchmarks/teach_once.py``, made-up labels, demo checkpoint): R@5 6 -> 11 of 26
-#: (paired +0.19, 95 % bootstrap [0.00, 0.38]), top-1 3 of 26 either way; trained-class labels
-#: (``benchmarks/teach.py``) rank as before
-TEXT_AGREE_TOP: int | None = 3
+#: opt-in (``memory.teachings.agree_top = 3``): a taught label that is not one of the sense's
+#: trained classes counts its words (``W_TEXT``) only when the taught grasps agree with them:
+#: the label's phrase is among that many targets (trained classes and taught labels, centred)
+#: nearest the label's prototype; otherwise the prototype alone ranks. A trained class's words
+#: always count. Off (None: every label's words count), measured both ways: with made-up labels
+#: (``benchmarks/teach_once.py``, demo checkpoint) 3 lifted R@5 from 6 to 11 of 26 (paired
+#: +0.19, 95 % bootstrap [0.00, 0.38]) with top-1 3 of 26 either way, but on a 12x16 sensor's
+#: small model a new word ("kettle", tests/service/test_sensor_serving.py) then found 3 of its
+#: 5 first hits in the taught session where the test asks 4
+TEXT_AGREE_TOP: int | None = None
 #: a query steers toward a taught label only when its cosine to the label's phrase reaches
 #: this (MiniLM: "when was I holding the drill?" vs "a hand holding a drill" ~0.6; an
 #: unrelated question ~0.1-0.25)
