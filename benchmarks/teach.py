@@ -18,7 +18,9 @@ that object's lesson recording (one grasp per object). Questions: the natural ph
 ``touch/training/queries/stream_queries.json`` (none a training template), asked through
 ``memory.search(q, senses=["touch"], session="day")``.
 
-Scores, per configuration (no teaching; the rule with each weight pair; the prototype alone):
+Scores, per configuration (no teaching; the rule with each weight pair, the words counting only
+where the prototype agrees with them, ``TEXT_AGREE_TOP``; the prototype alone; ``words_always``:
+the (1, 1) rule before issue 46, the words always counting):
 
 * ``r@1`` / ``r@5``: the share of questions whose first / any of the first five ``day``
   windows comes from the asked object's recording;
@@ -140,6 +142,9 @@ def main() -> None:
         for w_text, w_proto in WEIGHTS:
             mem.teachings.w_text, mem.teachings.w_proto = w_text, w_proto
             out[f"taught_w{w_text:g}_{w_proto:g}"] = score(mem, day, queries, rec_vecs)
+        # the rule before issue 46: the words always count (no agreement gate)
+        mem.teachings.w_text, mem.teachings.w_proto, mem.teachings.agree_top = 1.0, 1.0, None
+        out["taught_w1_1_words_always"] = score(mem, day, queries, rec_vecs)
         mem.close()
     out["wall_s"] = round(time.perf_counter() - started, 1)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -12,10 +12,14 @@ Each object's lesson recording is taught with ``memory.teach(<label>, session="l
 after=a, before=b)`` under a made-up label (:data:`LABELS`: nonsense words, so the words give
 no help), then ``"when was I holding the <label>?"`` is asked over ``day``
 (``memory.search(q, k=5, senses=["touch"], session="day")``). Per rule of
-:class:`~tactus_memory.search.teaching.Teachings` (``w_text``, ``w_proto``, ``centre``):
+:class:`~tactus_memory.search.teaching.Teachings` (``w_text``, ``w_proto``, ``centre``,
+``agree_top``: the words count only when the label's phrase is among that many targets nearest
+its prototype):
 
 * ``top1``: the share of the 26 labels whose first hit comes from the object's day recording;
-* ``r5``: one of the first five does (95 % Wilson intervals over the 26 labels).
+* ``r5``: one of the first five does (95 % Wilson intervals over the 26 labels);
+* ``*_minus_before``: the paired difference per object against the rule before issue 46 (the
+  first of :data:`RULES`), 95 % bootstrap interval over the 26 objects.
 
 ``assignment``: each day recording's mean window embedding assigned to its nearest taught
 prototype (no text), the share right; ``knn``: labels ranked by the best cosine of a day
@@ -40,9 +44,21 @@ LABELS = (
     "jeck", "lorn", "nuvo", "ploof",
 )  # fmt: skip
 QUESTION = "when was I holding the {}?"
-#: (w_text, w_proto, centre) rules scored; (1, 1, False) is the rule before issue 46
-RULES = ((1.0, 1.0, False), (1.0, 1.0, True), (0.0, 1.0, False), (0.0, 1.0, True))
-RULES += ((0.5, 1.0, True),)
+#: (w_text, w_proto, centre, agree_top) rules scored; the first is the rule before issue 46
+#: (still the default), the last the gate (the words count only when the prototype agrees)
+RULES = ((1.0, 1.0, False, None), (1.0, 1.0, True, None), (0.0, 1.0, False, None))
+#: the agreement gate scored last (opt-in ``Teachings.agree_top``; off by default)
+GATE_TOP = 3
+RULES += ((0.0, 1.0, True, None), (1.0, 1.0, False, 10), (1.0, 1.0, False, GATE_TOP))
+BOOTSTRAP = 2000
+
+
+def paired(x: np.ndarray, base: np.ndarray) -> dict[str, float]:
+    """Mean paired difference x - base over objects (n,), 95 % bootstrap interval."""
+    d = x.astype(float) - base.astype(float)
+    means = d[np.random.default_rng(0).integers(0, len(d), (BOOTSTRAP, len(d)))].mean(axis=1)
+    lo, hi = np.quantile(means, [0.025, 0.975])
+    return {"value": float(d.mean()), "lo": float(lo), "hi": float(hi), "n": len(d)}
 
 
 def wilson(k: int, n: int) -> dict[str, float]:
@@ -50,6 +66,34 @@ def wilson(k: int, n: int) -> dict[str, float]:
 
     ci = binomtest(k, n).proportion_ci(method="wilson")
     return {"value": k / n, "k": k, "n": n, "lo": float(ci.low), "hi": float(ci.high)}
+
+
+def trunk_retrieval(enc, lesson, day, objects: list[str]) -> dict[str, dict[str, float]]:
+    """Not a search path: the checkpoint's pooled trunk features (before its projection into
+    the text space), centred on the mean of both sessions' windows; each object's lesson
+    prototype ranks the day recordings (their mean feature): top-1 and R@5 over 26 labels.
+    What a head for same-object retrieval could start from."""
+    import torch
+
+    feats, objs = [], []
+    for s in (lesson, day):
+        keep = np.flatnonzero(~s.idle)
+        wins = torch.as_tensor(enc._windows(list(s.frames[keep]), None))  # (W, K, 32, 32)
+        with torch.inference_mode():
+            feats.append(enc.model.features(wins).float().numpy())  # (W, C)
+        objs.append(np.array(s.obj)[keep])
+    centre = np.concatenate(feats).mean(axis=0)
+
+    def unit_means(f: np.ndarray, o: np.ndarray) -> np.ndarray:
+        m = np.stack([(f[o == obj] - centre).mean(axis=0) for obj in objects])
+        return m / np.linalg.norm(m, axis=1, keepdims=True)
+
+    sims = unit_means(feats[0], objs[0]) @ unit_means(feats[1], objs[1]).T  # (labels, day recs)
+    ranks = np.argsort(-sims, axis=1)
+    n = len(objects)
+    top1 = int((ranks[:, 0] == np.arange(n)).sum())
+    r5 = int(sum(i in ranks[i, :5] for i in range(n)))
+    return {"top1": wilson(top1, n), "r5": wilson(r5, n)}
 
 
 def main() -> None:
@@ -62,6 +106,7 @@ def main() -> None:
     from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.datasets.home import data_home
     from tactus_memory.memory.main import Memory
+    from tactus_memory.results import label_key
     from tactus_memory.touch.checkpoint import demo_checkpoint_path, heldout_recordings
     from tactus_memory.training import stream_eval
     from tactus_memory.training.data import load_stag
@@ -112,18 +157,36 @@ def main() -> None:
         for rec, (a, b) in lesson.spans.items():
             mem.teach(label[lesson.rec_object[rec]], session="lesson", after=a, before=b)
         rules = {}
-        for w_text, w_proto, centre in RULES:
+        base: tuple[np.ndarray, np.ndarray] | None = None
+        for w_text, w_proto, centre, agree in RULES:
             t = mem.teachings
-            t.w_text, t.w_proto, t.centre = w_text, w_proto, centre
-            top1 = r5 = 0
-            for obj in objects:
+            t.w_text, t.w_proto, t.centre, t.agree_top = w_text, w_proto, centre, agree
+            hit1, hit5 = np.zeros(len(objects), bool), np.zeros(len(objects), bool)
+            for i, obj in enumerate(objects):
                 hits = mem.search(QUESTION.format(label[obj]), k=5, senses=["touch"], session="day")
                 got = [h.meta["object"] for h in hits]
-                top1 += bool(got) and got[0] == obj
-                r5 += obj in got
-            key = f"w_text={w_text:g},w_proto={w_proto:g},centre={centre}"
-            rules[key] = {"top1": wilson(top1, len(objects)), "r5": wilson(r5, len(objects))}
-            print(key, top1, r5, flush=True)
+                hit1[i] = bool(got) and got[0] == obj
+                hit5[i] = obj in got
+            key = f"w_text={w_text:g},w_proto={w_proto:g},centre={centre},agree_top={agree}"
+            base = base or (hit1, hit5)
+            rules[key] = {
+                "top1": wilson(int(hit1.sum()), len(objects)),
+                "r5": wilson(int(hit5.sum()), len(objects)),
+                "top1_minus_before": paired(hit1, base[0]),
+                "r5_minus_before": paired(hit5, base[1]),
+            }
+            print(key, int(hit1.sum()), int(hit5.sum()), flush=True)
+        # how often the shipped rule let a made-up label's words count
+        centroid = mem.registry.search_sense("touch").query_centroid
+        names, _, raw = mem.teachings.targets("touch")
+        protos = mem.teachings.prototypes("touch")
+        mem.teachings.agree_top = GATE_TOP
+        out["words_counted"] = sum(
+            mem.teachings.text_agrees(
+                names.index(label[o]), protos[label_key(label[o])][1], raw, centroid
+            )
+            for o in objects
+        )
         out["search"] = rules
         mem.close()
     # offline: prototypes from the stored vectors (the rule's own prototypes, before mixing)
@@ -148,6 +211,7 @@ def main() -> None:
         top1 += order[0] == obj
         r5 += obj in order
     out["knn"] = {"top1": wilson(top1, n), "r5": wilson(r5, n)}
+    out["trunk_features"] = trunk_retrieval(enc, lesson, day, objects)
     out["wall_s"] = round(time.perf_counter() - started, 1)
     Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
     print(json.dumps({k: out[k] for k in ("search", "assignment", "knn")}, indent=1))

@@ -24,14 +24,10 @@ Computed at query time from the stored windows, not stored: no write-path change
 change, a new rule or checkpoint applies to old data at once; the cost is one scan for every
 neighbourhood of a question together (a second, narrower one while a grasp reaches an edge).
 
-Defaults: ``max_gap`` 0.5 s: one dropped idle window between two kept ones leaves a hole of
-one frame (0.14 s on the STAG glove's ~7.4 Hz, 0.03 s at 30 Hz), two or more (a release of
-about a second at 7.4 Hz) leave 0.68 s or more; well under the 2 s occurrence merge gap.
-``min_cos`` 0.2: consecutive windows of one recording have a median cosine of 0.87-0.96 with
-the shipped checkpoint (10th percentile 0.20-0.57 while the hand moves), valid grasps of
-different objects a median of -0.41-0.15 (:mod:`tactus_memory.temporal.episodes`), so 0.2 cuts most
-object changes and rarely a grasp. Not tuned beyond these figures; ``tactus eval --stream
---group grasp`` measures the result.
+The rule (where a hold starts and ends) lives in :mod:`tactus_memory.search.holds`, with its
+measured defaults (``max_gap`` 1.0 s, ``min_cos`` 0.2: one grasp per hold on the protocol's
+held-out glove day, ``benchmarks/grasp_holds.py``); ``tactus eval --stream --group grasp``
+measures the result.
 
 Scores: a grasp's pooled vector is scored with its sense's calibration (estimated on single
 stored windows). Pooling averages noise away, so pooled scores run higher than window scores
@@ -50,6 +46,7 @@ import numpy as np
 
 from tactus_memory.errors import InvalidInputError
 from tactus_memory.results import Evidence, Grasp, Hit
+from tactus_memory.search.holds import HOLD_MAX_GAP, HOLD_MIN_COS, HoldRule, hold_labels
 from tactus_memory.vectors import vector_column
 from tactus_memory.where import Where, finite_float
 
@@ -57,10 +54,11 @@ if TYPE_CHECKING:
     from tactus_memory.search.ranking import Ranker
     from tactus_memory.storage.store import Store
 
-#: a hole longer than this (seconds) between a stream's items ends a grasp (contact offset)
-GRASP_MAX_GAP = 0.5
+#: a hole longer than this (seconds) between a stream's items ends a grasp (a release: the
+#: cutting rule's, :data:`tactus_memory.search.holds.HOLD_MAX_GAP`)
+GRASP_MAX_GAP = HOLD_MAX_GAP
 #: consecutive items whose cosine is below this are in different grasps (change point)
-GRASP_MIN_COS = 0.2
+GRASP_MIN_COS = HOLD_MIN_COS
 #: seconds read on each side of a candidate to find its grasp (widened while needed)
 GRASP_READ_S = 30.0
 #: the widest neighbourhood read around candidates; a longer grasp is cut at its edges
@@ -149,26 +147,11 @@ def windows_group(windows: bool) -> str:
 def grasp_labels(
     t: np.ndarray, t_end: np.ndarray, vectors: np.ndarray, rule: GraspRule = GraspRule()
 ) -> np.ndarray:
-    """Grasp labels 0, 1, ... for N items of one stream sorted by ``(t, id)``.
+    """Grasp labels 0, 1, ... for N items of one stream sorted by ``(t, id)``: one grasp per
+    hold (:func:`tactus_memory.search.holds.hold_labels`, the cutting rule).
 
     t, t_end: (N,) seconds; vectors: (N, D) unit rows. Returns (N,) int64, non-decreasing."""
-    n = len(t)
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
-    t = np.asarray(t, dtype=np.float64)
-    ends = np.asarray(t_end, dtype=np.float64)
-    v = np.asarray(vectors, dtype=np.float32)
-    jump = np.r_[False, np.einsum("ij,ij->i", v[1:], v[:-1]) < rule.min_cos]
-    labels = np.zeros(n, dtype=np.int64)
-    label, latest = 0, ends[0]
-    for i in range(1, n):  # the gap rule needs the run's running max end
-        if jump[i] or t[i] - latest > rule.max_gap:
-            label += 1
-            latest = ends[i]
-        else:
-            latest = max(latest, ends[i])
-        labels[i] = label
-    return labels
+    return hold_labels(t, t_end, vectors, HoldRule(rule.max_gap, rule.min_cos))
 
 
 def pooled(vectors: np.ndarray) -> np.ndarray:

@@ -16,7 +16,9 @@ windows of ``bench`` overlapping ``[12.0, 15.5]`` were a grasp of a drill. From 
   where the text target is the label's phrase embedding centred like every touch query
   (``normalize(t - query_centroid)``) and the prototype is the normalised mean embedding of
   every stored window of the taught spans (centred on the other taught labels' prototypes
-  when :data:`CENTRE_PROTOTYPES` is set: ``normalize(p - mean(others))``). For unit
+  when :data:`CENTRE_PROTOTYPES` is set: ``normalize(p - mean(others))``). With
+  :data:`TEXT_AGREE_TOP` set (opt-in), a label that is no trained class counts its words only
+  when its phrase is among the targets nearest its prototype, else ``W_TEXT`` is 0. For unit
   ``z`` that is one cosine with the query vector ``W_TEXT * target + W_PROTO * prototype``
   (normalised), so the ranking goes through the one ranked search path
   (:class:`~tactus_memory.search.ranking.Ranker`) unchanged;
@@ -62,6 +64,16 @@ W_PROTO = 1.0
 #: protocol with made-up labels (``benchmarks/teach_once.py``, demo checkpoint) it kept top-1
 #: at 3 of 26 and moved R@5 from 6 to 9 of 26, inside the noise; the docs' "Objects you teach"
 CENTRE_PROTOTYPES = False
+#: opt-in (``memory.teachings.agree_top = 3``): a taught label that is not one of the sense's
+#: trained classes counts its words (``W_TEXT``) only when the taught grasps agree with them:
+#: the label's phrase is among that many targets (trained classes and taught labels, centred)
+#: nearest the label's prototype; otherwise the prototype alone ranks. A trained class's words
+#: always count. Off (None: every label's words count), measured both ways: with made-up labels
+#: (``benchmarks/teach_once.py``, demo checkpoint) 3 lifted R@5 from 6 to 11 of 26 (paired
+#: +0.19, 95 % bootstrap [0.00, 0.38]) with top-1 3 of 26 either way, but on a 12x16 sensor's
+#: small model a new word ("kettle", tests/service/test_sensor_serving.py) then found 3 of its
+#: 5 first hits in the taught session where the test asks 4
+TEXT_AGREE_TOP: int | None = None
 #: a query steers toward a taught label only when its cosine to the label's phrase reaches
 #: this (MiniLM: "when was I holding the drill?" vs "a hand holding a drill" ~0.6; an
 #: unrelated question ~0.1-0.25)
@@ -107,6 +119,7 @@ class Teachings:
         #: the rule's weights and bar (module defaults; the benchmark sweeps them)
         self.w_text, self.w_proto, self.min_cos = W_TEXT, W_PROTO, MIN_LABEL_COS
         self.centre = CENTRE_PROTOTYPES
+        self.agree_top = TEXT_AGREE_TOP
 
     # ----------------------------------------------------------- records
     def teach(self, label: str, *, session: str, **span: Unpack[TeachSpan]) -> Teaching:
@@ -277,7 +290,7 @@ class Teachings:
         protos = self.prototypes(sense)
         if not protos:
             return transformed
-        names, _, raw = self.targets(sense)
+        names, kinds, raw = self.targets(sense)
         cos = raw @ np.asarray(q, np.float32).reshape(-1)
         j = int(np.argmax(cos))
         key = label_key(names[j])
@@ -289,8 +302,23 @@ class Teachings:
         others = [p for k, (_, p) in protos.items() if k != key]
         if self.centre and others:
             proto = _unit(proto - np.mean(others, axis=0))
-        mixed = self.w_text * _unit(target) + self.w_proto * proto
+        # a trained class's words carry what the encoder was trained on; a new word's only
+        # what the taught grasps agree with
+        agrees = kinds[j] == "class" or self.text_agrees(j, protos[key][1], raw, centroid)
+        w_text = self.w_text if agrees else 0.0
+        mixed = w_text * _unit(target) + self.w_proto * proto
         return _unit(mixed).reshape(1, -1)
+
+    def text_agrees(
+        self, j: int, proto: np.ndarray, raw: np.ndarray, centroid: np.ndarray | None
+    ) -> bool:
+        """Whether target ``j``'s phrase is among the :data:`TEXT_AGREE_TOP` targets (raw (C, D)
+        phrase embeddings, centred like a query) nearest the label's (D,) prototype."""
+        if self.agree_top is None:
+            return True
+        c = raw if centroid is None else raw - np.asarray(centroid, np.float32)
+        cos = (c / np.maximum(np.linalg.norm(c, axis=1, keepdims=True), 1e-12)) @ proto
+        return bool((cos > cos[j]).sum() < self.agree_top)
 
 
 def _unit(x: np.ndarray) -> np.ndarray:

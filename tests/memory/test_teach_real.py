@@ -28,6 +28,7 @@ from tests.helpers.servers import Server
 pytestmark = pytest.mark.slow
 
 QUERY = "when was I holding the drill?"
+GATE = 3  # the opt-in agreement gate (Teachings.agree_top) checked beside the default
 TOKEN = "t3ach"
 
 
@@ -87,19 +88,39 @@ def test_teaching_steers_queries_by_label_and_prototype(memory, minilm_space, en
     assert info["touch"].taught == ["drill"] and len(info["touch"].classes) == 27
     assert info["text"].taught == [] and info["text"].classes == []
 
-    # the rule: normalize(W_TEXT * centred label phrase + W_PROTO * mean taught embedding)
+    # the rule: normalize(W_TEXT * centred label phrase + W_PROTO * mean taught embedding),
+    # with the opt-in gate the words count only when the label's phrase is among the GATE
+    # targets (trained classes and the label, centred) nearest the prototype
     lesson = [memory.get_item(h.id, vector=True).vector for h in
               memory.timeline("lesson", senses=["touch"], limit=1000)]  # fmt: skip
     proto = np.mean(lesson, axis=0)
     proto /= np.linalg.norm(proto)
     phrase = minilm_space.embed_texts(class_phrases("drill"), query=False).mean(axis=0)
-    target = centre(phrase / np.linalg.norm(phrase), encoder.query_centroid)
-    steer = teaching.W_TEXT * target + teaching.W_PROTO * proto
+    phrase /= np.linalg.norm(phrase)
+    target = centre(phrase, encoder.query_centroid)
+    every = centre(np.vstack([encoder.class_targets()[1], phrase]), encoder.query_centroid)
+    agrees = int((every @ proto > every[-1] @ proto).sum()) < GATE
+    for agree_top, w_text in ((GATE, agrees), (None, 1.0)):
+        memory.teachings.agree_top = agree_top  # None: the words always count (the default)
+        steer = w_text * teaching.W_TEXT * target + teaching.W_PROTO * proto
+        steer /= np.linalg.norm(steer)
+        after = memory.search(QUERY, k=5, senses=["touch"], session="day", group="window")
+        for h in after:
+            v = memory.get_item(h.id, vector=True).vector
+            assert h.cosine == pytest.approx(float(v @ steer), abs=1e-4), agree_top
+    # a label that is a trained class: its words always count (the class's own target)
+    memory.teachings.agree_top = GATE
+    memory.teach("mug", session="lesson", after=t0, before=t1)
+    classes, raw = encoder.class_targets()
+    steer = teaching.W_TEXT * centre(raw[list(classes).index("mug")], encoder.query_centroid)
+    steer = steer + teaching.W_PROTO * proto
     steer /= np.linalg.norm(steer)
-    after = memory.search(QUERY, k=5, senses=["touch"], session="day", group="window")
-    for h in after:
+    ask = "when was I holding the mug?"
+    for h in memory.search(ask, k=3, senses=["touch"], session="day", group="window"):
         v = memory.get_item(h.id, vector=True).vector
         assert h.cosine == pytest.approx(float(v @ steer), abs=1e-4)
+    memory.forget("mug")
+    memory.teachings.agree_top = teaching.TEXT_AGREE_TOP
     # the taught grasp itself is what the label finds first
     top = memory.search(QUERY, k=1, senses=["touch"], group="window")[0]
     assert top.session == "lesson" and t0 <= top.t <= t1
