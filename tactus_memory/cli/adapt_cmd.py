@@ -36,7 +36,9 @@ def adapt_cmd(
     anchor: Annotated[
         float, typer.Option("--anchor", help="pull towards the base projector (L2-SP)")
     ] = 0.05,
-    sense: Annotated[str, typer.Option("--sense", help="with a memory: the taught sense")] = "touch",
+    sense: Annotated[
+        str, typer.Option("--sense", help="with a memory: the taught sense")
+    ] = "touch",
     seed: Seed = 0,
     threads: Threads = 2,
     resume: Resume = False,

@@ -210,7 +210,9 @@ def adapt(
         bar.set_postfix(loss=f"{loss_v:.3f}")
         bar.update(1)
         if step % cfg.save_every == 0 or step == cfg.steps:
-            save_resume(state, module=head, opt=opt, gen=gen, step=step, history=history, key="proj")
+            save_resume(
+                state, module=head, opt=opt, gen=gen, step=step, history=history, key="proj"
+            )
     bar.close()
     head.eval()
     after = _top1(head, feats[0], tgt, y_win)

@@ -113,18 +113,19 @@ def is_memory_folder(path: Path) -> bool:
 
 
 def grasps_from_memory(
-    path: Path, k: int, shape: tuple[int, int], sense: str = "touch"
+    path: Path, k: int, shape: tuple[int, ...], sense: str = "touch", space: Any = None
 ) -> tuple[Grasps, Any]:
     """Every teaching of ``sense`` in the memory at ``path`` -> (its stored windows as
-    :class:`Grasps`, the memory's space). Raises InvalidInputError when nothing is taught or
-    the windows are not ``shape`` frames (a memory of another sensor)."""
+    :class:`Grasps`, the memory's space). ``space``: the memory's, already loaded (default:
+    the one the store records). Raises InvalidInputError when nothing is taught or the
+    windows are not ``shape`` frames (a memory of another sensor)."""
     from tactus_memory.memory.main import Memory
     from tactus_memory.senses.base import bytes_to_array
     from tactus_memory.where import Where
 
     if not is_memory_folder(path):
         raise InvalidInputError(f"{path} is not a memory (no {path}/items.lance)")
-    mem = Memory.open(str(path), background=False)
+    mem = Memory.open(str(path), space=space, background=False)
     try:
         taught = mem.teachings.taught(sense)
         if not taught:
