@@ -103,6 +103,9 @@ def novel_split(base_path: Path, stag: Path) -> dict[str, Any]:
     from tactus_memory.training.adapt_data import grasps_from_memory
     from tactus_memory.training.data import load_stag
 
+    from tactus_memory.spaces.minilm import MiniLMSpace
+
+    space = MiniLMSpace()  # loaded once, the memories' space
     data = load_stag(stag / "blindfolded_lite_train")
     base = load_checkpoint(base_path)
     held = set(heldout_recordings(base.meta))
@@ -125,7 +128,7 @@ def novel_split(base_path: Path, stag: Path) -> dict[str, Any]:
         day = stream_eval.build_stream(data, day_recs)
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "m"
-            mem = Memory.open(str(path), background=False)
+            mem = Memory.open(str(path), space=space, background=False)
             mem.add_sense(TactusEncoder(base_path))
             add_stream(mem, "lesson", lesson)
             add_stream(mem, "day", day)
@@ -133,13 +136,13 @@ def novel_split(base_path: Path, stag: Path) -> dict[str, Any]:
                 mem.teach(labels[lesson.rec_object[rec]], session="lesson", after=a, before=b)
             teach = ask(mem, labels, list(NOVEL))
             mem.close()
-            grasps, space = grasps_from_memory(path, base.model.cfg.frames, (32, 32))
+            grasps, _ = grasps_from_memory(path, base.model.cfg.frames, (32, 32), space=space)
             started = time.perf_counter()
             summary = adapt(base, grasps, space, Path(tmp) / "a.safetensors", AdaptConfig(),
                             progress=False)  # fmt: skip
             summary["wall_s"] = round(time.perf_counter() - started, 2)
             adapt_runs.append({"direction": direction, **summary})
-            mem = Memory.open(str(path), background=False)
+            mem = Memory.open(str(path), space=space, background=False)
             mem.reembed("touch", TactusEncoder(Path(tmp) / "a.safetensors"))
             adapted = ask(mem, labels, list(NOVEL))
             for label in labels.values():

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.errors import DataFormatError, InvalidInputError
+from tactus_memory.errors import DataFormatError, InvalidInputError, TactusError
 
 #: windows are cut every K // STRIDE_DIVISOR frames (half-overlapping, as the stream windows)
 STRIDE_DIVISOR = 2
@@ -125,7 +125,12 @@ def grasps_from_memory(
 
     if not is_memory_folder(path):
         raise InvalidInputError(f"{path} is not a memory (no {path}/items.lance)")
-    mem = Memory.open(str(path), space=space, background=False)
+    try:
+        mem = Memory.open(str(path), space=space, background=False)
+    except TactusError:
+        raise
+    except (ValueError, OSError) as exc:  # a folder that only looks like a memory
+        raise InvalidInputError(f"{path}: not a readable memory: {exc}") from exc
     try:
         taught = mem.teachings.taught(sense)
         if not taught:

@@ -71,8 +71,10 @@ def question_precision(checkpoint: Path, npz: Path, space) -> float:
 
 
 def test_adapt_into_a_new_folder_resumes_and_ranks_the_taught_objects_better(
-    base, grasps_npz, tmp_path, minilm_space
+    base, grasps_npz, tmp_path, minilm_space, monkeypatch
 ) -> None:
+    # the command's space is the real MiniLM: the one this session loaded, not a second copy
+    monkeypatch.setattr("tactus_memory.cli.adapt_cmd.resolve_or_exit", lambda *a: minilm_space)
     out = tmp_path / "runs" / "new" / "adapted.safetensors"
     assert not out.parent.exists()
     args = ["adapt", "--data", str(grasps_npz), "--base", str(base), "--out", str(out)]
@@ -98,6 +100,9 @@ def test_adapt_into_a_new_folder_resumes_and_ranks_the_taught_objects_better(
 def test_adapt_trains_on_what_a_memory_was_taught(base, grasps_npz, tmp_path, minilm_space):
     from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.memory.main import Memory
+    from tactus_memory.touch.checkpoint import load_checkpoint
+    from tactus_memory.training.adapt import AdaptConfig, adapt
+    from tactus_memory.training.adapt_data import grasps_from_memory
     from tactus_memory.training.npz_io import load_npz
 
     data = load_npz(grasps_npz)
@@ -118,13 +123,15 @@ def test_adapt_trains_on_what_a_memory_was_taught(base, grasps_npz, tmp_path, mi
     for name in taught:
         mem.teach(name.split("-")[0], session="bench", after=spans[name][0], before=spans[name][1])
     mem.close()
+    grasps, space = grasps_from_memory(path, 8, (32, 32), space=minilm_space)
+    assert grasps.classes == ["sponge", "drill", "ladle"] and grasps.source == str(path)
+    assert len(np.unique(grasps.grasp)) == 3
+    assert len(grasps.windows) == 12  # the 4 stored windows of each of the 3 taught grasps
     out = tmp_path / "a" / "taught.safetensors"
-    args = ["adapt", "--data", str(path), "--base", str(base), "--out", str(out)]
-    s = _last_json(_run([*args, "--steps", "60", "--copies", "2", "--lr", "1e-2"]))
-    assert s["grasps"]["source"] == str(path) and s["grasps"]["grasps"] == 3
-    assert s["grasps"]["labels"] == ["sponge", "drill", "ladle"]
-    assert s["grasps"]["windows"] >= 12  # every stored window of the three taught spans
+    cfg = AdaptConfig(steps=60, copies=2, lr=1e-2)
+    s = adapt(load_checkpoint(base), grasps, space, out, cfg, progress=False)
     assert s["own_windows_top1"]["after"] > s["own_windows_top1"]["before"]
+    assert out.is_file()
 
 
 def test_adapt_errors_are_one_line(base, tmp_path) -> None:
@@ -137,4 +144,5 @@ def test_adapt_errors_are_one_line(base, tmp_path) -> None:
         app, ["adapt", "--data", str(empty), "--base", str(base), "--out", str(out)]
     )
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and str(empty) in r.output, r.output
     assert not out.exists()
