@@ -33,7 +33,8 @@ and 95 % t-interval, and how many units went up / down.
 grasps: the 10 ``weights_lite`` recordings with the most labelled frames, each one's labelled
 frames cut into 3 consecutive grasps (written at run time to a temporary .npz; no STAG slice is
 kept), the shipped encoder as base; wall time of the command (imports, MiniLM, features,
-steps, writing), with the machine's load average beside it.
+steps, writing) and its CPU time (user + system, all threads), with the machine's load
+average beside it (on a shared machine the wall time is mostly waiting for a core).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -59,6 +61,8 @@ NOVEL = ("allen_key_set", "bracket", "clip", "gel", "multimeter", "screw_driver"
 #: hits asked for (a reciprocal rank past this counts 0)
 K = 20
 TIMING_OBJECTS, TIMING_GRASPS = 10, 3
+#: what adapt trains, each measured (``AdaptConfig.tune``)
+TUNES = ("projector", "fusion")
 
 
 def t_interval(x: list[float]) -> dict[str, float]:
@@ -97,13 +101,12 @@ def add_stream(mem: Any, name: str, s: Any) -> None:
 def novel_split(base_path: Path, stag: Path) -> dict[str, Any]:
     from tactus_memory.adapters.touch import TactusEncoder
     from tactus_memory.memory.main import Memory
+    from tactus_memory.spaces.minilm import MiniLMSpace
     from tactus_memory.touch.checkpoint import heldout_recordings, load_checkpoint
     from tactus_memory.training import stream_eval
     from tactus_memory.training.adapt import AdaptConfig, adapt
     from tactus_memory.training.adapt_data import grasps_from_memory
     from tactus_memory.training.data import load_stag
-
-    from tactus_memory.spaces.minilm import MiniLMSpace
 
     space = MiniLMSpace()  # loaded once, the memories' space
     data = load_stag(stag / "blindfolded_lite_train")
@@ -137,29 +140,32 @@ def novel_split(base_path: Path, stag: Path) -> dict[str, Any]:
             teach = ask(mem, labels, list(NOVEL))
             mem.close()
             grasps, _ = grasps_from_memory(path, base.model.cfg.frames, (32, 32), space=space)
-            started = time.perf_counter()
-            summary = adapt(base, grasps, space, Path(tmp) / "a.safetensors", AdaptConfig(),
-                            progress=False)  # fmt: skip
-            summary["wall_s"] = round(time.perf_counter() - started, 2)
-            adapt_runs.append({"direction": direction, **summary})
+            variants: dict[str, dict[str, Any]] = {}
             mem = Memory.open(str(path), space=space, background=False)
-            mem.reembed("touch", TactusEncoder(Path(tmp) / "a.safetensors"))
-            adapted = ask(mem, labels, list(NOVEL))
-            for label in labels.values():
-                mem.teachings.forget(label)
-            untaught = ask(mem, labels, list(NOVEL))
+            for tune in TUNES:
+                ck = Path(tmp) / f"{tune}.safetensors"
+                started = time.perf_counter()
+                summary = adapt(base, grasps, space, ck, AdaptConfig(tune=tune), progress=False)
+                summary["wall_s"] = round(time.perf_counter() - started, 2)
+                adapt_runs.append({"direction": direction, "tune": tune, **summary})
+                mem.reembed("touch", TactusEncoder(ck))
+                variants[f"adapt_{tune}_teach"] = ask(mem, labels, list(NOVEL))
+                for label in labels.values():
+                    mem.teachings.forget(label)
+                variants[f"adapt_{tune}_untaught"] = ask(mem, labels, list(NOVEL))
+                for rec, (a, b) in lesson.spans.items():
+                    mem.teach(labels[lesson.rec_object[rec]], session="lesson", after=a, before=b)
             mem.close()
         for o in NOVEL:
             units.append({
                 "object": o, "direction": direction, "label": labels[o],
                 "lesson": data.recordings[sorted(by_obj[o])[direction]],
                 "day": data.recordings[sorted(by_obj[o])[1 - direction]],
-                "teach": teach[o], "adapt_teach": adapted[o], "adapt_untaught": untaught[o],
+                "teach": teach[o], **{arm: v[o] for arm, v in variants.items()},
             })  # fmt: skip
-        print(
-            direction, {k: np.mean([u[k]["top1"] for u in units]) for k in ("teach", "adapt_teach")}
-        )
-    arms = ("teach", "adapt_teach", "adapt_untaught")
+        arms_here = [k for k, v in units[-1].items() if isinstance(v, dict)]
+        print(direction, {k: np.mean([u[k]["top1"] for u in units]) for k in arms_here})
+    arms = ["teach"] + [f"adapt_{t}_{w}" for t in TUNES for w in ("teach", "untaught")]
     metrics = ("top1", "r5", "rr")
     out: dict[str, Any] = {
         "novel_objects": list(NOVEL),
@@ -167,12 +173,11 @@ def novel_split(base_path: Path, stag: Path) -> dict[str, Any]:
         "distractor_objects": others,
         "units": len(units),
         "arms": {a: {m: t_interval([u[a][m] for u in units]) for m in metrics} for a in arms},
-        "paired_adapt_teach_minus_teach": {},
-        "paired_adapt_untaught_minus_teach": {},
+        **{f"paired_{arm}_minus_teach": {} for arm in arms[1:]},
         "per_unit": units,
         "adapt_runs": adapt_runs,
     }
-    for arm in ("adapt_teach", "adapt_untaught"):
+    for arm in arms[1:]:
         for m in metrics:
             d = [u[arm][m] - u["teach"][m] for u in units]
             row = t_interval(d)
@@ -206,9 +211,12 @@ def timing(stag: Path) -> dict[str, Any]:
         cmd = [sys.executable, "-c", cli, "adapt", "--data", str(npz), "--out", str(out)]
         cmd += ["--threads", "2"]
         load_before = os.getloadavg()
+        cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
         started = time.perf_counter()
         done = subprocess.run(cmd, capture_output=True, text=True, check=True)
         wall = time.perf_counter() - started
+        cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = sum(getattr(cpu_after, f) - getattr(cpu_before, f) for f in ("ru_utime", "ru_stime"))
         summary = json.loads(done.stdout)
     return {
         "command": "tactus adapt --data grasps.npz --out runs/adapted.safetensors --threads 2",
@@ -217,6 +225,7 @@ def timing(stag: Path) -> dict[str, Any]:
         "frames": len(label),
         "windows": summary["grasps"]["windows"],
         "wall_s": round(wall, 1),
+        "cpu_s": round(cpu, 1),
         "feature_s": summary["feature_s"],
         "train_s": summary["train_s"],
         "steps": summary["steps"],
@@ -233,7 +242,9 @@ def main() -> None:
     ap.add_argument("--base-command", default="", help="how the base was trained (recorded)")
     ap.add_argument("--stag", help="STAG folder (default: the data home's stag/)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/adapt.json"))
-    ap.add_argument("--skip-timing", action="store_true")
+    ap.add_argument(
+        "--skip-timing", action="store_true", help="keep the timing of the --out file there"
+    )
     args = ap.parse_args()
     from tactus_memory.datasets.home import data_home
     from tactus_memory.touch.checkpoint import read_metadata
@@ -260,6 +271,8 @@ def main() -> None:
     result["novel"]["wall_s"] = round(time.perf_counter() - started, 1)
     if not args.skip_timing:
         result["timing_10x3"] = timing(stag)
+    elif Path(args.out).is_file():
+        result["timing_10x3"] = json.loads(Path(args.out).read_text()).get("timing_10x3")
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     keys = [k for k in result["novel"] if k.startswith(("arms", "paired"))]
     print(json.dumps({k: result["novel"][k] for k in keys}, indent=1))

@@ -28,7 +28,7 @@ Base = Annotated[
 def adapt_cmd(
     out: CheckpointOut,
     base: Base = None,
-    steps: Annotated[int, typer.Option("--steps", help="projector steps")] = 300,
+    steps: Annotated[int, typer.Option("--steps", help="steps on the cached features")] = 300,
     lr: Annotated[float, typer.Option("--lr")] = 1e-3,
     copies: Annotated[
         int, typer.Option("--copies", help="feature rows per window (1 + augmented copies)")
@@ -36,6 +36,9 @@ def adapt_cmd(
     anchor: Annotated[
         float, typer.Option("--anchor", help="pull towards the base projector (L2-SP)")
     ] = 0.05,
+    tune: Annotated[
+        str, typer.Option("--tune", help="what trains: projector | fusion (+ the frame fusion)")
+    ] = "projector",
     sense: Annotated[
         str, typer.Option("--sense", help="with a memory: the taught sense")
     ] = "touch",
@@ -50,9 +53,11 @@ def adapt_cmd(
 ) -> None:
     """Fine-tune a touch checkpoint on a few labelled grasps: --data FILE.npz (or --bag with
     --labels), or --data MEMORY_FOLDER to train on the grasps taught there (tactus teach).
-    The backbone is frozen and its features cached once; only the projector trains. Then
+    The trunk is frozen and its output cached once; the projector trains (--tune fusion:
+    the frame fusion too). The sensor profile is the base checkpoint's. Then
     `tactus reembed --checkpoint OUT` puts a memory's touch on the adapted encoder."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    from tactus_memory.errors import InvalidInputError
     from tactus_memory.touch.checkpoint import default_checkpoint_path, load_checkpoint
     from tactus_memory.touch.profile import SensorProfile
     from tactus_memory.training.adapt import AdaptConfig, adapt
@@ -62,7 +67,10 @@ def adapt_cmd(
         is_memory_folder,
     )
 
-    cfg = AdaptConfig(steps=steps, lr=lr, copies=copies, anchor=anchor, seed=seed)
+    try:
+        cfg = AdaptConfig(steps=steps, lr=lr, copies=copies, anchor=anchor, seed=seed, tune=tune)
+    except InvalidInputError as exc:
+        raise typer.BadParameter(str(exc)) from exc
     path = base or default_checkpoint_path()
     if not path.is_file():
         fail(f"--base: no such checkpoint: {path}")

@@ -55,6 +55,36 @@ log = logging.getLogger(__name__)
 
 #: windows per forward pass when the features are cached
 FEATURE_BATCH = 256
+#: what ``AdaptConfig.tune`` may train
+TUNE = ("projector", "fusion")
+
+
+class FusedHead(torch.nn.Module):
+    """Cached trunk maps (B, K*C, h, w) -> the model's fusion, pooling and projector (B, D)
+    (``TactusModel.features`` after the trunk)."""
+
+    def __init__(self, fuse: torch.nn.Module, proj: torch.nn.Module) -> None:
+        super().__init__()
+        self.fuse, self.proj = fuse, proj
+
+    def forward(self, maps: torch.Tensor) -> torch.Tensor:
+        return self.proj(self.fuse(maps).mean(dim=(2, 3)))
+
+    def train(self, mode: bool = True) -> FusedHead:
+        super().train(mode)
+        for m in self.fuse.modules():  # few windows: the fusion keeps the base's statistics
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.eval()
+        return self
+
+
+def trunk_maps(model: Any, frames: torch.Tensor) -> torch.Tensor:
+    """(B, K, H, W) -> (B, K*C, h, w): the trunk's maps of every frame, concatenated on
+    channels, as ``TactusModel.features`` feeds them to the fusion."""
+    frames = model.pad_frames(frames)
+    b, k = frames.shape[:2]
+    f = model.trunk(model.shape_input(frames.reshape(b * k, 1, *frames.shape[-2:])))
+    return f.reshape(b, k * f.shape[1], f.shape[2], f.shape[3])
 
 
 @dataclass
@@ -66,12 +96,17 @@ class AdaptConfig:
     anchor: float = 0.05  # decoupled pull of the projector towards the base's, per step x lr
     seed: int = 0  # augmentation draws and batches
     save_every: int = 100  # write the resume state every this many steps
+    # what trains: "projector" (cache the pooled features) or "fusion" (cache the trunk's
+    # per-frame maps; the 1x1 frame fusion, its BatchNorm in eval mode, and the projector)
+    tune: str = "projector"
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch", "copies", "save_every"):
             if int(getattr(self, name)) < 1:
                 raise InvalidInputError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.tune not in TUNE:
+            raise InvalidInputError(f"tune must be one of {', '.join(TUNE)}, got {self.tune!r}")
         if self.lr <= 0 or self.anchor < 0:
             raise InvalidInputError(f"lr must be > 0 and anchor >= 0, got {self.lr}, {self.anchor}")
 
@@ -112,8 +147,10 @@ def label_index(targets: Targets, labels: list[str]) -> np.ndarray:
 def cached_features(
     base: Checkpoint, windows: np.ndarray, cfg: AdaptConfig, progress: bool
 ) -> torch.Tensor:
-    """(W, K, H, W') windows -> (copies, W, C) pooled backbone features: copy 0 of each
-    window as it is, the others augmented (fixed seed: a resumed run caches the same)."""
+    """(W, K, H, W') windows -> (copies, W, ...) cached inputs of what trains: pooled
+    features (W, C) for ``tune="projector"``, trunk maps (W, K*C, h, w) for ``"fusion"``;
+    copy 0 of each window as it is, the others augmented (fixed seed: a resumed run caches
+    the same)."""
     model = base.model
     assert model is not None
     model.eval()
@@ -127,7 +164,8 @@ def cached_features(
             chunk = x[s : s + FEATURE_BATCH]
             if c > 0:
                 chunk = augment(chunk, cfg.augment, gen)
-            rows.append(model.features(chunk).float())
+            cached = model.features(chunk) if cfg.tune == "projector" else trunk_maps(model, chunk)
+            rows.append(cached.float())
             bar.update(len(chunk))
         out.append(torch.cat(rows))
     bar.close()
@@ -136,6 +174,7 @@ def cached_features(
 
 def _top1(head: torch.nn.Module, feats: torch.Tensor, tgt: torch.Tensor, y: torch.Tensor) -> float:
     with torch.inference_mode():
+        head.eval()
         z = F.normalize(head(feats).float(), dim=-1)
         return float(((z @ tgt.T).argmax(1) == y).float().mean())
 
@@ -173,10 +212,13 @@ def adapt(
     t0 = time.perf_counter()
     feats = cached_features(base, grasps.windows, cfg, progress)  # (copies, W, C)
     feature_s = time.perf_counter() - t0
-    flat = feats.reshape(-1, feats.shape[-1])  # (copies * W, C)
+    flat = feats.reshape(-1, *feats.shape[2:])  # (copies * W, ...)
     y = y_win.repeat(cfg.copies)
 
-    base_head = model.proj
+    base_head: torch.nn.Module = model.proj
+    if cfg.tune == "fusion":
+        base_head = FusedHead(model.fuse, model.proj)
+    base_head.eval()
     head = copy.deepcopy(base_head).train()
     anchors = [p.detach().clone() for p in base_head.parameters()]
     before = _top1(base_head, feats[0], tgt, y_win)
@@ -217,7 +259,11 @@ def adapt(
     head.eval()
     after = _top1(head, feats[0], tgt, y_win)
     adapted = copy.deepcopy(model)
-    adapted.proj.load_state_dict(head.state_dict())
+    if isinstance(head, FusedHead):
+        adapted.fuse.load_state_dict(head.fuse.state_dict())
+        adapted.proj.load_state_dict(head.proj.state_dict())
+    else:
+        adapted.proj.load_state_dict(head.state_dict())
     summary: dict[str, Any] = {
         "base": {"file": base.path.name, "sha256": base.sha256},
         "grasps": grasps.summary(),
@@ -228,8 +274,8 @@ def adapt(
         "train_s": round(time.perf_counter() - t1, 2),
         "loss_last": loss_v,
         "own_windows_top1": {"before": before, "after": after},
-        "trained": "projector",
-        "frozen": ["trunk", "fuse"],
+        "trained": ["projector"] if cfg.tune == "projector" else ["fuse", "projector"],
+        "frozen": ["trunk", "fuse"] if cfg.tune == "projector" else ["trunk"],
         "threads": torch.get_num_threads(),
     }
     train_args = {"adapt": {**asdict(cfg), "base_sha256": base.sha256}}
