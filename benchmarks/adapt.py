@@ -245,7 +245,18 @@ def main() -> None:
     ap.add_argument(
         "--skip-timing", action="store_true", help="keep the timing of the --out file there"
     )
+    ap.add_argument(
+        "--only-timing", action="store_true", help="rerun the timing into the --out file"
+    )
     args = ap.parse_args()
+    if args.only_timing:
+        from tactus_memory.datasets.home import data_home
+
+        kept = json.loads(Path(args.out).read_text())
+        kept["timing_10x3"] = timing(Path(args.stag) if args.stag else data_home().stag)
+        Path(args.out).write_text(json.dumps(kept, indent=1) + "\n")
+        print(json.dumps(kept["timing_10x3"], indent=1))
+        return
     from tactus_memory.datasets.home import data_home
     from tactus_memory.touch.checkpoint import read_metadata
 

@@ -110,15 +110,15 @@ def test_adapt_trains_on_what_a_memory_was_taught(base, grasps_npz, tmp_path, mi
     mem = Memory.open(str(path), space=minilm_space, background=False)
     mem.add_sense(TactusEncoder(base))
     t = data.ts
-    spans = {}
+    spans, windows, t0, t1 = {}, [], [], []
     for r, name in enumerate(data.recordings):  # one window of 8 raw frames every 4 frames
         idx = np.flatnonzero(data.recording_id == r)
         starts = range(idx[0], idx[-1] - 7, 4)
-        mem.add_many(
-            "bench", "touch", [data.pressure[s : s + 8] for s in starts],
-            t=[float(t[s]) for s in starts], t_end=[float(t[s + 7]) for s in starts],
-        )  # fmt: skip
+        windows += [data.pressure[s : s + 8] for s in starts]
+        t0 += [float(t[s]) for s in starts]
+        t1 += [float(t[s + 7]) for s in starts]
         spans[name] = (float(t[idx[0]]), float(t[idx[-1]]))
+    mem.add_many("bench", "touch", windows, t=t0, t_end=t1)  # one commit
     taught = ["sponge-1", "drill-1", "ladle-1"]  # the first grasp of each object only
     for name in taught:
         mem.teach(name.split("-")[0], session="bench", after=spans[name][0], before=spans[name][1])
