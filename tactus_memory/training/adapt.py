@@ -233,6 +233,8 @@ def adapt(
             raise InvalidInputError(f"{state} is not the resume state of this adapt run") from exc
         log.info("resumed adapting at step %d", step)
     steps_this_run, t1, loss_v = 0, time.perf_counter(), float("nan")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # small matrices: a second thread only spins on a shared CPU
     bar = tqdm(total=cfg.steps, initial=step, desc="adapt", disable=not progress)
     while step < cfg.steps:
         rows = torch.randint(0, len(flat), (min(cfg.batch, len(flat)),), generator=gen)
@@ -256,6 +258,7 @@ def adapt(
                 state, module=head, opt=opt, gen=gen, step=step, history=history, key="proj"
             )
     bar.close()
+    torch.set_num_threads(threads)
     head.eval()
     after = _top1(head, feats[0], tgt, y_win)
     adapted = copy.deepcopy(model)
@@ -276,7 +279,7 @@ def adapt(
         "own_windows_top1": {"before": before, "after": after},
         "trained": ["projector"] if cfg.tune == "projector" else ["fuse", "projector"],
         "frozen": ["trunk", "fuse"] if cfg.tune == "projector" else ["trunk"],
-        "threads": torch.get_num_threads(),
+        "threads": threads,  # of the features; the steps run on one
     }
     train_args = {"adapt": {**asdict(cfg), "base_sha256": base.sha256}}
     save_checkpoint(
