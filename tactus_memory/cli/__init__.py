@@ -16,6 +16,7 @@ from tactus_memory.cli import prefetch
 prefetch.start(sys.argv)
 
 from tactus_memory.cli import (  # noqa: E402, F401  (imported for their registrations)
+    adapt_cmd,
     ask_cmds,
     data_cmds,
     demo_cmd,

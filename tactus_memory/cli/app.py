@@ -25,7 +25,14 @@ PANELS: dict[str, tuple[str, ...]] = {
     ),
     "Recordings: ROS 2 bags and MCAP in, Rerun out": ("ingest", "export"),
     "Data sets": ("data",),
-    "Touch encoder: train and evaluate": ("pretrain", "train", "eval", "baseline", "ablate"),
+    "Touch encoder: train and evaluate": (
+        "pretrain",
+        "train",
+        "adapt",
+        "eval",
+        "baseline",
+        "ablate",
+    ),
 }
 #: what a command may raise that the command line answers itself (usage errors, exits): Typer's
 #: own click (its ClickException, the base of typer.BadParameter) and click's
