@@ -61,13 +61,23 @@ Columns = Annotated[
     int | None, Query(ge=1, le=64, description="Frames per row (default: all in one row).")
 ]
 Legend = Annotated[bool, Query(description="Draw the colour bar under the frames.")]
+Outline = Annotated[
+    bool,
+    Query(
+        description="Outline the sensor's parts on every frame (a hand's regions: thumb, "
+        "fingers, palm; or a profile's pads), where the sense knows them; the page does."
+    ),
+]
 
 
 def _layout(
-    scale: Scale = SCALE, max_frames: MaxFrames = MAX_FRAMES, columns: Columns = None
+    scale: Scale = SCALE,
+    max_frames: MaxFrames = MAX_FRAMES,
+    columns: Columns = None,
+    outline: Outline = False,
 ) -> WindowLayout:
-    """How the query asks a window to be drawn (the same three parameters on every heat map)."""
-    return WindowLayout(scale=scale, max_frames=max_frames, columns=columns)
+    """How the query asks a window to be drawn (the same parameters on every heat map)."""
+    return WindowLayout(scale=scale, max_frames=max_frames, columns=columns, outline=outline)
 
 
 #: ``scale``, ``max_frames`` and ``columns`` from the query, as drawing keywords

@@ -181,7 +181,7 @@ function facetsList(f) {
 // the evaluation report uses too): frames 4 per row at 5 px per taxel, a colour bar under
 // them. With a token, <img src> cannot send the header: fetch it. Hovering a taxel shows its
 // calibrated value, from GET /items/{id}/touch.json (same query, fetched on first hover).
-const HEATMAP_QUERY = "scale=5&columns=4";
+const HEATMAP_QUERY = "scale=5&columns=4&outline=true"; // the hand regions outlined
 
 // Point img at src; with a token the image is fetched with it (an <img> sends no header).
 function loadImage(img, src, label) {

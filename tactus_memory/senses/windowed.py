@@ -105,11 +105,14 @@ class FrameStream:
 
 class WindowLayout(TypedDict, total=False):
     """How a request asks a window to be drawn: ``scale`` (pixels per cell), ``max_frames``
-    (most frames drawn, evenly spread), ``columns`` (frames per row; None: one row)."""
+    (most frames drawn, evenly spread), ``columns`` (frames per row; None: one row),
+    ``outline`` (the sensor's parts outlined where the sense knows them: a hand's regions or
+    pads)."""
 
     scale: int
     max_frames: int
     columns: int | None
+    outline: bool
 
 
 class WindowDrawer(Protocol):

@@ -67,6 +67,9 @@ BACKGROUND = (22, 22, 32, 255)
 GAP_COLOUR = (120, 124, 134, 255)
 #: height of the colour bar strip, in pixels (bar + labels)
 LEGEND_PX = 34
+#: the outline between two hand regions or pads (``outline=True``), RGBA: a cyan that the
+#: magma colour map never reaches (its hues run black - purple - orange - pale yellow)
+OUTLINE_COLOUR = (64, 224, 255, 255)
 
 
 @dataclass(frozen=True)
@@ -247,6 +250,36 @@ class View(TypedDict, total=False):
     scale: int
     max_frames: int
     columns: int | None
+    outline: bool
+
+
+def region_edges(index: np.ndarray, scale: int) -> np.ndarray:
+    """(H*scale, W*scale) bool: the pixels outlining the regions of a (H, W) region index
+    (-1: no region): the last pixel row or column of a taxel whose neighbour below or to
+    the right lies in another region (a region's edge against no region included)."""
+    idx = np.asarray(index)
+    h, w = idx.shape
+    out = np.zeros((h * scale, w * scale), bool)
+    right = (idx[:, :-1] != idx[:, 1:]) & ((idx[:, :-1] >= 0) | (idx[:, 1:] >= 0))
+    for r, c in zip(*np.nonzero(right), strict=True):
+        out[r * scale : (r + 1) * scale, (c + 1) * scale - 1] = True
+    below = (idx[:-1] != idx[1:]) & ((idx[:-1] >= 0) | (idx[1:] >= 0))
+    for r, c in zip(*np.nonzero(below), strict=True):
+        out[(r + 1) * scale - 1, c * scale : (c + 1) * scale] = True
+    return out
+
+
+def _outline(view: View, layout: Layout) -> np.ndarray | None:
+    """The region-outline pixels of one frame when ``view`` asks for them and its profile
+    has regions (its pads, or the glove's derived hand regions); else None."""
+    if not view.get("outline"):
+        return None
+    from tactus_memory.touch.regions import regions_of
+
+    regions = regions_of(view.get("profile", STAG_GLOVE))
+    if regions is None or regions.shape != (layout.frame_rows, layout.frame_cols):
+        return None
+    return region_edges(regions.index, layout.scale)
 
 
 def _prepare_view(
@@ -270,10 +303,18 @@ def window_rgba(
     """(H, W, 4) uint8, opaque: the frames (one row, or ``columns`` per row) with grey lines
     between them, unused taxels in the background colour. No colour bar."""
     frames, _, taxels, ts, layout = _prepare_view(window, view, gap, mask)
-    return _paint(frames, taxels, ts, layout)
+    return _paint(frames, taxels, ts, layout, _outline(view, layout))
 
 
-def _paint(frames: np.ndarray, taxels: np.ndarray, ts: TouchScale, layout: Layout) -> np.ndarray:
+def _paint(
+    frames: np.ndarray,
+    taxels: np.ndarray,
+    ts: TouchScale,
+    layout: Layout,
+    edges: np.ndarray | None = None,
+) -> np.ndarray:
+    """(H, W, 4) uint8 of the (K, h, w) calibrated ``frames``; ``edges`` (h*scale, w*scale)
+    bool: pixels drawn in ``OUTLINE_COLOUR`` over every frame."""
     from matplotlib import colormaps
 
     rgba = colormaps[ts.colormap](ts.unit(frames), bytes=True)  # (K, H, W, 4) uint8
@@ -285,6 +326,8 @@ def _paint(frames: np.ndarray, taxels: np.ndarray, ts: TouchScale, layout: Layou
     for i in range(layout.frames):
         x, y = layout.origin(i)
         big = np.repeat(np.repeat(rgba[i], s, axis=0), s, axis=1)
+        if edges is not None:
+            big[edges] = OUTLINE_COLOUR
         out[y : y + fh, x : x + fw] = big
     return out
 
@@ -339,7 +382,7 @@ def draw_window_png(window: Any, *, legend: bool = True, **view: Unpack[View]) -
     (``calibrated=None`` decides from the values). See the module docstring for the scale.
     """
     cal, _, taxels, ts, layout = _prepare_view(window, view)
-    frames = _paint(cal, taxels, ts, layout)
+    frames = _paint(cal, taxels, ts, layout, _outline(view, layout))
     if not legend:
         return encode_png(frames)
     bar = legend_rgba(ts, frames.shape[1])

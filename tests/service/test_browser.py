@@ -8,6 +8,7 @@ Chromium missing is a FAILURE naming the install command, not a skip: CI install
 
 from __future__ import annotations
 
+import io
 import json
 import re
 import shutil
@@ -17,6 +18,7 @@ import httpx
 import numpy as np
 import pytest
 from matplotlib import colormaps
+from PIL import Image
 
 from tactus_memory.datasets.home import CORE_SUBSET, data_home
 from tactus_memory.errors import InvalidInputError
@@ -27,6 +29,7 @@ from tactus_memory.touch.render import (
     GAP_COLOUR,
     LEGEND_PX,
     MIN_RANGE,
+    OUTLINE_COLOUR,
     TouchScale,
     as_frames,
     calibrated_frames,
@@ -305,6 +308,12 @@ def test_touch_hits_show_heat_maps(page, served, tmp_path):
     assert width == 4 * 33 * 5 - 5  # 4 frames per row at 5 px per taxel, 5 px lines between
     alt = page.get_attribute("#results img.heatmap", "alt")
     assert alt.startswith("Pressure heat map of the touch window")
+    # the hand regions outlined on every frame, in a colour the heat map never uses
+    src = page.eval_on_selector("#results img.heatmap", "i => i.src")
+    assert "outline=true" in src, src
+    with Image.open(io.BytesIO(httpx.get(src, timeout=60).content)) as im:
+        drawn = np.asarray(im.convert("RGBA"))
+    assert (drawn == OUTLINE_COLOUR).all(axis=-1).sum() > 100
     # every hit says its sense's match bar; the status counts the hits that clear it
     bars = page.eval_on_selector_all(f"{HIT} .bar", "els => els.map(e => e.textContent)")
     assert len(bars) == len(senses) and all(re.search(r"bar \d+\.\d\d", b) for b in bars), bars
@@ -359,8 +368,6 @@ def test_real_grasp_heat_map_shows_the_contact_area(page, served, tmp_path, stag
     crop = SCREENSHOTS / f"heatmap-real-{name}.png"
     img.screenshot(path=str(crop))
     shot(page, tmp_path, "browser-real-grasp")
-    from PIL import Image
-
     with Image.open(crop) as im:
         pix = np.asarray(im.convert("RGB"), dtype=np.int32)
     k = pix.shape[1] / natural  # screenshot px per image px (1 unless the page shrank it)
