@@ -1102,19 +1102,19 @@ function renderTimeline(points) {
 // Touch facets on the timeline (tactus_memory/touch/facets.py): a strip under a touch lane
 // drawing each window's force (the sum of its calibrated taxels, averaged over its frames)
 // at the middle of its span, scaled to the lane's firmest; null when no item has a force.
-const SVG_NS = "http://www.w3.org/2000/svg";
+// The strip's SVG is parsed from fixed markup: the HTML parser puts it in the SVG namespace, so
+// the page names no origin (not even the namespace's), as tests/service/test_browser.py checks.
+const FORCE_SVG =
+  '<svg viewBox="0 0 100 24" preserveAspectRatio="none"><polyline vector-effect="non-scaling-stroke"></polyline></svg>';
 function forceStrip(sense, lanePts, pct) {
   const pts = lanePts.filter((p) => typeof p.facets?.force === "number");
   if (!pts.length) return null;
   const top = Math.max(...pts.map((p) => p.facets.force)) || 1;
-  const svg = document.createElementNS(SVG_NS, "svg");
-  svg.setAttribute("viewBox", "0 0 100 24");
-  svg.setAttribute("preserveAspectRatio", "none");
-  const line = document.createElementNS(SVG_NS, "polyline");
+  const holder = document.createElement("div");
+  holder.innerHTML = FORCE_SVG;
+  const svg = holder.firstElementChild;
   const xy = pts.map((p) => `${((pct(p.t) + pct(p.t_end)) / 2).toFixed(3)},${(23 - (22 * p.facets.force) / top).toFixed(3)}`);
-  line.setAttribute("points", xy.join(" "));
-  line.setAttribute("vector-effect", "non-scaling-stroke");
-  svg.append(line);
+  svg.querySelector("polyline").setAttribute("points", xy.join(" "));
   const lo = Math.min(...pts.map((p) => p.facets.force));
   const label = `${sense} force over time: ${pts.length} windows, ${lo.toFixed(1)} to ${top.toFixed(1)}`;
   return h(
