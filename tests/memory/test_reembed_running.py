@@ -64,7 +64,7 @@ def _reembed(path: Path, checkpoint: Path) -> dict:
     args = ["reembed", "--data", str(path), "--sense", "touch", "--checkpoint", str(checkpoint)]
     r = CliRunner().invoke(app, args)
     assert r.exit_code == 0, (r.output, r.exception)
-    return json.loads(r.output)
+    return json.loads(r.stdout)  # the progress bar is on stderr
 
 
 def _distances(vec: np.ndarray, window: np.ndarray, encoders) -> tuple[float, float]:
