@@ -65,10 +65,11 @@ lint: setup-test
 	$(PY) scripts/typecheck.py
 
 # two workers (TEST_WORKERS=0: one process), whole test files per worker (--dist loadfile), so
-# a module's server, store or trained checkpoint is built once
+# a module's server, store or trained checkpoint is built once; files in collection order
+# (--no-loadscope-reorder), so the long files tests/conftest.py puts first start at once
 TEST_WORKERS ?= 2
 test: setup-test lint
-	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile
+	$(VENV)/bin/pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 format: setup-test
 	$(VENV)/bin/ruff format .
