@@ -2,8 +2,9 @@
 
 Copies the checkout's files as a fresh clone has them (tracked and new, not ignored: the
 work in progress is measured too, as ``tests/project/test_newcomer.py``'s ``fresh_copy``
-does) into a temporary folder and runs ``make run`` there with an empty ``HOME`` (so the
-first start writes MiniLM's ONNX graph) and a fresh ``.venv``, on a free port, then records:
+does, both through ``serving.copy_checkout``) into a temporary folder and runs ``make run``
+there with an empty ``HOME`` (so the first start writes MiniLM's ONNX graph) and a fresh
+``.venv``, on a free port, then records:
 
 * ``ready_s``: seconds from ``make run`` to the ready line (venv, pip install, start, export);
 * ``rss_mb``: the serving process's resident memory once ready (VmRSS, /proc; MB = 10^6
@@ -31,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from serving import free_port
+from serving import copy_checkout, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
@@ -79,21 +80,6 @@ def _load() -> list[float]:
     return [round(one, 2), round(five, 2)]
 
 
-def fresh_copy(dest: Path) -> None:
-    """The checkout's files as a fresh clone has them (tracked + new, not ignored)."""
-    listed = subprocess.run(
-        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-        cwd=ROOT,
-        capture_output=True,
-        check=True,
-    ).stdout.decode()
-    for name in filter(None, listed.split("\0")):
-        src = ROOT / name
-        if src.is_file():
-            (dest / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, dest / name)
-
-
 def _server_pid(root_pid: int) -> int | None:
     """The ``tactus serve`` process under ``make`` (the one that loads the models)."""
     for proc in Path("/proc").iterdir():
@@ -113,7 +99,7 @@ def run(cold: bool) -> dict[str, object]:
     tmp = Path(tempfile.mkdtemp(prefix="make-run-"))
     try:
         clone = tmp / "clone"
-        fresh_copy(clone)
+        copy_checkout(ROOT, clone)
         home = tmp / "home"
         home.mkdir()
         port = free_port()

@@ -5,6 +5,7 @@ real server (``from benchmarks.serving import ...``, the repository root on ``sy
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -124,3 +125,20 @@ def serve_app(app: Any, startup_s: float = 180, probe: str = "/live") -> Iterato
     finally:
         server.should_exit = True
         thread.join(30)
+
+
+def copy_checkout(root: Path, dest: Path) -> None:
+    """``root``'s files as a fresh clone has them (tracked and new, not ignored ones: no
+    store, no runs, no venv) copied into ``dest`` (the newcomer test's and ``make_run.py``'s
+    fresh copy)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=root,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    for name in filter(None, listed.split("\0")):
+        src = root / name
+        if src.is_file():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / name)

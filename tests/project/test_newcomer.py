@@ -33,7 +33,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import subprocess
 import sys
 import time
@@ -44,7 +43,7 @@ import httpx
 import numpy as np
 import pytest
 
-from benchmarks.serving import free_port, wait_ok
+from benchmarks.serving import copy_checkout, free_port, wait_ok
 from tests.helpers.doc_snippets import Block, all_blocks, nav_pages
 from tests.helpers.servers import stop_process
 
@@ -81,17 +80,7 @@ def lines_in_order(expected: list[str], output: str) -> None:
 def fresh_copy(dest: Path) -> None:
     """The checkout's files as a fresh clone has them (tracked + new, not ignored), in a git
     repository of their own."""
-    listed = subprocess.run(
-        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-        cwd=ROOT,
-        capture_output=True,
-        check=True,
-    ).stdout.decode()
-    for name in filter(None, listed.split("\0")):
-        src = ROOT / name
-        if src.is_file():
-            (dest / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, dest / name)
+    copy_checkout(ROOT, dest)
     # a clone is a git repository: `git ls-files` answers there as in the checkout
     git = ["git", "-c", "user.name=newcomer", "-c", "user.email=newcomer@example.invalid"]
     for args in (["init", "-q"], ["add", "-A"], ["commit", "-q", "-m", "fresh clone"]):
