@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -46,7 +47,14 @@ from typing import Any
 
 import numpy as np
 
-from tactus_memory.adapters.touch import TactusEncoder
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.facet_grasp_words import (  # noqa: E402
+    GRASP_WORDS,
+    ask_grasps,
+    cost,
+    paired_sessions,
+)
+from tactus_memory.adapters.touch import TactusEncoder  # noqa: E402
 from tactus_memory.datasets.home import data_home
 from tactus_memory.memory.main import Memory
 from tactus_memory.touch.facets import grip_of
@@ -64,16 +72,20 @@ PHRASES = {
 }
 
 
-def truth(window: np.ndarray, coords: list[tuple[int, int]]) -> tuple[float, str]:
-    """(force, grip) of a raw (K, 32, 32) window, from the coordinates, written out."""
+def truth(window: np.ndarray, coords: list[tuple[int, int]]) -> tuple[float, str, list | None]:
+    """(force, grip, centroid) of a raw (K, 32, 32) window, from the coordinates, written
+    out; the centroid (row, col) of the contact load (None without contact)."""
     vals = np.array([[min(max((float(f[r, c]) - 500) / 150, 0), 1) for r, c in coords]
                      for f in window])  # fmt: skip
     load = np.where(vals >= LEVEL, vals, 0).sum(axis=0)
     shares: dict[str, float] = {n: 0.0 for n in STAG_REGIONS.names}
+    centroid = None
     if load.sum() > 0:
         for (r, c), v in zip(coords, load, strict=True):
             shares[STAG_REGIONS.names[STAG_REGIONS.index[r, c]]] += v / load.sum()
-    return float(vals.sum(axis=1).mean()), str(grip_of(shares))
+        rows, cols = np.array(coords, float).T
+        centroid = [float(load @ rows / load.sum()), float(load @ cols / load.sum())]
+    return float(vals.sum(axis=1).mean()), str(grip_of(shares)), centroid
 
 
 #: words-only questions: (phrase, which windows of a session answer it)
@@ -93,11 +105,13 @@ def _quarter(rows: dict[str, tuple[float, float, float, str]], top: bool) -> set
 
 
 def ask_in_words(memory: Memory, known: dict[str, dict[str, tuple]]) -> dict[str, Any]:
-    """Each WORDS question of each session it fits, R@1 with the captions and without."""
+    """Each WORDS question of each session it fits, R@1 with the captions and without; each
+    session's outcome kept (``per_session``: [captions, encoder]) for paired intervals."""
     out: dict[str, Any] = {}
     captions = memory.ranker.captions
     for phrase, answers in WORDS.items():
         right: dict[str, list[bool]] = {"captions": [], "encoder": []}
+        per_session: dict[str, list[bool]] = {}
         for session, rows in known.items():
             want = answers(rows)
             if not want or len(want) == len(rows):
@@ -108,43 +122,71 @@ def ask_in_words(memory: Memory, known: dict[str, dict[str, tuple]]) -> dict[str
                 hits = memory.search(phrase, k=1, senses=["touch"], group="window", session=session)
                 if way == "encoder":
                     del captions.scores
-                right[way].append(bool(hits) and hits[0].id in want)
+                ok = bool(hits) and hits[0].id in want
+                right[way].append(ok)
+                per_session.setdefault(session, []).append(ok)
         out[phrase] = {
             "questions": len(right["captions"]),
             **{
                 f"r@1_{way}": round(float(np.mean(v)), 3) if v else None for way, v in right.items()
             },
+            "per_session": per_session,
         }
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--subset", default="blindfolded_lite_train")
-    args = ap.parse_args()
-    stag = data_home().stag
-    d = load_stag(stag / args.subset / "metadata.mat")
-    cj = json.loads((stag / "sensor_coords.json").read_text())
-    coords = list(zip(cj["x"], cj["y"], strict=True))
-    tmp = tempfile.mkdtemp()
-    memory = Memory.open(str(Path(tmp) / "m"), background=False)
+def open_or_build(
+    d: Any, coords: list[tuple[int, int]], keep: str | None
+) -> tuple[Memory, dict, float | None]:
+    """The benchmark's memory and known answers: built from ``d`` (in ``keep`` when given,
+    with ``known.json`` beside it), or, when ``keep`` already holds them, reopened (its
+    captions rebuilt to the current rule, as ``tactus maintain --facets`` does)."""
+    root = Path(keep or tempfile.mkdtemp())
+    saved = root / "known.json"
+    if saved.exists():
+        from tactus_memory.search.captions import Captions
+
+        memory = Memory.open(str(root / "m"), background=False)
+        memory.add_sense(TactusEncoder())
+        Captions(memory.store, memory.space).rebuild()
+        return memory, json.loads(saved.read_text()), None
+    memory = Memory.open(str(root / "m"), background=False)
     memory.add_sense(TactusEncoder())
     known: dict[str, dict[str, tuple[float, float, float, str]]] = {}
     t0 = time.perf_counter()
     for r in np.unique(d.recording_id):
         s = stream_eval.build_stream(d, [int(r)])
-        keep = np.flatnonzero(~s.idle)
-        if len(keep) < 2:
+        keep_i = np.flatnonzero(~s.idle)
+        if len(keep_i) < 2:
             continue
         session = f"rec{int(r)}"
-        ids = memory.add_many(session, "touch", list(s.frames[keep]),
-                              t=s.t[keep].tolist(), t_end=s.t_end[keep].tolist())  # fmt: skip
+        ids = memory.add_many(session, "touch", list(s.frames[keep_i]),
+                              t=s.t[keep_i].tolist(), t_end=s.t_end[keep_i].tolist())  # fmt: skip
         known[session] = {
             i: (float(s.t[j]), float(s.t_end[j]), *truth(s.frames[j], coords))
-            for i, j in zip(ids, keep, strict=True)
+            for i, j in zip(ids, keep_i, strict=True)
         }
     ingest_s = time.perf_counter() - t0
+    if keep:
+        saved.write_text(json.dumps(known))
+    return memory, known, ingest_s
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--subset", default="blindfolded_lite_train")
+    ap.add_argument("--keep", help="build the store here (or reuse the one built there)")
+    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--before", help="an earlier run's JSON (per_session) to pair with")
+    args = ap.parse_args()
+    stag = data_home().stag
+    d = load_stag(stag / args.subset / "metadata.mat")
+    cj = json.loads((stag / "sensor_coords.json").read_text())
+    coords = list(zip(cj["x"], cj["y"], strict=True))
+    memory, known, ingest_s = open_or_build(d, coords, args.keep)
     in_words = ask_in_words(memory, known)
+    grasp_words = ask_grasps(memory, known)
+    search_cost = cost(memory, [*WORDS, *GRASP_WORDS])
     right: dict[str, list[bool]] = {k: [] for k in PHRASES}
     words: dict[str, list[bool]] = {k: [] for k in PHRASES}
 
@@ -180,13 +222,22 @@ def main() -> None:
         "subset": args.subset,
         "sessions": len(known),
         "windows": sum(len(v) for v in known.values()),
-        "ingest_s": round(ingest_s, 1),
+        "ingest_s": None if ingest_s is None else round(ingest_s, 1),  # None: store reused
         "facets": {k: r1(v) for k, v in right.items()},
         "words_only": {k: {**r1(v), "phrase": PHRASES[k]} for k, v in words.items()},
         "in_words": in_words,
+        "grasps_in_words": grasp_words,
+        "caption_cost": search_cost,
     }
-    OUT.parent.mkdir(exist_ok=True)
-    OUT.write_text(json.dumps(result, indent=2) + "\n")
+    if args.before:  # the same store's sessions asked by the code before: paired intervals
+        old = json.loads(Path(args.before).read_text())["in_words"]
+        result["in_words_vs_before"] = {
+            phrase: paired_sessions(v["per_session"], old[phrase]["per_session"])
+            for phrase, v in in_words.items()
+            if phrase in old and "per_session" in old[phrase]
+        }
+    args.out.parent.mkdir(exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))
 
 

@@ -279,16 +279,17 @@ class Where:
     ) -> Where:
         """Touch rows whose window caption (:mod:`tactus_memory.search.captions`) is the one
         of ``grip`` (None: a sensor without regions), exactly the active regions ``regions``
-        (the stored form, ``",thumb,index,"``) and a ``peak`` in [lo, hi)."""
+        (the stored form, ``",thumb,index,"``) and a ``force`` in [lo, hi) (the firmness
+        band's pressure bounds times the sensor's taxels)."""
         if grip is None:
             self.parts.append("grip IS NULL")
         else:
             self._eq("grip", grip, check_grip)
         self.parts.append(f"regions = {_sql_str(regions)}")
         if lo is not None:
-            self.parts.append(f"peak >= {_sql_float(finite_float(lo, 'peak'))}")
+            self.parts.append(f"force >= {_sql_float(finite_float(lo, 'force'))}")
         if hi is not None:
-            self.parts.append(f"peak < {_sql_float(finite_float(hi, 'peak'))}")
+            self.parts.append(f"force < {_sql_float(finite_float(hi, 'force'))}")
         return self
 
     def grip(self, grip: str | None) -> Where:

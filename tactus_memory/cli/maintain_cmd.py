@@ -196,7 +196,9 @@ def _sense_codes(store: Store, root: bool) -> int:
 
 def _facets(store: Store, root: bool) -> int:
     """``--facets``: add the facet columns to one store
-    (:mod:`tactus_memory.storage.facet_backfill`), one JSON line; 1 when it failed."""
+    (:mod:`tactus_memory.storage.facet_backfill`) and rebuild its caption embeddings, one
+    JSON line; 1 when the facets failed, 2 when the captions did (one line on stderr, the
+    JSON says ``captions_error``)."""
     from tactus_memory.storage.facet_backfill import add_facets
 
     where = {} if root else {"tenant": store.retention.tenant}
@@ -209,8 +211,10 @@ def _facets(store: Store, root: bool) -> int:
     try:
         captions: dict[str, Any] = _captions(store)
     except Exception as exc:  # noqa: BLE001  (the facets are in; the captions said apart)
-        typer.echo(f"{store.uri}: captions not embedded: {exc} (run it again)", err=True)
-        captions = {"captions_error": str(exc)}
+        line = " ".join(str(exc).split())  # one line, whatever the error's text
+        typer.echo(f"error: {store.uri}: captions not embedded: {line} (run it again)", err=True)
+        typer.echo(json.dumps({**where, **report.as_dict(), "captions_error": line}))
+        return 2
     typer.echo(json.dumps({**where, **report.as_dict(), **captions}))
     return 0
 

@@ -178,15 +178,16 @@ class GraspRows:
     facets: list[str | None] | None = None
     spans: tuple[np.ndarray, np.ndarray] | None = None
 
-    def grasp_facets(self) -> dict[str, Any] | None:
+    def grasp_facets(self, taxels: int | None = None) -> dict[str, Any] | None:
         """The grasp's facets (:func:`tactus_memory.touch.facets.grasp_facets`) from its
-        members' stored ones; None when a member has none (another sense, an old row)."""
+        members' stored ones; None when a member has none (another sense, an old row).
+        ``taxels``: the sensor's taxel count where the stored facets do not say it."""
         if not self.facets or any(f is None for f in self.facets) or self.spans is None:
             return None
         from tactus_memory.touch.facets import facets_of_rows, grasp_facets
 
         rows = [json.loads(f) for f in self.facets if f is not None]
-        return grasp_facets(facets_of_rows(rows), *self.spans)
+        return grasp_facets(facets_of_rows(rows, taxels), *self.spans)
 
     def cosine(self, q: np.ndarray, pool: str) -> float:
         """The grasp's cosine to the (D,) query ``q`` under ``pool`` (see POOLS)."""
@@ -367,9 +368,9 @@ def pool_grasps(
 ) -> list[Grasp]:
     """One sense's candidate evidence -> the grasps holding it, scored (``rule.pool``; default
     the pooled vector) against the sense's transformed query ``q`` (1, D), calibrated like any
-    hit of the sense, or by the best caption score of its windows when higher
-    (:mod:`tactus_memory.search.captions`); best first. Times: the grasp's span, aligned by
-    its stream's clock offset."""
+    hit of the sense, or by its caption score when higher: its best member window's caption
+    or its own (:meth:`tactus_memory.search.captions.Captions.grasp_score`); best first.
+    Times: the grasp's span, aligned by its stream's clock offset."""
     qs = ranker.query_for(q, sense)[0]
     calib = ranker.registry.calibration(sense)
     reached = ranker.captions.scores(q)  # the captions the words reach (search.captions)
@@ -378,12 +379,13 @@ def pool_grasps(
         best = max(g.candidates, key=lambda e: (e.score, -e.t, e.id))
         cos = g.cosine(qs, rule.pool)
         score = float(calib.score(cos))
-        captioned = ranker.captions.grasp_score(reached, g.facets)
+        facets = g.grasp_facets(ranker.captions.taxels_of(g.sense))
+        captioned = ranker.captions.grasp_score(q, reached, g.facets, facets, g.sense)
         if captioned is not None and captioned[0] > score:  # its caption answers: its cosine
             score, cos = captioned
         off = best.t_aligned - best.t
         fields = best.model_dump(exclude={"t", "t_end", "t_aligned", "t_end_aligned", "score"})
-        fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids, facets=g.grasp_facets())
+        fields.update(cosine=cos, match=False, n=len(g.ids), ids=g.ids, facets=facets)
         out.append(
             Grasp(
                 **fields,

@@ -62,6 +62,18 @@ def touch_profiles(store: Store) -> dict[str, SensorProfile]:
     return out
 
 
+def touch_taxels(store: Store) -> dict[str, int]:
+    """Each touch sense's taxel count (``touch.facets.taxel_mask`` of its recorded profile):
+    what a firmness band is relative to, for facets stored before they said it."""
+    from tactus_memory.touch.facets import taxel_mask
+    from tactus_memory.touch.regions import regions_of
+
+    return {
+        name: int(taxel_mask(p, regions_of(p), tuple(p.shape)).sum())
+        for name, p in touch_profiles(store).items()
+    }
+
+
 def _facets_of(raw: bytes | None, profile: SensorProfile | None) -> dict[str, Any] | None:
     if raw is None or profile is None:
         return None

@@ -60,10 +60,13 @@ ACTIVE_SHARE = 0.10
 #: grip names, in the order the rule tests them (module docstring)
 GRIPS = ("none", "power", "press", "pinch", "tripod", "other")
 #: the facet names a window has, and those a grasp adds
-WINDOW_FACETS = ("force", "area", "peak", "centroid", "spread", "regions", "grip", "load")
+WINDOW_FACETS = (
+    *("force", "area", "peak", "centroid", "spread", "regions", "grip", "load", "taxels"),
+)
 GRASP_FACETS = (
     *WINDOW_FACETS,
-    *("onset", "release", "duration", "peak_time", "ramp", "slip", "caption", "caption_rule"),
+    *("onset", "release", "duration", "peak_time", "ramp", "rise", "slip"),
+    *("caption", "caption_rule"),
 )
 
 
@@ -102,6 +105,10 @@ class WindowFacets:
     regions: np.ndarray
     load: np.ndarray
     region_names: tuple[str, ...]
+    #: the sensor's taxel count (:func:`taxel_mask`): ``force`` over it is the mean
+    #: calibrated reading, the sensor-relative firmness (:func:`pressure`); None: not known
+    #: (facets stored before it was kept)
+    taxels: int | None = None
 
     def __len__(self) -> int:
         return int(self.force.shape[0])
@@ -122,6 +129,7 @@ class WindowFacets:
             "regions": shares,
             "grip": grip_of(shares) if self.load[i] > 0 or not shares else "none",
             "load": float(self.load[i]),
+            "taxels": self.taxels,
         }
 
     def rows(self) -> list[dict[str, Any]]:
@@ -203,6 +211,7 @@ def window_facets(
         regions=shares,
         load=load,
         region_names=names,
+        taxels=n_taxels,
     )
 
 
@@ -233,6 +242,7 @@ def grasp_facets(f: WindowFacets, t: np.ndarray, t_end: np.ndarray) -> dict[str,
     dt = float(mid[load > 0][-1] - mid[load > 0][0]) if len(path) > 1 else 0.0
     steps = np.linalg.norm(np.diff(path, axis=0), axis=1).sum() if len(path) > 1 else 0.0
     ramp_dt = float(mid[top] - mid[0])
+    rise = float(force[top] - force[0])
     spread = f.spread[order]
     out: dict[str, Any] = {
         "force": float(force.max()),
@@ -247,8 +257,10 @@ def grasp_facets(f: WindowFacets, t: np.ndarray, t_end: np.ndarray) -> dict[str,
         "release": float(te.max()),
         "duration": float(te.max() - ts[0]),
         "peak_time": float(mid[top]),
-        "ramp": float((force[top] - force[0]) / ramp_dt) if ramp_dt > 0 else 0.0,
+        "ramp": rise / ramp_dt if ramp_dt > 0 else 0.0,
+        "rise": rise,
         "slip": float(steps / dt) if dt > 0 else 0.0,
+        "taxels": f.taxels,
     }
     out["caption"], out["caption_rule"] = caption(out), CAPTION_RULE
     return out
@@ -275,15 +287,17 @@ def facet_columns(facets: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def facets_of_rows(rows: list[dict[str, Any]]) -> WindowFacets:
+def facets_of_rows(rows: list[dict[str, Any]], taxels: int | None = None) -> WindowFacets:
     """Stored windows' facets (each a :meth:`WindowFacets.row` dict, as the ``facets`` column
-    holds it) -> :class:`WindowFacets` again, for :func:`grasp_facets`."""
+    holds it) -> :class:`WindowFacets` again, for :func:`grasp_facets`; ``taxels``: the
+    sensor's taxel count where the rows do not say it (facets stored before it was kept)."""
     names = tuple(rows[0].get("regions") or {}) if rows else ()
     force = np.array([r["force"] for r in rows], np.float64)
     cen = np.array(
         [r["centroid"] if r.get("centroid") else (np.nan, np.nan) for r in rows], np.float64
     ).reshape(-1, 2)
     load = np.array([r.get("load", 0.0) for r in rows], np.float64)
+    known = {r.get("taxels") for r in rows} - {None}
     return WindowFacets(
         force=force,
         area=np.array([r["area"] for r in rows], np.float64),
@@ -295,26 +309,40 @@ def facets_of_rows(rows: list[dict[str, Any]]) -> WindowFacets:
         ).reshape(len(rows), len(names)),
         load=load,
         region_names=names,
+        taxels=int(known.pop()) if len(known) == 1 else taxels,
     )
 
 
 # --------------------------------------------------------------------------- captions
 #: the caption rule's version, returned beside each caption (``caption_rule``): bump it when
-#: :func:`caption` changes, so captions written by another rule can be told apart and redone
-CAPTION_RULE = 2
-#: peak (calibrated) bands of the caption's firmness word: below LIGHT_PEAK "light", from
-#: FIRM_PEAK "firm", between "steady" (the STAG glove saturates at 1; its informative band
-#: ends near raw 650 = calibrated 1, stag-format.md). Chosen, not tuned.
-LIGHT_PEAK = 0.4
-FIRM_PEAK = 0.75
-#: centroid speed (taxels per second) from which a grasp is "slipping": its load moved more
-#: than two taxel pitches a second. Chosen, not tuned.
-SLIP_SPEED = 2.0
-#: what a firmness adds in words (rule 2: "squeezing hard" and "touching lightly" put the
-#: physical questions' own words in the caption: "squeezing hard" was at cosine 0.46 to
-#: rule 1's "a firm pinch with thumb and index", 0.71 to "a firm press with palm, squeezing
-#: hard" (MiniLM)); a steady one says nothing ("holding" would pull every object question)
+#: :func:`caption` changes, so captions written by another rule can be told apart and redone.
+#: Rule 3: firmness from ``force`` relative to the sensor (:func:`pressure`), not the peak
+#: taxel; a grasp's caption says its motion (:func:`motion`) instead of its duration in digits
+CAPTION_RULE = 3
+#: :func:`pressure` bands of the caption's firmness word: below LIGHT_PRESSURE "light", from
+#: FIRM_PRESSURE "firm", between "steady". The quartiles of the mean calibrated taxel reading
+#: (force / taxels) over the shipped checkpoint's training windows (the 419 stored windows of
+#: the blindfolded STAG recordings; benchmarks/firmness_bands.py, results/firmness_bands.json).
+#: The glove's resting pedestal (0.07-0.10 calibrated) is most of it, so the bands are narrow
+LIGHT_PRESSURE = 0.0940
+FIRM_PRESSURE = 0.0994
+#: centroid speed (taxels per second) from which a grasp is "slipping": the 75th percentile
+#: of the grasps the memory cuts from the checkpoint's training recordings (49 grasps, median
+#: 3.7: a hand handling an object moves its load; benchmarks/results/facet_questions.json,
+#: ``grasp_stats``). Rule 2 had 2.0, chosen, which called most grasps slipping
+SLIP_SPEED = 6.0
+#: a grasp shorter than this (seconds) is "a brief touch" (chosen: under a second, two
+#: stored glove windows); one at least LONG_HOLD_S long and not slipping is "a long steady
+#: hold": the 75th percentile of the same grasps' durations (median 4.3 s)
+BRIEF_S = 1.0
+LONG_HOLD_S = 6.0
+#: what a firmness adds in words (rule 2: "squeezing hard" was at cosine 0.46 to rule 1's "a
+#: firm pinch with thumb and index", 0.71 to "a firm press with palm, squeezing hard"
+#: (MiniLM)); a steady one says nothing ("holding" would pull every object question)
 FIRMNESS_WORDS = {"light": "touching lightly", "firm": "squeezing hard"}
+#: how a grasp's motion (:func:`motion`) is said; "held" says nothing
+MOTION_WORDS = {"brief": "a brief touch", "long": "a long steady hold", "slipping": "slipping"}
+MOTIONS = ("brief", "held", "long", "slipping")
 #: how a grip is said
 GRIP_WORDS = {
     "pinch": "pinch",
@@ -324,44 +352,88 @@ GRIP_WORDS = {
     "other": "grasp",
     "none": "touch",
 }
+#: each firmness's band of :func:`pressure`, [lo, hi) (None: open)
+FIRMNESS_BANDS: dict[str, tuple[float | None, float | None]] = {
+    "light": (None, LIGHT_PRESSURE),
+    "steady": (LIGHT_PRESSURE, FIRM_PRESSURE),
+    "firm": (FIRM_PRESSURE, None),
+}
 
 
 def _and(words: list[str]) -> str:
     return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
 
 
-def firmness(peak: float | None) -> str:
-    """The firmness word of a ``peak`` (calibrated): light, steady or firm."""
-    p = float(peak or 0.0)
-    return "light" if p < LIGHT_PEAK else "firm" if p >= FIRM_PEAK else "steady"
+def pressure(facets: dict[str, Any], taxels: int | None = None) -> float | None:
+    """``force`` over the sensor's taxel count (the facets' ``taxels``, else ``taxels``): the
+    mean calibrated reading, in [0, 1] whatever the sensor's size (each profile calibrates its
+    own span to [0, 1]); None when the taxel count is not known."""
+    n = facets.get("taxels") or taxels
+    force = facets.get("force")
+    return None if not n or force is None else float(force) / float(n)
 
 
-#: each firmness's band of ``peak``, [lo, hi) (None: open)
-FIRMNESS_BANDS: dict[str, tuple[float | None, float | None]] = {
-    "light": (None, LIGHT_PEAK),
-    "steady": (LIGHT_PEAK, FIRM_PEAK),
-    "firm": (FIRM_PEAK, None),
-}
+def firmness(press: float | None) -> str:
+    """The firmness word of a :func:`pressure`: light, steady or firm (None: steady)."""
+    if press is None:
+        return "steady"
+    return "light" if press < LIGHT_PRESSURE else "firm" if press >= FIRM_PRESSURE else "steady"
 
 
-def caption(facets: dict[str, Any]) -> str:
-    """A grasp's (or a window's) facets in words, deterministically (rule
-    :data:`CAPTION_RULE`): firmness from ``peak`` (light / steady / firm), the grip, the
-    active regions most loaded first, the firmness's words (:data:`FIRMNESS_WORDS`), then,
-    for a grasp, the duration, and "slipping" when ``slip`` >= :data:`SLIP_SPEED`; e.g. "a
-    firm pinch with thumb and index, squeezing hard, 2.3 s, slipping". A window's facets have
-    no duration or slip: its caption is the first part alone, a function of its ``peak``
-    band, ``grip`` and active regions (what :mod:`tactus_memory.search.captions` keys on)."""
-    firm = firmness(facets.get("peak"))
-    grip = facets.get("grip")
-    words = [f"a {firm} {GRIP_WORDS.get(grip or '', 'touch')}"]
-    active = active_regions(facets.get("regions") or {})
-    if active:
-        words[0] += " with " + _and(active)
-    if firm in FIRMNESS_WORDS:
-        words.append(FIRMNESS_WORDS[firm])
-    if facets.get("duration") is not None:
-        words.append(f"{float(facets['duration']):.1f} s")
+def motion(facets: dict[str, Any]) -> str | None:
+    """A grasp's motion (None for a window, which has no ``duration``): ``slipping`` when its
+    ``slip`` >= :data:`SLIP_SPEED`, else ``brief`` under :data:`BRIEF_S`, ``long`` from
+    :data:`LONG_HOLD_S`, ``held`` between."""
+    if facets.get("duration") is None:
+        return None
     if float(facets.get("slip") or 0.0) >= SLIP_SPEED:
-        words.append("slipping")
+        return "slipping"
+    d = float(facets["duration"])
+    return "brief" if d < BRIEF_S else "long" if d >= LONG_HOLD_S else "held"
+
+
+def caption_words(band: str, grip: str | None, active: list[str], move: str | None) -> str:
+    """The caption of its parts (:func:`caption`). A window's (``move`` None): firmness
+    ``band``, ``grip``, the ``active`` regions most loaded first, the firmness's words, e.g.
+    "a firm pinch with thumb and index, squeezing hard". A grasp's (``move``, its
+    :func:`motion`): the motion's words first, then the firmness and grip and the firmness's
+    words, without the regions (its windows' captions say them), e.g. "slipping, a firm
+    pinch, squeezing hard"; a grasp merely held says no motion. The regions are left out and
+    the motion put first because MiniLM weighs a short caption's first words: "a long steady
+    hold" reached "a long steady hold, a steady power grasp" at cosine 0.77, "a steady power
+    grasp with palm, middle and thumb, a long steady hold" at 0.54."""
+    grip_words = f"a {band} {GRIP_WORDS.get(grip or '', 'touch')}"
+    words = [grip_words]
+    if move is None and active:
+        words[0] += " with " + _and(active)
+    if move in MOTION_WORDS:
+        words.insert(0, MOTION_WORDS[move])
+    if band in FIRMNESS_WORDS:
+        words.append(FIRMNESS_WORDS[band])
     return ", ".join(words)
+
+
+def grasp_captions() -> list[str]:
+    """Every grasp caption there can be (each firmness band, grip and motion): few enough
+    (72) to embed at once."""
+    texts = {
+        caption_words(band, grip, [], move)
+        for band in FIRMNESS_BANDS
+        for grip in (*GRIPS, None)
+        for move in MOTIONS
+    }
+    return sorted(texts)
+
+
+def caption(facets: dict[str, Any], taxels: int | None = None) -> str:
+    """A window's or a grasp's facets in words, deterministically (rule :data:`CAPTION_RULE`):
+    the firmness of its :func:`pressure` (light / steady / firm; ``taxels`` where the facets
+    do not say it), the grip, the active regions most loaded first, the firmness's words
+    (:data:`FIRMNESS_WORDS`), then, for a grasp, its motion's (:data:`MOTION_WORDS`), e.g. "a
+    firm pinch with thumb and index, squeezing hard" (a window), "slipping, a firm pinch,
+    squeezing hard" (a grasp: :func:`caption_words`). A window's caption is a function of its
+    pressure band, grip and active regions; a grasp's of its band, grip and motion (what
+    :mod:`tactus_memory.search.captions` keys on)."""
+    band = firmness(pressure(facets, taxels))
+    active = active_regions(facets.get("regions") or {})
+    return caption_words(band, facets.get("grip"), active, motion(facets))

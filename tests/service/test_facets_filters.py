@@ -155,9 +155,14 @@ def test_facet_filters_refuse_bad_values_and_old_stores(checkpoint: Path, tmp_pa
     by_time = [h.id for h in memory.search("x", k=10, group="window", sort="t")]
     assert by_time == ids  # time order needs no facet column
     res = CliRunner().invoke(app, ["maintain", "--facets", "--data", str(tmp_path / "mem")])
-    assert res.exit_code == 0, res.output
+    # the facets are in, but this store's space (a test stand-in) cannot embed its captions:
+    # exit 2, one line saying so, and the JSON says what failed
+    assert res.exit_code == 2, res.output
+    said = [line for line in res.stderr.splitlines() if line.startswith("error:")]
+    assert len(said) == 1 and "captions not embedded" in said[0] and "fake-hash" in said[0]
     report = json.loads(res.stdout.strip().splitlines()[-1])
     assert report["added"] and report["touch_rows"] == len(ids)
+    assert "fake-hash" in report["captions_error"]
     memory.store.reread_layout()
     after = {h.id: h.facets for h in memory.search("x", k=10, group="window")}
     for i, f in after.items():  # as at write time, but for the float16 of the stored window
@@ -167,7 +172,7 @@ def test_facet_filters_refuse_bad_values_and_old_stores(checkpoint: Path, tmp_pa
         assert f["regions"] == pytest.approx(before[i]["regions"], abs=1e-3)
     assert {h.id for h in memory.search("x", k=10, grip="pinch", group="window")} == set(ids[:2])
     again = CliRunner().invoke(app, ["maintain", "--facets", "--data", str(tmp_path / "mem")])
-    assert again.exit_code == 0 and not json.loads(again.stdout.strip().splitlines()[-1])["added"]
+    assert again.exit_code == 2 and not json.loads(again.stdout.strip().splitlines()[-1])["added"]
 
 
 def test_rerun_export_carries_facets_as_scalars(stored, tmp_path: Path) -> None:

@@ -10,6 +10,10 @@ from tactus_memory.errors import InvalidInputError
 from tactus_memory.touch.facets import (
     ACTIVE_SHARE,
     CAPTION_RULE,
+    FIRM_PRESSURE,
+    LIGHT_PRESSURE,
+    LONG_HOLD_S,
+    SLIP_SPEED,
     caption,
     grasp_facets,
     grip_of,
@@ -32,10 +36,10 @@ def press(frames: np.ndarray, pad: str, value: float, rows: int = 2, cols: int =
     frames[..., r : r + rows, c : c + cols] = value
 
 
-def hand_window(pads: dict[str, float], k: int = 4) -> np.ndarray:
+def hand_window(pads: dict[str, float], k: int = 4, rows: int = 2) -> np.ndarray:
     w = np.zeros((k, *HAND.shape), np.float32)
     for pad, v in pads.items():
-        press(w, pad, v)
+        press(w, pad, v, rows=rows, cols=rows)
     return w
 
 
@@ -166,22 +170,36 @@ def test_bad_shapes_are_refused() -> None:
         grasp_facets(window_facets(np.zeros((2, 16, 16)), SKIN), np.zeros(2), np.zeros(2))
 
 
-def test_caption_says_firmness_grip_regions_duration_and_slip() -> None:
-    f = {"peak": 0.9, "grip": "pinch", "regions": {"thumb": 0.6, "index": 0.4, "palm": 0.0}}
-    assert caption({**f, "duration": 2.34, "slip": 3.0}) == (
-        "a firm pinch with thumb and index, squeezing hard, 2.3 s, slipping"
+def test_caption_says_firmness_from_force_grip_regions_and_motion() -> None:
+    """Rule 3: the firmness is the force over the sensor's taxels (the peak taxel plays no
+    part), banded at LIGHT_PRESSURE / FIRM_PRESSURE; a grasp's motion is said in words."""
+    f = {"grip": "pinch", "regions": {"thumb": 0.6, "index": 0.4, "palm": 0.0}, "taxels": 548}
+    firm, light = FIRM_PRESSURE * 548, 0.99 * LIGHT_PRESSURE * 548
+    assert caption({**f, "force": firm, "peak": 0.1, "duration": 2.3, "slip": SLIP_SPEED}) == (
+        "a firm pinch with thumb and index, squeezing hard, slipping"
     )
-    assert caption({**f, "peak": 0.2, "duration": 1.0, "slip": 0.5}) == (
-        "a light pinch with thumb and index, touching lightly, 1.0 s"
+    assert caption({**f, "force": light, "peak": 1.0, "duration": 0.5, "slip": 0.5}) == (
+        "a light pinch with thumb and index, touching lightly, a brief touch"
     )
-    power = {"peak": 0.5, "grip": "power", "duration": 4.0, "slip": 0.0}
+    power = {"force": 0.097 * 548, "grip": "power", "duration": LONG_HOLD_S, "slip": 0.0}
     power["regions"] = {"palm": 0.5, "index": 0.2, "middle": 0.3}
-    assert caption(power) == "a steady power grasp with palm, middle and index, 4.0 s"
-    assert caption({"peak": 0.5, "grip": None, "regions": {}}) == "a steady touch"
+    assert caption({**power, "taxels": 548}) == (
+        "a steady power grasp with palm, middle and index, a long steady hold"
+    )
+    assert caption({**power, "duration": 4.0}, taxels=548) == (  # held: no motion words
+        "a steady power grasp with palm, middle and index"
+    )
+    # relative to the sensor: the same force is firm on 100 taxels, light on 1000
+    assert caption({"force": 20.0, "taxels": 100}).startswith("a firm touch")
+    assert caption({"force": 20.0, "taxels": 1000}).startswith("a light touch")
+    assert caption({"force": 20.0, "grip": None, "regions": {}}) == "a steady touch"  # unknown
 
 
 def test_grasp_facets_carry_their_caption_and_rule() -> None:
-    wins = np.stack([hand_window({"thumb": 0.9, "index": 0.9}) for _ in range(3)])
-    g = grasp_facets(window_facets(wins, HAND), np.array([0.0, 0.5, 1.0]), np.array([1, 1.5, 2]))
-    assert g["caption"] == "a firm pinch with thumb and index, squeezing hard, 2.0 s"
+    wins = np.stack([hand_window({"thumb": 0.9, "index": 0.9}, rows=4) for _ in range(3)])
+    f = window_facets(wins, HAND)
+    assert f.taxels == 4 * 16 + 64 and f.row(0)["taxels"] == f.taxels
+    g = grasp_facets(f, np.array([0.0, 0.5, 1.0]), np.array([1, 1.5, 2]))
+    assert g["force"] / g["taxels"] >= FIRM_PRESSURE  # 32 taxels at 0.9 of 128
+    assert g["caption"] == "a firm pinch with thumb and index, squeezing hard"
     assert g["caption_rule"] == CAPTION_RULE
