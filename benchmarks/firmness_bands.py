@@ -1,15 +1,16 @@
-"""The caption's firmness bands (issue 50): quartiles of the sensor-relative force of the shipped
-checkpoint's training windows.
+"""The caption's firmness bands (issue 50): quartiles of the sensor-relative force of the STAG
+glove's blindfolded recordings (objects handled), one of the shipped checkpoint's two training
+subsets.
 
 A window's *pressure* is its ``force`` over the sensor's taxels (the mean calibrated reading,
 ``touch.facets.pressure``). The STAG glove's windows are cut as the memory stores them
 (``stream_eval.build_stream``: 8 frames every 4, idle ones dropped) from the blindfolded
-recordings the shipped checkpoint was trained on; the pressure is computed here from the raw
+recordings; the pressure is computed here from the raw
 frames and the 548 public taxel coordinates (the calibration written out, not the facets
 module). ``touch.facets.LIGHT_PRESSURE`` and ``FIRM_PRESSURE`` are the 25th and 75th
-percentiles, rounded to 4 decimals. The weights subset (the glove holding weights, another
-day) is reported beside it: its windows sit higher (pedestal and load), so on it most windows
-are "firm".
+percentiles, rounded to 4 decimals. The weights subset (the checkpoint's other training
+subset: the glove holding weights, another day) is reported beside it: its windows sit higher
+(pedestal and load), so by these bands all of them are "firm".
 
     TACTUS_DATA_HOME=... python benchmarks/firmness_bands.py   # results/firmness_bands.json
 """
@@ -27,7 +28,7 @@ from tactus_memory.training import stream_eval
 from tactus_memory.training.data import load_stag
 
 OUT = Path(__file__).parent / "results" / "firmness_bands.json"
-SUBSETS = {"train": "blindfolded_lite_train", "other_day": "weights_lite"}
+SUBSETS = {"objects": "blindfolded_lite_train", "weights": "weights_lite"}
 
 
 def pressures(subset: Path, coords: np.ndarray) -> np.ndarray:
@@ -63,9 +64,9 @@ def main() -> None:
             "share_firm": round(float(np.mean(p >= FIRM_PRESSURE)), 3),
         }
     result["bands"] = {"light_below": LIGHT_PRESSURE, "firm_from": FIRM_PRESSURE}
-    result["bands_are_train_quartiles"] = (
-        result["bands"]["light_below"] == result["train"]["p25"]
-        and result["bands"]["firm_from"] == result["train"]["p75"]
+    result["bands_are_objects_quartiles"] = (
+        result["bands"]["light_below"] == result["objects"]["p25"]
+        and result["bands"]["firm_from"] == result["objects"]["p75"]
     )
     OUT.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))

@@ -317,19 +317,22 @@ def facets_of_rows(rows: list[dict[str, Any]], taxels: int | None = None) -> Win
 #: the caption rule's version, returned beside each caption (``caption_rule``): bump it when
 #: :func:`caption` changes, so captions written by another rule can be told apart and redone.
 #: Rule 3: firmness from ``force`` relative to the sensor (:func:`pressure`), not the peak
-#: taxel; a grasp's caption says its motion (:func:`motion`) instead of its duration in digits
+#: taxel, its words first; a grasp's caption says its motion (:func:`motion`) first instead
+#: of its duration in digits
 CAPTION_RULE = 3
 #: :func:`pressure` bands of the caption's firmness word: below LIGHT_PRESSURE "light", from
 #: FIRM_PRESSURE "firm", between "steady". The quartiles of the mean calibrated taxel reading
-#: (force / taxels) over the shipped checkpoint's training windows (the 419 stored windows of
-#: the blindfolded STAG recordings; benchmarks/firmness_bands.py, results/firmness_bands.json).
-#: The glove's resting pedestal (0.07-0.10 calibrated) is most of it, so the bands are narrow
+#: (force / taxels) over the 419 stored windows of the blindfolded STAG recordings (objects
+#: handled; one of the shipped checkpoint's two training subsets, and the recordings of
+#: benchmarks/facet_questions.py; benchmarks/firmness_bands.py, results/firmness_bands.json).
+#: The glove's resting pedestal (0.07-0.10 calibrated) is most of it, so the bands are narrow;
+#: the other training subset (weights held, another day) reads higher: all "firm" by them
 LIGHT_PRESSURE = 0.0940
 FIRM_PRESSURE = 0.0994
 #: centroid speed (taxels per second) from which a grasp is "slipping": the 75th percentile
 #: of the grasps the memory cuts from the checkpoint's training recordings (49 grasps, median
 #: 3.7: a hand handling an object moves its load; benchmarks/results/facet_questions.json,
-#: ``grasp_stats``). Rule 2 had 2.0, chosen, which called most grasps slipping
+#: ``grasps_in_words.stats``). Rule 2 had 2.0, chosen, which called most grasps slipping
 SLIP_SPEED = 6.0
 #: a grasp shorter than this (seconds) is "a brief touch" (chosen: under a second, two
 #: stored glove windows); one at least LONG_HOLD_S long and not slipping is "a long steady
@@ -393,23 +396,24 @@ def motion(facets: dict[str, Any]) -> str | None:
 
 
 def caption_words(band: str, grip: str | None, active: list[str], move: str | None) -> str:
-    """The caption of its parts (:func:`caption`). A window's (``move`` None): firmness
-    ``band``, ``grip``, the ``active`` regions most loaded first, the firmness's words, e.g.
-    "a firm pinch with thumb and index, squeezing hard". A grasp's (``move``, its
-    :func:`motion`): the motion's words first, then the firmness and grip and the firmness's
-    words, without the regions (its windows' captions say them), e.g. "slipping, a firm
-    pinch, squeezing hard"; a grasp merely held says no motion. The regions are left out and
-    the motion put first because MiniLM weighs a short caption's first words: "a long steady
-    hold" reached "a long steady hold, a steady power grasp" at cosine 0.77, "a steady power
-    grasp with palm, middle and thumb, a long steady hold" at 0.54."""
-    grip_words = f"a {band} {GRIP_WORDS.get(grip or '', 'touch')}"
-    words = [grip_words]
+    """The caption of its parts (:func:`caption`). A window's (``move`` None): the firmness's
+    words (:data:`FIRMNESS_WORDS`), then the firmness ``band``, ``grip`` and the ``active``
+    regions most loaded first, e.g. "squeezing hard, a firm pinch with thumb and index". A
+    grasp's (``move``, its :func:`motion`): the motion's words first, then the same without
+    the regions (its windows' captions say them), e.g. "slipping, squeezing hard, a firm
+    pinch"; a grasp merely held says no motion. What a question asks in words comes first
+    because MiniLM weighs a short caption's first words: "a long steady hold" reached "a long
+    steady hold, a steady power grasp" at cosine 0.77, "a steady power grasp with palm, middle
+    and thumb, a long steady hold" at 0.54; "squeezing hard" reached "squeezing hard, a firm
+    power grasp with palm, index, middle and ring" at 0.64, the same words in the other order
+    at 0.57."""
+    words = [f"a {band} {GRIP_WORDS.get(grip or '', 'touch')}"]
     if move is None and active:
         words[0] += " with " + _and(active)
+    if band in FIRMNESS_WORDS:
+        words.insert(0, FIRMNESS_WORDS[band])
     if move in MOTION_WORDS:
         words.insert(0, MOTION_WORDS[move])
-    if band in FIRMNESS_WORDS:
-        words.append(FIRMNESS_WORDS[band])
     return ", ".join(words)
 
 
@@ -428,12 +432,12 @@ def grasp_captions() -> list[str]:
 def caption(facets: dict[str, Any], taxels: int | None = None) -> str:
     """A window's or a grasp's facets in words, deterministically (rule :data:`CAPTION_RULE`):
     the firmness of its :func:`pressure` (light / steady / firm; ``taxels`` where the facets
-    do not say it), the grip, the active regions most loaded first, the firmness's words
-    (:data:`FIRMNESS_WORDS`), then, for a grasp, its motion's (:data:`MOTION_WORDS`), e.g. "a
-    firm pinch with thumb and index, squeezing hard" (a window), "slipping, a firm pinch,
-    squeezing hard" (a grasp: :func:`caption_words`). A window's caption is a function of its
-    pressure band, grip and active regions; a grasp's of its band, grip and motion (what
-    :mod:`tactus_memory.search.captions` keys on)."""
+    do not say it) and its words (:data:`FIRMNESS_WORDS`), the grip, the active regions most
+    loaded first and, for a grasp, its motion's words (:data:`MOTION_WORDS`), e.g. "squeezing
+    hard, a firm pinch with thumb and index" (a window), "slipping, squeezing hard, a firm
+    pinch" (a grasp; :func:`caption_words` says the order). A window's caption is a function
+    of its pressure band, grip and active regions; a grasp's of its band, grip and motion
+    (what :mod:`tactus_memory.search.captions` keys on)."""
     band = firmness(pressure(facets, taxels))
     active = active_regions(facets.get("regions") or {})
     return caption_words(band, facets.get("grip"), active, motion(facets))

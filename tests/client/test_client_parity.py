@@ -33,6 +33,7 @@ from tactus_memory.identity import auth_headers
 from tactus_memory.mcp.server import build_server
 from tactus_memory.memory.main import Memory
 from tactus_memory.search.captions import CAPTION_MIN_COS
+from tactus_memory.touch.facets import caption
 from tactus_memory.touch.regions import STAG_REGIONS
 from tests.helpers.servers import Server
 from tests.helpers.service import window
@@ -374,9 +375,36 @@ def test_facet_filters_answer_alike_five_ways(local, remote) -> None:
     assert "power" not in by_words or by_words.index("power") > 1
     r = httpx.get(remote.url + "/search", params=q, headers=auth_headers(TOKEN))
     assert [h["id"] for h in r.json()["hits"]] == by_words
+    _firmness_and_motion_in_words(local)
     when = _temporal(local, remote, mcp[len(CASES) :])
     for (route, kw, want), got in zip(WHEN, when, strict=True):
         assert all(a == want for a in got.values()), (route, kw, got)
+
+
+def _firmness_and_motion_in_words(local: Memory) -> None:
+    """Issue 50, caption rule 3: the firmness words follow the force over the glove's 548
+    taxels (firm from 0.0994: power, tripod and pinch-firm; light under 0.094: press), not
+    the peak taxel (pinch-light's peak, 0.8, made it "firm" under rule 2, press's "steady");
+    "squeezing hard" finds the firm pinch by its caption. A grasp's own caption says its
+    motion, so a long steady hold and a brief touch are found in words."""
+    windows = local.search("x", k=5, group="window", session=GRIPS_SESSION)
+    said = {h.id: caption(h.facets) for h in windows}  # a window's caption (touch.facets)
+    assert said["pinch-firm"] == "squeezing hard, a firm pinch with thumb and index"
+    assert said["pinch-light"] == "a steady pinch with thumb and index"
+    assert said["press"] == "touching lightly, a light press with palm"
+    firm = local.search("squeezing hard", k=1, group="window", session=GRIPS_SESSION)
+    assert firm[0].id == "pinch-firm" and firm[0].cosine >= CAPTION_MIN_COS
+    # a steady power grasp held 8 s (eight overlapping windows; 18 taxels at raw 590: force
+    # ~53 of 548 taxels, steady) and a brief one (one 0.5 s window)
+    held = [glove_window(("palm", "index", "middle"), 590, 20 + i) for i in range(9)]
+    t = [float(i) for i in range(8)] + [60.0]
+    t_end = [x + 1.0 for x in t[:8]] + [60.5]
+    ids = local.add_many("hold", "touch", held, t=t, t_end=t_end)
+    long = local.search("a long steady hold", k=2, senses=["touch"], session="hold")
+    assert long[0].ids == ids[:8] and long[0].facets["caption"].startswith("a long steady hold")
+    assert long[0].cosine >= CAPTION_MIN_COS  # its own caption answers
+    brief = local.search("a brief touch", k=2, senses=["touch"], session="hold")
+    assert brief[0].ids == ids[8:] and brief[0].facets["duration"] == 0.5
 
 
 #: when-questions with a facet order (and filters): (route, arguments, the best ids of the

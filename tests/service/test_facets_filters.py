@@ -22,6 +22,7 @@ from tactus_memory.storage.tables import FACET_COLUMNS
 from tactus_memory.touch.facets import CAPTION_RULE, caption, facet_columns, window_facets
 from tactus_memory.touch.profile import STAG_GLOVE
 from tactus_memory.touch.regions import STAG_REGIONS
+from tactus_memory.where import Where
 from tests.helpers.service import FRAMES, make_memory
 
 REST = 512  # raw resting reading (stag-format.md)
@@ -213,3 +214,25 @@ def test_captions_are_stored_per_rule_and_rebuilt(stored) -> None:
     report = Captions(memory.store, memory.space).rebuild()
     assert report == {"captions": len(have), "added": 1, "removed": 1}
     assert set(memory.store.meta_items(CAPTION_PREFIX)) == set(have)
+
+
+def test_a_captions_windows_come_in_its_order(stored, monkeypatch) -> None:
+    """Issue 50: the windows a caption answers come in its firmness's order (firm: firmest
+    first; light: lightest first), ahead of windows of equal score; a key reads its windows
+    by grip, regions and the band's force bounds (its pressure band times the taxels)."""
+    memory, ids = stored
+    captions = memory.ranker.captions
+    pinch = {h.id: h for h in memory.search("x", k=10, group="window", grip="pinch")}
+    assert set(pinch) == set(ids[:2])
+    regions = facet_columns(pinch[ids[0]].facets)["regions"]
+    base = Where().session("day")
+    for band, first in (("firm", ids[1]), ("light", ids[0])):  # ids[1]: raw 700, ids[0]: 620
+        key = CaptionKey(band, "pinch", regions)  # no taxel count: grip and regions alone
+        monkeypatch.setattr(captions, "scores", lambda q, key=key: {key: (3.0, 0.9)})
+        found = captions.search(np.zeros(memory.space.dim, np.float32), 5, ["touch"], base)
+        assert [row["id"] for _, _, row in found][0] == first
+        assert len(found) == 2 and {s for s, _, _ in found} == {3.0}
+    key = CaptionKey.of(facet_columns(pinch[ids[1]].facets))
+    assert key.taxels == 548 and key.band == "firm"  # force / 548 >= FIRM_PRESSURE
+    firm_only = key.where(base).senses(["touch"])
+    assert {r["id"] for r in memory.store.scan(firm_only.sql(), ["id"]).to_pylist()} == {ids[1]}

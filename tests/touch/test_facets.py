@@ -176,22 +176,23 @@ def test_caption_says_firmness_from_force_grip_regions_and_motion() -> None:
     f = {"grip": "pinch", "regions": {"thumb": 0.6, "index": 0.4, "palm": 0.0}, "taxels": 548}
     firm, light = FIRM_PRESSURE * 548, 0.99 * LIGHT_PRESSURE * 548
     assert caption({**f, "force": firm, "peak": 0.1, "duration": 2.3, "slip": SLIP_SPEED}) == (
-        "a firm pinch with thumb and index, squeezing hard, slipping"
+        "slipping, squeezing hard, a firm pinch"  # a grasp's caption names no region
     )
     assert caption({**f, "force": light, "peak": 1.0, "duration": 0.5, "slip": 0.5}) == (
-        "a light pinch with thumb and index, touching lightly, a brief touch"
+        "a brief touch, touching lightly, a light pinch"
     )
     power = {"force": 0.097 * 548, "grip": "power", "duration": LONG_HOLD_S, "slip": 0.0}
     power["regions"] = {"palm": 0.5, "index": 0.2, "middle": 0.3}
-    assert caption({**power, "taxels": 548}) == (
-        "a steady power grasp with palm, middle and index, a long steady hold"
-    )
-    assert caption({**power, "duration": 4.0}, taxels=548) == (  # held: no motion words
-        "a steady power grasp with palm, middle and index"
+    assert caption({**power, "taxels": 548}) == "a long steady hold, a steady power grasp"
+    assert caption({**power, "duration": 4.0}, taxels=548) == "a steady power grasp"  # held
+    window = {k: v for k, v in power.items() if k not in ("duration", "slip")}
+    assert caption(window, taxels=548) == "a steady power grasp with palm, middle and index"
+    assert caption({**window, "force": firm}, taxels=548) == (
+        "squeezing hard, a firm power grasp with palm, middle and index"
     )
     # relative to the sensor: the same force is firm on 100 taxels, light on 1000
-    assert caption({"force": 20.0, "taxels": 100}).startswith("a firm touch")
-    assert caption({"force": 20.0, "taxels": 1000}).startswith("a light touch")
+    assert caption({"force": 20.0, "taxels": 100}) == "squeezing hard, a firm touch"
+    assert caption({"force": 20.0, "taxels": 1000}) == "touching lightly, a light touch"
     assert caption({"force": 20.0, "grip": None, "regions": {}}) == "a steady touch"  # unknown
 
 
@@ -201,5 +202,5 @@ def test_grasp_facets_carry_their_caption_and_rule() -> None:
     assert f.taxels == 4 * 16 + 64 and f.row(0)["taxels"] == f.taxels
     g = grasp_facets(f, np.array([0.0, 0.5, 1.0]), np.array([1, 1.5, 2]))
     assert g["force"] / g["taxels"] >= FIRM_PRESSURE  # 32 taxels at 0.9 of 128
-    assert g["caption"] == "a firm pinch with thumb and index, squeezing hard"
+    assert g["caption"] == "squeezing hard, a firm pinch"  # 2.0 s, no slip: held
     assert g["caption_rule"] == CAPTION_RULE
