@@ -69,7 +69,7 @@ def touch_taxels(store: Store) -> dict[str, int]:
     from tactus_memory.touch.regions import regions_of
 
     return {
-        name: int(taxel_mask(p, regions_of(p), tuple(p.shape)).sum())
+        name: int(taxel_mask(p, regions_of(p), (int(p.shape[0]), int(p.shape[1]))).sum())
         for name, p in touch_profiles(store).items()
     }
 

@@ -297,7 +297,7 @@ def facets_of_rows(rows: list[dict[str, Any]], taxels: int | None = None) -> Win
         [r["centroid"] if r.get("centroid") else (np.nan, np.nan) for r in rows], np.float64
     ).reshape(-1, 2)
     load = np.array([r.get("load", 0.0) for r in rows], np.float64)
-    known = {r.get("taxels") for r in rows} - {None}
+    known = {int(r["taxels"]) for r in rows if r.get("taxels") is not None}
     return WindowFacets(
         force=force,
         area=np.array([r["area"] for r in rows], np.float64),
@@ -309,7 +309,7 @@ def facets_of_rows(rows: list[dict[str, Any]], taxels: int | None = None) -> Win
         ).reshape(len(rows), len(names)),
         load=load,
         region_names=names,
-        taxels=int(known.pop()) if len(known) == 1 else taxels,
+        taxels=known.pop() if len(known) == 1 else taxels,
     )
 
 
