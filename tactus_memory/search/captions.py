@@ -15,10 +15,11 @@ them all from the stored facets. Entries of another caption rule
 (``touch.facets.CAPTION_RULE``) are never read, so a new rule takes effect after ``tactus
 maintain --facets``, which writes the new rule's and removes the old. A grasp's caption adds
 its motion (a brief touch, a long steady hold, slipping) to its own firmness and grip (not its
-regions: :func:`~tactus_memory.touch.facets.caption_words`). Grasps are cut at query time, so
-their captions are not stored: there are 72 of them in all
-(:func:`~tactus_memory.touch.facets.grasp_captions`), embedded in one call the first time a
-process scores a grasp and kept.
+regions: :func:`~tactus_memory.touch.facets.caption_words`). Grasps are cut at query time,
+but there are only 72 grasp captions in all
+(:func:`~tactus_memory.touch.facets.grasp_captions`): the first write that brings a caption
+(or the rebuild) embeds them all in one call and keeps them in one meta entry of the rule
+(:data:`GRASP_CAPTIONS_PREFIX`), so no search embeds one.
 
 **How they are searched.** A text query's embedding (before any sense's query transform) is
 compared with every window caption of the current rule; those at cosine >=
@@ -72,6 +73,9 @@ if TYPE_CHECKING:
 
 #: meta-table key prefix of a caption's embedding (then ``<rule>/<digest of its key>``)
 CAPTION_PREFIX = "caption/"
+#: meta-table key prefix of every grasp caption's embedding, one entry per rule (then
+#: ``<rule>``): a JSON object caption -> base64 float32 vector
+GRASP_CAPTIONS_PREFIX = "caption-grasps/"
 #: a caption takes part in a search only at this cosine to the query or above (MiniLM, rule
 #: 3). Chosen on benchmarks/caption_gate.py's phrasings (results/caption_gate.json): the
 #: lowest gate whose reached captions are of the phrase's meaning in >= GATE_PRECISION of
@@ -181,6 +185,8 @@ class Captions:
             for e in extras
             if e.get("facets") is not None
         }
+        if keys:  # a store with touch windows: every grasp caption too, once
+            self._add_grasp_captions()
         if all(k.digest() in self._known for k in keys):
             return 0
         self._known |= self._stored_digests()
@@ -203,6 +209,21 @@ class Captions:
         self._known |= {k.digest() for k in new}
         return len(new)
 
+    def _add_grasp_captions(self) -> None:
+        """Every grasp caption of the current rule embedded into the meta table, once."""
+        key = f"{GRASP_CAPTIONS_PREFIX}{CAPTION_RULE}"
+        if key in self._known or self.store.get_meta(key) is not None:
+            self._known.add(key)
+            return
+        texts = grasp_captions()
+        vecs = as_unit_rows(self.space.embed_texts(texts), self.space.dim, what="captions")
+        enc = {
+            t: base64.b64encode(v.astype("<f4").tobytes()).decode()
+            for t, v in zip(texts, vecs, strict=True)
+        }
+        self.store.set_meta(key, json.dumps(enc))
+        self._known.add(key)
+
     def rebuild(self) -> dict[str, int]:
         """Every caption of the stored touch windows' facets, of the current rule; entries of
         other rules removed (``tactus maintain --facets``). Returns the counts."""
@@ -213,6 +234,11 @@ class Captions:
             tbl = self.store.scan("facets IS NOT NULL", cols)
         rows = tbl.to_pylist()
         stale = [k for k in self.store.meta_items(CAPTION_PREFIX) if not self._current(k)]
+        stale += [
+            k
+            for k in self.store.meta_items(GRASP_CAPTIONS_PREFIX)
+            if k != f"{GRASP_CAPTIONS_PREFIX}{CAPTION_RULE}"
+        ]
         for key in stale:
             self.store.delete_meta(key)
         self._known.clear()
@@ -388,13 +414,21 @@ class Captions:
         return float(vocab.calibration.score(cos)), cos
 
     def grasp_vectors(self) -> dict[str, np.ndarray]:
-        """Every grasp caption's (D,) unit embedding (:func:`touch.facets.grasp_captions`),
-        embedded in one call the first time a process asks."""
+        """Every grasp caption's (D,) unit embedding (:func:`touch.facets.grasp_captions`):
+        the store's entry of the current rule, read once per process; a store without it (no
+        touch caption written since the rule) has them embedded here, in one call."""
         with self._lock:
             if self._grasp_vectors is not None:
                 return self._grasp_vectors
-        texts = grasp_captions()
-        vecs = as_unit_rows(self.space.embed_texts(texts), self.space.dim, what="captions")
+        stored = self.store.get_meta(f"{GRASP_CAPTIONS_PREFIX}{CAPTION_RULE}")
+        if stored is not None:
+            enc = json.loads(stored)
+            texts = list(enc)
+            raw = np.stack([np.frombuffer(base64.b64decode(enc[t]), dtype="<f4") for t in texts])
+            vecs = as_unit_rows(raw, self.space.dim, what="captions")
+        else:
+            texts = grasp_captions()
+            vecs = as_unit_rows(self.space.embed_texts(texts), self.space.dim, what="captions")
         out = dict(zip(texts, vecs, strict=True))
         with self._lock:
             self._grasp_vectors = out

@@ -15,11 +15,22 @@ from typer.testing import CliRunner
 from tactus_memory.adapters.touch import TactusEncoder
 from tactus_memory.cli.app import app
 from tactus_memory.errors import InvalidInputError
-from tactus_memory.search.captions import CAPTION_PREFIX, CaptionKey, Captions
+from tactus_memory.search.captions import (
+    CAPTION_PREFIX,
+    GRASP_CAPTIONS_PREFIX,
+    CaptionKey,
+    Captions,
+)
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
 from tactus_memory.storage.tables import FACET_COLUMNS
-from tactus_memory.touch.facets import CAPTION_RULE, caption, facet_columns, window_facets
+from tactus_memory.touch.facets import (
+    CAPTION_RULE,
+    caption,
+    facet_columns,
+    grasp_captions,
+    window_facets,
+)
 from tactus_memory.touch.profile import STAG_GLOVE
 from tactus_memory.touch.regions import STAG_REGIONS
 from tactus_memory.where import Where
@@ -209,11 +220,18 @@ def test_captions_are_stored_per_rule_and_rebuilt(stored) -> None:
     assert {k.digest() for k in keys} == {k.rsplit("/", 1)[1] for k in have}
     for h in windows:  # the key's caption is the window's own, word for word
         assert CaptionKey.of(facet_columns(h.facets)).caption() == caption(h.facets)
+    # every grasp caption of the rule, embedded by the first touch write (no search embeds)
+    grasps = json.loads(memory.store.get_meta(f"{GRASP_CAPTIONS_PREFIX}{CAPTION_RULE}") or "{}")
+    assert sorted(grasps) == grasp_captions() and len(grasps) == 72
     memory.store.set_meta(f"{CAPTION_PREFIX}{CAPTION_RULE - 1}/old", "{}")  # an older rule's
+    memory.store.set_meta(f"{GRASP_CAPTIONS_PREFIX}{CAPTION_RULE - 1}", "{}")
     memory.store.delete_meta(next(iter(have)))
     report = Captions(memory.store, memory.space).rebuild()
-    assert report == {"captions": len(have), "added": 1, "removed": 1}
+    assert report == {"captions": len(have), "added": 1, "removed": 2}
     assert set(memory.store.meta_items(CAPTION_PREFIX)) == set(have)
+    assert list(memory.store.meta_items(GRASP_CAPTIONS_PREFIX)) == [
+        f"{GRASP_CAPTIONS_PREFIX}{CAPTION_RULE}"
+    ]
 
 
 def test_a_captions_windows_come_in_its_order(stored, monkeypatch) -> None:
