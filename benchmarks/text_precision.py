@@ -103,7 +103,10 @@ def main() -> None:
         "per session (top text hit)"
     )
     row = senses_row(grown, questions, "a grown memory (calibration final), real MiniLM")
-    doc = {"source": "benchmarks/text_precision.py", "precision_at_bar": {space.name: {"text": row}}}
+    doc = {
+        "source": "benchmarks/text_precision.py",
+        "precision_at_bar": {space.name: {"text": row}},
+    }
     figures_path(MATCH_PRECISION).write_text(json.dumps(doc, indent=1) + "\n")
     out = {
         "what": __doc__.split("\n")[0],
