@@ -110,7 +110,12 @@ def match_precision(mem, objects: list[str], label: dict[str, str]) -> dict:
         h = mem.search(QUESTION.format(label[obj]), k=1, senses=["touch"], session="day")[0]
         rows.append({"label": label[obj], "score": h.score, "right": h.meta["object"] == obj})
         rows[-1] |= {"match": bool(h.match), "bar": float(h.bar)}
-    chosen = choose_bar([r["score"] for r in rows], [r["right"] for r in rows], rows[0]["bar"])
+    # each hit carries its own bar (a taught label's: the relative gate on its best score); the
+    # sweep and the "shipped" figure use the grasp bar
+    from tactus_memory.matching import GRASP_MATCH_Z
+
+    scores, right = [r["score"] for r in rows], [r["right"] for r in rows]
+    chosen = choose_bar(scores, right, GRASP_MATCH_Z["touch"])
     return chosen | {"matched": sum(r["match"] for r in rows), "rows": rows}
 
 
