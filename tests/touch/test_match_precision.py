@@ -59,9 +59,12 @@ def test_senses_reports_the_precision_of_a_touch_match(tmp_path, minilm_space) -
     assert got["target_reached"] is False and got["bar_at_target"] is None
     # the text sense: measured on paraphrase questions in a grown memory, the same rule
     text = senses["text"]["precision_at_bar"]
-    assert text == json.loads(figures_path(TEXT_PRECISION).read_text())["precision_at_bar"][
-        minilm_space.name
-    ]["text"]
+    assert (
+        text
+        == json.loads(figures_path(TEXT_PRECISION).read_text())["precision_at_bar"][
+            minilm_space.name
+        ]["text"]
+    )
     redo = rule_on("text_precision.json", "grown")
     assert text == senses_row(redo, text["questions"], text["measured_on"])
     assert text["bar"] == MATCH_Z["text"] and text["lo"] <= text["value"] <= text["hi"]
