@@ -53,6 +53,10 @@ $(VENV)/.test: $(VENV)/.base
 	  $(PIP) install -q torch==$(TORCH_VERSION); \
 	fi
 	$(PIP) install -q -e ".[test]"
+	# the byte code make run's --no-compile left out: the suite starts hundreds of interpreters
+	# (servers, CLI runs), each would compile the modules it imports where byte code is not
+	# written (PYTHONDONTWRITEBYTECODE); errors ignored, as pip ignores them
+	$(PY) -c "import compileall, sysconfig; compileall.compile_dir(sysconfig.get_paths()['purelib'], quiet=2, workers=0)"
 	bash scripts/ensure-chromium.sh
 	touch $@
 
