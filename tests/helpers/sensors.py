@@ -123,7 +123,7 @@ def session_checkpoint(
     their base temp folders, so the first worker to ask trains it under a file lock and the
     others wait for it and read it; a plain run keeps it in its own base temp folder. Keyed by
     the sensor, the steps, the space and the data's fingerprint: another input trains anew."""
-    from filelock import FileLock
+    from filelock import FileLock  # a dependency of torch: the test extra installs it
 
     base = tmp_path_factory.getbasetemp()
     shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
