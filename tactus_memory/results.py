@@ -145,8 +145,10 @@ class SenseInfo(BaseModel):
     precision_at_bar: dict[str, Any] | None = Field(
         None,
         description="How often a match is right: the precision of the top hits that pass the "
-        "sense's match bar, measured on held-out data (value, 95 % interval lo/hi, k of n, the "
-        "bar, the question set); null when none was measured for this sense's encoder.",
+        "sense's match bar, measured on held-out questions (value, 95 % Wilson interval lo/hi, "
+        "k of n, the bar, the question set, the target precision, target_reached and "
+        "bar_at_target: the lowest bar whose lower bound reaches the target, null when none "
+        "does); null when none was measured for this sense's encoder or space.",
     )
     shape: list[int] | None = Field(
         None,

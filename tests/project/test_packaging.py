@@ -48,6 +48,7 @@ def test_wheel_maps_adapters_and_service_under_tactus_memory(tmp_path: Path) -> 
         assert f"tactus_memory/touch/checkpoints/{name}" in names
     for name in ("calibration-priors.json", "match-precision.json"):
         assert f"tactus_memory/touch/checkpoints/{name}" in names
+        assert f"tactus_memory/spaces/{name}" in names  # the text sense's, by space
     assert "tactus_memory/touch/configs/tactus-lite.json" in names
     assert "tactus_memory/training/queries/stream_queries.json" in names
     assert "tactus_memory/service/static/app.js" in names

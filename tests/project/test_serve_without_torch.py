@@ -9,10 +9,19 @@ Two halves, each cheap:
   serving requirements, followed through the installed distributions' metadata as pip's resolver
   walks them, never reach torch (a full ``pip install --dry-run`` into a fresh venv gives the
   same answer but takes over a minute on 2 cores: see the closing note of the issue);
-* a real interpreter in which torch is NOT installed: a fresh venv whose site folder holds the
-  test venv's packages less torch, sentence-transformers, transformers and pandas (links, no
-  copy). Its ``tactus serve`` exports MiniLM from the safetensors weights into an empty user
-  cache (no torch anywhere), then answers the README tour's touch write, note and search.
+* a real ``pip install`` of the serving set into a fresh venv in which torch is NOT installed:
+  the venv sees the test venv's packages less torch, sentence-transformers, transformers, pandas
+  and this package (links, no copy: the dependencies are there as a warm wheel cache would
+  give them), then pip itself, offline (``--no-index``), resolves ``tactus-memory[recordings,
+  mcp]`` from a copy of the checkout against them and builds and installs the package (not
+  editable: the wheel's own files, the shipped touch graph and the browser page included). A
+  requirement that needed torch, or anything else not linked, fails the install. Its
+  ``tactus serve`` exports MiniLM from the safetensors weights into an empty user cache (no
+  torch anywhere), then answers the README tour's touch write, note and search.
+
+Installing every dependency from wheels (unpacking ~1.9 GB) costs minutes on 2 cores
+(``benchmarks/make_run.py`` measures it as a newcomer's ``make run``): this test installs the
+package itself for real and the dependencies as links.
 """
 
 from __future__ import annotations
@@ -29,7 +38,7 @@ import numpy as np
 import pytest
 from packaging.requirements import Requirement
 
-from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
+from benchmarks.serving import copy_checkout, free_port, start_serve, stop_process, wait_ok
 
 #: what only the train extra may bring
 TORCH_SIDE = {"torch", "sentence-transformers", "transformers", "triton"}
@@ -39,6 +48,10 @@ NOT_SERVING = TORCH_SIDE | {"pandas"}
 SERVING_EXTRAS = ("recordings", "mcp")
 #: how long a server may take to answer /ready here (only a server that never starts fails)
 READY_S = 600
+ROOT = Path(__file__).resolve().parents[2]
+#: the interpreter never puts the working folder (the checkout, whose tactus_memory/ would
+#: shadow the installed package) on sys.path (Python 3.11+)
+SAFE_PATH = {"PYTHONSAFEPATH": "1"}
 
 
 def _norm(name: str) -> str:
@@ -81,8 +94,12 @@ def test_the_serving_install_never_pulls_torch() -> None:
 
 @pytest.fixture(scope="module")
 def torchless_python(tmp_path_factory: pytest.TempPathFactory) -> str:
-    """A fresh venv's interpreter that sees this venv's packages less the torch side."""
+    """A fresh venv's interpreter into which pip installed ``tactus-memory[recordings,mcp]``
+    (offline, from a copy of the checkout), seeing this venv's packages less the torch side
+    and this package."""
     root = tmp_path_factory.mktemp("torchless")
+    source = root / "source"
+    copy_checkout(ROOT, source)  # the build writes build/ and *.egg-info beside the sources
     venv = root / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
     shadow = root / "site"
@@ -90,7 +107,9 @@ def torchless_python(tmp_path_factory: pytest.TempPathFactory) -> str:
     here = Path(sysconfig.get_paths()["purelib"])
     for entry in here.iterdir():
         top = _norm(entry.name.split("-")[0] if entry.name.endswith("-info") else entry.name)
-        if top in NOT_SERVING or top in {"functorch", "torchgen"}:
+        if top in NOT_SERVING or top in {"functorch", "torchgen", "tactus-memory"}:
+            continue
+        if entry.name.startswith("__editable__"):  # this checkout's editable install
             continue
         (shadow / entry.name).symlink_to(entry)
     python = venv / "bin" / "python"
@@ -100,14 +119,31 @@ def torchless_python(tmp_path_factory: pytest.TempPathFactory) -> str:
         text=True,
         check=True,
     ).stdout.strip()
-    # addsitedir, not a plain path line: the editable install's own .pth in there runs too
     (Path(site) / "shadow.pth").write_text(f"import site; site.addsitedir({str(shadow)!r})\n")
-    check = (
-        "import importlib.util as u; "
-        "print(u.find_spec('torch'), u.find_spec('pandas'), u.find_spec('tactus_memory'))"
+    # this venv's pip installs into the fresh one (--python): no index, no download, the
+    # build backend (setuptools) from the links, no byte-compiling (as make run installs)
+    pip = [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-index"]
+    pip += ["--no-build-isolation", "--no-compile", "--progress-bar", "off"]
+    done = subprocess.run(
+        [*pip, f"{source}[{','.join(SERVING_EXTRAS)}]"], capture_output=True, text=True, cwd=root
     )
-    out = subprocess.run([str(python), "-c", check], capture_output=True, text=True, check=True)
-    assert out.stdout.startswith("None None ") and "tactus_memory" in out.stdout, out
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "Successfully installed tactus-memory-" in done.stdout, done.stdout[-2000:]
+    check = (
+        "import importlib.util as u, tactus_memory; "
+        "print(u.find_spec('torch'), u.find_spec('pandas'), tactus_memory.__file__)"
+    )
+    out = subprocess.run(
+        [str(python), "-c", check],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+        env={**os.environ, **SAFE_PATH},
+    )
+    # torch and pandas are not importable; the package is the installed one, not the checkout
+    assert out.stdout.startswith("None None "), out
+    assert out.stdout.split()[-1].startswith(site), out
     return str(python)
 
 
@@ -116,7 +152,7 @@ def test_the_tour_server_runs_without_torch(torchless_python: str, tmp_path: Pat
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     log = tmp_path / "serve.log"
-    env = {"TACTUS_CACHE": str(tmp_path / "cache"), "HF_HUB_OFFLINE": "1"}
+    env = {"TACTUS_CACHE": str(tmp_path / "cache"), "HF_HUB_OFFLINE": "1", **SAFE_PATH}
     proc = start_serve(port, tmp_path / "memory", log, env=env, python=torchless_python)
     try:
         assert wait_ok(proc, base + "/ready", READY_S, interval=0.2) is not None, log.read_text()
