@@ -19,6 +19,7 @@ one core); the checkpoint records the sensor's profile, so it serves any shape.
 
 from __future__ import annotations
 
+import os
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -50,7 +51,16 @@ HAND_MASK = np.zeros(HAND.shape, bool)
 for _name, _rows, _cols in HAND_PADS:
     HAND_MASK[_rows, _cols] = True
 
-__all__ = ["HAND", "HAND_MASK", "HAND_PADS", "SKIN", "hand", "skin", "train_checkpoint"]
+__all__ = [
+    "HAND",
+    "HAND_MASK",
+    "HAND_PADS",
+    "SKIN",
+    "hand",
+    "session_checkpoint",
+    "skin",
+    "train_checkpoint",
+]
 
 
 def skin(frames: np.ndarray) -> np.ndarray:
@@ -101,6 +111,30 @@ def train_checkpoint(
         fit(train, targets, cfg, path, space_dim=space.dim, device="cpu", progress=False)
     finally:
         torch.set_num_threads(threads)
+    return path
+
+
+def session_checkpoint(
+    tmp_path_factory: pytest.TempPathFactory, name: str, data: StagData, space: Space
+) -> Path:
+    """``train_checkpoint`` for sensor ``name`` (``PROFILES``/``CONVERT``), trained once per test
+    session: the test files that serve the same sensor (``tests/service/test_sensor_serving.py``,
+    ``test_sensor_browser.py``) share it. Under pytest-xdist the workers share the parent of
+    their base temp folders, so the first worker to ask trains it under a file lock and the
+    others wait for it and read it; a plain run keeps it in its own base temp folder. Keyed by
+    the sensor, the steps, the space and the data's fingerprint: another input trains anew."""
+    from filelock import FileLock  # a dependency of torch: the test extra installs it
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    key = f"{name}-{TRAIN_STEPS}-{space.name}-{space.dim}-{data.fingerprint()[:16]}"
+    folder = shared / "session-checkpoints" / key
+    folder.mkdir(parents=True, exist_ok=True)
+    path, done = folder / f"{name}.safetensors", folder / "done"
+    with FileLock(str(folder.with_suffix(".lock"))):
+        if not done.is_file():  # a run killed while training leaves no "done": train anew
+            train_checkpoint(path, PROFILES[name], CONVERT[name], data, space)
+            done.touch()
     return path
 
 

@@ -12,14 +12,15 @@ import pytest
 
 from tactus_memory.touch.render import LEGEND_PX
 from tests.helpers.browser import TIMEOUT_MS, first_hit, ready_page, wait_heatmaps_loaded
-from tests.helpers.sensors import HAND, hand, stag, train_checkpoint, windows  # noqa: F401  (fixtures)
+from tests.helpers.sensors import session_checkpoint, stag, windows  # noqa: F401  (fixtures)
 from tests.helpers.servers import Server
 
 pytestmark = pytest.mark.slow
 
 
-def test_the_page_reads_a_hand(tmp_path, stag, windows, minilm_space):  # noqa: F811
-    ck = train_checkpoint(tmp_path / "hand.safetensors", HAND, hand, stag, minilm_space)
+def test_the_page_reads_a_hand(tmp_path, tmp_path_factory, stag, windows, minilm_space):  # noqa: F811
+    # the hand checkpoint of tests/service/test_sensor_serving.py, trained once per session
+    ck = session_checkpoint(tmp_path_factory, "hand", stag, minilm_space)
     server = Server(tmp_path / "memory", tmp_path / "server.log", "--touch", f"hand={ck}")
     raw = windows.of("hand")  # (N, 8, 12, 16)
     try:

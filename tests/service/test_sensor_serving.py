@@ -37,8 +37,8 @@ from tests.helpers.sensors import (  # noqa: F401  (fixtures)
     SKIN,
     Windows,
     hand,
+    session_checkpoint,
     skin,
-    train_checkpoint,
 )
 from tests.helpers.servers import Server
 
@@ -51,12 +51,11 @@ KETTLE = "when was I holding the kettle?"  # no STAG object: only teaching can a
 
 @pytest.fixture(scope="module")
 def checkpoints(tmp_path_factory, stag, minilm_space) -> dict[str, Path]:
-    folder = tmp_path_factory.mktemp("sensors")
+    """Trained once per session (the hand also serves tests/service/test_sensor_browser.py)."""
     return {
-        name: train_checkpoint(folder / f"{name}.safetensors", PROFILES[name], CONVERT[name],
-                               stag, minilm_space)
+        name: session_checkpoint(tmp_path_factory, name, stag, minilm_space)
         for name in ("skin", "hand")
-    }  # fmt: skip
+    }
 
 
 def _above_chance(found: dict[str, str]) -> tuple[float, float]:
