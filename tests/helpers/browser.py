@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from benchmarks.serving import free_port
-from tests.helpers.servers import stop_process, wait_healthy
+from tests.helpers.servers import STARTUP_S, stop_process, wait_healthy
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = os.environ.get("TACTUS_CHROMIUM", "/usr/bin/chromium")
@@ -48,7 +48,6 @@ INSTALL_HINT = (
     "(or point TACTUS_CHROMIUM at a Chromium binary), and the Python driver: "
     "`pip install playwright` (never `playwright install`)"
 )
-STARTUP_S = 180
 VIEWPORT = {"width": 1366, "height": 768}
 
 

@@ -21,7 +21,7 @@ from mcp.client.streamable_http import streamable_http_client
 from benchmarks.serving import free_port, wait_ok
 from tactus_memory.mcp.server import READ_TOOLS, WRITE_TOOLS, build_server
 from tests.helpers.mcp import fill
-from tests.helpers.servers import stop_process
+from tests.helpers.servers import STARTUP_S, stop_process
 from tests.helpers.service import make_memory
 
 #: a call of every read tool, with what its answer must hold
@@ -246,7 +246,7 @@ def test_http_real_store_behind_the_token(real_store, tmp_path) -> None:
         )
     base = f"http://127.0.0.1:{port}"
     try:
-        if wait_ok(proc, base + "/live", 180) is None:
+        if wait_ok(proc, base + "/live", STARTUP_S) is None:
             pytest.fail("tactus mcp --http did not start:\n" + log.read_text()[-3000:])
         body = {"jsonrpc": "2.0", "id": 1, "method": "tools/list"}
         for headers in ({}, {"Authorization": "Bearer wrong"}):

@@ -27,11 +27,10 @@ from mcp.client.streamable_http import streamable_http_client
 from benchmarks.serving import free_port, wait_ok
 from tactus_memory.storage.audit import AuditLog
 from tactus_memory.storage.keys import KeyStore
-from tests.helpers.servers import stop_process
+from tests.helpers.servers import STARTUP_S, stop_process
 
 pytestmark = pytest.mark.slow
 
-STARTUP_S = 180
 TACTUS = [sys.executable, "-c", "from tactus_memory.cli import main; main()"]
 INIT = {
     "jsonrpc": "2.0",

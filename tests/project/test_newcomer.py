@@ -50,13 +50,12 @@ import pytest
 
 from benchmarks.serving import copy_checkout, free_port, wait_ok
 from tests.helpers.doc_snippets import Block, all_blocks, nav_pages
-from tests.helpers.servers import stop_process
+from tests.helpers.servers import STARTUP_S, stop_process
 
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
 VENV = Path(sys.prefix)
-STARTUP_S = 180
 BLOCK_S = 300
 MAKE_RUN = re.compile(r"^make run(\s+#.*)?\n$")
 CURL_FAILS = 'curl() { command curl --fail-with-body -sS "$@"; }\n'

@@ -22,11 +22,10 @@ import httpx
 import pytest
 
 from benchmarks.serving import free_port
-from tests.helpers.servers import stop_process, wait_healthy
+from tests.helpers.servers import STARTUP_S, stop_process, wait_healthy
 
 pytestmark = pytest.mark.slow
 
-STARTUP_S = 180
 #: one server process (the trust checks read its log and its store alone)
 SERVE = [sys.executable, "-c", "from tactus_memory.cli import main; main()", "serve"]
 SERVE += ["--workers", "1"]

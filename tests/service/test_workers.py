@@ -30,10 +30,10 @@ from websockets.exceptions import ConnectionClosed
 
 from benchmarks.serving import free_port, start_serve, stop_process, wait_ok
 from tactus_memory.memory.main import Memory
+from tests.helpers.servers import STARTUP_S
 
 pytestmark = pytest.mark.slow
 
-STARTUP_S = 300
 WINDOW = 8
 
 

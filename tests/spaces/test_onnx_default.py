@@ -21,7 +21,7 @@ from tactus_memory.hashing import file_sha256
 from tactus_memory.settings import Settings
 from tactus_memory.spaces.onnx_runtime import TOUCH_ONNX, TOUCH_SOURCE, OnnxTouch
 from tactus_memory.touch.checkpoint import default_checkpoint_path
-from tests.helpers.servers import touch_and_note_found
+from tests.helpers.servers import STARTUP_S, touch_and_note_found
 
 pytestmark = pytest.mark.slow
 
@@ -127,7 +127,7 @@ def test_tactus_serve_runs_on_onnx_runtime_by_default(
 def test_tactus_serve_torch_keeps_the_torch_server(cache: Path, tmp_path: Path) -> None:
     proc, base, log = _serve(tmp_path, cache, "--torch")
     try:
-        assert wait_ok(proc, base + "/ready", 300, interval=0.2) is not None, log.read_text()
+        assert wait_ok(proc, base + "/ready", STARTUP_S, interval=0.2) is not None, log.read_text()
         maps = Path(f"/proc/{proc.pid}/maps").read_text()
         assert "libtorch" in maps
         assert "models run on:  torch" in log.read_text()
