@@ -9,7 +9,6 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.stats import spearmanr
 
 from tactus_memory.errors import InvalidInputError
 
@@ -132,6 +131,10 @@ def pair_spearman(confusion: np.ndarray, sim: np.ndarray) -> dict[str, Any]:
     a, b = c[off], s[off]
     if np.ptp(a) == 0 or np.ptp(b) == 0:
         return {"rho": None, "p": None, "n_pairs": int(a.size)}
+    # scipy.stats imported here, not at the top: it costs seconds at every pretrain, train and
+    # eval start, and only this rank correlation uses it
+    from scipy.stats import spearmanr
+
     res = spearmanr(a, b)
     return {
         "rho": _nan_to_none(res.statistic),
