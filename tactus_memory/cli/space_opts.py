@@ -50,8 +50,12 @@ SpaceDim = Annotated[
 def fail(message: str) -> NoReturn:
     """One line on stderr, exit status 2 (bad usage or configuration)."""
     from rich.console import Console
+    from rich.markup import escape
 
-    Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {message}", highlight=False)
+    # escaped: a message is text, not markup ("pip install 'tactus-memory[train]'" kept whole)
+    Console(stderr=True, soft_wrap=True).print(
+        f"[bold red]error:[/] {escape(message)}", highlight=False
+    )
     raise typer.Exit(code=2)
 
 

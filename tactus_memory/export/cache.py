@@ -1,9 +1,10 @@
 """The default server's ONNX models: a folder in the user's cache that ``tactus serve`` runs
 on ONNX Runtime (:mod:`tactus_memory.spaces.onnx_runtime`), torch never imported by the server.
 
-* The touch encoder: the shipped checkpoint's graph ships with the package
-  (``touch/checkpoints/tactus-lite-minilm.onnx``, checked against torch by
-  ``tests/spaces/test_onnx_default.py``) and is copied in; another checkpoint is exported.
+* The touch encoder: each shipped checkpoint's graph ships with the package
+  (``touch/checkpoints/tactus-lite-minilm.onnx``, and ``tactus-lite-minilm-demo.onnx`` for
+  ``tactus demo``; checked against torch by ``tests/spaces/test_onnx_default.py``) and is
+  copied in; another checkpoint is exported.
 * MiniLM: its graph is written once, on the first start, from its safetensors weights with
   ``onnx`` alone (:mod:`tactus_memory.export.minilm_graph`), in a child process, and checked
   before the folder is used: against torch where the ``train`` extra is installed, else against
@@ -42,9 +43,12 @@ if TYPE_CHECKING:  # annotations only: numpy is imported inside the functions th
 EXPORT_VERSION = 2
 #: written last, into a folder whose graphs were checked (against torch, or the reference)
 CHECKED = "checked.json"
-#: beside the shipped checkpoint: its ONNX graph, and the record of what it was exported from
+#: beside the shipped checkpoint: its ONNX graph, and the record of what it was exported from;
+#: every shipped checkpoint (the demo's too) has its graph beside it, named like it
 SHIPPED_ONNX = "tactus-lite-minilm.onnx"
 SHIPPED_SOURCE = "tactus-lite-minilm.onnx.json"
+#: the name of a shipped graph's source record, after the graph's (``<stem>.onnx.json``)
+SOURCE_SUFFIX = ".json"
 #: the largest difference to torch's vectors an export may show (measured ~1e-7)
 TOLERANCE = 1e-4
 #: beside this module: MiniLM's vectors of CHECK_TEXTS computed on torch, for a check without it
@@ -62,6 +66,19 @@ def shipped_onnx() -> tuple[Path, dict[str, str]]:
 
     folder = default_checkpoint_path().parent
     return folder / SHIPPED_ONNX, json.loads((folder / SHIPPED_SOURCE).read_text())
+
+
+def shipped_graph(checkpoint_sha256: str) -> tuple[Path, dict[str, str]] | None:
+    """The graph that ships for the checkpoint of ``checkpoint_sha256`` (the default or the
+    demo checkpoint: each has ``<stem>.onnx`` and its source record beside it), or None: a
+    user's checkpoint is exported (which needs torch)."""
+    folder = shipped_onnx()[0].parent
+    for record in sorted(folder.glob("*.onnx" + SOURCE_SUFFIX)):
+        source = json.loads(record.read_text())
+        graph = record.with_name(record.name.removesuffix(SOURCE_SUFFIX))
+        if source.get("checkpoint_sha256") == checkpoint_sha256 and graph.is_file():
+            return graph, source
+    return None
 
 
 def _minilm_key() -> str:
@@ -163,11 +180,13 @@ def export(folder: Path, touch_checkpoint: str | None = None) -> dict[str, objec
         else:
             texts, want = reference_vectors()
         minilm = _max_diff(OnnxMiniLM(tmp).embed_texts(texts), want)
-        graph, source = shipped_onnx()
-        shipped = touch_checkpoint is None or (
-            load_checkpoint(touch_checkpoint, weights=False).sha256 == source["checkpoint_sha256"]
+        shipped = (
+            shipped_onnx()
+            if touch_checkpoint is None
+            else shipped_graph(load_checkpoint(touch_checkpoint, weights=False).sha256)
         )
-        if shipped:
+        if shipped is not None:
+            graph, source = shipped
             shutil.copyfile(graph, tmp / TOUCH_ONNX)
             (tmp / TOUCH_SOURCE).write_text(json.dumps(source, indent=2) + "\n")
         elif torch:

@@ -98,3 +98,16 @@ def test_questions_that_need_no_model_answer_with_no_model_loadable(
     search = out["search"]
     assert search["code"] == 2 and "no model may load here" in search["stderr"], search
     assert "Traceback" not in search["stderr"] + search["stdout"]
+
+
+def test_an_error_line_is_printed_as_written(capsys: pytest.CaptureFixture[str]) -> None:
+    """A failure's one line is text, not markup: brackets in it (an extra's name) stay."""
+    import typer
+
+    from tactus_memory.cli.space_opts import fail
+
+    with pytest.raises(typer.Exit) as exited:
+        fail("exporting needs torch: pip install 'tactus-memory[train]' [bold]x[/]")
+    assert exited.value.exit_code == 2
+    err = capsys.readouterr().err
+    assert "pip install 'tactus-memory[train]' [bold]x[/]" in err and err.count("\n") == 1

@@ -42,6 +42,8 @@ def test_wheel_maps_adapters_and_service_under_tactus_memory(tmp_path: Path) -> 
     # its ONNX graph, which the default server runs (tactus_memory/export/cache.py)
     assert "tactus_memory/touch/checkpoints/tactus-lite-minilm.onnx" in names
     assert "tactus_memory/touch/checkpoints/tactus-lite-minilm.onnx.json" in names
+    assert "tactus_memory/touch/checkpoints/tactus-lite-minilm-demo.onnx" in names
+    assert "tactus_memory/touch/checkpoints/tactus-lite-minilm-demo.onnx.json" in names
     # the demo checkpoint (trained without the demo's recordings) and the measured files beside
     # the checkpoints: the demo's held-out figures, the priors and the precision of a match
     for name in ("tactus-lite-minilm-demo.safetensors", "demo-heldout.json"):

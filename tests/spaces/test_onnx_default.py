@@ -20,7 +20,7 @@ from tactus_memory.export import cache as onnx_cache
 from tactus_memory.hashing import file_sha256
 from tactus_memory.settings import Settings
 from tactus_memory.spaces.onnx_runtime import TOUCH_ONNX, TOUCH_SOURCE, OnnxTouch
-from tactus_memory.touch.checkpoint import default_checkpoint_path
+from tactus_memory.touch.checkpoint import default_checkpoint_path, demo_checkpoint_path
 from tests.helpers.servers import STARTUP_S, touch_and_note_found
 
 pytestmark = pytest.mark.slow
@@ -45,13 +45,21 @@ def cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def test_the_shipped_touch_onnx_is_the_shipped_checkpoint(tmp_path: Path) -> None:
-    graph, source = onnx_cache.shipped_onnx()
+@pytest.mark.parametrize("which", ["default", "demo"])
+def test_the_shipped_touch_onnx_is_the_shipped_checkpoint(tmp_path: Path, which: str) -> None:
+    """Each shipped checkpoint's graph (the demo's too: `tactus demo` runs without torch)."""
+    path = default_checkpoint_path() if which == "default" else demo_checkpoint_path()
+    found = onnx_cache.shipped_graph(file_sha256(path))
+    assert found is not None, f"no graph ships for {path.name}"
+    graph, source = found
+    if which == "default":
+        assert (graph, source) == onnx_cache.shipped_onnx()
     assert graph.is_file() and graph.stat().st_size < 20_000_000  # small: it ships
-    assert source["checkpoint_sha256"] == file_sha256(default_checkpoint_path())
+    assert source["checkpoint_sha256"] == file_sha256(path)
+    assert onnx_cache.shipped_graph("0" * 64) is None  # a user's checkpoint: exported
     shutil.copyfile(graph, tmp_path / TOUCH_ONNX)
     (tmp_path / TOUCH_SOURCE).write_text(json.dumps(source))
-    enc = TactusEncoder()
+    enc = TactusEncoder(path)
     onnx = OnnxTouch(tmp_path, checkpoint_sha256=enc.ckpt.sha256)
     rng = np.random.default_rng(1)
     raw = np.full((5, enc.frames, 32, 32), 512, np.int16)
