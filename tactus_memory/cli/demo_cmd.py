@@ -89,10 +89,10 @@ def demo_recordings(data: Any, meta: dict[str, Any]) -> dict[str, int]:
 def touch_session(stag: Path, memory: Any, start: float, meta: dict[str, Any]) -> list[Question]:
     """Store the held-out recordings (of the checkpoint of ``meta``) of TOUCH_QUESTIONS'
     objects from ``start`` (s); the touch questions, each knowing its recording's span."""
+    from tactus_memory.training.data import load_stag  # no torch: make run installs none
     from tactus_memory.training.stream_eval import build_stream
-    from tactus_memory.training.train import load_data
 
-    data = load_data([stag / SUBSET])
+    data = load_stag(stag / SUBSET)
     recs = list(demo_recordings(data, meta).values())
     if not recs:
         raise ValueError(f"none of the demo checkpoint's held-out recordings is in {stag}")
