@@ -42,9 +42,11 @@ the tuning half's pairs; the held-out half's precision is in the results.
 from __future__ import annotations
 
 import base64
+import contextlib
 import hashlib
 import json
 import threading
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -158,6 +160,31 @@ class Vocabulary:
     taxels: dict[str, int]
 
 
+#: every grasp caption's embedding per space: a function of the space and the rule alone, so
+#: embedded once per process and space (by a server before it is ready, see
+#: :func:`warm_grasp_captions`) and shared by the write path and the search path
+_GRASP_VECTORS: weakref.WeakKeyDictionary[Any, dict[str, np.ndarray]] = weakref.WeakKeyDictionary()
+_GRASP_LOCK = threading.Lock()
+
+
+def warm_grasp_captions(space: Space) -> dict[str, np.ndarray]:
+    """Every grasp caption's (D,) unit embedding in ``space``
+    (:func:`touch.facets.grasp_captions`): one batch on the first call for ``space``, then kept.
+    ``tactus serve`` calls it while loading the touch encoder, so no write or search pays it."""
+    with _GRASP_LOCK:
+        try:
+            got = _GRASP_VECTORS.get(space)
+        except TypeError:  # a space that cannot be weakly referenced: embedded each time
+            got = None
+        if got is None:
+            texts = grasp_captions()
+            vecs = as_unit_rows(space.embed_texts(texts), space.dim, what="captions")
+            got = dict(zip(texts, vecs, strict=True))
+            with contextlib.suppress(TypeError):  # as above: kept where it can be
+                _GRASP_VECTORS[space] = got
+        return got
+
+
 class Captions:
     """A store's caption embeddings (the module docstring): added by writes, rebuilt by
     ``tactus maintain --facets``, searched by the ranked search path."""
@@ -215,11 +242,9 @@ class Captions:
         if key in self._known or self.store.get_meta(key) is not None:
             self._known.add(key)
             return
-        texts = grasp_captions()
-        vecs = as_unit_rows(self.space.embed_texts(texts), self.space.dim, what="captions")
         enc = {
             t: base64.b64encode(v.astype("<f4").tobytes()).decode()
-            for t, v in zip(texts, vecs, strict=True)
+            for t, v in warm_grasp_captions(self.space).items()
         }
         self.store.set_meta(key, json.dumps(enc))
         self._known.add(key)
@@ -426,10 +451,9 @@ class Captions:
             texts = list(enc)
             raw = np.stack([np.frombuffer(base64.b64decode(enc[t]), dtype="<f4") for t in texts])
             vecs = as_unit_rows(raw, self.space.dim, what="captions")
+            out = dict(zip(texts, vecs, strict=True))
         else:
-            texts = grasp_captions()
-            vecs = as_unit_rows(self.space.embed_texts(texts), self.space.dim, what="captions")
-        out = dict(zip(texts, vecs, strict=True))
+            out = warm_grasp_captions(self.space)
         with self._lock:
             self._grasp_vectors = out
         return out

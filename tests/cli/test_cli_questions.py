@@ -20,10 +20,13 @@ from tactus_memory.cli import app
 from tactus_memory.memory.main import Memory
 from tactus_memory.service.app import create_app
 from tactus_memory.settings import Settings
+from tests.helpers.compare import alike
 from tests.helpers.fakes import HashingSpace
 from tests.helpers.kitchen import MUG_GRASPS, S, kitchen_notes
 
 DIM = 64
+#: a score computed in this process and in the server's can differ in its last bits (1e-7 seen)
+SCORE_SLACK = 1e-6
 
 
 def _space(*_a: object, **_k: object) -> HashingSpace:
@@ -112,7 +115,7 @@ def test_url_answers_like_the_store(store: Path, served: str, args: list[str]) -
     local = run(*args, "--json", "--data", str(store))
     remote = run(*args, "--json", "--url", served)
     assert local[0] == remote[0] == 0, (local, remote)
-    assert json.loads(local[1]) == json.loads(remote[1])
+    assert alike(json.loads(local[1]), json.loads(remote[1]), SCORE_SLACK)
     assert json.loads(remote[1])  # something was answered
 
 
@@ -166,7 +169,7 @@ def test_tenant_chooses_whose_memory_locally_and_over_url(store: Path, served: s
         local = run(*args, "--json", "--tenant", "A", "--data", str(store))
         remote = run(*args, "--json", "--tenant", "A", "--url", served)
         assert local[0] == remote[0] == 0, (args, local, remote)
-        assert json.loads(local[1]) == json.loads(remote[1]), args
+        assert alike(json.loads(local[1]), json.loads(remote[1]), SCORE_SLACK), args
         assert S not in local[1] and "other" not in local[1], (args, local[1])
     assert [s["id"] for s in json.loads(run("sessions", "--json", "--tenant", "A",
                                             "--data", str(store))[1])] == ["a-only"]  # fmt: skip

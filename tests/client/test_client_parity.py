@@ -35,6 +35,7 @@ from tactus_memory.memory.main import Memory
 from tactus_memory.search.captions import CAPTION_MIN_COS
 from tactus_memory.touch.facets import caption
 from tactus_memory.touch.regions import STAG_REGIONS
+from tests.helpers import compare
 from tests.helpers.servers import Server
 from tests.helpers.service import window
 
@@ -84,13 +85,7 @@ FLOAT_SLACK = 1.5e-3
 
 def alike(a: Any, b: Any) -> bool:
     """``a == b`` for normalised answers, floats within :data:`FLOAT_SLACK`."""
-    if isinstance(a, float) and isinstance(b, float):
-        return abs(a - b) <= FLOAT_SLACK
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(alike(a[k], b[k]) for k in a)
-    if isinstance(a, list) and isinstance(b, list):
-        return len(a) == len(b) and all(alike(x, y) for x, y in zip(a, b, strict=True))
-    return bool(a == b)
+    return compare.alike(a, b, FLOAT_SLACK)
 
 
 def scenario(mem: Any) -> dict[str, Any]:
