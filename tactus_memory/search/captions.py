@@ -17,9 +17,10 @@ maintain --facets``, which writes the new rule's and removes the old. A grasp's 
 its motion (a brief touch, a long steady hold, slipping) to its own firmness and grip (not its
 regions: :func:`~tactus_memory.touch.facets.caption_words`). Grasps are cut at query time,
 but there are only 72 grasp captions in all
-(:func:`~tactus_memory.touch.facets.grasp_captions`): the first write that brings a caption
-(or the rebuild) embeds them all in one call and keeps them in one meta entry of the rule
-(:data:`GRASP_CAPTIONS_PREFIX`), so no search embeds one.
+(:func:`~tactus_memory.touch.facets.grasp_captions`): they are embedded in one call once per
+process and space (:func:`warm_grasp_captions`, which ``tactus serve`` calls before it is
+ready), and the first write that brings a caption (or the rebuild) keeps them in one meta
+entry of the rule (:data:`GRASP_CAPTIONS_PREFIX`), so no search of a served store embeds one.
 
 **How they are searched.** A text query's embedding (before any sense's query transform) is
 compared with every window caption of the current rule; those at cosine >=
