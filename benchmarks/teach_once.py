@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tactus_memory.training.bar_rule import wilson  # the proportion and its 95 % Wilson interval
+
 ROOT = Path(__file__).resolve().parents[1]
 #: made-up labels, one per object (in sorted object order): no word of any STAG object
 LABELS = (
@@ -64,13 +66,6 @@ def paired(x: np.ndarray, base: np.ndarray) -> dict[str, float]:
     means = d[np.random.default_rng(0).integers(0, len(d), (BOOTSTRAP, len(d)))].mean(axis=1)
     lo, hi = np.quantile(means, [0.025, 0.975])
     return {"value": float(d.mean()), "lo": float(lo), "hi": float(hi), "n": len(d)}
-
-
-def wilson(k: int, n: int) -> dict[str, float]:
-    from scipy.stats import binomtest
-
-    ci = binomtest(k, n).proportion_ci(method="wilson")
-    return {"value": k / n, "k": k, "n": n, "lo": float(ci.low), "hi": float(ci.high)}
 
 
 def trunk_retrieval(enc, lesson, day, objects: list[str]) -> dict[str, dict[str, float]]:
