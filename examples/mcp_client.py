@@ -3,11 +3,12 @@ the store `make run` serves (or joins a `tactus mcp --http` server at --url) and
 tools, places and grasps included.
 
     python examples/mcp_client.py    # from the checkout, after the places guide's example
-    python examples/mcp_client.py --data DIR --timeout 60
+    python examples/mcp_client.py --data DIR --timeout 60 --read-timeout 10
     python examples/mcp_client.py --url http://127.0.0.1:8001/mcp --token TOKEN
 
 `tactus mcp` answers at once and loads its models behind: a tool that needs one answers
-"loading: ..." until they are in, and this client asks again until --timeout.
+"loading: ..." until they are in, and this client asks again until --timeout. Each request
+must be answered within --read-timeout (30 s, the MCP Inspector's limit per request).
 """
 
 import argparse
@@ -33,7 +34,10 @@ def arguments() -> argparse.Namespace:
     ap.add_argument("--command", default="tactus", help="the `tactus` to start (stdio)")
     ap.add_argument("--url", default=None, help="a `tactus mcp --http` server's /mcp URL")
     ap.add_argument("--token", default=None, help="with --url: the server's bearer token")
-    ap.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for answers")
+    ap.add_argument(
+        "--timeout", type=float, default=120.0, help="seconds to ask again while models load"
+    )
+    ap.add_argument("--read-timeout", type=float, default=30.0, help="seconds one request may take")
     return ap.parse_args()
 
 
@@ -53,14 +57,14 @@ async def main(opts: argparse.Namespace) -> None:
         from mcp.client.streamable_http import streamable_http_client
 
         auth = {"Authorization": f"Bearer {opts.token}"}
-        http = httpx2.AsyncClient(headers=auth, timeout=opts.timeout)
+        http = httpx2.AsyncClient(headers=auth, timeout=opts.read_timeout)
         server = streamable_http_client(opts.url, http_client=http)
     elif opts.url:
         server = opts.url
     else:
         server = StdioServerParameters(command=opts.command, args=["mcp", "--data", opts.data])
     deadline = time.monotonic() + opts.timeout
-    async with Client(server, read_timeout_seconds=opts.timeout) as agent:
+    async with Client(server, read_timeout_seconds=opts.read_timeout) as agent:
         print("tools:", ", ".join(tool.name for tool in (await agent.list_tools()).tools))
         for name, args in QUESTIONS:
             answer = await ask(agent, name, args, deadline)

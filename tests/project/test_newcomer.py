@@ -221,7 +221,9 @@ def test_every_snippet_runs_as_written_on_a_fresh_copy(tmp_path: Path) -> None:
         sessions = {s["id"] for s in httpx.get(base + "/sessions").json()["sessions"]}
         assert {"run1", "tour", "kitchen", "walk", "yard", "desk"} <= sessions, sessions
         assert not {"s1", "s2"} & sessions, sessions  # both deleted
-        # examples/mcp_client.py ran as the MCP reference page's block, as written
+        # examples/mcp_client.py ran as the MCP reference page's block, as written: each
+        # request within its default --read-timeout, the Inspector's limit
+        # (test_the_agent_example_grants_a_request_the_inspectors_limit)
         agent = "\n".join(outputs["An agent's calls, from Python"])
         assert agent.startswith("tools: ") and "where " in agent, agent
         agent_calls(clone, served)
@@ -293,6 +295,16 @@ def agent_calls(clone: Path, env: dict[str, str]) -> None:
     assert not got["search"][0] and json.loads(got["search"][1])["hits"], got
     assert not got["where"][0] and json.loads(got["where"][1])["places"], got
     assert all("loading: the memory is still loading" in s for s in got["loading"]), got
+
+
+def test_the_agent_example_grants_a_request_the_inspectors_limit() -> None:
+    """``examples/mcp_client.py``, as the snippet test runs it (no arguments), waits for each
+    request as long as the Inspector's CLI does, :data:`AGENT_TIMEOUT_S`, and no longer."""
+    source = (ROOT / "examples" / "mcp_client.py").read_text()
+    read = re.search(r'"--read-timeout", type=float, default=([0-9.]+)', source)
+    assert read is not None, "examples/mcp_client.py has no --read-timeout"
+    assert float(read.group(1)) == AGENT_TIMEOUT_S
+    assert "read_timeout_seconds=opts.read_timeout" in source
 
 
 def serving_processes(session: int) -> list[int]:
