@@ -142,3 +142,33 @@ def copy_checkout(root: Path, dest: Path) -> None:
         if src.is_file():
             (dest / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, dest / name)
+
+
+#: a ``sitecustomize`` that makes what ``make run`` does not install (the ``train`` extra's
+#: side: torch, sentence-transformers, transformers) unimportable, so a process of a venv that
+#: has them runs as a newcomer's does, its models on ONNX Runtime
+NO_TORCH = """
+import sys
+
+class NoTorch:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in {"torch", "sentence_transformers", "transformers"}:
+            raise ModuleNotFoundError(f"No module named {name!r} (make run installs no torch)")
+        return None
+
+sys.meta_path.insert(0, NoTorch())
+"""
+
+
+def without_torch(env: dict[str, str], folder: Path, tactus: Path) -> dict[str, str]:
+    """``env`` with :data:`NO_TORCH` as the ``sitecustomize`` of every Python process: on
+    ``PYTHONPATH``, and in a ``tactus`` (wrapping the executable ``tactus``) first on ``PATH``
+    for the processes that do not pass the environment on (the MCP SDK's stdio client starts
+    ``tactus mcp`` with PATH and HOME only)."""
+    (folder / "bin").mkdir(parents=True, exist_ok=True)
+    (folder / "sitecustomize.py").write_text(NO_TORCH)
+    wrapper = folder / "bin" / "tactus"
+    wrapper.write_text(f'#!/bin/sh\nPYTHONPATH={folder} exec {tactus} "$@"\n')
+    wrapper.chmod(0o755)
+    path = f"{folder / 'bin'}{os.pathsep}{env.get('PATH', '')}"
+    return {**env, "PYTHONPATH": str(folder), "PATH": path}

@@ -16,10 +16,10 @@ few and each with its reason.
   ``localhost:8000`` / ``127.0.0.1:8000`` are rewritten to that port, nothing else.
   ``tactus`` is on PATH as after ``source .venv/bin/activate`` (a block of its own).
 * The blocks run as in ``make run``'s venv, which installs no PyTorch: torch,
-  sentence-transformers and transformers cannot be imported there (:data:`NO_TORCH`), so the
-  models run on ONNX Runtime as a newcomer's do; a block that runs a command of the ``train``
-  extra (:data:`TRAIN_EXTRA`: PyTorch comes with ``make test``, as Getting started says) runs
-  with the whole venv.
+  sentence-transformers and transformers cannot be imported there
+  (:data:`benchmarks.serving.NO_TORCH`), so the models run on ONNX Runtime as a newcomer's
+  do; a block that runs a command of the ``train`` extra (:data:`TRAIN_EXTRA`: PyTorch comes
+  with ``make test``, as Getting started says) runs with the whole venv.
 * ``curl`` fails on an HTTP error (``--fail-with-body``): a snippet answered 404 fails here.
 * A block followed by a ``prints`` block (```text) must print those lines in that order;
   ``...`` stands for anything. Every block must exit 0.
@@ -49,6 +49,7 @@ import numpy as np
 import pytest
 
 from benchmarks.serving import copy_checkout, free_port, wait_ok
+from benchmarks.serving import without_torch as serving_without_torch
 from tests.helpers.doc_snippets import Block, all_blocks, nav_pages
 from tests.helpers.servers import STARTUP_S, stop_process
 
@@ -67,22 +68,6 @@ NO_RUNNABLE_BLOCK = ("docs/guides/images.md", "docs/guides/training.md")
 #: (./memory, recordings, runs/) land there. The docs build and the layer map read docs/ and
 #: the package folders, which no snippet writes into; the suite's own run checks them
 CHECKOUT_TESTS = ("test_lint_config.py", "test_doc_snippets.py")
-#: what ``make run`` does not install (the ``train`` extra's side, as in
-#: tests/project/test_serve_without_torch.py), made unimportable in the blocks' processes by a
-#: ``sitecustomize`` (:func:`without_torch`): their models then run on ONNX Runtime, as a
-#: newcomer's do (and ~3x cheaper: 7.8 against 22.4 CPU-seconds for the README's Python block
-#: on the loaded 2-core machine)
-NO_TORCH = """
-import sys
-
-class NoTorch:
-    def find_spec(self, name, path=None, target=None):
-        if name.split(".")[0] in {"torch", "sentence_transformers", "transformers"}:
-            raise ModuleNotFoundError(f"No module named {name!r} (make run installs no torch)")
-        return None
-
-sys.meta_path.insert(0, NoTorch())
-"""
 #: blocks running a command of the ``train`` extra (PyTorch): they run with the whole venv
 TRAIN_EXTRA = re.compile(r"^\s*tactus (adapt|export-onnx)\b", re.M)
 
@@ -124,16 +109,12 @@ def shell_env(port: int, home: Path | None = None) -> dict[str, str]:
 
 
 def without_torch(env: dict[str, str], folder: Path) -> dict[str, str]:
-    """``env`` with :data:`NO_TORCH` as the ``sitecustomize`` of every Python process: on
-    ``PYTHONPATH``, and in a ``tactus`` first on ``PATH`` for the processes that do not pass
-    the environment on (the MCP SDK's stdio client starts ``tactus mcp`` with PATH and HOME
-    only)."""
-    (folder / "bin").mkdir(parents=True, exist_ok=True)
-    (folder / "sitecustomize.py").write_text(NO_TORCH)
-    tactus = folder / "bin" / "tactus"
-    tactus.write_text(f'#!/bin/sh\nPYTHONPATH={folder} exec {VENV / "bin" / "tactus"} "$@"\n')
-    tactus.chmod(0o755)
-    return {**env, "PYTHONPATH": str(folder), "PATH": f"{folder / 'bin'}{os.pathsep}{env['PATH']}"}
+    """``env`` with what ``make run`` does not install (the ``train`` extra's side, as in
+    tests/project/test_serve_without_torch.py) unimportable in every Python process
+    (:func:`benchmarks.serving.without_torch`): the blocks' models then run on ONNX Runtime,
+    as a newcomer's do (and ~3x cheaper: 7.8 against 22.4 CPU-seconds for the README's Python
+    block on the loaded 2-core machine)."""
+    return serving_without_torch(env, folder, VENV / "bin" / "tactus")
 
 
 def run_block(block: Block, cwd: Path, port: int, env: dict[str, str]) -> str:
