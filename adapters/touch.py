@@ -162,6 +162,14 @@ class TactusEncoder(WindowedSense):
                 f"(dim {space.dim}) model is fingerprinted {have}"
             )
 
+    def warm(self, space: Space) -> None:
+        """The grasp captions' embeddings in ``space``, which a touch write and a grasp search
+        use (:mod:`tactus_memory.touch.caption_vectors`): 72 texts, once per process and space
+        (a first write that paid them overran a 5-s client timeout in CI)."""
+        from tactus_memory.touch.caption_vectors import grasp_caption_vectors
+
+        grasp_caption_vectors(space)
+
     @classmethod
     def from_pretrained(cls, path: str | os.PathLike[str], **kw: Any) -> TactusEncoder:
         return cls(path, **kw)

@@ -26,7 +26,6 @@ from starlette.concurrency import run_in_threadpool
 
 import tactus_memory
 from tactus_memory.errors import UnknownTenantError
-from tactus_memory.search.captions import warm_grasp_captions
 from tactus_memory.senses.plugins import create_sense, lookup
 from tactus_memory.service.auth import Gate
 from tactus_memory.service.deps import ServiceState, authorize
@@ -179,10 +178,10 @@ def register_default_senses(memory: Any, settings: Settings) -> str | None:
             log.warning("touch disabled: %s", why)
     if "image" not in memory.senses and memory.space.has_vision:
         memory.add_sense(create_sense("image", memory.space))
-    if why is None and "touch" in memory.senses:
-        # the grasp captions' embeddings, before the server is ready: not on a first write or
-        # search (a first write paid it and overran a 5-s client timeout in CI)
-        warm_grasp_captions(memory.space)
+    for sense in list(memory.senses.values()):
+        # what a first write or search would pay (touch: the grasp captions' embeddings),
+        # before the server is ready
+        sense.warm(memory.space)
     return why
 
 

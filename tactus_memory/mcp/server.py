@@ -449,6 +449,8 @@ def warm(memory: Memory) -> None:
     calibrations) now, so the first call is as fast as the next: ``tactus mcp --http`` calls
     this before its port answers."""
     memory.search("warm up", 1)
+    for sense in list(memory.senses.values()):
+        sense.warm(memory.space)  # touch: the grasp captions' embeddings
 
 
 def build_server(

@@ -18,9 +18,10 @@ its motion (a brief touch, a long steady hold, slipping) to its own firmness and
 regions: :func:`~tactus_memory.touch.facets.caption_words`). Grasps are cut at query time,
 but there are only 72 grasp captions in all
 (:func:`~tactus_memory.touch.facets.grasp_captions`): they are embedded in one call once per
-process and space (:func:`warm_grasp_captions`, which ``tactus serve`` calls before it is
-ready), and the first write that brings a caption (or the rebuild) keeps them in one meta
-entry of the rule (:data:`GRASP_CAPTIONS_PREFIX`), so no search of a served store embeds one.
+process and space (:func:`~tactus_memory.touch.caption_vectors.grasp_caption_vectors`, which
+the touch sense's ``warm`` calls before a server is ready), and the first write that brings
+a caption (or the rebuild) keeps them in one meta entry of the rule
+(:data:`GRASP_CAPTIONS_PREFIX`), so no search of a served store embeds one.
 
 **How they are searched.** A text query's embedding (before any sense's query transform) is
 compared with every window caption of the current rule; those at cosine >=
@@ -43,11 +44,9 @@ the tuning half's pairs; the held-out half's precision is in the results.
 from __future__ import annotations
 
 import base64
-import contextlib
 import hashlib
 import json
 import threading
-import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -56,13 +55,13 @@ import numpy as np
 
 from tactus_memory.search.scoring import Calibration, estimate
 from tactus_memory.storage.tables import HIT_COLUMNS
+from tactus_memory.touch.caption_vectors import grasp_caption_vectors
 from tactus_memory.touch.facets import (
     CAPTION_RULE,
     FIRMNESS_BANDS,
     caption_words,
     facet_columns,
     firmness,
-    grasp_captions,
     motion,
     pressure,
 )
@@ -161,31 +160,6 @@ class Vocabulary:
     taxels: dict[str, int]
 
 
-#: every grasp caption's embedding per space: a function of the space and the rule alone, so
-#: embedded once per process and space (by a server before it is ready, see
-#: :func:`warm_grasp_captions`) and shared by the write path and the search path
-_GRASP_VECTORS: weakref.WeakKeyDictionary[Any, dict[str, np.ndarray]] = weakref.WeakKeyDictionary()
-_GRASP_LOCK = threading.Lock()
-
-
-def warm_grasp_captions(space: Space) -> dict[str, np.ndarray]:
-    """Every grasp caption's (D,) unit embedding in ``space``
-    (:func:`touch.facets.grasp_captions`): one batch on the first call for ``space``, then kept.
-    ``tactus serve`` calls it while loading the touch encoder, so no write or search pays it."""
-    with _GRASP_LOCK:
-        try:
-            got = _GRASP_VECTORS.get(space)
-        except TypeError:  # a space that cannot be weakly referenced: embedded each time
-            got = None
-        if got is None:
-            texts = grasp_captions()
-            vecs = as_unit_rows(space.embed_texts(texts), space.dim, what="captions")
-            got = dict(zip(texts, vecs, strict=True))
-            with contextlib.suppress(TypeError):  # as above: kept where it can be
-                _GRASP_VECTORS[space] = got
-        return got
-
-
 class Captions:
     """A store's caption embeddings (the module docstring): added by writes, rebuilt by
     ``tactus maintain --facets``, searched by the ranked search path."""
@@ -245,7 +219,7 @@ class Captions:
             return
         enc = {
             t: base64.b64encode(v.astype("<f4").tobytes()).decode()
-            for t, v in warm_grasp_captions(self.space).items()
+            for t, v in grasp_caption_vectors(self.space).items()
         }
         self.store.set_meta(key, json.dumps(enc))
         self._known.add(key)
@@ -454,7 +428,7 @@ class Captions:
             vecs = as_unit_rows(raw, self.space.dim, what="captions")
             out = dict(zip(texts, vecs, strict=True))
         else:
-            out = warm_grasp_captions(self.space)
+            out = grasp_caption_vectors(self.space)
         with self._lock:
             self._grasp_vectors = out
         return out

@@ -90,6 +90,12 @@ class Sense(ABC):
                 f"(dimension {space.dim})"
             )
 
+    def warm(self, space: Space) -> None:
+        """Load now what this sense's first write or search in ``space`` would otherwise pay
+        (derived embeddings, caches): a server calls it for every live sense before it answers
+        ready (``tactus serve``, ``tactus mcp``). Default: nothing (models load in ``create``)."""
+        return None
+
     @abstractmethod
     def validate(self, item: Any) -> Any:
         """Check one raw item and return its canonical form. Raises ``InvalidInputError``.
