@@ -74,6 +74,18 @@ async def until_answer(agent: Client, name: str, args: dict[str, Any]) -> tuple[
         await anyio.sleep(1.0)
 
 
+async def first_calls(agent: Client, out: dict[str, Any]) -> None:
+    """``sessions`` (no model), then the first ``search`` (an answer, or "loading"), each
+    timed from the previous answer, into ``out``."""
+    t = time.monotonic()
+    sessions = await agent.call_tool("sessions", {})
+    assert not sessions.is_error, sessions.content[0].text
+    out["sessions_s"], t = round(time.monotonic() - t, 2), time.monotonic()
+    first = await agent.call_tool("search", QUERY)
+    out["search_first_s"] = round(time.monotonic() - t, 2)
+    out["search_first_loading"] = first.is_error and "loading:" in first.content[0].text
+
+
 async def fill(command: str, data: Path) -> None:
     server = StdioServerParameters(
         command=command, args=["mcp", "--data", str(data), "--allow-writes"], env=dict(os.environ)
@@ -97,13 +109,8 @@ async def stdio_round(command: str, data: Path) -> dict[str, Any]:
         out["initialize_s"] = round(ready - t0, 2)
         t = time.monotonic()
         await agent.list_tools()
-        out["tools_list_s"], t = round(time.monotonic() - t, 2), time.monotonic()
-        sessions = await agent.call_tool("sessions", {})
-        assert not sessions.is_error, sessions.content[0].text
-        out["sessions_s"], t = round(time.monotonic() - t, 2), time.monotonic()
-        first = await agent.call_tool("search", QUERY)
-        out["search_first_s"] = round(time.monotonic() - t, 2)
-        out["search_first_loading"] = first.is_error and "loading:" in first.content[0].text
+        out["tools_list_s"] = round(time.monotonic() - t, 2)
+        await first_calls(agent, out)
         _, answer = await until_answer(agent, "search", QUERY)
         assert not answer.is_error and json.loads(answer.content[0].text)["hits"], answer
         out["search_answer_s"] = round(time.monotonic() - ready, 2)
@@ -131,13 +138,8 @@ async def http_round(command: str, data: Path, log: Path) -> dict[str, Any]:
         out["port_s"] = round(time.monotonic() - t0, 2)
         t = time.monotonic()
         async with Client(url, read_timeout_seconds=REQUEST_S) as agent:
-            out["initialize_s"], t = round(time.monotonic() - t, 2), time.monotonic()
-            sessions = await agent.call_tool("sessions", {})
-            assert not sessions.is_error, sessions.content[0].text
-            out["sessions_s"], t = round(time.monotonic() - t, 2), time.monotonic()
-            first = await agent.call_tool("search", QUERY)
-            out["search_first_s"] = round(time.monotonic() - t, 2)
-            out["search_first_loading"] = first.is_error and "loading:" in first.content[0].text
+            out["initialize_s"] = round(time.monotonic() - t, 2)
+            await first_calls(agent, out)
     finally:
         stop_process(proc)
     out["load_1_5min_at_end"] = load()
